@@ -1,0 +1,371 @@
+//! Frames: decoded pixels of one exposure, at their native bit depth.
+//!
+//! A [`Frame`] holds interleaved samples (grey or RGB) exactly as the camera wrote them:
+//! 8-bit frames stay `u8`, 16-bit frames stay `u16` and are never squeezed to 8 bits.
+//! Brightness of a sample `k` is `B = k / (2^bits − 1)` in `[0, 1]`.
+//!
+//! Loading applies the EXIF orientation so that every frame of a bracket shares one pixel
+//! grid, refuses images larger than [`Limits`] before allocating their pixels, and names
+//! the file in every error.
+
+use std::io::Cursor;
+use std::path::{Path, PathBuf};
+
+use image::{DynamicImage, ImageReader};
+
+use crate::metadata::{self, Metadata};
+
+/// Bits per sample of a frame.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, serde::Serialize, serde::Deserialize)]
+pub enum BitDepth {
+    /// 8 bits per sample, 256 levels.
+    Eight,
+    /// 16 bits per sample, 65 536 levels.
+    Sixteen,
+}
+
+impl BitDepth {
+    /// Number of bits per sample (8 or 16).
+    pub fn bits(self) -> u32 {
+        match self {
+            BitDepth::Eight => 8,
+            BitDepth::Sixteen => 16,
+        }
+    }
+
+    /// Number of distinct levels, `2^bits` (256 or 65 536).
+    pub fn levels(self) -> usize {
+        1usize << self.bits()
+    }
+
+    /// The largest code, `2^bits − 1` (255 or 65 535); brightness is `code / max_code`.
+    pub fn max_code(self) -> u32 {
+        (1u32 << self.bits()) - 1
+    }
+}
+
+/// Interleaved samples at the frame's native depth.
+#[derive(Debug, Clone, PartialEq)]
+pub enum Samples {
+    /// 8-bit codes.
+    Eight(Vec<u8>),
+    /// 16-bit codes.
+    Sixteen(Vec<u16>),
+}
+
+/// One decoded exposure: `width × height` pixels of `channels` interleaved samples.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Frame {
+    width: u32,
+    height: u32,
+    channels: usize,
+    samples: Samples,
+}
+
+/// Why a frame could not be built or loaded. Every variant names the file when there is one.
+#[derive(Debug, thiserror::Error)]
+pub enum FrameError {
+    /// The file could not be read at all.
+    #[error("{path}: cannot read: {source}")]
+    Read {
+        /// The file.
+        path: PathBuf,
+        /// What the operating system said.
+        source: std::io::Error,
+    },
+    /// The path names a directory, not an image.
+    #[error("{path}: is a directory, not an image file")]
+    Directory {
+        /// The path.
+        path: PathBuf,
+    },
+    /// The file is empty.
+    #[error("{path}: file is empty (0 bytes)")]
+    Empty {
+        /// The file.
+        path: PathBuf,
+    },
+    /// The bytes are not a JPEG, PNG or TIFF.
+    #[error("{path}: not a JPEG, PNG or TIFF image (unrecognised content)")]
+    UnknownFormat {
+        /// The file.
+        path: PathBuf,
+    },
+    /// The header declares more pixels than the limits allow.
+    #[error(
+        "{path}: image of {width}×{height} pixels exceeds the limit of {max_pixels} pixels; refused before decoding"
+    )]
+    TooLarge {
+        /// The file.
+        path: PathBuf,
+        /// Declared width.
+        width: u32,
+        /// Declared height.
+        height: u32,
+        /// The limit in pixels.
+        max_pixels: u64,
+    },
+    /// The decoder failed (truncated or corrupt data).
+    #[error("{path}: cannot decode {format}: {reason}")]
+    Decode {
+        /// The file.
+        path: PathBuf,
+        /// The detected container format.
+        format: String,
+        /// The decoder's message.
+        reason: String,
+    },
+    /// The decoded pixel layout is not one filmback handles (e.g. floating point).
+    #[error("{path}: unsupported pixel layout {layout}: filmback takes 8- or 16-bit grey or RGB")]
+    UnsupportedLayout {
+        /// The file.
+        path: PathBuf,
+        /// The decoder's colour type.
+        layout: String,
+    },
+    /// Samples do not match the declared dimensions (in-memory construction).
+    #[error("sample count {got} does not match {width}×{height}×{channels}")]
+    Shape {
+        /// Width.
+        width: u32,
+        /// Height.
+        height: u32,
+        /// Channels.
+        channels: usize,
+        /// Number of samples supplied.
+        got: usize,
+    },
+}
+
+/// Size limits applied before any pixel buffer is allocated.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct Limits {
+    /// Largest accepted `width × height`.
+    pub max_pixels: u64,
+}
+
+impl Default for Limits {
+    /// 200 megapixels: above every current camera (the largest medium-format backs are
+    /// ~150 MP), small enough that a forged header cannot exhaust memory.
+    fn default() -> Self {
+        Limits {
+            max_pixels: 200_000_000,
+        }
+    }
+}
+
+/// A frame together with what its file said about how it was taken.
+#[derive(Debug, Clone)]
+pub struct LoadedFrame {
+    /// The file it came from.
+    pub path: PathBuf,
+    /// Pixels, oriented upright.
+    pub frame: Frame,
+    /// EXIF metadata (with warnings for anything missing or absurd).
+    pub metadata: Metadata,
+}
+
+impl Frame {
+    /// Builds a frame from interleaved samples; `channels` is 1 (grey) or 3 (RGB).
+    pub fn new(
+        width: u32,
+        height: u32,
+        channels: usize,
+        samples: Samples,
+    ) -> Result<Frame, FrameError> {
+        let got = match &samples {
+            Samples::Eight(v) => v.len(),
+            Samples::Sixteen(v) => v.len(),
+        };
+        let expected = width as usize * height as usize * channels;
+        if !(channels == 1 || channels == 3) || got != expected {
+            return Err(FrameError::Shape {
+                width,
+                height,
+                channels,
+                got,
+            });
+        }
+        Ok(Frame {
+            width,
+            height,
+            channels,
+            samples,
+        })
+    }
+
+    /// Width in pixels.
+    pub fn width(&self) -> u32 {
+        self.width
+    }
+
+    /// Height in pixels.
+    pub fn height(&self) -> u32 {
+        self.height
+    }
+
+    /// Samples per pixel: 1 (grey) or 3 (RGB).
+    pub fn channels(&self) -> usize {
+        self.channels
+    }
+
+    /// Number of pixels, `width × height`.
+    pub fn pixel_count(&self) -> usize {
+        self.width as usize * self.height as usize
+    }
+
+    /// Bit depth of the samples.
+    pub fn bit_depth(&self) -> BitDepth {
+        match self.samples {
+            Samples::Eight(_) => BitDepth::Eight,
+            Samples::Sixteen(_) => BitDepth::Sixteen,
+        }
+    }
+
+    /// The interleaved samples.
+    pub fn samples(&self) -> &Samples {
+        &self.samples
+    }
+
+    /// Code of channel `c` of pixel `(x, y)`, widened to `u32`.
+    pub fn code(&self, x: u32, y: u32, c: usize) -> u32 {
+        let i = (y as usize * self.width as usize + x as usize) * self.channels + c;
+        match &self.samples {
+            Samples::Eight(v) => u32::from(v[i]),
+            Samples::Sixteen(v) => u32::from(v[i]),
+        }
+    }
+
+    /// Brightness `B = code / max_code ∈ [0, 1]` of channel `c` of pixel `(x, y)`.
+    pub fn brightness(&self, x: u32, y: u32, c: usize) -> f64 {
+        f64::from(self.code(x, y, c)) / f64::from(self.bit_depth().max_code())
+    }
+
+    fn from_dynamic(image: DynamicImage, path: &Path) -> Result<Frame, FrameError> {
+        let (width, height) = (image.width(), image.height());
+        let (channels, samples) = match image {
+            DynamicImage::ImageLuma8(b) => (1, Samples::Eight(b.into_raw())),
+            DynamicImage::ImageRgb8(b) => (3, Samples::Eight(b.into_raw())),
+            DynamicImage::ImageLuma16(b) => (1, Samples::Sixteen(b.into_raw())),
+            DynamicImage::ImageRgb16(b) => (3, Samples::Sixteen(b.into_raw())),
+            // Alpha carries no exposure information: drop it, keep the depth.
+            img @ DynamicImage::ImageLumaA8(_) => (1, Samples::Eight(img.into_luma8().into_raw())),
+            img @ DynamicImage::ImageRgba8(_) => (3, Samples::Eight(img.into_rgb8().into_raw())),
+            img @ DynamicImage::ImageLumaA16(_) => {
+                (1, Samples::Sixteen(img.into_luma16().into_raw()))
+            }
+            img @ DynamicImage::ImageRgba16(_) => {
+                (3, Samples::Sixteen(img.into_rgb16().into_raw()))
+            }
+            other => {
+                return Err(FrameError::UnsupportedLayout {
+                    path: path.to_path_buf(),
+                    layout: format!("{:?}", other.color()),
+                });
+            }
+        };
+        Frame::new(width, height, channels, samples)
+    }
+}
+
+/// Reads `path`, its EXIF metadata and its pixels, oriented upright, within [`Limits`].
+///
+/// The container is recognised by content, not by name: a PNG renamed `.jpg` loads as a
+/// PNG, with a warning in its metadata that the extension disagrees.
+pub fn load(path: &Path, limits: Limits) -> Result<LoadedFrame, FrameError> {
+    if path.is_dir() {
+        return Err(FrameError::Directory {
+            path: path.to_path_buf(),
+        });
+    }
+    let bytes = std::fs::read(path).map_err(|source| FrameError::Read {
+        path: path.to_path_buf(),
+        source,
+    })?;
+    decode(path, &bytes, limits)
+}
+
+/// Decodes an image already in memory; `path` is used for messages and the extension check.
+pub fn decode(path: &Path, bytes: &[u8], limits: Limits) -> Result<LoadedFrame, FrameError> {
+    if bytes.is_empty() {
+        return Err(FrameError::Empty {
+            path: path.to_path_buf(),
+        });
+    }
+    let format = match image::guess_format(bytes) {
+        Ok(f @ (image::ImageFormat::Jpeg | image::ImageFormat::Png | image::ImageFormat::Tiff)) => {
+            f
+        }
+        _ => {
+            return Err(FrameError::UnknownFormat {
+                path: path.to_path_buf(),
+            });
+        }
+    };
+    let mut metadata = metadata::read(bytes);
+    if let Some(warning) = extension_mismatch(path, format) {
+        metadata.warnings.push(warning);
+    }
+
+    let decode_error = |reason: String| FrameError::Decode {
+        path: path.to_path_buf(),
+        format: format_name(format).to_string(),
+        reason,
+    };
+    let mut reader = ImageReader::with_format(Cursor::new(bytes), format);
+    let mut image_limits = image::Limits::default();
+    // Dimensions are checked against our own pixel limit below; the allocation limit
+    // covers the decoded buffer (16-bit RGBA at the pixel limit) so no forged header can
+    // make the decoder allocate more.
+    image_limits.max_alloc = Some(limits.max_pixels.saturating_mul(8));
+    reader.limits(image_limits.clone());
+    let (width, height) = reader
+        .into_dimensions()
+        .map_err(|e| decode_error(e.to_string()))?;
+    if u64::from(width) * u64::from(height) > limits.max_pixels {
+        return Err(FrameError::TooLarge {
+            path: path.to_path_buf(),
+            width,
+            height,
+            max_pixels: limits.max_pixels,
+        });
+    }
+    let mut reader = ImageReader::with_format(Cursor::new(bytes), format);
+    reader.limits(image_limits);
+    let mut image = reader.decode().map_err(|e| decode_error(e.to_string()))?;
+    if let Some(orientation) = image::metadata::Orientation::from_exif(metadata.orientation) {
+        image.apply_orientation(orientation);
+    }
+    let frame = Frame::from_dynamic(image, path)?;
+    Ok(LoadedFrame {
+        path: path.to_path_buf(),
+        frame,
+        metadata,
+    })
+}
+
+fn format_name(format: image::ImageFormat) -> &'static str {
+    match format {
+        image::ImageFormat::Jpeg => "JPEG",
+        image::ImageFormat::Png => "PNG",
+        image::ImageFormat::Tiff => "TIFF",
+        _ => "image",
+    }
+}
+
+fn extension_mismatch(path: &Path, format: image::ImageFormat) -> Option<String> {
+    let ext = path.extension()?.to_str()?.to_ascii_lowercase();
+    let expected = match ext.as_str() {
+        "jpg" | "jpeg" | "jpe" => image::ImageFormat::Jpeg,
+        "png" => image::ImageFormat::Png,
+        "tif" | "tiff" => image::ImageFormat::Tiff,
+        _ => return None,
+    };
+    (expected != format).then(|| {
+        format!(
+            "file extension .{ext} does not match its content ({}); read as {}",
+            format_name(format),
+            format_name(format)
+        )
+    })
+}
