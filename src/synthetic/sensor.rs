@@ -66,7 +66,7 @@ fn render<T: Copy + Default + Send>(
     to_code: impl Fn(f64) -> T + Sync,
 ) -> Vec<T> {
     let max_code = f64::from(sensor.bit_depth.max_code());
-    let noisy = sensor.read_noise_dn > 0.0 || sensor.full_well_electrons.is_some();
+    let read_noise = sensor.read_noise_dn > 0.0;
     let row_len = scene.width() as usize * scene.channels();
     let mut codes = vec![T::default(); scene.pixels().len()];
     if row_len == 0 {
@@ -79,13 +79,15 @@ fn render<T: Copy + Default + Send>(
         .for_each(|(row, (out, radiance))| {
             let mut noise = Normals::new(row_seed(sensor.seed, exposure, row));
             for (code, &e) in out.iter_mut().zip(radiance) {
-                let (z1, z2) = if noisy { noise.pair() } else { (0.0, 0.0) };
                 let mut x = (exposure * f64::from(e)).clamp(0.0, 1.0);
                 if let Some(well) = sensor.full_well_electrons {
-                    x = (x + (x / well).sqrt() * z1).clamp(0.0, 1.0);
+                    x = (x + (x / well).sqrt() * noise.next()).clamp(0.0, 1.0);
                 }
-                let b = sensor.curve.brightness(x);
-                let value = (b * max_code + sensor.read_noise_dn * z2).round();
+                let mut value = sensor.curve.brightness(x) * max_code;
+                if read_noise {
+                    value += sensor.read_noise_dn * noise.next();
+                }
+                let value = value.round();
                 // `!(value > 0)` also sends NaN (a NaN exposure) to black.
                 *code = to_code(if value > 0.0 {
                     value.min(max_code)
@@ -137,23 +139,35 @@ impl SplitMix64 {
     }
 }
 
-/// Standard normal pairs by the Box–Muller transform.
-struct Normals(SplitMix64);
+/// Standard normal draws by the Box–Muller transform, each transform giving two.
+struct Normals {
+    source: SplitMix64,
+    spare: Option<f64>,
+}
 
 impl Normals {
     fn new(seed: u64) -> Normals {
-        Normals(SplitMix64(seed))
+        Normals {
+            source: SplitMix64(seed),
+            spare: None,
+        }
     }
 
-    /// Two independent N(0, 1) draws: `r = √(−2 ln u₁)`, `(r cos 2πu₂, r sin 2πu₂)`,
-    /// `u₁ ∈ (0, 1]`, `u₂ ∈ [0, 1)`.
-    fn pair(&mut self) -> (f64, f64) {
-        const UNIT: f64 = 1.0 / (1u64 << 53) as f64;
-        let u1 = ((self.0.next() >> 11) + 1) as f64 * UNIT;
-        let u2 = (self.0.next() >> 11) as f64 * UNIT;
+    /// One N(0, 1) draw. From one 64-bit draw, `u₁ ∈ (0, 1]` and `u₂ ∈ [0, 1)` of 24 bits
+    /// each give `r = √(−2 ln u₁)` and the pair `(r cos 2πu₂, r sin 2πu₂)`, computed in
+    /// `f32` (ample for noise; tails reach 5.7σ).
+    fn next(&mut self) -> f64 {
+        if let Some(z) = self.spare.take() {
+            return z;
+        }
+        const UNIT: f32 = 1.0 / (1u32 << 24) as f32;
+        let bits = self.source.next();
+        let u1 = ((bits >> 40) + 1) as f32 * UNIT;
+        let u2 = ((bits >> 16) & 0xFF_FFFF) as f32 * UNIT;
         let r = (-2.0 * u1.ln()).sqrt();
-        let (sin, cos) = (std::f64::consts::TAU * u2).sin_cos();
-        (r * cos, r * sin)
+        let (sin, cos) = (std::f32::consts::TAU * u2).sin_cos();
+        self.spare = Some(f64::from(r * sin));
+        f64::from(r * cos)
     }
 }
 
