@@ -37,12 +37,15 @@ impl Sensor {
 /// Exposes `scene` on `sensor`: one frame with the scene's channels (RGB for RGB scenes).
 ///
 /// Per sample, with scene radiance `E` and `exposure` `k` (relative, unitless):
-/// 1. normalised exposure `X = clamp(k·E, 0, 1)` (1 is the clipping point);
-/// 2. shot noise, when `full_well_electrons = Some(W)`: the `X·W` collected electrons are
-///    Poisson, approximated by a Gaussian, so `X ← clamp(X + √(X/W)·z₁, 0, 1)`;
+/// 1. signal `S = k·E` in units of the clipping point; with shot noise
+///    (`full_well_electrons = Some(W)`) the `S·W` collected electrons are Poisson,
+///    approximated by a Gaussian: `S ← S + √(S/W)·z₁`;
+/// 2. normalised exposure `X = clamp(S, 0, 1)`;
 /// 3. brightness `B = f(X)` through the response curve;
 /// 4. read noise in output codes and quantisation:
-///    `code = clamp(round(B·max_code + σ_read·z₂), 0, max_code)`, `max_code = 2^bits − 1`.
+///    `code = clamp(round(B·max_code + σ_read·z₂), 0, max_code)`, `max_code = 2^bits − 1`,
+///    except that a clipped sample (`S ≥ 1`) reads exactly `max_code`, as a camera whose
+///    converter clips after the noise does.
 ///
 /// `z₁, z₂` are independent standard normal draws (Box–Muller over splitmix64). The noise
 /// stream of each row is seeded from `(sensor.seed, exposure, row)`: a frame is the same
@@ -79,11 +82,17 @@ fn render<T: Copy + Default + Send>(
         .for_each(|(row, (out, radiance))| {
             let mut noise = Normals::new(row_seed(sensor.seed, exposure, row));
             for (code, &e) in out.iter_mut().zip(radiance) {
-                let mut x = (exposure * f64::from(e)).clamp(0.0, 1.0);
-                if let Some(well) = sensor.full_well_electrons {
-                    x = (x + (x / well).sqrt() * noise.next()).clamp(0.0, 1.0);
+                let mut signal = exposure * f64::from(e);
+                if let Some(well) = sensor.full_well_electrons
+                    && signal > 0.0
+                {
+                    signal += (signal / well).sqrt() * noise.next();
                 }
-                let mut value = sensor.curve.brightness(x) * max_code;
+                if signal >= 1.0 {
+                    *code = to_code(max_code);
+                    continue;
+                }
+                let mut value = sensor.curve.brightness(signal) * max_code;
                 if read_noise {
                     value += sensor.read_noise_dn * noise.next();
                 }
@@ -227,6 +236,22 @@ mod tests {
                     .all(|&c| c == 0.0)
             );
         }
+    }
+
+    #[test]
+    fn clipped_samples_read_full_scale_despite_noise() {
+        let sensor = Sensor {
+            read_noise_dn: 3.0,
+            full_well_electrons: Some(1000.0),
+            seed: 5,
+            ..Sensor::noiseless(ResponseCurve::Srgb, BitDepth::Eight)
+        };
+        let frame = expose(&flat(1.5, 50, 40), 1.0, &sensor);
+        assert!(codes(&frame).iter().all(|&c| c == 255.0));
+        // Just below the clipping point some samples clip and some do not.
+        let frame = expose(&flat(0.999, 50, 40), 1.0, &sensor);
+        let clipped = codes(&frame).iter().filter(|&&c| c == 255.0).count();
+        assert!(clipped > 200 && clipped < 1800, "{clipped} of 2000 clipped");
     }
 
     #[test]
