@@ -209,26 +209,41 @@ fn full_size_scene_timing_and_range() {
     use filmback::synthetic::{Sensor, expose, scene};
     use std::time::Instant;
 
-    let start = Instant::now();
-    let radiance = scene(6000, 4000, 1);
-    let scene_s = start.elapsed().as_secs_f64();
+    // Wall time and this process's CPU time (user + system, from /proc; the machine may be
+    // shared, so CPU seconds / threads is the wall time on otherwise idle cores).
+    let cpu_seconds = || -> Option<f64> {
+        let stat = std::fs::read_to_string("/proc/self/stat").ok()?;
+        let fields: Vec<&str> = stat.rsplit_once(')')?.1.split_whitespace().collect();
+        let ticks: f64 = fields[11].parse::<f64>().ok()? + fields[12].parse::<f64>().ok()?;
+        Some(ticks / 100.0)
+    };
+    let measure = |what: &str, run: &mut dyn FnMut()| {
+        let (start, cpu) = (Instant::now(), cpu_seconds());
+        run();
+        let wall = start.elapsed().as_secs_f64();
+        let cpu = cpu_seconds().zip(cpu).map(|(b, a)| format!("{:.2}", b - a));
+        println!(
+            "{what}: wall {wall:.3} s, CPU {} s",
+            cpu.unwrap_or_else(|| "n/a".into())
+        );
+    };
+    println!("6000x4000 on {} threads", rayon::current_num_threads());
+    let mut radiance = None;
+    measure("scene", &mut || radiance = Some(scene(6000, 4000, 1)));
+    let radiance = radiance.unwrap();
     let sensor = Sensor {
         read_noise_dn: 4.0,
         full_well_electrons: Some(30_000.0),
         seed: 1,
         ..Sensor::noiseless(ResponseCurve::FilmS, BitDepth::Sixteen)
     };
-    let start = Instant::now();
-    let frame = expose(&radiance, 1.0, &sensor);
-    let expose_s = start.elapsed().as_secs_f64();
-    let start = Instant::now();
-    let noiseless = expose(
-        &radiance,
-        1.0,
-        &Sensor::noiseless(ResponseCurve::Srgb, BitDepth::Eight),
-    );
-    let noiseless_s = start.elapsed().as_secs_f64();
-    assert_eq!(frame.pixel_count(), noiseless.pixel_count());
+    measure("expose film-s 16-bit, read + shot noise", &mut || {
+        assert_eq!(expose(&radiance, 1.0, &sensor).pixel_count(), 24_000_000);
+    });
+    let srgb = Sensor::noiseless(ResponseCurve::Srgb, BitDepth::Eight);
+    measure("expose sRGB 8-bit, noiseless", &mut || {
+        assert_eq!(expose(&radiance, 1.0, &srgb).pixel_count(), 24_000_000);
+    });
 
     let mut y: Vec<f64> = radiance
         .pixels()
@@ -238,10 +253,6 @@ fn full_size_scene_timing_and_range() {
     y.sort_unstable_by(f64::total_cmp);
     let at = |p: f64| y[((y.len() - 1) as f64 * p).round() as usize];
     let range = (at(0.999) / at(0.001)).log2();
-    println!(
-        "6000x4000 on {} threads: scene {scene_s:.3} s, expose (film-s, 16-bit, read+shot noise) {expose_s:.3} s, expose (sRGB, 8-bit, noiseless) {noiseless_s:.3} s",
-        rayon::current_num_threads()
-    );
     println!(
         "luminance p0.1 = {:.3e}, p50 = {:.3}, p99.9 = {:.1}: dynamic range {range:.2} stops",
         at(0.001),
