@@ -330,6 +330,11 @@ pub fn decode(path: &Path, bytes: &[u8], limits: Limits) -> Result<LoadedFrame, 
             max_pixels: limits.max_pixels,
         });
     }
+    if format == image::ImageFormat::Jpeg {
+        // The JPEG decoder fills a missing tail with grey rather than failing; a truncated
+        // frame would poison a merge, so refuse it here.
+        jpeg_end_of_image(bytes).map_err(decode_error)?;
+    }
     let mut reader = ImageReader::with_format(Cursor::new(bytes), format);
     reader.limits(image_limits);
     let mut image = reader.decode().map_err(|e| decode_error(e.to_string()))?;
@@ -342,6 +347,55 @@ pub fn decode(path: &Path, bytes: &[u8], limits: Limits) -> Result<LoadedFrame, 
         frame,
         metadata,
     })
+}
+
+/// Walks the JPEG marker structure (segment lengths, then entropy-coded scans) and
+/// checks that the end-of-image marker `FF D9` is reached before the data ends. Stray
+/// bytes between segments are skipped, as libjpeg does; only a missing end is an error.
+fn jpeg_end_of_image(bytes: &[u8]) -> Result<(), String> {
+    let truncated = |at: usize| {
+        Err(format!(
+            "truncated: data ends at byte {at} before the end-of-image marker"
+        ))
+    };
+    let mut i = 2; // after SOI
+    loop {
+        // Next marker: 0xFF (any fill bytes), then a code that is neither 0x00 nor 0xFF.
+        while i < bytes.len() && bytes[i] != 0xFF {
+            i += 1;
+        }
+        while i < bytes.len() && bytes[i] == 0xFF {
+            i += 1;
+        }
+        let Some(&code) = bytes.get(i) else {
+            return truncated(bytes.len());
+        };
+        i += 1;
+        match code {
+            0xD9 => return Ok(()),
+            0x00 | 0x01 | 0xD0..=0xD7 => continue, // stuffed byte, TEM, restart markers
+            _ => {}
+        }
+        let Some(len) = bytes.get(i..i + 2) else {
+            return truncated(bytes.len());
+        };
+        let len = usize::from(u16::from_be_bytes([len[0], len[1]]));
+        if i + len > bytes.len() {
+            return truncated(bytes.len());
+        }
+        i += len;
+        if code == 0xDA {
+            // Entropy-coded data: runs until a marker other than FF00 or a restart.
+            loop {
+                match bytes.get(i..i + 2) {
+                    None => return truncated(bytes.len()),
+                    Some([0xFF, 0x00 | 0xD0..=0xD7 | 0xFF]) => i += 1,
+                    Some([0xFF, _]) => break,
+                    Some(_) => i += 1,
+                }
+            }
+        }
+    }
 }
 
 fn format_name(format: image::ImageFormat) -> &'static str {
