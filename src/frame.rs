@@ -79,6 +79,23 @@ pub enum FrameError {
         /// The path.
         path: PathBuf,
     },
+    /// The path names something that is neither a regular file nor a directory (a FIFO,
+    /// a device): reading it could block forever.
+    #[error("{path}: not a regular file")]
+    NotAFile {
+        /// The path.
+        path: PathBuf,
+    },
+    /// The file is larger than any image within the limits could be.
+    #[error("{path}: file of {bytes} bytes exceeds the limit of {max_bytes} bytes; not read")]
+    FileTooLarge {
+        /// The file.
+        path: PathBuf,
+        /// Its size.
+        bytes: u64,
+        /// The limit, [`Limits::max_file_bytes`].
+        max_bytes: u64,
+    },
     /// The file is empty.
     #[error("{path}: file is empty (0 bytes)")]
     Empty {
@@ -151,6 +168,14 @@ impl Default for Limits {
         Limits {
             max_pixels: 200_000_000,
         }
+    }
+}
+
+impl Limits {
+    /// Largest file read, in bytes: `8 · max_pixels + 64 MiB`, room for uncompressed
+    /// 16-bit RGBA at the pixel limit plus metadata and thumbnails.
+    pub fn max_file_bytes(&self) -> u64 {
+        self.max_pixels.saturating_mul(8).saturating_add(64 << 20)
     }
 }
 
@@ -273,15 +298,36 @@ impl Frame {
 /// The container is recognised by content, not by name: a PNG renamed `.jpg` loads as a
 /// PNG, with a warning in its metadata that the extension disagrees.
 pub fn load(path: &Path, limits: Limits) -> Result<LoadedFrame, FrameError> {
-    if path.is_dir() {
+    use std::io::Read;
+    let read_error = |source| FrameError::Read {
+        path: path.to_path_buf(),
+        source,
+    };
+    let info = std::fs::metadata(path).map_err(read_error)?;
+    if info.is_dir() {
         return Err(FrameError::Directory {
             path: path.to_path_buf(),
         });
     }
-    let bytes = std::fs::read(path).map_err(|source| FrameError::Read {
-        path: path.to_path_buf(),
-        source,
-    })?;
+    if !info.is_file() {
+        // A FIFO or a device would block or never end.
+        return Err(FrameError::NotAFile {
+            path: path.to_path_buf(),
+        });
+    }
+    let max_bytes = limits.max_file_bytes();
+    if info.len() > max_bytes {
+        return Err(FrameError::FileTooLarge {
+            path: path.to_path_buf(),
+            bytes: info.len(),
+            max_bytes,
+        });
+    }
+    let mut bytes = Vec::new();
+    // `take` also bounds a file that grows while it is read.
+    std::fs::File::open(path)
+        .and_then(|file| file.take(max_bytes).read_to_end(&mut bytes))
+        .map_err(read_error)?;
     decode(path, &bytes, limits)
 }
 

@@ -618,6 +618,32 @@ fn directory_passed_as_a_file() {
     assert_bad_file(&bad, "is a directory");
 }
 
+#[cfg(unix)]
+#[test]
+fn fifo_is_refused_without_blocking() {
+    let dir = tempfile::tempdir().unwrap();
+    let bad = dir.path().join("pipe.jpg");
+    let made = Command::new("mkfifo").arg(&bad).status();
+    if !made.is_ok_and(|s| s.success()) {
+        println!("note: mkfifo unavailable: FIFO case skipped");
+        return;
+    }
+    assert_bad_file(&bad, "not a regular file");
+}
+
+#[test]
+fn file_larger_than_the_limits_is_not_read() {
+    let dir = tempfile::tempdir().unwrap();
+    let path = good_png(dir.path(), "big.png");
+    let limits = Limits { max_pixels: 0 };
+    // Grow the file (sparsely) just past 8·0 + 64 MiB.
+    let file = std::fs::OpenOptions::new().write(true).open(&path).unwrap();
+    file.set_len(limits.max_file_bytes() + 1).unwrap();
+    let err = frame::load(&path, limits).unwrap_err();
+    assert!(matches!(err, FrameError::FileTooLarge { .. }), "{err}");
+    assert!(err.to_string().contains("big.png"), "{err}");
+}
+
 #[test]
 fn missing_file() {
     let dir = tempfile::tempdir().unwrap();
