@@ -147,11 +147,12 @@ fn tiff_bytes(
     layout: Layout,
     samples: &Samples,
     exif: &[Field],
+    little_endian: bool,
 ) -> Vec<u8> {
-    let little_endian = true;
     let strip: Vec<u8> = match samples {
         Samples::Eight(v) => v.clone(),
-        Samples::Sixteen(v) => v.iter().flat_map(|s| s.to_le_bytes()).collect(),
+        Samples::Sixteen(v) if little_endian => v.iter().flat_map(|s| s.to_le_bytes()).collect(),
+        Samples::Sixteen(v) => v.iter().flat_map(|s| s.to_be_bytes()).collect(),
     };
     let bits = layout.depth.bits() as u16;
     let image_fields = [
@@ -413,7 +414,14 @@ fn png_and_tiff_keep_8_and_16_bit_grey_and_rgb_exactly() {
         let samples = pattern(w, h, layout);
         let files = [
             ("png", png_bytes(w, h, layout, &samples, &[])),
-            ("tif", tiff_bytes(w, h, layout, &samples, &shot_exif(1))),
+            (
+                "tif",
+                tiff_bytes(w, h, layout, &samples, &shot_exif(1), true),
+            ),
+            (
+                "tiff",
+                tiff_bytes(w, h, layout, &samples, &shot_exif(1), false),
+            ),
         ];
         for (ext, bytes) in files {
             let path = write(dir.path(), &format!("frame.{ext}"), &bytes);
@@ -507,7 +515,10 @@ fn all_eight_orientations_load_to_the_same_upright_grid_png_and_tiff() {
                     "png",
                     png_bytes(sw, sh, layout, &samples, &exif_block(&exif)),
                 ),
-                ("tif", tiff_bytes(sw, sh, layout, &samples, &exif)),
+                (
+                    "tif",
+                    tiff_bytes(sw, sh, layout, &samples, &exif, o % 2 == 0),
+                ),
             ];
             for (ext, bytes) in files {
                 let name = format!("o{o}.{ext}");
