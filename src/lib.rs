@@ -12,3 +12,4 @@ pub mod frame;
 pub mod metadata;
 pub mod radiance;
 pub mod response;
+pub mod synthetic;
