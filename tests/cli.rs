@@ -753,3 +753,75 @@ fn size_limit_is_configurable() {
     );
     assert!(frame::decode(Path::new("a.png"), &bytes, Limits { max_pixels: 48 }).is_ok());
 }
+
+// ---------------------------------------------------------------------------------------
+// End to end with the synthetic renderer's writer
+// ---------------------------------------------------------------------------------------
+
+#[test]
+fn inspect_json_reads_back_synthetic_frames_in_every_encoding() {
+    use filmback::metadata::{Camera, CaptureTime, Exposure};
+    use filmback::synthetic::{self, Encoding, ResponseCurve, Sensor, Shot};
+
+    let dir = tempfile::tempdir().unwrap();
+    let scene = synthetic::scene(48, 32, 7);
+    // ISO 102400 is above 65534: written as 65535 plus RecommendedExposureIndex.
+    let shot = Shot {
+        camera: Camera {
+            make: Some("Synthetic".into()),
+            model: Some("Bracket One".into()),
+            serial: Some("SN-0042".into()),
+            lens: None,
+        },
+        exposure: Exposure {
+            time_s: Some(1.0 / 8000.0),
+            f_number: Some(16.0),
+            iso: Some(102_400.0),
+        },
+        captured_at: CaptureTime {
+            year: 2024,
+            month: 2,
+            day: 29,
+            hour: 23,
+            minute: 59,
+            second: 59,
+            nanos: Some(250_000_000),
+            offset_minutes: Some(-330),
+        },
+    };
+    let cases = [
+        (Encoding::Jpeg { quality: 90 }, BitDepth::Eight, "shot.jpg"),
+        (Encoding::Png, BitDepth::Sixteen, "shot.png"),
+        (Encoding::Tiff, BitDepth::Sixteen, "shot.tif"),
+    ];
+    let mut paths = Vec::new();
+    for (encoding, depth, name) in cases {
+        let frame = synthetic::expose(&scene, 1.0, &Sensor::noiseless(ResponseCurve::Srgb, depth));
+        let path = dir.path().join(name);
+        synthetic::write(&path, &frame, &shot, encoding).unwrap();
+        paths.push((path, depth));
+    }
+    let files: Vec<&Path> = paths.iter().map(|(p, _)| p.as_path()).collect();
+    let run = inspect_json(&files);
+    assert_eq!(run.status, 0, "{}", run.stderr);
+    for ((path, depth), r) in paths.iter().zip(run.json.as_array().unwrap()) {
+        let relative = (1.0 / 8000.0) * 102_400.0 / 256.0;
+        let expected = serde_json::json!({
+            "path": path.display().to_string(),
+            "width": 48,
+            "height": 32,
+            "bit_depth": depth.bits(),
+            "channels": 3,
+            "camera": { "make": "Synthetic", "model": "Bracket One", "serial": "SN-0042" },
+            "exposure": {
+                "time_s": 1.0 / 8000.0,
+                "f_number": 16.0,
+                "iso": 102_400.0,
+                "relative_exposure": relative,
+            },
+            "captured_at": "2024-02-29T23:59:59.25-05:30",
+            "warnings": [],
+        });
+        assert_eq!(r, &expected, "{}", path.display());
+    }
+}
