@@ -368,6 +368,9 @@ pub fn decode(path: &Path, bytes: &[u8], limits: Limits) -> Result<LoadedFrame, 
     let (width, height) = reader
         .into_dimensions()
         .map_err(|e| decode_error(e.to_string()))?;
+    if width == 0 || height == 0 {
+        return Err(decode_error(format!("no pixels ({width}×{height})")));
+    }
     if u64::from(width) * u64::from(height) > limits.max_pixels {
         return Err(FrameError::TooLarge {
             path: path.to_path_buf(),

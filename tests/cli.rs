@@ -594,6 +594,44 @@ fn truncated_jpeg() {
 }
 
 #[test]
+fn truncated_png_and_tiff() {
+    let dir = tempfile::tempdir().unwrap();
+    let samples = pattern(64, 48, RGB16);
+    let png = png_bytes(64, 48, RGB16, &samples, &[]);
+    let tiff = tiff_bytes(64, 48, RGB16, &samples, &shot_exif(1), true);
+    for (name, bytes, reason) in [
+        ("cut.png", &png, "cannot decode PNG"),
+        ("cut.tif", &tiff, "cannot decode TIFF"),
+    ] {
+        let bad = write(dir.path(), name, &bytes[..bytes.len() * 2 / 3]);
+        assert_bad_file(&bad, reason);
+    }
+}
+
+#[test]
+fn zero_width_header() {
+    let mut t = b"II*\0".to_vec();
+    t.extend_from_slice(&8u32.to_le_bytes());
+    let entries: [(u16, u16, u32, u32); 7] = [
+        (256, 4, 1, 0),  // ImageWidth 0
+        (257, 4, 1, 16), // ImageLength
+        (258, 3, 1, 8),
+        (259, 3, 1, 1),
+        (262, 3, 1, 1),
+        (273, 4, 1, 8),
+        (279, 4, 1, 0),
+    ];
+    t.extend_from_slice(&(entries.len() as u16).to_le_bytes());
+    for (tag, kind, count, value) in entries {
+        ifd_entry(&mut t, tag, kind, count, value);
+    }
+    t.extend_from_slice(&0u32.to_le_bytes());
+    let dir = tempfile::tempdir().unwrap();
+    let bad = write(dir.path(), "empty-image.tif", &t);
+    assert_bad_file(&bad, "cannot decode TIFF");
+}
+
+#[test]
 fn png_renamed_jpg_loads_by_content_with_a_warning() {
     let dir = tempfile::tempdir().unwrap();
     let png = png_bytes(8, 6, RGB8, &pattern(8, 6, RGB8), &[]);
