@@ -5,8 +5,9 @@
 //! Brightness of a sample `k` is `B = k / (2^bits − 1)` in `[0, 1]`.
 //!
 //! Loading applies the EXIF orientation so that every frame of a bracket shares one pixel
-//! grid, refuses images larger than [`Limits`] before allocating their pixels, and names
-//! the file in every error.
+//! grid, refuses images larger than [`Limits`] before allocating their pixels (and files
+//! larger than any such image before reading them), refuses a truncated file rather than
+//! returning a frame padded with grey, and names the file in every error.
 
 use std::io::Cursor;
 use std::path::{Path, PathBuf};
