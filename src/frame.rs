@@ -5,8 +5,9 @@
 //! Brightness of a sample `k` is `B = k / (2^bits − 1)` in `[0, 1]`.
 //!
 //! Loading applies the EXIF orientation so that every frame of a bracket shares one pixel
-//! grid, refuses images larger than [`Limits`] before allocating their pixels, and names
-//! the file in every error.
+//! grid, refuses images larger than [`Limits`] before allocating their pixels (and files
+//! larger than any such image before reading them), refuses a truncated file rather than
+//! returning a frame padded with grey, and names the file in every error.
 
 use std::io::Cursor;
 use std::path::{Path, PathBuf};
@@ -78,6 +79,23 @@ pub enum FrameError {
     Directory {
         /// The path.
         path: PathBuf,
+    },
+    /// The path names something that is neither a regular file nor a directory (a FIFO,
+    /// a device): reading it could block forever.
+    #[error("{path}: not a regular file")]
+    NotAFile {
+        /// The path.
+        path: PathBuf,
+    },
+    /// The file is larger than any image within the limits could be.
+    #[error("{path}: file of {bytes} bytes exceeds the limit of {max_bytes} bytes; not read")]
+    FileTooLarge {
+        /// The file.
+        path: PathBuf,
+        /// Its size.
+        bytes: u64,
+        /// The limit, [`Limits::max_file_bytes`].
+        max_bytes: u64,
     },
     /// The file is empty.
     #[error("{path}: file is empty (0 bytes)")]
@@ -151,6 +169,14 @@ impl Default for Limits {
         Limits {
             max_pixels: 200_000_000,
         }
+    }
+}
+
+impl Limits {
+    /// Largest file read, in bytes: `8 · max_pixels + 64 MiB`, room for uncompressed
+    /// 16-bit RGBA at the pixel limit plus metadata and thumbnails.
+    pub fn max_file_bytes(&self) -> u64 {
+        self.max_pixels.saturating_mul(8).saturating_add(64 << 20)
     }
 }
 
@@ -273,15 +299,36 @@ impl Frame {
 /// The container is recognised by content, not by name: a PNG renamed `.jpg` loads as a
 /// PNG, with a warning in its metadata that the extension disagrees.
 pub fn load(path: &Path, limits: Limits) -> Result<LoadedFrame, FrameError> {
-    if path.is_dir() {
+    use std::io::Read;
+    let read_error = |source| FrameError::Read {
+        path: path.to_path_buf(),
+        source,
+    };
+    let info = std::fs::metadata(path).map_err(read_error)?;
+    if info.is_dir() {
         return Err(FrameError::Directory {
             path: path.to_path_buf(),
         });
     }
-    let bytes = std::fs::read(path).map_err(|source| FrameError::Read {
-        path: path.to_path_buf(),
-        source,
-    })?;
+    if !info.is_file() {
+        // A FIFO or a device would block or never end.
+        return Err(FrameError::NotAFile {
+            path: path.to_path_buf(),
+        });
+    }
+    let max_bytes = limits.max_file_bytes();
+    if info.len() > max_bytes {
+        return Err(FrameError::FileTooLarge {
+            path: path.to_path_buf(),
+            bytes: info.len(),
+            max_bytes,
+        });
+    }
+    let mut bytes = Vec::new();
+    // `take` also bounds a file that grows while it is read.
+    std::fs::File::open(path)
+        .and_then(|file| file.take(max_bytes).read_to_end(&mut bytes))
+        .map_err(read_error)?;
     decode(path, &bytes, limits)
 }
 
@@ -322,6 +369,9 @@ pub fn decode(path: &Path, bytes: &[u8], limits: Limits) -> Result<LoadedFrame, 
     let (width, height) = reader
         .into_dimensions()
         .map_err(|e| decode_error(e.to_string()))?;
+    if width == 0 || height == 0 {
+        return Err(decode_error(format!("no pixels ({width}×{height})")));
+    }
     if u64::from(width) * u64::from(height) > limits.max_pixels {
         return Err(FrameError::TooLarge {
             path: path.to_path_buf(),
@@ -329,6 +379,11 @@ pub fn decode(path: &Path, bytes: &[u8], limits: Limits) -> Result<LoadedFrame, 
             height,
             max_pixels: limits.max_pixels,
         });
+    }
+    if format == image::ImageFormat::Jpeg {
+        // The JPEG decoder fills a missing tail with grey rather than failing; a truncated
+        // frame would poison a merge, so refuse it here.
+        jpeg_end_of_image(bytes).map_err(decode_error)?;
     }
     let mut reader = ImageReader::with_format(Cursor::new(bytes), format);
     reader.limits(image_limits);
@@ -342,6 +397,55 @@ pub fn decode(path: &Path, bytes: &[u8], limits: Limits) -> Result<LoadedFrame, 
         frame,
         metadata,
     })
+}
+
+/// Walks the JPEG marker structure (segment lengths, then entropy-coded scans) and
+/// checks that the end-of-image marker `FF D9` is reached before the data ends. Stray
+/// bytes between segments are skipped, as libjpeg does; only a missing end is an error.
+fn jpeg_end_of_image(bytes: &[u8]) -> Result<(), String> {
+    let truncated = |at: usize| {
+        Err(format!(
+            "truncated: data ends at byte {at} before the end-of-image marker"
+        ))
+    };
+    let mut i = 2; // after SOI
+    loop {
+        // Next marker: 0xFF (any fill bytes), then a code that is neither 0x00 nor 0xFF.
+        while i < bytes.len() && bytes[i] != 0xFF {
+            i += 1;
+        }
+        while i < bytes.len() && bytes[i] == 0xFF {
+            i += 1;
+        }
+        let Some(&code) = bytes.get(i) else {
+            return truncated(bytes.len());
+        };
+        i += 1;
+        match code {
+            0xD9 => return Ok(()),
+            0x00 | 0x01 | 0xD0..=0xD7 => continue, // stuffed byte, TEM, restart markers
+            _ => {}
+        }
+        let Some(len) = bytes.get(i..i + 2) else {
+            return truncated(bytes.len());
+        };
+        let len = usize::from(u16::from_be_bytes([len[0], len[1]]));
+        if i + len > bytes.len() {
+            return truncated(bytes.len());
+        }
+        i += len;
+        if code == 0xDA {
+            // Entropy-coded data: runs until a marker other than FF00 or a restart.
+            loop {
+                match bytes.get(i..i + 2) {
+                    None => return truncated(bytes.len()),
+                    Some([0xFF, 0x00 | 0xD0..=0xD7 | 0xFF]) => i += 1,
+                    Some([0xFF, _]) => break,
+                    Some(_) => i += 1,
+                }
+            }
+        }
+    }
 }
 
 fn format_name(format: image::ImageFormat) -> &'static str {

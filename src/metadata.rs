@@ -161,8 +161,21 @@ impl Default for Metadata {
 /// problems become warnings and unknown values.
 pub fn read(bytes: &[u8]) -> Metadata {
     let mut meta = Metadata::default();
-    let exif = match exif::Reader::new().read_from_container(&mut Cursor::new(bytes)) {
+    let mut reader = exif::Reader::new();
+    // One broken IFD (say a GPS pointer outside the file) must not hide the exposure tags
+    // that were read fine: keep the partial result and say what was skipped.
+    reader.continue_on_error(true);
+    let exif = match reader.read_from_container(&mut Cursor::new(bytes)) {
         Ok(e) => e,
+        Err(exif::Error::PartialResult(partial)) => {
+            let (exif, errors) = partial.into_inner();
+            let reasons: Vec<String> = errors.iter().map(ToString::to_string).collect();
+            meta.warnings.push(format!(
+                "EXIF partly unreadable ({}): tags there are ignored",
+                reasons.join("; ")
+            ));
+            exif
+        }
         Err(exif::Error::NotFound(_)) => {
             meta.warnings
                 .push("no EXIF data: camera, exposure and capture time unknown".to_string());
@@ -258,26 +271,41 @@ impl TagReader<'_> {
         }
     }
 
-    /// ISO from PhotographicSensitivity (0x8827); 65535 means "see
-    /// RecommendedExposureIndex / ISOSpeed" (EXIF 2.3).
+    /// ISO from PhotographicSensitivity (0x8827, formerly ISOSpeedRatings). The value
+    /// 65535 means "65535 or more: see RecommendedExposureIndex / ISOSpeed" (EXIF 2.3), and
+    /// those two tags are also used when 0x8827 is missing. Zero or non-finite is absurd.
     fn iso(&mut self) -> Option<f64> {
-        let primary = self.number(Tag::PhotographicSensitivity);
+        const SATURATED: f64 = 65535.0;
+        let primary = self
+            .field(Tag::PhotographicSensitivity)
+            .map(|_| self.number(Tag::PhotographicSensitivity));
         match primary {
-            Some(v) if v > 0.0 && v < 65535.0 => return Some(v),
-            Some(0.0) => {
-                self.warnings
-                    .push("EXIF PhotographicSensitivity = 0 is absurd: ISO unknown".to_string());
+            Some(Some(v)) if v.is_finite() && v > 0.0 && v < SATURATED => return Some(v),
+            Some(Some(v)) if v != SATURATED => {
+                self.warnings.push(format!(
+                    "EXIF PhotographicSensitivity = {v} is absurd (expected 1..65535): ISO unknown"
+                ));
+                return None;
+            }
+            Some(None) => {
+                self.warnings.push(
+                    "EXIF PhotographicSensitivity has no numeric value: ISO unknown".to_string(),
+                );
                 return None;
             }
             _ => {}
         }
         for tag in [Tag::RecommendedExposureIndex, Tag::ISOSpeed] {
-            if let Some(v) = self.number(tag).filter(|v| *v > 0.0 && v.is_finite()) {
-                return Some(v);
+            match self.number(tag) {
+                Some(v) if v.is_finite() && v > 0.0 => return Some(v),
+                Some(v) => self
+                    .warnings
+                    .push(format!("EXIF {tag} = {v} is absurd: ignored")),
+                None => {}
             }
         }
         self.warnings.push(if primary.is_some() {
-            "EXIF PhotographicSensitivity = 65535 and no RecommendedExposureIndex/ISOSpeed: ISO unknown"
+            "EXIF PhotographicSensitivity = 65535 (saturated) and no RecommendedExposureIndex or ISOSpeed: ISO unknown"
                 .to_string()
         } else {
             "EXIF PhotographicSensitivity missing: ISO unknown".to_string()
@@ -286,13 +314,21 @@ impl TagReader<'_> {
     }
 
     fn capture_time(&mut self) -> Option<CaptureTime> {
-        let field = self.field(Tag::DateTimeOriginal)?;
+        let Some(field) = self.field(Tag::DateTimeOriginal) else {
+            self.warnings
+                .push("EXIF DateTimeOriginal missing: capture time unknown".to_string());
+            return None;
+        };
         let Value::Ascii(parts) = &field.value else {
             self.warnings
                 .push("EXIF DateTimeOriginal is not text: capture time unknown".to_string());
             return None;
         };
-        let raw = parts.first()?;
+        let Some(raw) = parts.first() else {
+            self.warnings
+                .push("EXIF DateTimeOriginal is empty: capture time unknown".to_string());
+            return None;
+        };
         let dt = match exif::DateTime::from_ascii(raw) {
             Ok(dt) => dt,
             Err(e) => {
@@ -305,7 +341,7 @@ impl TagReader<'_> {
         };
         let valid = (1..=9999).contains(&dt.year)
             && (1..=12).contains(&dt.month)
-            && (1..=31).contains(&dt.day)
+            && (1..=days_in_month(dt.year, dt.month)).contains(&dt.day)
             && dt.hour < 24
             && dt.minute < 60
             && dt.second <= 60;
@@ -316,18 +352,26 @@ impl TagReader<'_> {
             ));
             return None;
         }
-        let nanos = self
-            .field(Tag::SubSecTimeOriginal)
-            .and_then(|f| match &f.value {
-                Value::Ascii(p) => p.first().and_then(|digits| subsec_nanos(digits)),
-                _ => None,
-            });
-        let offset_minutes = self
-            .field(Tag::OffsetTimeOriginal)
-            .and_then(|f| match &f.value {
-                Value::Ascii(p) => p.first().and_then(|s| parse_offset(s)),
-                _ => None,
-            });
+        let nanos = self.ascii(Tag::SubSecTimeOriginal).and_then(|digits| {
+            let nanos = subsec_nanos(&digits);
+            if nanos.is_none() {
+                self.warnings.push(format!(
+                    "EXIF SubSecTimeOriginal {:?} is not digits: sub-seconds unknown",
+                    String::from_utf8_lossy(&digits)
+                ));
+            }
+            nanos
+        });
+        let offset_minutes = self.ascii(Tag::OffsetTimeOriginal).and_then(|text| {
+            let offset = parse_offset(&text);
+            if offset.is_none() {
+                self.warnings.push(format!(
+                    "EXIF OffsetTimeOriginal {:?} is not ±HH:MM: UTC offset unknown",
+                    String::from_utf8_lossy(&text)
+                ));
+            }
+            offset
+        });
         Some(CaptureTime {
             year: dt.year,
             month: dt.month,
@@ -338,6 +382,20 @@ impl TagReader<'_> {
             nanos,
             offset_minutes,
         })
+    }
+
+    /// The first string of an ASCII field, without trailing NULs and blanks; `None` when
+    /// the tag is absent or blank (cameras pad unused fields with spaces).
+    fn ascii(&self, tag: Tag) -> Option<Vec<u8>> {
+        let Value::Ascii(parts) = &self.field(tag)?.value else {
+            return None;
+        };
+        let text = parts.first()?;
+        let end = text
+            .iter()
+            .rposition(|&c| c != 0 && c != b' ')
+            .map_or(0, |i| i + 1);
+        (end > 0).then(|| text[..end].to_vec())
     }
 
     fn orientation(&mut self) -> u8 {
@@ -354,19 +412,27 @@ impl TagReader<'_> {
     }
 }
 
-/// `"123"` → 0.123 s in nanoseconds; digits only, at most 9 used.
+/// Days in `month` of `year` (proleptic Gregorian).
+fn days_in_month(year: u16, month: u8) -> u8 {
+    match month {
+        2 if year.is_multiple_of(4) && (!year.is_multiple_of(100) || year.is_multiple_of(400)) => {
+            29
+        }
+        2 => 28,
+        4 | 6 | 9 | 11 => 30,
+        _ => 31,
+    }
+}
+
+/// `"123"` → 0.123 s in nanoseconds; digits only (anything else is unreadable), at most
+/// 9 used.
 fn subsec_nanos(digits: &[u8]) -> Option<u32> {
-    let digits: Vec<u8> = digits
-        .iter()
-        .copied()
-        .take_while(u8::is_ascii_digit)
-        .take(9)
-        .collect();
-    if digits.is_empty() {
+    if digits.is_empty() || !digits.iter().all(u8::is_ascii_digit) {
         return None;
     }
+    let digits = &digits[..digits.len().min(9)];
     let mut n: u32 = 0;
-    for d in &digits {
+    for d in digits {
         n = n * 10 + u32::from(d - b'0');
     }
     Some(n * 10u32.pow(9 - digits.len() as u32))
@@ -384,6 +450,223 @@ fn parse_offset(s: &[u8]) -> Option<i16> {
         _ => return None,
     };
     let (h, m) = rest.split_once(':')?;
+    let two_digits = |t: &str| t.len() == 2 && t.bytes().all(|c| c.is_ascii_digit());
+    if !two_digits(h) || !two_digits(m) {
+        return None;
+    }
     let (h, m): (i16, i16) = (h.parse().ok()?, m.parse().ok()?);
     (h <= 14 && m < 60).then_some(sign * (h * 60 + m))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use exif::experimental::Writer;
+    use exif::{Field, Rational, SRational};
+
+    fn field(tag: Tag, value: Value) -> Field {
+        Field {
+            tag,
+            ifd_num: In::PRIMARY,
+            value,
+        }
+    }
+
+    fn ascii(text: &str) -> Value {
+        Value::Ascii(vec![text.as_bytes().to_vec()])
+    }
+
+    fn rational(num: u32, denom: u32) -> Value {
+        Value::Rational(vec![Rational { num, denom }])
+    }
+
+    /// A TIFF (bare EXIF block) holding `fields`, as `metadata::read` sees it.
+    fn tiff(fields: &[Field]) -> Vec<u8> {
+        let mut writer = Writer::new();
+        for f in fields {
+            writer.push_field(f);
+        }
+        let mut out = std::io::Cursor::new(Vec::new());
+        writer.write(&mut out, true).unwrap();
+        out.into_inner()
+    }
+
+    fn good() -> Vec<Field> {
+        vec![
+            field(Tag::Make, ascii("Nikon")),
+            field(Tag::Model, ascii("Z 6")),
+            field(Tag::BodySerialNumber, ascii("6012345")),
+            field(Tag::LensModel, ascii("NIKKOR Z 24-70mm f/4 S")),
+            field(Tag::ExposureTime, rational(1, 250)),
+            field(Tag::FNumber, rational(56, 10)),
+            field(Tag::PhotographicSensitivity, Value::Short(vec![400])),
+            field(Tag::DateTimeOriginal, ascii("2026:03:14 09:26:53")),
+            field(Tag::SubSecTimeOriginal, ascii("125")),
+            field(Tag::OffsetTimeOriginal, ascii("+02:00")),
+            field(Tag::Orientation, Value::Short(vec![6])),
+        ]
+    }
+
+    /// `good()` with `tag` replaced by `value` (or removed when `None`).
+    fn with(tag: Tag, value: Option<Value>) -> Metadata {
+        let mut fields: Vec<Field> = good().into_iter().filter(|f| f.tag != tag).collect();
+        if let Some(v) = value {
+            fields.push(field(tag, v));
+        }
+        read(&tiff(&fields))
+    }
+
+    fn warned(meta: &Metadata, needle: &str) -> bool {
+        meta.warnings.iter().any(|w| w.contains(needle))
+    }
+
+    #[test]
+    fn reads_every_field_of_a_complete_block() {
+        let m = read(&tiff(&good()));
+        assert_eq!(m.warnings, Vec::<String>::new());
+        assert_eq!(m.camera.make.as_deref(), Some("Nikon"));
+        assert_eq!(m.camera.model.as_deref(), Some("Z 6"));
+        assert_eq!(m.camera.serial.as_deref(), Some("6012345"));
+        assert_eq!(m.camera.lens.as_deref(), Some("NIKKOR Z 24-70mm f/4 S"));
+        assert_eq!(m.exposure.time_s, Some(0.004));
+        assert_eq!(m.exposure.f_number, Some(5.6));
+        assert_eq!(m.exposure.iso, Some(400.0));
+        assert_eq!(m.orientation, 6);
+        let t = m.captured_at.unwrap();
+        assert_eq!(t.to_rfc3339(), "2026-03-14T09:26:53.125+02:00");
+        // e = t·S/N² = 0.004 · 400 / 5.6²
+        let e = m.exposure.relative().unwrap();
+        assert!((e - 0.004 * 400.0 / (5.6 * 5.6)).abs() < 1e-12);
+        // EV100 = log2(N²/t) − log2(S/100) = log2(31.36 · 250) − 2
+        let ev = m.exposure.ev100().unwrap();
+        assert!((ev - ((5.6f64 * 5.6 * 250.0).log2() - 2.0)).abs() < 1e-12);
+    }
+
+    #[test]
+    fn iso_65535_falls_back_to_recommended_exposure_index_then_iso_speed() {
+        let saturated = field(Tag::PhotographicSensitivity, Value::Short(vec![65535]));
+        let mut fields: Vec<Field> = good()
+            .into_iter()
+            .filter(|f| f.tag != Tag::PhotographicSensitivity)
+            .collect();
+        fields.push(saturated);
+        let mut rei = fields.clone();
+        rei.push(field(
+            Tag::RecommendedExposureIndex,
+            Value::Long(vec![102_400]),
+        ));
+        rei.push(field(Tag::ISOSpeed, Value::Long(vec![99_999])));
+        let m = read(&tiff(&rei));
+        assert_eq!(m.exposure.iso, Some(102_400.0));
+        assert!(m.warnings.is_empty(), "{:?}", m.warnings);
+
+        let mut speed = fields.clone();
+        speed.push(field(Tag::ISOSpeed, Value::Long(vec![81_920])));
+        assert_eq!(read(&tiff(&speed)).exposure.iso, Some(81_920.0));
+
+        let m = read(&tiff(&fields));
+        assert_eq!(m.exposure.iso, None);
+        assert!(
+            warned(&m, "PhotographicSensitivity = 65535"),
+            "{:?}",
+            m.warnings
+        );
+    }
+
+    #[test]
+    fn absurd_values_become_unknown_with_a_warning_naming_the_tag() {
+        let cases = [
+            (Tag::ExposureTime, rational(0, 1), "ExposureTime = 0"),
+            (Tag::ExposureTime, rational(1, 0), "ExposureTime = inf"),
+            (
+                Tag::ExposureTime,
+                Value::SRational(vec![SRational { num: -1, denom: 60 }]),
+                "ExposureTime = -0.01",
+            ),
+            (Tag::FNumber, rational(0, 10), "FNumber = 0"),
+            (
+                Tag::PhotographicSensitivity,
+                Value::Short(vec![0]),
+                "PhotographicSensitivity = 0",
+            ),
+        ];
+        for (tag, value, needle) in cases {
+            let m = with(tag, Some(value));
+            assert!(warned(&m, needle), "{needle}: {:?}", m.warnings);
+            assert!(warned(&m, "absurd"), "{needle}: {:?}", m.warnings);
+            assert_eq!(m.exposure.relative(), None, "{needle}");
+        }
+        let m = with(Tag::DateTimeOriginal, Some(ascii("0000:00:00 00:00:00")));
+        assert_eq!(m.captured_at, None);
+        assert!(warned(&m, "DateTimeOriginal"), "{:?}", m.warnings);
+        let m = with(Tag::DateTimeOriginal, Some(ascii("2023:02:30 10:00:00")));
+        assert_eq!(m.captured_at, None);
+        assert!(warned(&m, "not a real date"), "{:?}", m.warnings);
+        let m = with(Tag::Orientation, Some(Value::Short(vec![9])));
+        assert_eq!(m.orientation, 1);
+        assert!(warned(&m, "Orientation = 9"), "{:?}", m.warnings);
+    }
+
+    #[test]
+    fn missing_tags_are_unknown_with_a_warning_naming_the_tag() {
+        for (tag, needle) in [
+            (Tag::ExposureTime, "ExposureTime missing"),
+            (Tag::FNumber, "FNumber missing"),
+            (
+                Tag::PhotographicSensitivity,
+                "PhotographicSensitivity missing",
+            ),
+            (Tag::DateTimeOriginal, "DateTimeOriginal missing"),
+        ] {
+            let m = with(tag, None);
+            assert!(warned(&m, needle), "{needle}: {:?}", m.warnings);
+        }
+        let m = read(b"\xff\xd8\xff\xd9");
+        assert_eq!(m.exposure, Exposure::default());
+        assert!(warned(&m, "no EXIF"), "{:?}", m.warnings);
+    }
+
+    #[test]
+    fn capture_time_without_sub_seconds_or_offset_is_plain_local_time() {
+        let mut fields: Vec<Field> = good()
+            .into_iter()
+            .filter(|f| f.tag != Tag::SubSecTimeOriginal && f.tag != Tag::OffsetTimeOriginal)
+            .collect();
+        assert_eq!(
+            read(&tiff(&fields)).captured_at.unwrap().to_rfc3339(),
+            "2026-03-14T09:26:53"
+        );
+        fields.push(field(Tag::SubSecTimeOriginal, ascii("07")));
+        fields.push(field(Tag::OffsetTimeOriginal, ascii("-05:30")));
+        let m = read(&tiff(&fields));
+        assert_eq!(
+            m.captured_at.unwrap().to_rfc3339(),
+            "2026-03-14T09:26:53.07-05:30"
+        );
+        let m = with(Tag::OffsetTimeOriginal, Some(ascii("+2:00")));
+        assert_eq!(m.captured_at.unwrap().offset_minutes, None);
+        assert!(warned(&m, "OffsetTimeOriginal"), "{:?}", m.warnings);
+        let m = with(Tag::SubSecTimeOriginal, Some(ascii("1a")));
+        assert_eq!(m.captured_at.unwrap().nanos, None);
+        assert!(warned(&m, "SubSecTimeOriginal"), "{:?}", m.warnings);
+        // Blank padding, as many cameras write, is not a warning.
+        let m = with(Tag::SubSecTimeOriginal, Some(ascii("   ")));
+        assert!(m.warnings.is_empty(), "{:?}", m.warnings);
+    }
+
+    #[test]
+    fn local_seconds_counts_from_the_epoch() {
+        let t = CaptureTime {
+            year: 2000,
+            month: 3,
+            day: 1,
+            hour: 0,
+            minute: 0,
+            second: 1,
+            nanos: Some(500_000_000),
+            offset_minutes: None,
+        };
+        // 2000-03-01 is day 11017 after 1970-01-01.
+        assert_eq!(t.local_seconds(), 11_017.0 * 86_400.0 + 1.5);
+    }
 }

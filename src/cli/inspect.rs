@@ -3,7 +3,7 @@
 use std::path::PathBuf;
 use std::process::ExitCode;
 
-use filmback::frame::{self, Limits, LoadedFrame};
+use filmback::frame::{self, FrameError, Limits, LoadedFrame};
 use serde_json::{Value, json};
 
 /// Arguments of `filmback inspect`.
@@ -17,7 +17,8 @@ pub struct Args {
     json: bool,
 }
 
-/// One file's report as JSON (the `--json` contract).
+/// One file's report as JSON: exactly the fields of the `--json` contract, `null` where
+/// unknown.
 fn report(loaded: &LoadedFrame) -> Value {
     let m = &loaded.metadata;
     let f = &loaded.frame;
@@ -31,38 +32,48 @@ fn report(loaded: &LoadedFrame) -> Value {
             "make": m.camera.make,
             "model": m.camera.model,
             "serial": m.camera.serial,
-            "lens": m.camera.lens,
         },
         "exposure": {
             "time_s": m.exposure.time_s,
             "f_number": m.exposure.f_number,
             "iso": m.exposure.iso,
             "relative_exposure": m.exposure.relative(),
-            "ev100": m.exposure.ev100(),
         },
         "captured_at": m.captured_at.map(|t| t.to_rfc3339()),
-        "orientation": m.orientation,
         "warnings": m.warnings,
     })
 }
 
-/// Runs the command; exit status 1 if any file failed.
+/// Runs the command; exit status 1 if any file failed. Every file is reported, in order,
+/// whatever happened to the others.
 pub fn run(args: Args) -> anyhow::Result<ExitCode> {
+    let results: Vec<Result<LoadedFrame, FrameError>> = args
+        .files
+        .iter()
+        .map(|path| frame::load(path, Limits::default()))
+        .collect();
     let mut failed = false;
-    let mut reports = Vec::new();
-    for path in &args.files {
-        match frame::load(path, Limits::default()) {
-            Ok(loaded) => reports.push(report(&loaded)),
-            Err(e) => {
-                failed = true;
-                reports.push(json!({ "path": path.display().to_string(), "error": e.to_string() }));
-            }
-        }
+    for e in results.iter().filter_map(|r| r.as_ref().err()) {
+        failed = true;
+        eprintln!("filmback inspect: {e}");
     }
     if args.json {
+        let reports: Vec<Value> = results
+            .iter()
+            .zip(&args.files)
+            .map(|(r, path)| match r {
+                Ok(loaded) => report(loaded),
+                Err(e) => json!({ "path": path.display().to_string(), "error": e.to_string() }),
+            })
+            .collect();
         println!("{}", serde_json::to_string_pretty(&reports)?);
     } else {
-        print_table(&reports);
+        for (r, path) in results.iter().zip(&args.files) {
+            match r {
+                Ok(loaded) => print_frame(loaded),
+                Err(e) => println!("{}\n  error: {e}", path.display()),
+            }
+        }
     }
     Ok(if failed {
         ExitCode::FAILURE
@@ -71,40 +82,38 @@ pub fn run(args: Args) -> anyhow::Result<ExitCode> {
     })
 }
 
-fn print_table(reports: &[Value]) {
-    let text = |v: &Value| match v {
-        Value::Null => "?".to_string(),
-        Value::String(s) => s.clone(),
-        other => other.to_string(),
-    };
-    for r in reports {
-        if let Some(err) = r.get("error") {
-            println!("{}\n  error: {}", text(&r["path"]), text(err));
-            continue;
-        }
-        let e = &r["exposure"];
-        let time = e["time_s"].as_f64().map_or("?".to_string(), shutter);
-        println!(
-            "{}\n  {}×{} {}-bit {}ch  {} {} (serial {})\n  {}  f/{}  ISO {}  e={}  captured {}",
-            text(&r["path"]),
-            r["width"],
-            r["height"],
-            r["bit_depth"],
-            r["channels"],
-            text(&r["camera"]["make"]),
-            text(&r["camera"]["model"]),
-            text(&r["camera"]["serial"]),
-            time,
-            text(&e["f_number"]),
-            text(&e["iso"]),
-            e["relative_exposure"]
-                .as_f64()
-                .map_or("?".to_string(), |v| format!("{v:.4}")),
-            text(&r["captured_at"]),
-        );
-        for w in r["warnings"].as_array().into_iter().flatten() {
-            println!("  warning: {}", text(w));
-        }
+/// The readable table: one block per file, `?` where unknown.
+fn print_frame(loaded: &LoadedFrame) {
+    fn or_unknown<T: std::fmt::Display>(v: Option<T>) -> String {
+        v.map_or_else(|| "?".to_string(), |v| v.to_string())
+    }
+    let (m, f) = (&loaded.metadata, &loaded.frame);
+    let e = &m.exposure;
+    println!(
+        "{}\n  {}×{} {}-bit {}ch  {} {} (serial {}, lens {})",
+        loaded.path.display(),
+        f.width(),
+        f.height(),
+        f.bit_depth().bits(),
+        f.channels(),
+        or_unknown(m.camera.make.as_deref()),
+        or_unknown(m.camera.model.as_deref()),
+        or_unknown(m.camera.serial.as_deref()),
+        or_unknown(m.camera.lens.as_deref()),
+    );
+    println!(
+        "  {}  f/{}  ISO {}  e={}  EV100 {}  captured {}",
+        e.time_s.map_or_else(|| "?".to_string(), shutter),
+        or_unknown(e.f_number),
+        or_unknown(e.iso),
+        e.relative()
+            .map_or_else(|| "?".to_string(), |v| format!("{v:.4}")),
+        e.ev100()
+            .map_or_else(|| "?".to_string(), |v| format!("{v:.2}")),
+        or_unknown(m.captured_at.map(|t| t.to_rfc3339())),
+    );
+    for w in &m.warnings {
+        println!("  warning: {w}");
     }
 }
 
