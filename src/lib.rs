@@ -13,3 +13,4 @@ pub mod histogram;
 pub mod metadata;
 pub mod radiance;
 pub mod response;
+pub mod synthetic;
