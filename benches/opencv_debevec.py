@@ -18,5 +18,6 @@ for c in cases:
     start = time.perf_counter()
     curve = calibrate.process(imgs, times)  # 256x1x3, BGR
     ms.append((time.perf_counter() - start) * 1e3)
-    curves.append(curve[:, 0, ::-1].astype(float).tolist())
+    # Non-finite values (OpenCV failed) become 0: an infinite error, counted as a loss.
+    curves.append(np.nan_to_num(curve[:, 0, ::-1].astype(float), nan=0.0, posinf=0.0, neginf=0.0).tolist())
 json.dump({"curves": curves, "ms": ms}, sys.stdout)

@@ -3,7 +3,7 @@
 //!
 //! `cargo bench --bench response_accuracy [-- --quick]`
 //!
-//! A synthetic scene (≈16 stops, mid-grey 0.18) is exposed at `1/√γ` and `√γ` through a
+//! The synthetic scene (`filmback::synthetic`, 1024×768) is exposed at `1/√γ` and `√γ` through a
 //! known curve `f` (gamma 2.2, sRGB, film S, strong toe, and the DoRF curves of
 //! `../shared/testdata/response-curves/dorf-even.csv` when present), with Gaussian noise
 //! of 1 DN (8-bit) or 0.5/255 (16-bit), as 8-bit lossless, 8-bit JPEG q95, and 16-bit.
@@ -15,149 +15,29 @@
 use std::path::{Path, PathBuf};
 use std::process::Command;
 
-use filmback::frame::{Frame, Samples};
+use filmback::frame::{self, BitDepth, Frame, Limits};
 use filmback::histogram::Histogram;
+use filmback::metadata::{Camera, CaptureTime, Exposure};
+use filmback::radiance::RadianceMap;
 use filmback::response::{Degree, Ratio, RatioSource, calibrate};
+use filmback::synthetic::{self, Encoding as FileEncoding, ResponseCurve as Curve, Sensor, Shot};
 
 const RATIOS: [f64; 7] = [1.25, 2.0, 4.0, 8.0, 16.0, 64.0, 256.0];
 const WIDTH: u32 = 1024;
 const HEIGHT: u32 = 768;
-
-/// A ground-truth response `f: [0,1] → [0,1]` (exposure → brightness).
-#[derive(Clone)]
-enum Curve {
-    Gamma(f64),
-    Srgb,
-    FilmS,
-    StrongToe,
-    Sampled(Vec<f64>),
-}
-
-impl Curve {
-    fn brightness(&self, x: f64) -> f64 {
-        let x = x.clamp(0.0, 1.0);
-        match self {
-            Curve::Gamma(g) => x.powf(1.0 / g),
-            Curve::Srgb => {
-                if x <= 0.0031308 {
-                    12.92 * x
-                } else {
-                    1.055 * x.powf(1.0 / 2.4) - 0.055
-                }
-            }
-            Curve::FilmS => {
-                // Logistic in ln exposure around mid-grey, normalised to f(1) = 1.
-                let s = |v: f64| 1.0 / (1.0 + (-1.6 * (v - 0.18f64.ln())).exp());
-                if x == 0.0 { 0.0 } else { s(x.ln()) / s(0.0) }
-            }
-            Curve::StrongToe => x.powf(1.0 / 2.2) * x / (x + 0.005) * 1.005,
-            Curve::Sampled(v) => {
-                let p = x * (v.len() - 1) as f64;
-                let i = (p.floor() as usize).min(v.len() - 2);
-                v[i] + (v[i + 1] - v[i]) * (p - i as f64)
-            }
-        }
-    }
-
-    /// `g(b) = f⁻¹(b)` by bisection (f is non-decreasing).
-    fn inverse(&self, b: f64) -> f64 {
-        let (mut lo, mut hi) = (0.0f64, 1.0f64);
-        for _ in 0..60 {
-            let mid = 0.5 * (lo + hi);
-            if self.brightness(mid) < b {
-                lo = mid
-            } else {
-                hi = mid
-            }
-        }
-        0.5 * (lo + hi)
-    }
-}
-
-fn named_curves() -> Vec<(String, Curve)> {
-    vec![
-        ("gamma 2.2".into(), Curve::Gamma(2.2)),
-        ("sRGB".into(), Curve::Srgb),
-        ("film S".into(), Curve::FilmS),
-        ("strong toe".into(), Curve::StrongToe),
-    ]
-}
+/// Read noise of the 16-bit sensor in 16-bit codes (a quarter of an 8-bit code).
+const NOISE_16: f64 = 64.0;
 
 fn dorf_curves() -> Vec<(String, Curve)> {
     let path = Path::new(env!("CARGO_MANIFEST_DIR"))
         .join("../shared/testdata/response-curves/dorf-even.csv");
-    let Ok(text) = std::fs::read_to_string(&path) else {
-        eprintln!("(DoRF curves absent at {}: skipped)", path.display());
-        return Vec::new();
-    };
-    text.lines()
-        .filter(|l| !l.starts_with('#') && !l.trim().is_empty())
-        .filter_map(|l| {
-            let mut it = l.split(',');
-            let name = format!("dorf {}", it.next()?.trim());
-            let v: Vec<f64> = it.filter_map(|s| s.trim().parse().ok()).collect();
-            (v.len() == 1024).then_some((name, Curve::Sampled(v)))
-        })
-        .collect()
-}
-
-/// splitmix64.
-struct Rng(u64);
-impl Rng {
-    fn next(&mut self) -> u64 {
-        self.0 = self.0.wrapping_add(0x9E37_79B9_7F4A_7C15);
-        let mut z = self.0;
-        z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
-        z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
-        z ^ (z >> 31)
-    }
-    fn uniform(&mut self) -> f64 {
-        (self.next() >> 11) as f64 / (1u64 << 53) as f64
-    }
-    fn normal(&mut self) -> f64 {
-        let (u, v) = (self.uniform().max(1e-300), self.uniform());
-        (-2.0 * u.ln()).sqrt() * (std::f64::consts::TAU * v).cos()
-    }
-}
-
-/// Linear RGB radiance, ≈16 stops around mid-grey 0.18: smooth waves plus blocks.
-fn scene(w: u32, h: u32, seed: u64) -> Vec<f32> {
-    let mut rng = Rng(seed);
-    let waves: Vec<(f64, f64, f64)> = (0..6)
-        .map(|_| {
-            (
-                rng.uniform() * 0.03,
-                rng.uniform() * 0.03,
-                rng.uniform() * 6.3,
-            )
-        })
-        .collect();
-    let blocks: Vec<[f64; 4]> = (0..(w / 16 + 1) * (h / 16 + 1))
-        .map(|_| {
-            [
-                rng.normal() * 2.0,
-                rng.normal() * 0.3,
-                rng.normal() * 0.3,
-                rng.normal() * 0.3,
-            ]
-        })
-        .collect();
-    let mut out = Vec::with_capacity((w * h * 3) as usize);
-    for y in 0..h {
-        for x in 0..w {
-            let wave: f64 = waves
-                .iter()
-                .map(|(fx, fy, p)| (f64::from(x) * fx + f64::from(y) * fy + p).sin())
-                .sum::<f64>()
-                / 6.0f64.sqrt();
-            let b = &blocks[((y / 16) * (w / 16 + 1) + x / 16) as usize];
-            let stops = 0.18f64.log2() + 3.0 * wave + b[0];
-            for (c, offset) in [0.2, 0.0, -0.3].iter().enumerate() {
-                out.push((stops + offset + b[c + 1]).exp2() as f32);
-            }
+    match synthetic::dorf_curves(&path) {
+        Ok(curves) => curves,
+        Err(e) => {
+            eprintln!("(DoRF curves unavailable: {e}: skipped)");
+            Vec::new()
         }
     }
-    out
 }
 
 #[derive(Clone, Copy, PartialEq)]
@@ -177,77 +57,63 @@ impl Encoding {
     }
 }
 
-/// Exposes the scene: `B = f(min(e·E, 1)) + noise`, quantised; JPEG round-trips.
-/// Also returns the encoded file bytes for OpenCV (PNG/JPEG; none for 16-bit).
+/// Exposes the scene through `curve` (1 DN read noise at 8 bits, [`NOISE_16`] at 16),
+/// round-trips JPEG through the file codec, and returns the frame and its file bytes
+/// (PNG or JPEG with EXIF; none for 16-bit, which OpenCV's Debevec does not take).
 fn expose(
-    radiance: &[f32],
+    scene: &RadianceMap,
     exposure: f64,
     curve: &Curve,
     enc: Encoding,
     seed: u64,
 ) -> (Frame, Option<Vec<u8>>) {
-    let mut rng = Rng(seed);
-    // A lookup table of f over exposure keeps rendering fast for sampled curves.
-    const LUT: usize = 1 << 16;
-    let lut: Vec<f64> = (0..=LUT)
-        .map(|i| curve.brightness(i as f64 / LUT as f64))
-        .collect();
-    let f = |x: f64| {
-        let p = x.clamp(0.0, 1.0) * LUT as f64;
-        let i = (p as usize).min(LUT - 1);
-        lut[i] + (lut[i + 1] - lut[i]) * (p - i as f64)
+    let sensor = Sensor {
+        curve: curve.clone(),
+        bit_depth: if enc == Encoding::Sixteen {
+            BitDepth::Sixteen
+        } else {
+            BitDepth::Eight
+        },
+        read_noise_dn: if enc == Encoding::Sixteen {
+            NOISE_16
+        } else {
+            1.0
+        },
+        full_well_electrons: None,
+        seed,
+    };
+    let frame = synthetic::expose(scene, exposure, &sensor);
+    let shot = Shot {
+        camera: Camera::default(),
+        exposure: Exposure {
+            time_s: Some(exposure),
+            f_number: Some(1.0),
+            iso: Some(100.0),
+        },
+        captured_at: CaptureTime {
+            year: 2026,
+            month: 1,
+            day: 1,
+            hour: 0,
+            minute: 0,
+            second: 0,
+            nanos: None,
+            offset_minutes: None,
+        },
     };
     match enc {
-        Encoding::Sixteen => {
-            let v: Vec<u16> = radiance
-                .iter()
-                .map(|&e| {
-                    ((f(exposure * f64::from(e)) + rng.normal() * 0.5 / 255.0) * 65535.0)
-                        .round()
-                        .clamp(0.0, 65535.0) as u16
-                })
-                .collect();
-            (
-                Frame::new(WIDTH, HEIGHT, 3, Samples::Sixteen(v)).unwrap(),
-                None,
-            )
+        Encoding::Sixteen => (frame, None),
+        Encoding::Lossless8 => {
+            let bytes = synthetic::encode(&frame, &shot, FileEncoding::Png).unwrap();
+            (frame, Some(bytes))
         }
-        _ => {
-            let v: Vec<u8> = radiance
-                .iter()
-                .map(|&e| {
-                    ((f(exposure * f64::from(e)) + rng.normal() / 255.0) * 255.0)
-                        .round()
-                        .clamp(0.0, 255.0) as u8
-                })
-                .collect();
-            let mut bytes = Vec::new();
-            if enc == Encoding::Jpeg95 {
-                jpeg_encoder::Encoder::new(&mut bytes, 95)
-                    .encode(
-                        &v,
-                        WIDTH as u16,
-                        HEIGHT as u16,
-                        jpeg_encoder::ColorType::Rgb,
-                    )
-                    .unwrap();
-                let img = image::load_from_memory(&bytes)
-                    .unwrap()
-                    .into_rgb8()
-                    .into_raw();
-                (
-                    Frame::new(WIDTH, HEIGHT, 3, Samples::Eight(img)).unwrap(),
-                    Some(bytes),
-                )
-            } else {
-                let img = image::RgbImage::from_raw(WIDTH, HEIGHT, v.clone()).unwrap();
-                let mut c = std::io::Cursor::new(Vec::new());
-                img.write_to(&mut c, image::ImageFormat::Png).unwrap();
-                (
-                    Frame::new(WIDTH, HEIGHT, 3, Samples::Eight(v)).unwrap(),
-                    Some(c.into_inner()),
-                )
-            }
+        Encoding::Jpeg95 => {
+            let bytes =
+                synthetic::encode(&frame, &shot, FileEncoding::Jpeg { quality: 95 }).unwrap();
+            let decoded = frame::decode(Path::new("synthetic.jpg"), &bytes, Limits::default())
+                .unwrap()
+                .frame;
+            (decoded, Some(bytes))
         }
     }
 }
@@ -303,7 +169,10 @@ fn peer_python() -> Option<String> {
 
 fn main() {
     let quick = std::env::args().any(|a| a == "--quick");
-    let mut curves = named_curves();
+    let mut curves: Vec<(String, Curve)> = Curve::builtin()
+        .into_iter()
+        .filter(|(n, _)| n != "linear")
+        .collect();
     let mut dorf = dorf_curves();
     if quick {
         dorf = dorf.into_iter().step_by(10).collect();
@@ -324,7 +193,7 @@ fn main() {
         eprintln!("(OpenCV peer unavailable: comparison skipped)");
     }
     let dir = tempfile::tempdir().unwrap();
-    let radiance = scene(WIDTH, HEIGHT, 7);
+    let radiance = synthetic::scene(WIDTH, HEIGHT, 7);
     let mut outcomes = Vec::new();
     let mut peer_cases = Vec::new();
     let encodings = [Encoding::Lossless8, Encoding::Jpeg95, Encoding::Sixteen];
@@ -445,7 +314,7 @@ fn main() {
         Some(errors(curve, |c, k| pc[k][c]).1)
     };
     println!(
-        "# Response recovery accuracy ({WIDTH}x{HEIGHT} RGB pairs, degree auto, {} curves: 4 named + {} DoRF; render+calibrate {ours_s:.1} s)",
+        "# Response recovery accuracy ({WIDTH}x{HEIGHT} RGB pairs, degree auto, {} curves: 4 built-in + {} DoRF; render+calibrate {ours_s:.1} s)",
         curves.len(),
         curves.len() - 4
     );
@@ -458,13 +327,13 @@ fn main() {
         "| encoding | ratio | n | fail | own median | own p90 | shape median | shape p90 | shape max | low conf. | confident wrong | degree median | OpenCV shape median | OpenCV p90 | ours better |"
     );
     println!("|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|");
-    let use_dorf = outcomes.iter().any(|o| o.curve.starts_with("dorf"));
+    let use_dorf = outcomes.iter().any(|o| o.curve.starts_with("dorf-"));
     for &enc in &encodings {
         for &ratio in &RATIOS {
             let set: Vec<&Outcome> = outcomes
                 .iter()
                 .filter(|o| {
-                    o.enc == enc && o.ratio == ratio && (!use_dorf || o.curve.starts_with("dorf"))
+                    o.enc == enc && o.ratio == ratio && (!use_dorf || o.curve.starts_with("dorf-"))
                 })
                 .collect();
             let ok: Vec<&&Outcome> = set.iter().filter(|o| o.failed.is_none()).collect();
@@ -521,7 +390,7 @@ fn main() {
     println!("|---|---|---|---|---|---|---|");
     for o in outcomes
         .iter()
-        .filter(|o| o.ratio == 4.0 && !o.curve.starts_with("dorf"))
+        .filter(|o| o.ratio == 4.0 && !o.curve.starts_with("dorf-"))
     {
         println!(
             "| {} | {} | {:.4} | {:.4} | {:.2} | {} | {} |",
