@@ -7,8 +7,8 @@
 //!
 //! [`calibrate`] recovers `g` from the histograms of two exposures of one scene
 //! (`DESIGN.md` §2): the tone pairs `b ↦ τ(b)` of [`crate::histogram::tone_pairs`] each
-//! give `g(τ(b)) = γ·g(b)`, fitted per channel by [`fit`]. [`save`] and [`load`] keep the
-//! result in a versioned TOML file (see [`file`]).
+//! give `g(τ(b)) = γ·g(b)`, fitted per channel by [`mod@fit`]. [`save`] and [`load`] keep the
+//! result in a versioned TOML file (see [`mod@file`]).
 
 use crate::histogram::{Histogram, TonePair, UsableTones, tone_pairs};
 
@@ -122,7 +122,7 @@ impl InverseResponse {
 #[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
 #[serde(rename_all = "lowercase")]
 pub enum Preset {
-    /// Every 16th pixel of every 16th row, fixed degree 6.
+    /// Every 16th pixel of every 16th row.
     Fast,
     /// Every 4th pixel of every 4th row.
     Balanced,
@@ -141,11 +141,11 @@ impl Preset {
     }
 
     /// Model size.
+    ///
+    /// Always `auto`: a fixed degree 6 saves ~30 ms at 24 MP but costs S-shaped curves
+    /// 0.02 stops (`benches/calibrate_speed.rs`).
     pub fn degree(self) -> Degree {
-        match self {
-            Preset::Fast => Degree::Fixed(6),
-            Preset::Balanced | Preset::Accurate => Degree::Auto,
-        }
+        Degree::Auto
     }
 }
 

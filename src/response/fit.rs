@@ -32,13 +32,21 @@
 //! slopes from a pilot fit and `σ_b, σ_τ` from the histogram (bin width and pixel support,
 //! see [`crate::histogram::tone_pairs`]).
 //!
-//! **Degree.** `auto` uses blocked 5-fold cross-validation: the tone pairs, in tone order,
-//! are cut into 5 contiguous blocks and each is predicted from the other four. Neighbouring
-//! tone pairs share pixels, so random folds leak and always prefer the largest model (as a
-//! prototype found); contiguous blocks test what matters, the curve between and beyond
-//! the data. Among degrees 1..=max the smallest whose score is within one standard error
-//! of the best is taken (the one-standard-error rule: prefer the simpler curve when the
-//! data cannot tell them apart).
+//! **Smoothness.** Two exposures determine `g` only up to functions that repeat along the
+//! chain `b → τ(b) → τ(τ(b))` (Grossberg & Nayar's ambiguity): a flexible model can add
+//! such ripples without changing any residual, which is how a plain polynomial goes
+//! confidently wrong at large ratios. A penalty `λ·Σ_j (d_{j+1} − d_j)²` on changes of
+//! the log–log slope removes them; a power law (`g = b^k`) costs nothing.
+//!
+//! **Model size.** `auto` uses degree [`AUTO_DEGREE`] and lets the data choose `λ` by
+//! blocked 5-fold cross-validation: the tone pairs, in tone order, are cut into 5
+//! contiguous blocks and each is predicted from the other four. Neighbouring tone pairs
+//! share pixels, so random folds leak and always prefer the most flexible model (as a
+//! prototype found); contiguous blocks test what matters, the curve between and beyond the
+//! data. From the grid [`SMOOTHING_GRID`] the *largest* `λ` whose score is within one
+//! standard error of the best is taken (the one-standard-error rule): ripples the data
+//! cannot see do not change the score, so the smoothest adequate curve wins. A fixed
+//! degree (`Degree::Fixed`) keeps the same penalty choice.
 
 use nalgebra::{DMatrix, DVector};
 
@@ -50,7 +58,7 @@ pub const MAX_DEGREE: usize = 16;
 /// How the model size is chosen.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum Degree {
-    /// Blocked cross-validation with the one-standard-error rule (see module docs).
+    /// Degree [`AUTO_DEGREE`], smoothness by blocked cross-validation (see module docs).
     Auto,
     /// A fixed degree `1..=MAX_DEGREE` (the report used 6).
     Fixed(usize),
@@ -268,8 +276,8 @@ fn nnls(a: &DMatrix<f64>, y: &DVector<f64>) -> DVector<f64> {
     x
 }
 
-/// Smoothness strengths tried, as multiples of the total data weight `Σ w`.
-const SMOOTHING_GRID: [f64; 7] = [1.0, 1e-1, 1e-2, 1e-3, 1e-4, 1e-5, 1e-6];
+/// Smoothness strengths `λ` tried, as multiples of the total data weight `Σ w`.
+pub const SMOOTHING_GRID: [f64; 7] = [1.0, 1e-1, 1e-2, 1e-3, 1e-4, 1e-5, 1e-6];
 
 /// The weighted equations of one channel.
 struct Problem {
