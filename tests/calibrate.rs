@@ -430,3 +430,46 @@ fn command_names_the_file_and_reason_on_bad_input() {
     assert!(!out.status.success());
     assert!(String::from_utf8_lossy(&out.stderr).contains("degree"));
 }
+
+/// colour-hdri's Grossberg 2003 samples on the frobisher frames (`../shared/testdata`,
+/// skipped when absent): each frame's per-channel cumulative histogram inverted at 1000
+/// evenly spaced quantiles, as (rounded) bin indices. Ours must agree within one level.
+#[test]
+fn histogram_inversion_agrees_with_colour_hdri_on_frobisher() {
+    let root = Path::new(env!("CARGO_MANIFEST_DIR")).join("../shared/testdata/brackets/frobisher");
+    let npy = root.join("expected_colour_hdri/test_samples_Grossberg2003.npy");
+    let Ok(bytes) = std::fs::read(&npy) else {
+        eprintln!("skipped: {} absent", npy.display());
+        return;
+    };
+    // NPY v1: magic (6), version (2), header length (u16 LE), header, then f64 LE data.
+    let header = usize::from(u16::from_le_bytes([bytes[8], bytes[9]]));
+    let data: Vec<f64> = bytes[10 + header..]
+        .chunks_exact(8)
+        .map(|b| f64::from_le_bytes(b.try_into().unwrap()))
+        .collect();
+    assert_eq!(data.len(), 1000 * 3 * 3);
+    let mut worst = 0.0f64;
+    for (f, name) in ["IMG_2600.jpg", "IMG_2601.jpg", "IMG_2602.jpg"]
+        .iter()
+        .enumerate()
+    {
+        let frame = filmback::frame::load(&root.join(name), filmback::frame::Limits::default())
+            .unwrap()
+            .frame;
+        let h = Histogram::of_frame(&frame, 1);
+        for c in 0..3 {
+            let cum = h.cumulative(c);
+            for i in 0..1000 {
+                let q = i as f64 / 999.0;
+                // Their cumulative sum reaches H at the top of bin k and calls it k; in our
+                // uniform-bin model the top of bin k is brightness (k + ½)/255.
+                let ours = cum.inverse(q).0 * 255.0 - 0.5;
+                let theirs = data[(i * 3 + f) * 3 + c];
+                worst = worst.max((ours - theirs).abs());
+            }
+        }
+    }
+    eprintln!("largest difference: {worst:.3} levels");
+    assert!(worst <= 1.0, "{worst}");
+}
