@@ -5,6 +5,11 @@ CalibrateDebevec, and print the error in DN. First run:
     filmback calibrate IMG_2600.jpg IMG_2601.jpg -o /tmp/resp-0001.toml
     filmback calibrate IMG_2601.jpg IMG_2602.jpg -o /tmp/resp-0102.toml
 then this script with the peer's python."""
+import tomllib
+
+import cv2
+import numpy as np
+
 B='/work/shared/testdata/brackets/frobisher/'
 ims=[cv2.imread(B+f'IMG_260{i}.jpg')[:,:,::-1].astype(float) for i in range(3)]
 times=np.array([1/8,1,8],dtype=np.float32)
