@@ -9,6 +9,7 @@
 
 pub mod atomic;
 pub mod frame;
+pub mod histogram;
 pub mod metadata;
 pub mod radiance;
 pub mod response;

@@ -5,6 +5,7 @@ use std::process::ExitCode;
 
 use clap::{Parser, Subcommand};
 
+mod calibrate;
 mod inspect;
 
 /// filmback: brackets from a tethered camera to HDR radiance maps and film renderings.
@@ -17,6 +18,8 @@ struct Cli {
 
 #[derive(Debug, Subcommand)]
 enum Command {
+    /// Recover the camera's inverse response from two exposures' histograms.
+    Calibrate(calibrate::Args),
     /// Show each frame's size, depth, camera, exposure and capture time.
     Inspect(inspect::Args),
 }
@@ -25,6 +28,7 @@ enum Command {
 pub fn main() -> ExitCode {
     let cli = Cli::parse();
     let result = match cli.command {
+        Command::Calibrate(args) => calibrate::run(args),
         Command::Inspect(args) => inspect::run(args),
     };
     match result {
