@@ -9,6 +9,8 @@
 
 pub mod atomic;
 pub mod frame;
+pub mod hdr_output;
+pub mod merge;
 pub mod metadata;
 pub mod radiance;
 pub mod response;
