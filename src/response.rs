@@ -4,6 +4,19 @@
 //! channel, `g` sampled at `n` evenly spaced brightness values `B_i = i/(n−1)`, normalised
 //! `g(0) = 0`, `g(1) = 1`, non-decreasing, evaluated between samples by linear
 //! interpolation. How `g` was obtained (a fit, a cache, a default) is recorded beside it.
+//!
+//! [`calibrate`] recovers `g` from the histograms of two exposures of one scene
+//! (`DESIGN.md` §2): the tone pairs `b ↦ τ(b)` of [`crate::histogram::tone_pairs`] each
+//! give `g(τ(b)) = γ·g(b)`, fitted per channel by [`fit`]. [`save`] and [`load`] keep the
+//! result in a versioned TOML file (see [`file`]).
+
+use crate::histogram::{Histogram, TonePair, UsableTones, tone_pairs};
+
+pub mod file;
+pub mod fit;
+
+pub use file::{ChannelSummary, ResponseFileError, ResponseRecord, load, save};
+pub use fit::{ChannelFit, Degree, FitError};
 
 /// Why an inverse response is not acceptable.
 #[derive(Debug, thiserror::Error)]
@@ -102,6 +115,236 @@ impl InverseResponse {
             .map(|k| self.eval(c, k as f64 / (levels - 1) as f64) as f32)
             .collect()
     }
+}
+
+/// Number of samples per channel in a calibrated [`InverseResponse`] (`g(i/1023)`).
+pub const CALIBRATED_SAMPLES: usize = 1024;
+
+/// Name of the fitted model, as reported and saved.
+pub const MODEL_NAME: &str = "monotone Bernstein polynomial of ln g over ln b";
+
+/// `g(0.5)` of the sRGB curve: the prior used when the ratio must be estimated.
+pub const PRIOR_MID_GREY: f64 = 0.214_041_140_482_232_55;
+
+/// Where the exposure ratio `γ = e_bright / e_dark` came from.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum RatioSource {
+    /// From the frames' EXIF exposures, `γ = (t·S/N²)_bright / (t·S/N²)_dark`.
+    Exif,
+    /// Given by the user.
+    Argument,
+    /// Estimated from the histograms with the prior [`PRIOR_MID_GREY`].
+    Estimated,
+}
+
+impl RatioSource {
+    /// `"exif"`, `"argument"` or `"estimated"`.
+    pub fn as_str(self) -> &'static str {
+        match self {
+            RatioSource::Exif => "exif",
+            RatioSource::Argument => "argument",
+            RatioSource::Estimated => "estimated",
+        }
+    }
+}
+
+/// The exposure ratio to calibrate with.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum Ratio {
+    /// A known `γ > 1` and where it came from.
+    Known(f64, RatioSource),
+    /// Estimate `γ`. `g` and `γ` trade off as `g^k, γ^k` (any power of a solution is a
+    /// solution), so an estimate needs a prior: the one used here is that mid brightness
+    /// `B = 0.5` is `g = 0.214` of white, as on the sRGB curve (the median over channels).
+    Estimate,
+}
+
+/// Why two frames could not be calibrated.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+pub enum CalibrationError {
+    /// The exposure ratio is not a finite number above 1.
+    #[error(
+        "exposure ratio {0} is not usable: it must be a finite number above 1 (bright over dark)"
+    )]
+    Ratio(f64),
+    /// The two histograms differ in channels or depth.
+    #[error("the frames differ: {0}")]
+    Mismatch(String),
+    /// No channel could be fitted.
+    #[error("no channel could be calibrated: {0}")]
+    NoChannel(String),
+    /// A channel's tone mapping runs backwards: frames or ratio swapped.
+    #[error("channel {channel}: {source}")]
+    Channel {
+        /// Channel name.
+        channel: &'static str,
+        /// The fit's reason.
+        source: FitError,
+    },
+}
+
+/// One channel's calibration.
+#[derive(Debug, Clone, PartialEq)]
+pub struct ChannelCalibration {
+    /// `"R"`, `"G"`, `"B"`, or `"Y"` for grey frames.
+    pub name: &'static str,
+    /// The fitted curve and its diagnostics.
+    pub fit: ChannelFit,
+    /// Set when this channel had no usable tones (e.g. saturated) and took the curve of
+    /// another channel; its confidence is then 0.
+    pub borrowed_from: Option<&'static str>,
+    /// The tone pairs the fit used (empty when borrowed).
+    pub pairs: Vec<TonePair>,
+}
+
+/// The result of [`calibrate`].
+#[derive(Debug, Clone, PartialEq)]
+pub struct Calibration {
+    /// Exposure ratio `γ` used.
+    pub ratio: f64,
+    /// Where `γ` came from.
+    pub ratio_source: RatioSource,
+    /// Per channel.
+    pub channels: Vec<ChannelCalibration>,
+    /// The curves, sampled at [`CALIBRATED_SAMPLES`] points per channel.
+    pub response: InverseResponse,
+}
+
+fn channel_names(channels: usize) -> &'static [&'static str] {
+    if channels == 1 {
+        &["Y"]
+    } else {
+        &["R", "G", "B"]
+    }
+}
+
+/// Recovers the inverse response from the histograms of a darker and a brighter exposure
+/// of one scene (`γ = e_bright/e_dark > 1`), per channel; see [`fit`] for the model.
+///
+/// A channel without usable tones (saturated, or a flat frame) borrows the most confident
+/// other channel's curve with confidence 0; if no channel has usable tones it is an error.
+pub fn calibrate(
+    dark: &Histogram,
+    bright: &Histogram,
+    ratio: Ratio,
+    degree: Degree,
+) -> Result<Calibration, CalibrationError> {
+    if dark.channels() != bright.channels() || dark.depth() != bright.depth() {
+        return Err(CalibrationError::Mismatch(format!(
+            "{} channels at {} bits against {} channels at {} bits",
+            dark.channels(),
+            dark.depth().bits(),
+            bright.channels(),
+            bright.depth().bits()
+        )));
+    }
+    let log_ratio = match ratio {
+        Ratio::Known(r, _) if r.is_finite() && r > 1.0 => r.ln(),
+        Ratio::Known(r, _) => return Err(CalibrationError::Ratio(r)),
+        Ratio::Estimate => 1.0,
+    };
+    let names = channel_names(dark.channels());
+    let mut fitted: Vec<(usize, Result<ChannelFit, FitError>, Vec<TonePair>)> = Vec::new();
+    for (c, &name) in names.iter().enumerate() {
+        let (a, b) = (dark.cumulative(c), bright.cumulative(c));
+        let pairs = tone_pairs(
+            &a,
+            &b,
+            UsableTones::detect(&a, dark.depth()),
+            UsableTones::detect(&b, bright.depth()),
+        );
+        let result = fit::fit(&pairs, log_ratio, degree);
+        if let Err(source @ FitError::Swapped | source @ FitError::Degree(_)) = result {
+            return Err(CalibrationError::Channel {
+                channel: name,
+                source,
+            });
+        }
+        fitted.push((c, result, pairs));
+    }
+    let (ratio, ratio_source) = match ratio {
+        Ratio::Known(r, source) => (r, source),
+        Ratio::Estimate => {
+            let mut per_channel: Vec<f64> = fitted
+                .iter()
+                .filter_map(|(_, f, _)| f.as_ref().ok())
+                .map(|f| PRIOR_MID_GREY.ln() / f.log_g(0.5))
+                .filter(|k| k.is_finite() && *k > 0.0)
+                .collect();
+            per_channel.sort_by(f64::total_cmp);
+            let Some(&k) = per_channel.get(per_channel.len().saturating_sub(1) / 2) else {
+                return Err(CalibrationError::NoChannel(
+                    "the ratio cannot be estimated: no channel has usable tones".into(),
+                ));
+            };
+            for (_, f, _) in &mut fitted {
+                if let Ok(f) = f {
+                    *f = f.scaled(k);
+                }
+            }
+            (k.exp(), RatioSource::Estimated)
+        }
+    };
+    let donor = fitted
+        .iter()
+        .filter_map(|(c, f, _)| f.as_ref().ok().map(|f| (*c, f.clone())))
+        .max_by(|a, b| a.1.confidence.total_cmp(&b.1.confidence));
+    let Some((donor_c, donor_fit)) = donor else {
+        let reasons: Vec<String> = fitted
+            .iter()
+            .filter_map(|(c, f, _)| f.as_ref().err().map(|e| format!("{}: {e}", names[*c])))
+            .collect();
+        return Err(CalibrationError::NoChannel(reasons.join("; ")));
+    };
+    let channels: Vec<ChannelCalibration> = fitted
+        .into_iter()
+        .map(|(c, f, pairs)| match f {
+            Ok(fit) => ChannelCalibration {
+                name: names[c],
+                fit,
+                borrowed_from: None,
+                pairs,
+            },
+            Err(_) => ChannelCalibration {
+                name: names[c],
+                fit: ChannelFit {
+                    equations: 0,
+                    coverage: 0.0,
+                    confidence: 0.0,
+                    ..donor_fit.clone()
+                },
+                borrowed_from: Some(names[donor_c]),
+                pairs: Vec::new(),
+            },
+        })
+        .collect();
+    let samples = channels
+        .iter()
+        .map(|ch| sample_curve(|b| ch.fit.eval(b), CALIBRATED_SAMPLES))
+        .collect();
+    let response = InverseResponse::from_samples(samples).map_err(|e| {
+        CalibrationError::NoChannel(format!("the fitted curve is not a valid response: {e}"))
+    })?;
+    Ok(Calibration {
+        ratio,
+        ratio_source,
+        channels,
+        response,
+    })
+}
+
+/// Samples `g` at `i/(n−1)`, pinning `g(0) = 0`, `g(1) = 1` and non-decreasing order.
+fn sample_curve(g: impl Fn(f64) -> f64, n: usize) -> Vec<f64> {
+    let mut out: Vec<f64> = (0..n)
+        .map(|i| g(i as f64 / (n - 1) as f64).clamp(0.0, 1.0))
+        .collect();
+    out[0] = 0.0;
+    out[n - 1] = 1.0;
+    for i in 1..n {
+        out[i] = out[i].max(out[i - 1]);
+    }
+    out
 }
 
 #[cfg(test)]

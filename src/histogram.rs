@@ -1,0 +1,455 @@
+//! Per-channel brightness histograms, their cumulative form, and the intensity mapping
+//! `τ(b) = H_B⁻¹(H_A(b))` between two exposures of one scene (Grossberg & Nayar 2003).
+//!
+//! **Bins.** An 8-bit frame has one bin per code (256 bins). A 16-bit frame is binned to
+//! 4096 bins of 16 codes each (`bin = code >> 4`): real 16-bit files carry at most 12–14
+//! bits of signal, so finer bins would only hold noise, and 4096 bins keep thousands of
+//! pixels per bin and the fit small. Bin `k` of width `w` codes holds codes
+//! `k·w ..= k·w + w − 1`; as brightness (`B = code / max_code`) it spans the interval
+//! between the edges `e_k = (k·w − ½) / max_code` and `e_{k+1}`, clamped to `[0, 1]`
+//! (a code stands for everything that rounds to it).
+//!
+//! **Cumulative histogram.** Each bin is treated as a uniform spread of its pixels over its
+//! interval, so `H(b)` (fraction of pixels darker than `b`) is continuous, piecewise
+//! linear, and invertible on its rising parts.
+//!
+//! **One pass.** [`Histogram::of_frame`] visits every `stride`-th pixel of every
+//! `stride`-th row once; frames above about a megapixel are split into row bands counted
+//! on all cores (rayon) and summed.
+
+use rayon::prelude::*;
+
+use crate::frame::{BitDepth, Frame, Samples};
+
+/// Number of bins used for a bit depth: 256 for 8-bit, 4096 for 16-bit (see module docs).
+pub fn bins_for(depth: BitDepth) -> usize {
+    match depth {
+        BitDepth::Eight => 256,
+        BitDepth::Sixteen => 4096,
+    }
+}
+
+/// Pixel counts per channel and bin of one frame.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Histogram {
+    depth: BitDepth,
+    counts: Vec<Vec<u64>>,
+}
+
+/// Pixels per parallel work unit; below this a frame is counted on one core.
+const BAND_PIXELS: usize = 1 << 20;
+
+impl Histogram {
+    /// Counts every `stride`-th pixel of every `stride`-th row (`stride` 0 reads as 1),
+    /// per channel, in one pass. Stride `s` reads about `1/s²` of the pixels.
+    pub fn of_frame(frame: &Frame, stride: usize) -> Histogram {
+        let stride = stride.max(1);
+        let depth = frame.bit_depth();
+        let channels = frame.channels();
+        let bins = bins_for(depth);
+        let shift = depth.bits() - bins.trailing_zeros();
+        let row_len = frame.width() as usize * channels;
+        let rows: Vec<usize> = (0..frame.height() as usize).step_by(stride).collect();
+        let sampled_row = frame.width() as usize / stride + 1;
+        let band_rows = (BAND_PIXELS / sampled_row.max(1)).max(1);
+        // Counts are gathered channel-interleaved (`bin·channels + c`) for a tight inner loop.
+        let count_rows = |rows: &[usize]| -> Vec<u64> {
+            let mut counts = vec![0u64; bins * channels];
+            for &y in rows {
+                let start = y * row_len;
+                match frame.samples() {
+                    Samples::Eight(v) => {
+                        for px in v[start..start + row_len]
+                            .chunks_exact(channels)
+                            .step_by(stride)
+                        {
+                            for (c, &code) in px.iter().enumerate() {
+                                counts[usize::from(code) * channels + c] += 1;
+                            }
+                        }
+                    }
+                    Samples::Sixteen(v) => {
+                        for px in v[start..start + row_len]
+                            .chunks_exact(channels)
+                            .step_by(stride)
+                        {
+                            for (c, &code) in px.iter().enumerate() {
+                                counts[(usize::from(code) >> shift) * channels + c] += 1;
+                            }
+                        }
+                    }
+                }
+            }
+            counts
+        };
+        let interleaved = if rows.len() <= band_rows {
+            count_rows(&rows)
+        } else {
+            rows.par_chunks(band_rows).map(count_rows).reduce(
+                || vec![0u64; bins * channels],
+                |mut a, b| {
+                    a.iter_mut().zip(&b).for_each(|(x, y)| *x += y);
+                    a
+                },
+            )
+        };
+        let counts = (0..channels)
+            .map(|c| {
+                interleaved
+                    .iter()
+                    .skip(c)
+                    .step_by(channels)
+                    .copied()
+                    .collect()
+            })
+            .collect();
+        Histogram { depth, counts }
+    }
+
+    /// Builds a histogram from per-channel counts (`bins_for(depth)` bins each).
+    /// Returns `None` if the shape does not match.
+    pub fn from_counts(depth: BitDepth, counts: Vec<Vec<u64>>) -> Option<Histogram> {
+        let ok = (counts.len() == 1 || counts.len() == 3)
+            && counts.iter().all(|c| c.len() == bins_for(depth));
+        ok.then_some(Histogram { depth, counts })
+    }
+
+    /// Bit depth of the frame that was counted.
+    pub fn depth(&self) -> BitDepth {
+        self.depth
+    }
+
+    /// Number of channels.
+    pub fn channels(&self) -> usize {
+        self.counts.len()
+    }
+
+    /// Number of bins per channel.
+    pub fn bins(&self) -> usize {
+        bins_for(self.depth)
+    }
+
+    /// Counts of channel `c`, one per bin.
+    pub fn counts(&self, c: usize) -> &[u64] {
+        &self.counts[c]
+    }
+
+    /// Number of pixels counted (per channel).
+    pub fn total(&self) -> u64 {
+        self.counts[0].iter().sum()
+    }
+
+    /// The cumulative histogram of channel `c`.
+    pub fn cumulative(&self, c: usize) -> Cumulative {
+        Cumulative::new(self.depth, &self.counts[c])
+    }
+}
+
+/// A normalised cumulative histogram `H(b)`, piecewise linear between bin edges.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Cumulative {
+    /// Bin edges in brightness, `L + 1` values from 0 to 1, increasing.
+    edges: Vec<f64>,
+    /// `H` at each edge: fraction of pixels in the bins below it; `0 … 1`.
+    at_edges: Vec<f64>,
+    /// Pixels in each bin.
+    counts: Vec<u64>,
+}
+
+impl Cumulative {
+    fn new(depth: BitDepth, counts: &[u64]) -> Cumulative {
+        let bins = counts.len();
+        let max_code = f64::from(depth.max_code());
+        let width = (depth.levels() / bins) as f64;
+        let edges = (0..=bins)
+            .map(|k| ((k as f64 * width - 0.5) / max_code).clamp(0.0, 1.0))
+            .collect();
+        let total = counts.iter().sum::<u64>().max(1) as f64;
+        let mut running = 0u64;
+        let mut at_edges = Vec::with_capacity(bins + 1);
+        at_edges.push(0.0);
+        for &n in counts {
+            running += n;
+            at_edges.push(running as f64 / total);
+        }
+        Cumulative {
+            edges,
+            at_edges,
+            counts: counts.to_vec(),
+        }
+    }
+
+    /// Bin edges in brightness (`bins + 1` values).
+    pub fn edges(&self) -> &[f64] {
+        &self.edges
+    }
+
+    /// `H` at each bin edge.
+    pub fn at_edges(&self) -> &[f64] {
+        &self.at_edges
+    }
+
+    /// Pixels in each bin.
+    pub fn counts(&self) -> &[u64] {
+        &self.counts
+    }
+
+    /// The bin holding brightness `b` (clamped to the valid range).
+    pub fn bin_of(&self, b: f64) -> usize {
+        let k = self.edges.partition_point(|&e| e <= b);
+        k.clamp(1, self.counts.len()) - 1
+    }
+
+    /// `H(b)`: fraction of pixels darker than brightness `b`, linear within a bin.
+    pub fn at(&self, b: f64) -> f64 {
+        let k = self.bin_of(b);
+        let (e0, e1) = (self.edges[k], self.edges[k + 1]);
+        let f = if e1 > e0 {
+            ((b - e0) / (e1 - e0)).clamp(0.0, 1.0)
+        } else {
+            0.0
+        };
+        self.at_edges[k] + f * (self.at_edges[k + 1] - self.at_edges[k])
+    }
+
+    /// `H⁻¹(q)`: the brightness below which a fraction `q` of the pixels lies, linear
+    /// within the bin that holds the `q`-quantile; also returns that bin.
+    pub fn inverse(&self, q: f64) -> (f64, usize) {
+        let q = q.clamp(0.0, 1.0);
+        // First edge whose H reaches q: the quantile lies in the bin just below it.
+        let j = self.at_edges.partition_point(|&h| h < q);
+        let k = j.clamp(1, self.counts.len()) - 1;
+        let (h0, h1) = (self.at_edges[k], self.at_edges[k + 1]);
+        let f = if h1 > h0 {
+            ((q - h0) / (h1 - h0)).clamp(0.0, 1.0)
+        } else {
+            0.0
+        };
+        (self.edges[k] + f * (self.edges[k + 1] - self.edges[k]), k)
+    }
+}
+
+/// One tone correspondence `b ↦ τ(b)` between the darker frame A and the brighter frame B,
+/// with the standard deviations (brightness units) of each side.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct TonePair {
+    /// Brightness in the darker frame.
+    pub dark: f64,
+    /// The corresponding brightness in the brighter frame, `τ(dark)`.
+    pub bright: f64,
+    /// Standard deviation of `dark` (brightness units).
+    pub sigma_dark: f64,
+    /// Standard deviation of `bright` (brightness units).
+    pub sigma_bright: f64,
+    /// The fraction of pixels darker than this tone, `H_A(dark) = H_B(bright)`.
+    pub quantile: f64,
+}
+
+/// The tone range of one frame-channel that carries information: above the noise floor and
+/// below clipping, in brightness.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct UsableTones {
+    /// Lowest usable brightness.
+    pub floor: f64,
+    /// Highest usable brightness.
+    pub ceiling: f64,
+}
+
+impl UsableTones {
+    /// Default limits for a depth, tightened where the histogram shows a clipping spike.
+    ///
+    /// Defaults: 8-bit `[2.5, 252.5]/255` (codes within ~2.5 DN of the ends are bent by
+    /// noise clipped at 0 and 255); 16-bit `[0.002, 0.998]`. A spike — an end bin (or the
+    /// last bin holding pixels) with more than 0.2 % of the pixels and more than four times
+    /// its neighbours' mean — marks clipping: the limit moves 1.5 bins inside it.
+    pub fn detect(cumulative: &Cumulative, depth: BitDepth) -> UsableTones {
+        let (mut floor, mut ceiling): (f64, f64) = match depth {
+            BitDepth::Eight => (2.5 / 255.0, 252.5 / 255.0),
+            BitDepth::Sixteen => (0.002, 0.998),
+        };
+        let counts = cumulative.counts();
+        let edges = cumulative.edges();
+        let total = counts.iter().sum::<u64>().max(1) as f64;
+        let spike = |k: usize, inward: &[usize]| {
+            let n = counts[k] as f64;
+            let around = inward.iter().map(|&j| counts[j] as f64).sum::<f64>() / 4.0;
+            n > 0.002 * total && n > 4.0 * around
+        };
+        let bins = counts.len();
+        if let Some(top) = counts.iter().rposition(|&n| n > 0)
+            && top >= 4
+            && spike(top, &[top - 1, top - 2, top - 3, top - 4])
+        {
+            let w = edges[top + 1] - edges[top];
+            ceiling = ceiling.min(edges[top] - 1.5 * w);
+        }
+        if let Some(bottom) = counts.iter().position(|&n| n > 0)
+            && bottom + 4 < bins
+            && spike(bottom, &[bottom + 1, bottom + 2, bottom + 3, bottom + 4])
+        {
+            let w = edges[bottom + 1] - edges[bottom];
+            floor = floor.max(edges[bottom + 1] + 1.5 * w);
+        }
+        UsableTones { floor, ceiling }
+    }
+
+    /// True if `b` lies within the limits.
+    pub fn contains(&self, b: f64) -> bool {
+        b >= self.floor && b <= self.ceiling
+    }
+}
+
+/// The intensity mapping `τ(b) = H_B⁻¹(H_A(b))` sampled at every bin edge of both frames,
+/// keeping only tones usable in both (see [`UsableTones`]).
+///
+/// At an edge of A the value `H_A(e)` is exact (the fraction of codes below the edge) and
+/// only `H_B⁻¹` interpolates inside a bin; edges of B give the mirror set. The standard
+/// deviation of an interpolated side is `w·√(1/12 + 1/n)` (`w` bin width in brightness, `n`
+/// pixels in the bin): the uniform-bin assumption is off by about a bin's spread, and a
+/// sparsely filled bin says little. An exact edge has `w·√(1/n̄)` with `n̄` the pixels of
+/// the two bins around it. Tones in empty bins carry no information and are dropped.
+pub fn tone_pairs(
+    dark: &Cumulative,
+    bright: &Cumulative,
+    dark_ok: UsableTones,
+    bright_ok: UsableTones,
+) -> Vec<TonePair> {
+    let sigma = |c: &Cumulative, k: usize, exact: bool| -> Option<f64> {
+        let w = c.edges()[k + 1] - c.edges()[k];
+        let n = c.counts()[k] as f64;
+        if n == 0.0 {
+            return None;
+        }
+        let v = if exact { 1.0 / n } else { 1.0 / 12.0 + 1.0 / n };
+        Some(w * v.sqrt())
+    };
+    let edge_sigma = |c: &Cumulative, j: usize| -> Option<f64> {
+        let below = if j > 0 { c.counts()[j - 1] } else { 0 };
+        let above = c.counts().get(j).copied().unwrap_or(0);
+        let n = (below + above) as f64 / 2.0;
+        if below == 0 || above == 0 {
+            return None;
+        }
+        let w = c.edges()[j.min(c.counts().len() - 1) + 1] - c.edges()[j.min(c.counts().len() - 1)];
+        Some(w / n.sqrt())
+    };
+    let mut pairs = Vec::new();
+    let inner = |h: f64| h > 0.0 && h < 1.0;
+    for j in 1..dark.edges().len() - 1 {
+        let (b, q) = (dark.edges()[j], dark.at_edges()[j]);
+        if !inner(q) || !dark_ok.contains(b) {
+            continue;
+        }
+        let (t, k) = bright.inverse(q);
+        if !bright_ok.contains(t) {
+            continue;
+        }
+        if let (Some(sd), Some(st)) = (edge_sigma(dark, j), sigma(bright, k, false)) {
+            pairs.push(TonePair {
+                dark: b,
+                bright: t,
+                sigma_dark: sd,
+                sigma_bright: st,
+                quantile: q,
+            });
+        }
+    }
+    for j in 1..bright.edges().len() - 1 {
+        let (t, q) = (bright.edges()[j], bright.at_edges()[j]);
+        if !inner(q) || !bright_ok.contains(t) {
+            continue;
+        }
+        let (b, k) = dark.inverse(q);
+        if !dark_ok.contains(b) {
+            continue;
+        }
+        if let (Some(sd), Some(st)) = (sigma(dark, k, false), edge_sigma(bright, j)) {
+            pairs.push(TonePair {
+                dark: b,
+                bright: t,
+                sigma_dark: sd,
+                sigma_bright: st,
+                quantile: q,
+            });
+        }
+    }
+    pairs.sort_by(|a, b| a.quantile.total_cmp(&b.quantile));
+    pairs
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn frame8(codes: Vec<u8>, channels: usize) -> Frame {
+        let n = codes.len() / channels;
+        Frame::new(n as u32, 1, channels, Samples::Eight(codes)).unwrap()
+    }
+
+    #[test]
+    fn counts_every_pixel_per_channel() {
+        let codes: Vec<u8> = (0..300u32)
+            .flat_map(|i| [(i % 256) as u8, 7, 255])
+            .collect();
+        let h = Histogram::of_frame(&frame8(codes, 3), 1);
+        assert_eq!(h.total(), 300);
+        assert_eq!(h.counts(1)[7], 300);
+        assert_eq!(h.counts(2)[255], 300);
+        assert_eq!(h.counts(0)[10], 2);
+        assert_eq!(h.counts(0)[200], 1);
+    }
+
+    #[test]
+    fn parallel_bands_match_serial_count_and_stride_subsamples() {
+        let (w, hgt) = (1500u32, 1000u32);
+        let codes: Vec<u16> = (0..w * hgt)
+            .map(|i| (i.wrapping_mul(2654435761) >> 16) as u16)
+            .collect();
+        let f = Frame::new(w, hgt, 1, Samples::Sixteen(codes.clone())).unwrap();
+        let h = Histogram::of_frame(&f, 1);
+        assert_eq!(h.bins(), 4096);
+        let mut expect = vec![0u64; 4096];
+        codes.iter().for_each(|&c| expect[usize::from(c >> 4)] += 1);
+        assert_eq!(h.counts(0), expect.as_slice());
+        let s = Histogram::of_frame(&f, 4);
+        assert_eq!(s.total(), u64::from(w.div_ceil(4) * hgt.div_ceil(4)));
+    }
+
+    #[test]
+    fn cumulative_is_continuous_and_inverts() {
+        let codes: Vec<u8> = (0..1000u32).map(|i| (i % 100 + 50) as u8).collect();
+        let c = Histogram::of_frame(&frame8(codes, 1), 1).cumulative(0);
+        assert_eq!(c.at(0.0), 0.0);
+        assert_eq!(c.at(1.0), 1.0);
+        for q in [0.01, 0.3, 0.5, 0.77, 0.99] {
+            let (b, _) = c.inverse(q);
+            assert!((c.at(b) - q).abs() < 1e-12, "{q} {b}");
+        }
+        // Uniform over codes 50..149: the median sits at the edge between 99 and 100.
+        assert!((c.inverse(0.5).0 - 99.5 / 255.0).abs() < 1e-12);
+    }
+
+    #[test]
+    fn tau_of_a_shifted_histogram_is_the_shift() {
+        let dark: Vec<u8> = (0..5000u32).map(|i| (i % 100 + 20) as u8).collect();
+        let bright: Vec<u8> = dark.iter().map(|&c| c + 40).collect();
+        let a = Histogram::of_frame(&frame8(dark, 1), 1).cumulative(0);
+        let b = Histogram::of_frame(&frame8(bright, 1), 1).cumulative(0);
+        let ok = UsableTones::detect(&a, BitDepth::Eight);
+        let pairs = tone_pairs(&a, &b, ok, UsableTones::detect(&b, BitDepth::Eight));
+        assert!(pairs.len() > 150);
+        for p in pairs {
+            assert!((p.bright - p.dark - 40.0 / 255.0).abs() < 1e-9, "{p:?}");
+        }
+    }
+
+    #[test]
+    fn clipping_spike_moves_the_ceiling() {
+        let mut codes: Vec<u8> = (0..10000u32).map(|i| (i % 200) as u8).collect();
+        codes.extend(std::iter::repeat_n(230u8, 3000));
+        let c = Histogram::of_frame(&frame8(codes, 1), 1).cumulative(0);
+        let ok = UsableTones::detect(&c, BitDepth::Eight);
+        assert!(ok.ceiling < 229.0 / 255.0, "{ok:?}");
+        assert!((ok.floor - 2.5 / 255.0).abs() < 1e-12);
+    }
+}

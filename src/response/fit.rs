@@ -1,0 +1,560 @@
+//! Fitting one channel's inverse response to the tone pairs `g(τ(b)) = γ·g(b)`.
+//!
+//! **Model: a monotone Bernstein polynomial for `log g` on a log-brightness axis.**
+//! With `x = ln b` on the fit domain `[x₀, 0]` (`x₀ = ln` of the darkest usable tone) and
+//! `t = 1 − x/x₀ ∈ [0, 1]`,
+//!
+//! `u(t) = ln g = Σ_{k=0..n} c_k·B_{k,n}(t)`, `c_k = −Σ_{j>k} d_j`, `d_j ≥ 0`,
+//!
+//! so the Bernstein coefficients rise (`u`, hence `g`, is non-decreasing by construction)
+//! and `c_n = 0` gives `g(1) = 1` exactly. Written with the increments,
+//! `u(t) = Σ_{j=1..n} d_j·(S_j(t) − 1)` where `S_j = Σ_{k≥j} B_{k,n}` rises from 0 to 1.
+//! Each tone pair becomes one equation that is *linear* in `d`:
+//!
+//! `u(t_τ) − u(t_b) = Σ_j d_j·(S_j(t_τ) − S_j(t_b)) = ln γ`.
+//!
+//! Why this family: a power law `g = b^k` (gamma curves, most of sRGB) is a straight line
+//! in `(ln b, ln g)`, so low degrees already fit real cameras; errors are measured
+//! relative to `g` (stops), which is what a radiance merge needs, so dark tones are not
+//! swamped by bright ones; every equation is a difference, so the normalisation `g(1)=1`
+//! never enters the fit and cannot pull on it; and at a large ratio the same difference
+//! equation links the dark and bright ends through the overlap (chaining `g(τ(τ(b))) =
+//! γ²g(b)` happens implicitly). Below the darkest usable tone `b₀`, `g` continues as the
+//! power law `g(b₀)·(b/b₀)^s` with the end slope `s` (≥ 0.5), which gives `g(0) = 0`.
+//!
+//! **Solve.** Weighted non-negative least squares `min ‖W(A d − ln γ)‖`, `d ≥ 0`: the
+//! weighted design is reduced by a Householder QR to its `n × n` triangle, and the
+//! Lawson–Hanson active-set method runs on that triangle with SVD solves of the free
+//! columns. No normal equations are formed.
+//!
+//! **Weights** are inverse variances: an error `σ_b` in a tone moves `ln g` by
+//! `s(b)·σ_b/b` (`s = d ln g / d ln b`), so `σ² = (s_b σ_b/b)² + (s_τ σ_τ/τ)²`, with the
+//! slopes from a pilot fit and `σ_b, σ_τ` from the histogram (bin width and pixel support,
+//! see [`crate::histogram::tone_pairs`]).
+//!
+//! **Degree.** `auto` uses blocked 5-fold cross-validation: the tone pairs, in tone order,
+//! are cut into 5 contiguous blocks and each is predicted from the other four. Neighbouring
+//! tone pairs share pixels, so random folds leak and always prefer the largest model (as a
+//! prototype found); contiguous blocks test what matters, the curve between and beyond
+//! the data. Among degrees 1..=max the smallest whose score is within one standard error
+//! of the best is taken (the one-standard-error rule: prefer the simpler curve when the
+//! data cannot tell them apart).
+
+use nalgebra::{DMatrix, DVector};
+
+use crate::histogram::TonePair;
+
+/// Largest degree `auto` considers and a fixed degree may ask for.
+pub const MAX_DEGREE: usize = 16;
+
+/// How the model size is chosen.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Degree {
+    /// Blocked cross-validation with the one-standard-error rule (see module docs).
+    Auto,
+    /// A fixed degree `1..=MAX_DEGREE` (the report used 6).
+    Fixed(usize),
+}
+
+/// Why a channel could not be fitted.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+pub enum FitError {
+    /// Too few tones are usable in both frames (unclipped and above the noise floor).
+    #[error(
+        "only {0} tone pairs are usable in both frames (need at least 2): the frames share too little tonal range"
+    )]
+    TooFewTones(usize),
+    /// The degree is outside `1..=MAX_DEGREE`.
+    #[error("degree {0} is outside 1..={MAX_DEGREE}")]
+    Degree(usize),
+    /// The tone mapping runs the wrong way (the "bright" frame is darker).
+    #[error(
+        "the brighter frame is darker than the darker one in most tones: frames or ratio swapped"
+    )]
+    Swapped,
+}
+
+/// One channel's fitted inverse response and how well the data determined it.
+#[derive(Debug, Clone, PartialEq)]
+pub struct ChannelFit {
+    /// Polynomial degree `n`.
+    pub degree: usize,
+    /// Bernstein coefficients `c_0 ≤ … ≤ c_n = 0` of `ln g` on the fit domain.
+    pub coefficients: Vec<f64>,
+    /// `x₀ = ln b₀`: the fit domain is `ln b ∈ [x₀, 0]`.
+    pub log_floor: f64,
+    /// Brightness range the equations covered: darkest dark tone, brightest bright tone.
+    /// Outside it the curve is extrapolated.
+    pub covered: (f64, f64),
+    /// Root-mean-square equation residual `ln(g(τ)/(γ g(b)))`, weighted, in stops.
+    pub residual_rms: f64,
+    /// Number of equations (tone pairs) used.
+    pub equations: usize,
+    /// Condition number of the weighted design matrix (ratio of extreme singular values).
+    pub condition: f64,
+    /// Predicted standard error of `log₂ g` over codes 16..239 (stops), from the fit's
+    /// covariance scaled by the residual misfit.
+    pub predicted_error: f64,
+    /// Fraction of the tones 16/255..239/255 inside [`ChannelFit::covered`].
+    pub coverage: f64,
+    /// `coverage / (1 + (predicted_error / 0.05)²)`, in `[0, 1]`; below 0.5 is "low".
+    pub confidence: f64,
+}
+
+impl ChannelFit {
+    /// `ln g(b)` for `b > 0`.
+    pub fn log_g(&self, b: f64) -> f64 {
+        let x = b.min(1.0).ln();
+        if x < self.log_floor {
+            let s = self.end_slope();
+            return self.u(0.0) + s * (x - self.log_floor);
+        }
+        self.u(1.0 - x / self.log_floor)
+    }
+
+    /// `g(b)`, with `g(0) = 0` and `g(1) = 1`.
+    pub fn eval(&self, b: f64) -> f64 {
+        if b.is_nan() || b <= 0.0 {
+            return 0.0;
+        }
+        self.log_g(b).exp().min(1.0)
+    }
+
+    /// The same curve raised to the power `k > 0` (`ln g` times `k`): the fit for a ratio
+    /// `γ^k` instead of `γ`, since the equations are linear in `ln γ`.
+    pub fn scaled(&self, k: f64) -> ChannelFit {
+        let predicted_error = self.predicted_error * k;
+        ChannelFit {
+            coefficients: self.coefficients.iter().map(|c| c * k).collect(),
+            residual_rms: self.residual_rms * k,
+            predicted_error,
+            confidence: confidence(self.coverage, predicted_error),
+            ..self.clone()
+        }
+    }
+
+    /// Log–log slope used below the fit domain: the fitted slope at `b₀`, at least 0.5.
+    fn end_slope(&self) -> f64 {
+        (self.slope_t(0.0) / -self.log_floor).max(0.5)
+    }
+
+    fn u(&self, t: f64) -> f64 {
+        bernstein(self.degree, t)
+            .iter()
+            .zip(&self.coefficients)
+            .map(|(b, c)| b * c)
+            .sum()
+    }
+
+    /// `du/dt`.
+    fn slope_t(&self, t: f64) -> f64 {
+        let n = self.degree;
+        let b = bernstein(n - 1, t);
+        (0..n)
+            .map(|k| n as f64 * (self.coefficients[k + 1] - self.coefficients[k]) * b[k])
+            .sum()
+    }
+
+    /// `d ln g / d ln b` at brightness `b` (within the fit domain; clamped to it).
+    pub fn log_slope(&self, b: f64) -> f64 {
+        let x = b.clamp(self.log_floor.exp(), 1.0).ln();
+        self.slope_t(1.0 - x / self.log_floor) / -self.log_floor
+    }
+}
+
+/// `B_{k,n}(t)` for `k = 0..=n`.
+fn bernstein(n: usize, t: f64) -> Vec<f64> {
+    let t = t.clamp(0.0, 1.0);
+    // de Casteljau-style build-up: stable for every t in [0, 1].
+    let mut b = vec![0.0; n + 1];
+    b[0] = 1.0;
+    for m in 1..=n {
+        for k in (0..=m).rev() {
+            let left = if k > 0 { b[k - 1] * t } else { 0.0 };
+            b[k] = left + b[k] * (1.0 - t);
+        }
+    }
+    b
+}
+
+/// `S_j(t) − 1` for `j = 1..=n`: the increments' basis functions, `u = Σ d_j (S_j − 1)`.
+fn ramps(n: usize, t: f64) -> Vec<f64> {
+    let b = bernstein(n, t);
+    let mut out = vec![0.0; n];
+    let mut tail = 0.0;
+    for j in (1..=n).rev() {
+        tail += b[j];
+        out[j - 1] = tail - 1.0;
+    }
+    out
+}
+
+/// The equations in `t` coordinates: `(t_b, t_τ)` per pair.
+fn positions(pairs: &[TonePair], log_floor: f64) -> Vec<(f64, f64)> {
+    pairs
+        .iter()
+        .map(|p| {
+            (
+                1.0 - p.dark.ln() / log_floor,
+                1.0 - p.bright.min(1.0).ln() / log_floor,
+            )
+        })
+        .collect()
+}
+
+/// Weighted design rows for degree `n`: `√w·(ramps(t_τ) − ramps(t_b))`.
+fn design(n: usize, at: &[(f64, f64)], sqrt_w: &[f64], rows: &[usize]) -> DMatrix<f64> {
+    let mut a = DMatrix::zeros(rows.len(), n);
+    for (r, &i) in rows.iter().enumerate() {
+        let (tb, tt) = at[i];
+        let (lo, hi) = (ramps(n, tb), ramps(n, tt));
+        for j in 0..n {
+            a[(r, j)] = sqrt_w[i] * (hi[j] - lo[j]);
+        }
+    }
+    a
+}
+
+/// `min ‖A x − y‖` subject to `x ≥ 0` (Lawson–Hanson), after a QR reduction of `A`.
+fn nnls(a: &DMatrix<f64>, y: &DVector<f64>) -> DVector<f64> {
+    let n = a.ncols();
+    let qr = a.clone().qr();
+    let r = qr.r();
+    let z = qr.q().transpose() * y;
+    let tol = 1e-12 * (1.0 + r.norm() * z.norm());
+    let mut x = DVector::zeros(n);
+    let mut free = vec![false; n];
+    for _ in 0..3 * n + 3 {
+        let grad = r.transpose() * (&z - &r * &x);
+        let pick = (0..n)
+            .filter(|&j| !free[j] && grad[j] > tol)
+            .max_by(|&i, &j| grad[i].total_cmp(&grad[j]));
+        let Some(j) = pick else { break };
+        free[j] = true;
+        loop {
+            let cols: Vec<usize> = (0..n).filter(|&j| free[j]).collect();
+            let sub = r.select_columns(&cols);
+            let sol = sub
+                .svd(true, true)
+                .solve(&z, 1e-13)
+                .unwrap_or_else(|_| DVector::zeros(cols.len()));
+            if sol.iter().all(|&v| v > 0.0) {
+                x.fill(0.0);
+                for (k, &c) in cols.iter().enumerate() {
+                    x[c] = sol[k];
+                }
+                break;
+            }
+            let mut alpha = 1.0f64;
+            for (k, &c) in cols.iter().enumerate() {
+                if sol[k] <= 0.0 {
+                    alpha = alpha.min(x[c] / (x[c] - sol[k]));
+                }
+            }
+            for (k, &c) in cols.iter().enumerate() {
+                x[c] += alpha * (sol[k] - x[c]);
+                if x[c] <= 1e-15 {
+                    x[c] = 0.0;
+                    free[c] = false;
+                }
+            }
+            if !free.iter().any(|&f| f) {
+                break;
+            }
+        }
+    }
+    x
+}
+
+/// Solves for the increments `d` at degree `n` on the given rows.
+fn solve(
+    n: usize,
+    at: &[(f64, f64)],
+    sqrt_w: &[f64],
+    rows: &[usize],
+    log_ratio: f64,
+) -> DVector<f64> {
+    let a = design(n, at, sqrt_w, rows);
+    let y = DVector::from_iterator(rows.len(), rows.iter().map(|&i| sqrt_w[i] * log_ratio));
+    nnls(&a, &y)
+}
+
+fn coefficients(d: &DVector<f64>) -> Vec<f64> {
+    let n = d.len();
+    let mut c = vec![0.0; n + 1];
+    for k in (0..n).rev() {
+        c[k] = c[k + 1] - d[k];
+    }
+    c
+}
+
+/// Sum of squared weighted residuals of `d` on `rows`.
+fn misfit(
+    d: &DVector<f64>,
+    at: &[(f64, f64)],
+    sqrt_w: &[f64],
+    rows: &[usize],
+    log_ratio: f64,
+) -> f64 {
+    let a = design(d.len(), at, sqrt_w, rows);
+    let y = DVector::from_iterator(rows.len(), rows.iter().map(|&i| sqrt_w[i] * log_ratio));
+    (a * d - y).norm_squared()
+}
+
+/// Chooses the degree by blocked 5-fold cross-validation and the one-standard-error rule.
+fn choose_degree(at: &[(f64, f64)], sqrt_w: &[f64], log_ratio: f64, max: usize) -> usize {
+    const FOLDS: usize = 5;
+    let m = at.len();
+    if m < 2 * FOLDS || max <= 1 {
+        return 1;
+    }
+    let fold_of = |i: usize| i * FOLDS / m;
+    let mut scores: Vec<(usize, f64, f64)> = Vec::new();
+    for n in 1..=max {
+        let per_fold: Vec<f64> = (0..FOLDS)
+            .map(|f| {
+                let train: Vec<usize> = (0..m).filter(|&i| fold_of(i) != f).collect();
+                let test: Vec<usize> = (0..m).filter(|&i| fold_of(i) == f).collect();
+                let d = solve(n, at, sqrt_w, &train, log_ratio);
+                misfit(&d, at, sqrt_w, &test, log_ratio) / test.len() as f64
+            })
+            .collect();
+        let mean = per_fold.iter().sum::<f64>() / FOLDS as f64;
+        let var = per_fold.iter().map(|s| (s - mean).powi(2)).sum::<f64>() / (FOLDS - 1) as f64;
+        scores.push((n, mean, (var / FOLDS as f64).sqrt()));
+    }
+    let best = scores
+        .iter()
+        .min_by(|a, b| a.1.total_cmp(&b.1))
+        .copied()
+        .unwrap_or((1, 0.0, 0.0));
+    scores
+        .iter()
+        .find(|s| s.1 <= best.1 + best.2)
+        .map_or(best.0, |s| s.0)
+}
+
+/// Fits `ln g` to the tone pairs of one channel for a known `ln γ > 0` (see module docs).
+pub fn fit(pairs: &[TonePair], log_ratio: f64, degree: Degree) -> Result<ChannelFit, FitError> {
+    if let Degree::Fixed(n) = degree
+        && !(1..=MAX_DEGREE).contains(&n)
+    {
+        return Err(FitError::Degree(n));
+    }
+    let backwards = pairs.iter().filter(|p| p.bright < p.dark).count();
+    if backwards * 2 > pairs.len() {
+        return Err(FitError::Swapped);
+    }
+    let pairs: Vec<TonePair> = pairs
+        .iter()
+        .filter(|p| p.dark > 0.0 && p.bright > p.dark && p.bright.is_finite())
+        .copied()
+        .collect();
+    let m = pairs.len();
+    if m < 2 {
+        return Err(FitError::TooFewTones(m));
+    }
+    let darkest = pairs.iter().map(|p| p.dark).fold(f64::INFINITY, f64::min);
+    let brightest = pairs.iter().map(|p| p.bright).fold(0.0, f64::max);
+    let log_floor = darkest.ln().min(-1e-3);
+    let at = positions(&pairs, log_floor);
+    let sigma2 = |p: &TonePair, s_b: f64, s_t: f64| {
+        (s_b * p.sigma_dark / p.dark).powi(2) + (s_t * p.sigma_bright / p.bright).powi(2)
+    };
+    // Pilot: unit slopes, a moderate degree; then weights from its slopes.
+    let pilot_w: Vec<f64> = pairs
+        .iter()
+        .map(|p| 1.0 / sigma2(p, 1.0, 1.0).sqrt())
+        .collect();
+    let pilot_n = 4.min(m.saturating_sub(1)).max(1);
+    let pilot = finish(
+        &pairs, &at, &pilot_w, log_floor, pilot_n, log_ratio, darkest, brightest,
+    );
+    let sqrt_w: Vec<f64> = pairs
+        .iter()
+        .map(|p| {
+            let s_b = pilot.log_slope(p.dark).max(0.3);
+            let s_t = pilot.log_slope(p.bright).max(0.3);
+            1.0 / sigma2(p, s_b, s_t).sqrt()
+        })
+        .collect();
+    let max_auto = MAX_DEGREE.min(12).min(m / 4).max(1);
+    let n = match degree {
+        Degree::Fixed(n) => n,
+        Degree::Auto => choose_degree(&at, &sqrt_w, log_ratio, max_auto),
+    };
+    Ok(finish(
+        &pairs, &at, &sqrt_w, log_floor, n, log_ratio, darkest, brightest,
+    ))
+}
+
+/// Final solve at degree `n` and its report.
+#[allow(clippy::too_many_arguments)]
+fn finish(
+    pairs: &[TonePair],
+    at: &[(f64, f64)],
+    sqrt_w: &[f64],
+    log_floor: f64,
+    n: usize,
+    log_ratio: f64,
+    darkest: f64,
+    brightest: f64,
+) -> ChannelFit {
+    let m = pairs.len();
+    let rows: Vec<usize> = (0..m).collect();
+    let a = design(n, at, sqrt_w, &rows);
+    let y = DVector::from_iterator(m, sqrt_w.iter().map(|w| w * log_ratio));
+    let d = nnls(&a, &y);
+    let resid = &a * &d - &y;
+    let chi2 = resid.norm_squared();
+    let w_sum: f64 = sqrt_w.iter().map(|w| w * w).sum();
+    let residual_rms = (chi2 / w_sum.max(f64::MIN_POSITIVE)).sqrt() / std::f64::consts::LN_2;
+    let sv = a.clone().svd(false, false).singular_values;
+    let (smax, smin) = sv.iter().fold((0.0f64, f64::INFINITY), |(hi, lo), &s| {
+        (hi.max(s), lo.min(s))
+    });
+    let condition = if smin > 0.0 {
+        smax / smin
+    } else {
+        f64::INFINITY
+    };
+    let fit = ChannelFit {
+        degree: n,
+        coefficients: coefficients(&d),
+        log_floor,
+        covered: (darkest, brightest.min(1.0)),
+        residual_rms,
+        equations: m,
+        condition,
+        predicted_error: 0.0,
+        coverage: 0.0,
+        confidence: 0.0,
+    };
+    // Covariance of the free increments: s²·V Σ⁻² Vᵀ of the weighted free columns, with
+    // s² = max(1, χ²/(m − p)) (the misfit inflates it) times 2 (each pixel bin feeds two
+    // neighbouring equations, so the equations are not independent).
+    let free: Vec<usize> = (0..n).filter(|&j| d[j] > 0.0).collect();
+    let p = free.len().max(1);
+    let scale2 = 2.0 * (chi2 / (m.saturating_sub(p).max(1)) as f64).max(1.0);
+    let codes: Vec<f64> = (16..=239).map(|k| f64::from(k) / 255.0).collect();
+    let predicted_error = if free.is_empty() {
+        f64::INFINITY
+    } else {
+        let af = a.select_columns(&free);
+        let svd = af.svd(false, true);
+        let vt = svd.v_t.unwrap_or_else(|| DMatrix::identity(p, p));
+        let mut var_sum = 0.0;
+        for &b in &codes {
+            let x = b.ln().max(log_floor);
+            let r = ramps(n, 1.0 - x / log_floor);
+            let phi = DVector::from_iterator(p, free.iter().map(|&j| r[j]));
+            let proj = &vt * phi;
+            var_sum += proj
+                .iter()
+                .zip(svd.singular_values.iter())
+                .map(|(v, s)| {
+                    if *s > 0.0 {
+                        (v / s).powi(2)
+                    } else {
+                        f64::INFINITY
+                    }
+                })
+                .sum::<f64>();
+        }
+        (scale2 * var_sum / codes.len() as f64).sqrt() / std::f64::consts::LN_2
+    };
+    let (lo, hi) = fit.covered;
+    let coverage =
+        ((hi.min(239.0 / 255.0) - lo.max(16.0 / 255.0)) / (223.0 / 255.0)).clamp(0.0, 1.0);
+    ChannelFit {
+        predicted_error,
+        coverage,
+        confidence: confidence(coverage, predicted_error),
+        ..fit
+    }
+}
+
+/// `coverage / (1 + (predicted_error / 0.05 stop)²)`; 0 for an undetermined curve.
+fn confidence(coverage: f64, predicted_error: f64) -> f64 {
+    if predicted_error.is_finite() {
+        coverage / (1.0 + (predicted_error / 0.05).powi(2))
+    } else {
+        0.0
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Exact tone pairs of `g = b^k` at ratio γ: τ(b) = b·γ^(1/k).
+    fn power_pairs(k: f64, gamma: f64) -> Vec<TonePair> {
+        (3..=252)
+            .map(|c| f64::from(c) / 255.0)
+            .map(|b| (b, b * gamma.powf(1.0 / k)))
+            .filter(|&(_, t)| t <= 252.0 / 255.0)
+            .enumerate()
+            .map(|(i, (b, t))| TonePair {
+                dark: b,
+                bright: t,
+                sigma_dark: 0.001,
+                sigma_bright: 0.001,
+                quantile: i as f64,
+            })
+            .collect()
+    }
+
+    #[test]
+    fn bernstein_partition_of_unity_and_ramps() {
+        for t in [0.0, 0.2, 0.7, 1.0] {
+            assert!((bernstein(7, t).iter().sum::<f64>() - 1.0).abs() < 1e-14);
+        }
+        assert!(ramps(5, 1.0).iter().all(|v| v.abs() < 1e-14));
+        assert!(ramps(5, 0.0).iter().all(|v| (v + 1.0).abs() < 1e-14));
+    }
+
+    #[test]
+    fn nnls_matches_unconstrained_when_interior_and_clamps_otherwise() {
+        let a = DMatrix::from_row_slice(3, 2, &[1.0, 0.0, 0.0, 1.0, 1.0, 1.0]);
+        let y = DVector::from_vec(vec![1.0, 2.0, 3.0]);
+        let x = nnls(&a, &y);
+        assert!((x[0] - 1.0).abs() < 1e-12 && (x[1] - 2.0).abs() < 1e-12);
+        let y = DVector::from_vec(vec![-1.0, 2.0, 1.0]);
+        let x = nnls(&a, &y);
+        assert_eq!(x[0], 0.0);
+        assert!((x[1] - 1.5).abs() < 1e-12);
+    }
+
+    #[test]
+    fn recovers_a_power_law_at_every_degree() {
+        let pairs = power_pairs(2.2, 4.0);
+        for degree in [
+            Degree::Fixed(1),
+            Degree::Fixed(6),
+            Degree::Fixed(12),
+            Degree::Auto,
+        ] {
+            let f = fit(&pairs, 4f64.ln(), degree).unwrap();
+            for c in 16..240 {
+                let b = f64::from(c) / 255.0;
+                let err = (f.eval(b).log2() - 2.2 * b.log2()).abs();
+                assert!(err < 1e-3, "{degree:?} code {c}: {err}");
+            }
+            assert!(f.coefficients.windows(2).all(|w| w[0] <= w[1]));
+            assert_eq!(f.eval(1.0), 1.0);
+            assert_eq!(f.eval(0.0), 0.0);
+        }
+        let auto = fit(&pairs, 4f64.ln(), Degree::Auto).unwrap();
+        assert!(auto.degree <= 3, "{}", auto.degree);
+        assert!(auto.confidence > 0.8, "{auto:?}");
+    }
+
+    #[test]
+    fn rejects_too_few_tones_and_bad_degrees() {
+        assert_eq!(fit(&[], 1.0, Degree::Auto), Err(FitError::TooFewTones(0)));
+        assert_eq!(
+            fit(&power_pairs(2.2, 4.0), 1.0, Degree::Fixed(0)),
+            Err(FitError::Degree(0))
+        );
+    }
+}
