@@ -15,3 +15,4 @@ pub mod merge;
 pub mod metadata;
 pub mod radiance;
 pub mod response;
+pub mod synthetic;
