@@ -6,6 +6,7 @@ use std::process::ExitCode;
 use clap::{Parser, Subcommand};
 
 mod inspect;
+mod merge;
 
 /// filmback: brackets from a tethered camera to HDR radiance maps and film renderings.
 #[derive(Debug, Parser)]
@@ -19,6 +20,8 @@ struct Cli {
 enum Command {
     /// Show each frame's size, depth, camera, exposure and capture time.
     Inspect(inspect::Args),
+    /// Merge a bracket into one OpenEXR radiance map.
+    Merge(merge::Args),
 }
 
 /// Parses the command line, runs the subcommand, and reports errors on stderr.
@@ -26,6 +29,7 @@ pub fn main() -> ExitCode {
     let cli = Cli::parse();
     let result = match cli.command {
         Command::Inspect(args) => inspect::run(args),
+        Command::Merge(args) => merge::run(args),
     };
     match result {
         Ok(code) => code,
