@@ -34,8 +34,67 @@ use exr::prelude::{
 };
 
 use crate::atomic::{self, Overwrite, PublishError};
+use crate::merge::PairMerge;
 use crate::metadata::{Camera, CaptureTime, Exposure};
 use crate::radiance::RadianceMap;
+
+/// Anything the writers can pull radiance from, sample by sample: a [`RadianceMap`], or
+/// a [`PairMerge`] evaluated while the file is encoded (no radiance buffer at all).
+pub trait RadianceSource: Sync {
+    /// Width in pixels.
+    fn width(&self) -> u32;
+    /// Height in pixels.
+    fn height(&self) -> u32;
+    /// 1 (grey) or 3 (RGB).
+    fn channels(&self) -> usize;
+    /// Linear relative radiance of `channel` of `pixel` (row-major index).
+    fn sample(&self, pixel: usize, channel: usize) -> f32;
+    /// An upper bound of the finite values (decides half-overflow handling).
+    fn max_value(&self) -> f32;
+}
+
+impl RadianceSource for RadianceMap {
+    fn width(&self) -> u32 {
+        RadianceMap::width(self)
+    }
+    fn height(&self) -> u32 {
+        RadianceMap::height(self)
+    }
+    fn channels(&self) -> usize {
+        RadianceMap::channels(self)
+    }
+    #[inline]
+    fn sample(&self, pixel: usize, channel: usize) -> f32 {
+        self.pixels()[pixel * RadianceMap::channels(self) + channel]
+    }
+    fn max_value(&self) -> f32 {
+        use rayon::prelude::*;
+        self.pixels()
+            .par_iter()
+            .copied()
+            .filter(|v| v.is_finite())
+            .reduce(|| 0.0, f32::max)
+    }
+}
+
+impl RadianceSource for PairMerge<'_> {
+    fn width(&self) -> u32 {
+        PairMerge::width(self)
+    }
+    fn height(&self) -> u32 {
+        PairMerge::height(self)
+    }
+    fn channels(&self) -> usize {
+        PairMerge::channels(self)
+    }
+    #[inline]
+    fn sample(&self, pixel: usize, channel: usize) -> f32 {
+        PairMerge::sample(self, pixel, channel)
+    }
+    fn max_value(&self) -> f32 {
+        PairMerge::max_value(self)
+    }
+}
 
 /// The largest finite half-precision value.
 pub const HALF_MAX: f32 = 65504.0;
@@ -166,10 +225,10 @@ pub enum OutputError {
 
 /// Writes `map` (and, if given, the per-pixel `confidence` as channel `confidence.Y`) as
 /// an OpenEXR file at `path`, atomically.
-pub fn write_exr(
+pub fn write_exr<S: RadianceSource + ?Sized>(
     path: &Path,
     overwrite: Overwrite,
-    map: &RadianceMap,
+    map: &S,
     confidence: Option<&[f32]>,
     provenance: &Provenance,
     options: ExrOptions,
@@ -184,9 +243,9 @@ pub fn write_exr(
 }
 
 /// Encodes `map` as OpenEXR into `writer` (see [`write_exr`]).
-pub fn encode_exr<W: Write + Seek>(
+pub fn encode_exr<W: Write + Seek, S: RadianceSource + ?Sized>(
     writer: W,
-    map: &RadianceMap,
+    map: &S,
     confidence: Option<&[f32]>,
     provenance: &Provenance,
     options: ExrOptions,
@@ -212,8 +271,7 @@ pub fn encode_exr<W: Write + Seek>(
         line_order: LineOrder::Increasing,
     };
     let attributes = layer_attributes(provenance, scale);
-    let pixels = map.pixels();
-    let value = move |i: usize| (pixels[i] * scale).min(limit);
+    let value = move |pixel: usize, c: usize| (map.sample(pixel, c) * scale).min(limit);
     let colour = |name: &str| ChannelDescription::new(name, sample, false);
     let linear = ChannelDescription::new("confidence.Y", sample, true);
     let image_attributes = image_attributes(size);
@@ -224,8 +282,8 @@ pub fn encode_exr<W: Write + Seek>(
                 .with_channel_details::<f32>(colour("G"))
                 .with_channel_details::<f32>(colour("B"))
                 .with_pixel_fn(|p: Vec2<usize>| {
-                    let i = (p.1 * width + p.0) * 3;
-                    (value(i), value(i + 1), value(i + 2))
+                    let j = p.1 * width + p.0;
+                    (value(j, 0), value(j, 1), value(j, 2))
                 });
             let layer = Layer::new(size, attributes, encoding, channels);
             Image::empty(image_attributes)
@@ -241,8 +299,7 @@ pub fn encode_exr<W: Write + Seek>(
                 .with_channel_details::<f32>(linear)
                 .with_pixel_fn(|p: Vec2<usize>| {
                     let j = p.1 * width + p.0;
-                    let i = j * 3;
-                    (value(i), value(i + 1), value(i + 2), conf[j])
+                    (value(j, 0), value(j, 1), value(j, 2), conf[j])
                 });
             let layer = Layer::new(size, attributes, encoding, channels);
             Image::empty(image_attributes)
@@ -253,7 +310,7 @@ pub fn encode_exr<W: Write + Seek>(
         (_, None) => {
             let channels = SpecificChannels::build()
                 .with_channel_details::<f32>(colour("Y"))
-                .with_pixel_fn(|p: Vec2<usize>| (value(p.1 * width + p.0),));
+                .with_pixel_fn(|p: Vec2<usize>| (value(p.1 * width + p.0, 0),));
             let layer = Layer::new(size, attributes, encoding, channels);
             Image::empty(image_attributes)
                 .with_layer(layer)
@@ -266,7 +323,7 @@ pub fn encode_exr<W: Write + Seek>(
                 .with_channel_details::<f32>(linear)
                 .with_pixel_fn(|p: Vec2<usize>| {
                     let j = p.1 * width + p.0;
-                    (value(j), conf[j])
+                    (value(j, 0), conf[j])
                 });
             let layer = Layer::new(size, attributes, encoding, channels);
             Image::empty(image_attributes)
@@ -280,17 +337,11 @@ pub fn encode_exr<W: Write + Seek>(
 }
 
 /// The scale factor and clamp limit for the chosen sample type, with a warning if used.
-fn overflow(map: &RadianceMap, options: ExrOptions) -> (f32, f32, Vec<String>) {
+fn overflow<S: RadianceSource + ?Sized>(map: &S, options: ExrOptions) -> (f32, f32, Vec<String>) {
     if options.sample == SampleFormat::Float {
         return (1.0, f32::MAX, Vec::new());
     }
-    use rayon::prelude::*;
-    let max = map
-        .pixels()
-        .par_iter()
-        .copied()
-        .filter(|v| v.is_finite())
-        .reduce(|| 0.0, f32::max);
+    let max = map.max_value();
     if max <= HALF_MAX {
         return (1.0, HALF_MAX, Vec::new());
     }
@@ -305,9 +356,8 @@ fn overflow(map: &RadianceMap, options: ExrOptions) -> (f32, f32, Vec<String>) {
             (scale, HALF_MAX, vec![warning])
         }
         Overflow::Clamp => {
-            let count = map.pixels().par_iter().filter(|&&v| v > HALF_MAX).count();
             let warning = format!(
-                "radiance up to {max} exceeds half's 65504: {count} sample(s) clamped to 65504; \
+                "radiance up to {max} exceeds half's 65504: larger samples clamped to 65504; \
                  write float to keep them"
             );
             (1.0, HALF_MAX, vec![warning])
@@ -409,10 +459,10 @@ fn layer_attributes(p: &Provenance, scale: f32) -> LayerAttributes {
 
 /// Writes `map` as a Radiance RGBE `.hdr` file at `path`, atomically (grey maps are
 /// written as three equal channels).
-pub fn write_radiance_hdr(
+pub fn write_radiance_hdr<S: RadianceSource + ?Sized>(
     path: &Path,
     overwrite: Overwrite,
-    map: &RadianceMap,
+    map: &S,
 ) -> Result<(), OutputError> {
     atomic::publish_with(path, overwrite, |w| {
         encode_radiance_hdr(w, map).map_err(|e| e.to_string())
@@ -421,19 +471,18 @@ pub fn write_radiance_hdr(
 }
 
 /// Encodes `map` as Radiance RGBE into `writer` (see [`write_radiance_hdr`]).
-pub fn encode_radiance_hdr<W: Write>(writer: W, map: &RadianceMap) -> Result<(), OutputError> {
-    let rgb: Vec<image::Rgb<f32>> = match map.channels() {
-        3 => map
-            .pixels()
-            .chunks_exact(3)
-            .map(|p| image::Rgb([p[0], p[1], p[2]]))
-            .collect(),
-        _ => map
-            .pixels()
-            .iter()
-            .map(|&v| image::Rgb([v, v, v]))
-            .collect(),
-    };
+pub fn encode_radiance_hdr<W: Write, S: RadianceSource + ?Sized>(
+    writer: W,
+    map: &S,
+) -> Result<(), OutputError> {
+    let pixels = map.width() as usize * map.height() as usize;
+    let grey = map.channels() == 1;
+    let rgb: Vec<image::Rgb<f32>> = (0..pixels)
+        .map(|p| {
+            let s = |c: usize| map.sample(p, if grey { 0 } else { c });
+            image::Rgb([s(0), s(1), s(2)])
+        })
+        .collect();
     image::codecs::hdr::HdrEncoder::new(writer)
         .encode(&rgb, map.width() as usize, map.height() as usize)
         .map_err(|e| OutputError::Hdr(e.to_string()))

@@ -235,13 +235,15 @@ pub fn merge(
                     Samples::Sixteen(_) => unreachable!("depth checked"),
                 })
                 .collect();
-            merge_codes(
-                &codes,
-                &tables,
-                width as usize,
-                &mut pixels,
-                confidence.as_deref_mut(),
-            )
+            match confidence.as_deref_mut() {
+                // The common case, an 8-bit pair, takes one lookup per sample.
+                None if codes.len() == 2 => {
+                    let table = PairTable::new(&tables);
+                    fill_pair(codes[0], codes[1], &table, width as usize, &mut pixels);
+                    count_clipped(codes[0], codes[1], &table)
+                }
+                conf => merge_codes(&codes, &tables, width as usize, &mut pixels, conf),
+            }
         }
         BitDepth::Sixteen => {
             let codes: Vec<&[u16]> = sorted
@@ -465,6 +467,37 @@ fn merge_codes<T: Copy + Into<usize> + Sync>(
     }
 }
 
+/// What one sample merges to.
+enum Estimate {
+    /// The weighted mean and the weight sum.
+    Weighted(f32, f32),
+    /// Clipped high in every frame: the darkest frame's value (a lower bound).
+    High(f32),
+    /// Clipped low in every frame: the brightest frame's value (an upper bound).
+    Low(f32),
+}
+
+/// The estimate of channel `c` from the sorted frames' codes (`code(k)`).
+#[inline(always)]
+fn estimate(tables: &Tables, c: usize, code: impl Fn(usize) -> usize) -> Estimate {
+    let (mut num, mut den) = (0.0f32, 0.0f32);
+    for k in 0..tables.frames {
+        let [w, wx] = tables.weighted[tables.index(k, c, code(k))];
+        num += wx;
+        den += w;
+    }
+    if den > 0.0 {
+        return Estimate::Weighted(num / den, den);
+    }
+    let (darkest, brightest) = (0, tables.frames - 1);
+    let dark_code = code(darkest);
+    if dark_code >= tables.levels / 2 {
+        Estimate::High(tables.value[tables.index(darkest, c, dark_code)])
+    } else {
+        Estimate::Low(tables.value[tables.index(brightest, c, code(brightest))])
+    }
+}
+
 fn merge_row<T: Copy + Into<usize>>(
     frames: &[&[T]],
     tables: &Tables,
@@ -477,31 +510,23 @@ fn merge_row<T: Copy + Into<usize>>(
         .iter()
         .map(|f| &f[start..start + row.len()])
         .collect();
-    let (darkest, brightest) = (0, tables.frames - 1);
-    let half = tables.levels / 2;
     let (mut high, mut low) = (0u64, 0u64);
     for (p, pixel) in row.chunks_exact_mut(channels).enumerate() {
         let mut least = f32::INFINITY;
         for (c, out) in pixel.iter_mut().enumerate() {
             let i = p * channels + c;
-            let (mut num, mut den) = (0.0f32, 0.0f32);
-            for (k, codes) in rows.iter().enumerate() {
-                let [w, wx] = tables.weighted[tables.index(k, c, codes[i].into())];
-                num += wx;
-                den += w;
-            }
-            *out = if den > 0.0 {
-                num / den
-            } else {
-                let dark_code: usize = rows[darkest][i].into();
-                if dark_code >= half {
+            let (value, den) = match estimate(tables, c, |k| rows[k][i].into()) {
+                Estimate::Weighted(v, den) => (v, den),
+                Estimate::High(v) => {
                     high += 1;
-                    tables.value[tables.index(darkest, c, dark_code)]
-                } else {
+                    (v, 0.0)
+                }
+                Estimate::Low(v) => {
                     low += 1;
-                    tables.value[tables.index(brightest, c, rows[brightest][i].into())]
+                    (v, 0.0)
                 }
             };
+            *out = value;
             least = least.min(den);
         }
         if let Some(conf) = confidence.as_deref_mut() {
@@ -509,6 +534,204 @@ fn merge_row<T: Copy + Into<usize>>(
         }
     }
     (high, low)
+}
+
+/// For a pair of 8-bit frames, every outcome tabulated per channel by
+/// `(dark code << 8) | bright code`: 65 536 values per channel (256 KB), so a sample
+/// costs one lookup; `clipped` marks the clipped-everywhere entries (+1 high, −1 low).
+struct PairTable {
+    channels: usize,
+    value: Vec<f32>,
+    clipped: Vec<i8>,
+}
+
+impl PairTable {
+    #[inline(always)]
+    fn index(&self, channel: usize, dark: u8, bright: u8) -> usize {
+        (channel << 16) | (usize::from(dark) << 8) | usize::from(bright)
+    }
+
+    fn new(tables: &Tables) -> PairTable {
+        let n = tables.channels << 16;
+        let mut value = Vec::with_capacity(n);
+        let mut clipped = Vec::with_capacity(n);
+        for c in 0..tables.channels {
+            for pair in 0..1usize << 16 {
+                let codes = [pair >> 8, pair & 0xff];
+                let (v, flag) = match estimate(tables, c, |k| codes[k]) {
+                    Estimate::Weighted(v, _) => (v, 0),
+                    Estimate::High(v) => (v, 1),
+                    Estimate::Low(v) => (v, -1),
+                };
+                value.push(v);
+                clipped.push(flag);
+            }
+        }
+        PairTable {
+            channels: tables.channels,
+            value,
+            clipped,
+        }
+    }
+}
+
+/// Fills `out` from two 8-bit frames through a [`PairTable`], rows in parallel.
+fn fill_pair(dark: &[u8], bright: &[u8], table: &PairTable, width: usize, out: &mut [f32]) {
+    let channels = table.channels;
+    let row_len = width * channels;
+    out.par_chunks_mut(row_len)
+        .enumerate()
+        .for_each(|(y, row)| {
+            let start = y * row_len;
+            let (d, b) = (
+                &dark[start..start + row_len],
+                &bright[start..start + row_len],
+            );
+            let pixels = row
+                .chunks_exact_mut(channels)
+                .zip(d.chunks_exact(channels).zip(b.chunks_exact(channels)));
+            for (o, (dp, bp)) in pixels {
+                for c in 0..channels {
+                    o[c] = table.value[table.index(c, dp[c], bp[c])];
+                }
+            }
+        });
+}
+
+/// Samples clipped high and low in both frames. Weights vanish only at codes 0 and 255,
+/// so only samples whose dark code is one of those are looked up.
+fn count_clipped(dark: &[u8], bright: &[u8], table: &PairTable) -> (u64, u64) {
+    let chunk = table.channels << 14;
+    dark.par_chunks(chunk)
+        .zip(bright.par_chunks(chunk))
+        .map(|(d, b)| {
+            let (mut high, mut low) = (0u64, 0u64);
+            for (i, (&dc, &bc)) in d.iter().zip(b).enumerate() {
+                if matches!(dc, 0 | 255) {
+                    match table.clipped[table.index(i % table.channels, dc, bc)] {
+                        1 => high += 1,
+                        -1 => low += 1,
+                        _ => {}
+                    }
+                }
+            }
+            (high, low)
+        })
+        .reduce(|| (0, 0), |a, b| (a.0 + b.0, a.1 + b.1))
+}
+
+/// A merge of two 8-bit frames evaluated sample by sample on demand, never held as a
+/// whole image: an encoder can pull [`PairMerge::sample`] while it writes, which saves
+/// the `f32` radiance buffer (12 bytes per RGB pixel) and the time to fill it. The values
+/// are exactly those of [`merge`] (same tables).
+pub struct PairMerge<'a> {
+    dark: &'a [u8],
+    bright: &'a [u8],
+    table: PairTable,
+    width: u32,
+    height: u32,
+    /// Input indices sorted by exposure, darkest first.
+    pub order: Vec<usize>,
+    /// The exposures in that order.
+    pub exposures: Vec<f64>,
+    /// Samples clipped high in both frames (value is a lower bound).
+    pub clipped_high: u64,
+    /// Samples clipped low in both frames (value is an upper bound).
+    pub clipped_low: u64,
+}
+
+impl<'a> PairMerge<'a> {
+    /// Prepares the merge of `frames` when they are two 8-bit frames (`Ok(None)` otherwise;
+    /// use [`merge`] then). Checks the bracket exactly as [`merge`] does.
+    pub fn new(
+        frames: &[BracketFrame<'a>],
+        response: &InverseResponse,
+        weighting: Weighting,
+    ) -> Result<Option<PairMerge<'a>>, MergeError> {
+        check(frames, response)?;
+        if frames.len() != 2 {
+            return Ok(None);
+        }
+        let (dark, bright) = if frames[0].exposure <= frames[1].exposure {
+            (0, 1)
+        } else {
+            (1, 0)
+        };
+        let (Samples::Eight(d), Samples::Eight(b)) =
+            (frames[dark].frame.samples(), frames[bright].frame.samples())
+        else {
+            return Ok(None);
+        };
+        let exposures = vec![frames[dark].exposure, frames[bright].exposure];
+        let first = frames[0].frame;
+        let tables = Tables::new(
+            &exposures,
+            response,
+            first.channels(),
+            BitDepth::Eight,
+            weighting,
+        );
+        let table = PairTable::new(&tables);
+        let (clipped_high, clipped_low) = count_clipped(d, b, &table);
+        Ok(Some(PairMerge {
+            dark: d,
+            bright: b,
+            table,
+            width: first.width(),
+            height: first.height(),
+            order: vec![dark, bright],
+            exposures,
+            clipped_high,
+            clipped_low,
+        }))
+    }
+
+    /// Width in pixels.
+    pub fn width(&self) -> u32 {
+        self.width
+    }
+
+    /// Height in pixels.
+    pub fn height(&self) -> u32 {
+        self.height
+    }
+
+    /// 1 (grey) or 3 (RGB).
+    pub fn channels(&self) -> usize {
+        self.table.channels
+    }
+
+    /// Radiance of channel `channel` of pixel `pixel` (row-major index).
+    #[inline]
+    pub fn sample(&self, pixel: usize, channel: usize) -> f32 {
+        let i = pixel * self.table.channels + channel;
+        self.table.value[self.table.index(channel, self.dark[i], self.bright[i])]
+    }
+
+    /// The largest value any sample can take (over all code pairs), an upper bound of the
+    /// image's maximum: `e_max/e_min` for the sRGB-like responses (clipped high).
+    pub fn max_value(&self) -> f32 {
+        self.table.value.iter().copied().fold(0.0, f32::max)
+    }
+
+    /// Ratio of the longer to the shorter exposure.
+    pub fn ratio(&self) -> f64 {
+        self.exposures[1] / self.exposures[0]
+    }
+
+    /// Evaluates every sample into a [`RadianceMap`] (rows in parallel).
+    pub fn to_map(&self) -> RadianceMap {
+        let mut pixels = vec![0.0f32; self.dark.len()];
+        fill_pair(
+            self.dark,
+            self.bright,
+            &self.table,
+            self.width as usize,
+            &mut pixels,
+        );
+        RadianceMap::new(self.width, self.height, self.table.channels, pixels)
+            .expect("buffer sized from the frames")
+    }
 }
 
 #[cfg(test)]
@@ -666,5 +889,45 @@ mod tests {
         let merged = merge(&bracket(&frames, &cam), &linear(), MergeOptions::default()).unwrap();
         let v = merged.radiance.pixels()[0];
         assert!((v - 4000.0 / 65535.0).abs() < 1e-6, "{v}");
+    }
+
+    #[test]
+    fn pair_table_matches_the_general_path() {
+        let cam = Camera::default();
+        // Every code pair once, so every table entry is compared.
+        let (dark, bright): (Vec<u8>, Vec<u8>) = (0..65536u32)
+            .map(|i| ((i >> 8) as u8, (i & 0xff) as u8))
+            .unzip();
+        let frame = |v: Vec<u8>| Frame::new(256, 256, 1, Samples::Eight(v)).unwrap();
+        let frames = [(frame(dark), 0.5), (frame(bright), 2.0)];
+        let g = InverseResponse::srgb(1, 1024);
+        for weighting in [Weighting::Hat, Weighting::NoiseAware] {
+            let run = |confidence| {
+                let options = MergeOptions {
+                    weighting,
+                    confidence,
+                };
+                merge(&bracket(&frames, &cam), &g, options).unwrap()
+            };
+            let (fast, general) = (run(false), run(true));
+            assert_eq!(fast.radiance, general.radiance, "{weighting:?}");
+            assert_eq!(
+                (fast.clipped_high, fast.clipped_low),
+                (general.clipped_high, general.clipped_low)
+            );
+            assert_eq!(
+                (fast.clipped_high, fast.clipped_low),
+                (2, 2),
+                "high: (255, 255), (255, 0); low: (0, 0), (0, 255)"
+            );
+            assert!(fast.radiance.pixels().iter().all(|v| v.is_finite()));
+            let lazy = PairMerge::new(&bracket(&frames, &cam), &g, weighting)
+                .unwrap()
+                .unwrap();
+            assert_eq!(lazy.to_map(), fast.radiance);
+            assert_eq!((lazy.clipped_high, lazy.clipped_low), (2, 2));
+            assert_eq!(lazy.sample(300, 0), fast.radiance.pixels()[300]);
+            assert!(lazy.max_value() >= fast.radiance.pixels().iter().copied().fold(0.0, f32::max));
+        }
     }
 }

@@ -12,11 +12,12 @@ use anyhow::{Context, bail};
 use clap::ValueEnum;
 use filmback::atomic::{self, Overwrite};
 use filmback::frame::{self, Limits, LoadedFrame, Samples};
+use filmback::hdr_output::RadianceSource;
 use filmback::hdr_output::{
     self, Compression, ExrOptions, FrameRecord, Overflow, Provenance, SampleFormat,
 };
 use filmback::histogram::Histogram;
-use filmback::merge::{self, BracketFrame, MergeOptions, Weighting};
+use filmback::merge::{self, BracketFrame, MergeOptions, Merged, PairMerge, Weighting};
 use filmback::metadata::Exposure;
 use filmback::response::{self, Degree, InverseResponse, Ratio, RatioSource};
 use rayon::prelude::*;
@@ -116,6 +117,22 @@ fn ms(since: Instant) -> f64 {
     (since.elapsed().as_secs_f64() * 1e4).round() / 10.0
 }
 
+/// The merged bracket: evaluated during encoding, or held as a map.
+enum Radiance<'a> {
+    Fused(PairMerge<'a>),
+    Buffered(Merged),
+}
+
+impl Radiance<'_> {
+    /// Input order (darkest first), exposure ratio, samples clipped (high, low).
+    fn summary(&self) -> (Vec<usize>, f64, (u64, u64)) {
+        match self {
+            Radiance::Fused(p) => (p.order.clone(), p.ratio(), (p.clipped_high, p.clipped_low)),
+            Radiance::Buffered(m) => (m.order.clone(), m.ratio(), (m.clipped_high, m.clipped_low)),
+        }
+    }
+}
+
 /// The response used and where it came from.
 struct Chosen {
     response: InverseResponse,
@@ -181,14 +198,24 @@ pub fn run(args: Args) -> anyhow::Result<ExitCode> {
         },
         confidence: args.confidence,
     };
-    let merged = merge::merge(&bracket, &chosen.response, options)?;
+    // An 8-bit pair (the usual tethered bracket) is merged while the EXR is encoded, one
+    // table lookup per sample, with no radiance buffer; anything else is merged first.
+    let fused = if options.confidence {
+        None
+    } else {
+        PairMerge::new(&bracket, &chosen.response, options.weighting)?
+    };
+    let merged = match fused {
+        Some(pair) => Radiance::Fused(pair),
+        None => Radiance::Buffered(merge::merge(&bracket, &chosen.response, options)?),
+    };
     timings.merge = Some(ms(t));
+    let (order, ratio, clipped) = merged.summary();
 
     let provenance = Provenance {
         camera: frames[0].metadata.camera.clone(),
-        captured_at: frames[merged.order[0]].metadata.captured_at,
-        frames: merged
-            .order
+        captured_at: frames[order[0]].metadata.captured_at,
+        frames: order
             .iter()
             .map(|&i| FrameRecord {
                 name: file_name(&frames[i].path),
@@ -198,7 +225,7 @@ pub fn run(args: Args) -> anyhow::Result<ExitCode> {
             .collect(),
         response: chosen.summary.clone(),
         weighting: format!("{:?}", options.weighting),
-        clipped: (merged.clipped_high, merged.clipped_low),
+        clipped,
     };
     let mut warnings: Vec<String> = frames
         .iter()
@@ -209,14 +236,10 @@ pub fn run(args: Args) -> anyhow::Result<ExitCode> {
                 .map(move |w| format!("{}: {w}", f.path.display()))
         })
         .collect();
-    let frame_report: Vec<_> = merged
-        .order
+    let frame_report: Vec<_> = order
         .iter()
         .map(|&i| json!({ "path": frames[i].path.display().to_string(), "exposure": exposures[i] }))
         .collect();
-    drop(bracket);
-    drop(frames); // the decoded frames are no longer needed: free them before encoding
-
     let t = Instant::now();
     let exr_options = ExrOptions {
         sample: match args.exr {
@@ -237,16 +260,14 @@ pub fn run(args: Args) -> anyhow::Result<ExitCode> {
         },
     };
     let mut exr = Cursor::new(Vec::new());
-    let written = hdr_output::encode_exr(
-        &mut exr,
-        &merged.radiance,
-        merged.confidence.as_deref(),
-        &provenance,
-        exr_options,
-    )?;
+    let (source, confidence): (&dyn RadianceSource, Option<&[f32]>) = match &merged {
+        Radiance::Fused(pair) => (pair, None),
+        Radiance::Buffered(m) => (&m.radiance, m.confidence.as_deref()),
+    };
+    let written = hdr_output::encode_exr(&mut exr, source, confidence, &provenance, exr_options)?;
     let mut hdr = Vec::new();
     if args.radiance_hdr {
-        hdr_output::encode_radiance_hdr(&mut hdr, &merged.radiance)?;
+        hdr_output::encode_radiance_hdr(&mut hdr, source)?;
     }
     timings.encode = Some(ms(t));
     warnings.extend(written.warnings.iter().cloned());
@@ -264,9 +285,13 @@ pub fn run(args: Args) -> anyhow::Result<ExitCode> {
             "outputs": outputs.iter().map(|p| p.display().to_string()).collect::<Vec<_>>(),
             "response": chosen.report,
             "frames": frame_report,
-            "ratio": merged.ratio(),
+            "ratio": ratio,
             "weighting": options.weighting,
-            "clipped": { "high": merged.clipped_high, "low": merged.clipped_low },
+            "merge_mode": match merged {
+                Radiance::Fused(_) => "fused into encode (8-bit pair: merge ms is the table build, the lookups are inside encode ms)",
+                Radiance::Buffered(_) => "buffered",
+            },
+            "clipped": { "high": clipped.0, "low": clipped.1 },
             "radiance_scale": written.scale,
             "warnings": warnings,
             "timings_ms": timings,
@@ -281,8 +306,8 @@ pub fn run(args: Args) -> anyhow::Result<ExitCode> {
         }
         println!(
             "  ratio {:.3} ({:.2} stops), response: {}, {} ms",
-            merged.ratio(),
-            merged.ratio().log2(),
+            ratio,
+            ratio.log2(),
             chosen.summary,
             timings.total
         );
