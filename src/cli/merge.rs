@@ -465,8 +465,8 @@ fn choose_response(
     let mid = order.len() / 2;
     let (dark, bright) = (&bracket[order[mid - 1]], &bracket[order[mid]]);
     let t = Instant::now();
-    // About six million pixels are plenty for a 256- or 4096-bin histogram.
-    let stride = ((dark.frame.pixel_count() as f64 / 6e6).sqrt().floor() as usize).max(1);
+    // About three million pixels are plenty for a 256- or 4096-bin histogram.
+    let stride = ((dark.frame.pixel_count() as f64 / 3e6).sqrt().floor() as usize).max(1);
     let (h_dark, h_bright) = rayon::join(
         || Histogram::of_frame(dark.frame, stride),
         || Histogram::of_frame(bright.frame, stride),
