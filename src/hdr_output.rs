@@ -27,11 +27,16 @@
 use std::io::{Seek, Write};
 use std::path::Path;
 
+use exr::block::writer::ChunksWriter;
+use exr::block::{BlockIndex, UncompressedBlock};
+use exr::meta::BlockDescription;
 use exr::meta::attribute::Chromaticities;
+use exr::meta::header::Header;
 use exr::prelude::{
-    self as x, ChannelDescription, Encoding, Image, ImageAttributes, IntegerBounds, Layer,
-    LayerAttributes, LineOrder, SampleType, SpecificChannels, Text, Vec2, WritableImage,
+    self as x, ChannelDescription, ImageAttributes, IntegerBounds, LayerAttributes, LineOrder,
+    SampleType, SmallVec, Text, Vec2, f16,
 };
+use rayon::prelude::*;
 
 use crate::atomic::{self, Overwrite, PublishError};
 use crate::merge::PairMerge;
@@ -264,76 +269,94 @@ pub fn encode_exr<W: Write + Seek, S: RadianceSource + ?Sized>(
         SampleFormat::Half => SampleType::F16,
         SampleFormat::Float => SampleType::F32,
     };
+    // Channels in the file's (alphabetical) order and where each one's values come from.
+    let mut planes: Vec<(&str, Plane)> = match map.channels() {
+        3 => vec![
+            ("B", Plane::Colour(2)),
+            ("G", Plane::Colour(1)),
+            ("R", Plane::Colour(0)),
+        ],
+        _ => vec![("Y", Plane::Colour(0))],
+    };
+    if confidence.is_some() {
+        planes.push(("confidence.Y", Plane::Confidence));
+    }
+    let descriptions = planes
+        .iter()
+        .map(|(name, plane)| {
+            ChannelDescription::new(*name, sample, matches!(plane, Plane::Confidence))
+        })
+        .collect();
     let size = Vec2(width, height);
-    let encoding = Encoding {
-        compression: options.compression.exr(),
-        blocks: x::Blocks::ScanLines,
-        line_order: LineOrder::Increasing,
+    let mut header = Header::new(text("radiance"), size, SmallVec::from_vec(descriptions))
+        .with_encoding(
+            options.compression.exr(),
+            BlockDescription::ScanLines,
+            LineOrder::Increasing,
+        );
+    header.own_attributes = layer_attributes(provenance, scale);
+    header.shared_attributes = image_attributes(size);
+
+    // The uncompressed bytes of one block: per line, per channel, the samples in
+    // native-endian order. The samples are pulled from the source here, so a lazy merge
+    // is evaluated on the worker threads.
+    let block_bytes = |index: BlockIndex| -> Vec<u8> {
+        let (x0, y0) = (index.pixel_position.0, index.pixel_position.1);
+        let (w, h) = (index.pixel_size.0, index.pixel_size.1);
+        let bytes = if sample == SampleType::F16 { 2 } else { 4 };
+        let mut data = Vec::with_capacity(w * h * planes.len() * bytes);
+        for y in y0..y0 + h {
+            let row = y * width + x0;
+            for (_, plane) in &planes {
+                for p in row..row + w {
+                    let v = match plane {
+                        Plane::Colour(c) => (map.sample(p, *c) * scale).min(limit),
+                        Plane::Confidence => confidence.map_or(0.0, |conf| conf[p]),
+                    };
+                    if sample == SampleType::F16 {
+                        data.extend_from_slice(&f16::from_f32(v).to_ne_bytes());
+                    } else {
+                        data.extend_from_slice(&v.to_ne_bytes());
+                    }
+                }
+            }
+        }
+        data
     };
-    let attributes = layer_attributes(provenance, scale);
-    let value = move |pixel: usize, c: usize| (map.sample(pixel, c) * scale).min(limit);
-    let colour = |name: &str| ChannelDescription::new(name, sample, false);
-    let linear = ChannelDescription::new("confidence.Y", sample, true);
-    let image_attributes = image_attributes(size);
-    let result = match (map.channels(), confidence) {
-        (3, None) => {
-            let channels = SpecificChannels::build()
-                .with_channel_details::<f32>(colour("R"))
-                .with_channel_details::<f32>(colour("G"))
-                .with_channel_details::<f32>(colour("B"))
-                .with_pixel_fn(|p: Vec2<usize>| {
-                    let j = p.1 * width + p.0;
-                    (value(j, 0), value(j, 1), value(j, 2))
-                });
-            let layer = Layer::new(size, attributes, encoding, channels);
-            Image::empty(image_attributes)
-                .with_layer(layer)
-                .write()
-                .to_buffered(writer)
-        }
-        (3, Some(conf)) => {
-            let channels = SpecificChannels::build()
-                .with_channel_details::<f32>(colour("R"))
-                .with_channel_details::<f32>(colour("G"))
-                .with_channel_details::<f32>(colour("B"))
-                .with_channel_details::<f32>(linear)
-                .with_pixel_fn(|p: Vec2<usize>| {
-                    let j = p.1 * width + p.0;
-                    (value(j, 0), value(j, 1), value(j, 2), conf[j])
-                });
-            let layer = Layer::new(size, attributes, encoding, channels);
-            Image::empty(image_attributes)
-                .with_layer(layer)
-                .write()
-                .to_buffered(writer)
-        }
-        (_, None) => {
-            let channels = SpecificChannels::build()
-                .with_channel_details::<f32>(colour("Y"))
-                .with_pixel_fn(|p: Vec2<usize>| (value(p.1 * width + p.0, 0),));
-            let layer = Layer::new(size, attributes, encoding, channels);
-            Image::empty(image_attributes)
-                .with_layer(layer)
-                .write()
-                .to_buffered(writer)
-        }
-        (_, Some(conf)) => {
-            let channels = SpecificChannels::build()
-                .with_channel_details::<f32>(colour("Y"))
-                .with_channel_details::<f32>(linear)
-                .with_pixel_fn(|p: Vec2<usize>| {
-                    let j = p.1 * width + p.0;
-                    (value(j, 0), conf[j])
-                });
-            let layer = Layer::new(size, attributes, encoding, channels);
-            Image::empty(image_attributes)
-                .with_layer(layer)
-                .write()
-                .to_buffered(writer)
-        }
-    };
-    result.map_err(|e| OutputError::Exr(e.to_string()))?;
+    exr::block::write(writer, smallvec_of(header), true, |meta, chunks| {
+        let indices: Vec<(usize, BlockIndex)> =
+            meta.enumerate_ordered_header_block_indices().collect();
+        // exr compresses on its own threads but asks for blocks on this one: fill them a
+        // few at a time on rayon's threads so that the samples, not just the
+        // compression, are computed in parallel.
+        let batch = 2 * rayon::current_num_threads();
+        let blocks = indices.chunks(batch).flat_map(|batch| {
+            batch
+                .par_iter()
+                .map(|&(i, index)| {
+                    let data = block_bytes(index);
+                    (i, UncompressedBlock { index, data })
+                })
+                .collect::<Vec<_>>()
+        });
+        chunks
+            .on_progress(|_| {})
+            .compress_all_blocks_parallel(&meta, blocks)
+    })
+    .map_err(|e| OutputError::Exr(e.to_string()))?;
     Ok(Written { scale, warnings })
+}
+
+/// Where a file channel's values come from.
+enum Plane {
+    /// Channel `c` of the radiance.
+    Colour(usize),
+    /// The confidence layer.
+    Confidence,
+}
+
+fn smallvec_of(header: Header) -> exr::meta::Headers {
+    SmallVec::from_vec(vec![header])
 }
 
 /// The scale factor and clamp limit for the chosen sample type, with a warning if used.
