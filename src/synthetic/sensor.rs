@@ -37,12 +37,15 @@ impl Sensor {
 /// Exposes `scene` on `sensor`: one frame with the scene's channels (RGB for RGB scenes).
 ///
 /// Per sample, with scene radiance `E` and `exposure` `k` (relative, unitless):
-/// 1. normalised exposure `X = clamp(k·E, 0, 1)` (1 is the clipping point);
-/// 2. shot noise, when `full_well_electrons = Some(W)`: the `X·W` collected electrons are
-///    Poisson, approximated by a Gaussian, so `X ← clamp(X + √(X/W)·z₁, 0, 1)`;
+/// 1. signal `S = k·E` in units of the clipping point; with shot noise
+///    (`full_well_electrons = Some(W)`) the `S·W` collected electrons are Poisson,
+///    approximated by a Gaussian: `S ← S + √(S/W)·z₁`;
+/// 2. normalised exposure `X = clamp(S, 0, 1)`;
 /// 3. brightness `B = f(X)` through the response curve;
 /// 4. read noise in output codes and quantisation:
-///    `code = clamp(round(B·max_code + σ_read·z₂), 0, max_code)`, `max_code = 2^bits − 1`.
+///    `code = clamp(round(B·max_code + σ_read·z₂), 0, max_code)`, `max_code = 2^bits − 1`,
+///    except that a clipped sample (`S ≥ 1`) reads exactly `max_code`, as a camera whose
+///    converter clips after the noise does.
 ///
 /// `z₁, z₂` are independent standard normal draws (Box–Muller over splitmix64). The noise
 /// stream of each row is seeded from `(sensor.seed, exposure, row)`: a frame is the same
@@ -66,7 +69,7 @@ fn render<T: Copy + Default + Send>(
     to_code: impl Fn(f64) -> T + Sync,
 ) -> Vec<T> {
     let max_code = f64::from(sensor.bit_depth.max_code());
-    let noisy = sensor.read_noise_dn > 0.0 || sensor.full_well_electrons.is_some();
+    let read_noise = sensor.read_noise_dn > 0.0;
     let row_len = scene.width() as usize * scene.channels();
     let mut codes = vec![T::default(); scene.pixels().len()];
     if row_len == 0 {
@@ -79,13 +82,21 @@ fn render<T: Copy + Default + Send>(
         .for_each(|(row, (out, radiance))| {
             let mut noise = Normals::new(row_seed(sensor.seed, exposure, row));
             for (code, &e) in out.iter_mut().zip(radiance) {
-                let (z1, z2) = if noisy { noise.pair() } else { (0.0, 0.0) };
-                let mut x = (exposure * f64::from(e)).clamp(0.0, 1.0);
-                if let Some(well) = sensor.full_well_electrons {
-                    x = (x + (x / well).sqrt() * z1).clamp(0.0, 1.0);
+                let mut signal = exposure * f64::from(e);
+                if let Some(well) = sensor.full_well_electrons
+                    && signal > 0.0
+                {
+                    signal += (signal / well).sqrt() * noise.next();
                 }
-                let b = sensor.curve.brightness(x);
-                let value = (b * max_code + sensor.read_noise_dn * z2).round();
+                if signal >= 1.0 {
+                    *code = to_code(max_code);
+                    continue;
+                }
+                let mut value = sensor.curve.brightness(signal) * max_code;
+                if read_noise {
+                    value += sensor.read_noise_dn * noise.next();
+                }
+                let value = value.round();
                 // `!(value > 0)` also sends NaN (a NaN exposure) to black.
                 *code = to_code(if value > 0.0 {
                     value.min(max_code)
@@ -137,23 +148,35 @@ impl SplitMix64 {
     }
 }
 
-/// Standard normal pairs by the Box–Muller transform.
-struct Normals(SplitMix64);
+/// Standard normal draws by the Box–Muller transform, each transform giving two.
+struct Normals {
+    source: SplitMix64,
+    spare: Option<f64>,
+}
 
 impl Normals {
     fn new(seed: u64) -> Normals {
-        Normals(SplitMix64(seed))
+        Normals {
+            source: SplitMix64(seed),
+            spare: None,
+        }
     }
 
-    /// Two independent N(0, 1) draws: `r = √(−2 ln u₁)`, `(r cos 2πu₂, r sin 2πu₂)`,
-    /// `u₁ ∈ (0, 1]`, `u₂ ∈ [0, 1)`.
-    fn pair(&mut self) -> (f64, f64) {
-        const UNIT: f64 = 1.0 / (1u64 << 53) as f64;
-        let u1 = ((self.0.next() >> 11) + 1) as f64 * UNIT;
-        let u2 = (self.0.next() >> 11) as f64 * UNIT;
+    /// One N(0, 1) draw. From one 64-bit draw, `u₁ ∈ (0, 1]` and `u₂ ∈ [0, 1)` of 24 bits
+    /// each give `r = √(−2 ln u₁)` and the pair `(r cos 2πu₂, r sin 2πu₂)`, computed in
+    /// `f32` (ample for noise; tails reach 5.7σ).
+    fn next(&mut self) -> f64 {
+        if let Some(z) = self.spare.take() {
+            return z;
+        }
+        const UNIT: f32 = 1.0 / (1u32 << 24) as f32;
+        let bits = self.source.next();
+        let u1 = ((bits >> 40) + 1) as f32 * UNIT;
+        let u2 = ((bits >> 16) & 0xFF_FFFF) as f32 * UNIT;
         let r = (-2.0 * u1.ln()).sqrt();
-        let (sin, cos) = (std::f64::consts::TAU * u2).sin_cos();
-        (r * cos, r * sin)
+        let (sin, cos) = (std::f32::consts::TAU * u2).sin_cos();
+        self.spare = Some(f64::from(r * sin));
+        f64::from(r * cos)
     }
 }
 
@@ -213,6 +236,22 @@ mod tests {
                     .all(|&c| c == 0.0)
             );
         }
+    }
+
+    #[test]
+    fn clipped_samples_read_full_scale_despite_noise() {
+        let sensor = Sensor {
+            read_noise_dn: 3.0,
+            full_well_electrons: Some(1000.0),
+            seed: 5,
+            ..Sensor::noiseless(ResponseCurve::Srgb, BitDepth::Eight)
+        };
+        let frame = expose(&flat(1.5, 50, 40), 1.0, &sensor);
+        assert!(codes(&frame).iter().all(|&c| c == 255.0));
+        // Just below the clipping point some samples clip and some do not.
+        let frame = expose(&flat(0.999, 50, 40), 1.0, &sensor);
+        let clipped = codes(&frame).iter().filter(|&&c| c == 255.0).count();
+        assert!(clipped > 200 && clipped < 1800, "{clipped} of 2000 clipped");
     }
 
     #[test]
