@@ -256,17 +256,17 @@ pub struct UsableTones {
 }
 
 impl UsableTones {
-    /// Default limits for a depth, tightened where the histogram shows a clipping spike.
+    /// Default limits, tightened where the histogram shows a clipping spike.
     ///
-    /// Defaults: 8-bit `[2.5, 252.5]/255` (codes within ~2.5 DN of the ends are bent by
-    /// noise clipped at 0 and 255); 16-bit `[0.002, 0.998]`. A spike — an end bin (or the
-    /// last bin holding pixels) with more than 0.2 % of the pixels and more than four times
-    /// its neighbours' mean — marks clipping: the limit moves 1.5 bins inside it.
-    pub fn detect(cumulative: &Cumulative, depth: BitDepth) -> UsableTones {
-        let (mut floor, mut ceiling): (f64, f64) = match depth {
-            BitDepth::Eight => (2.5 / 255.0, 252.5 / 255.0),
-            BitDepth::Sixteen => (0.002, 0.998),
-        };
+    /// Noise spreads pixels that were clipped at black or white over the codes next to
+    /// the end, bending the histogram there; with a nominal noise of 1 DN of an 8-bit
+    /// frame (`1/255`) the usable range is kept 2.5 of it inside: `[2.5, 252.5]/255` at
+    /// either depth. A spike — an end bin (or the last bin holding pixels) with more than
+    /// 0.2 % of the pixels and more than four times its neighbours' mean — marks clipping
+    /// below full scale: the limit moves the same 2.5/255 inside the spike's edge.
+    pub fn detect(cumulative: &Cumulative, _depth: BitDepth) -> UsableTones {
+        const MARGIN: f64 = 2.5 / 255.0;
+        let (mut floor, mut ceiling) = (MARGIN, 1.0 - MARGIN);
         let counts = cumulative.counts();
         let edges = cumulative.edges();
         let total = counts.iter().sum::<u64>().max(1) as f64;
@@ -280,15 +280,13 @@ impl UsableTones {
             && top >= 4
             && spike(top, &[top - 1, top - 2, top - 3, top - 4])
         {
-            let w = edges[top + 1] - edges[top];
-            ceiling = ceiling.min(edges[top] - 1.5 * w);
+            ceiling = ceiling.min(edges[top] - MARGIN);
         }
         if let Some(bottom) = counts.iter().position(|&n| n > 0)
             && bottom + 4 < bins
             && spike(bottom, &[bottom + 1, bottom + 2, bottom + 3, bottom + 4])
         {
-            let w = edges[bottom + 1] - edges[bottom];
-            floor = floor.max(edges[bottom + 1] + 1.5 * w);
+            floor = floor.max(edges[bottom + 1] + MARGIN);
         }
         UsableTones { floor, ceiling }
     }
@@ -449,7 +447,7 @@ mod tests {
         codes.extend(std::iter::repeat_n(230u8, 3000));
         let c = Histogram::of_frame(&frame8(codes, 1), 1).cumulative(0);
         let ok = UsableTones::detect(&c, BitDepth::Eight);
-        assert!(ok.ceiling < 229.0 / 255.0, "{ok:?}");
+        assert!((ok.ceiling - 227.0 / 255.0).abs() < 1e-12, "{ok:?}");
         assert!((ok.floor - 2.5 / 255.0).abs() < 1e-12);
     }
 }

@@ -117,6 +117,38 @@ impl InverseResponse {
     }
 }
 
+/// Named speed/accuracy settings for calibration that a config can pick (measured in
+/// `benches/calibrate_speed.rs`; the table is in the README).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum Preset {
+    /// Every 16th pixel of every 16th row, fixed degree 6.
+    Fast,
+    /// Every 4th pixel of every 4th row.
+    Balanced,
+    /// Every pixel.
+    Accurate,
+}
+
+impl Preset {
+    /// Histogram stride.
+    pub fn stride(self) -> usize {
+        match self {
+            Preset::Fast => 16,
+            Preset::Balanced => 4,
+            Preset::Accurate => 1,
+        }
+    }
+
+    /// Model size.
+    pub fn degree(self) -> Degree {
+        match self {
+            Preset::Fast => Degree::Fixed(6),
+            Preset::Balanced | Preset::Accurate => Degree::Auto,
+        }
+    }
+}
+
 /// Number of samples per channel in a calibrated [`InverseResponse`] (`g(i/1023)`).
 pub const CALIBRATED_SAMPLES: usize = 1024;
 

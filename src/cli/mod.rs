@@ -5,6 +5,7 @@ use std::process::ExitCode;
 
 use clap::{Parser, Subcommand};
 
+mod calibrate;
 mod inspect;
 mod merge;
 
@@ -18,6 +19,8 @@ struct Cli {
 
 #[derive(Debug, Subcommand)]
 enum Command {
+    /// Recover the camera's inverse response from two exposures' histograms.
+    Calibrate(calibrate::Args),
     /// Show each frame's size, depth, camera, exposure and capture time.
     Inspect(inspect::Args),
     /// Merge a bracket into one OpenEXR radiance map.
@@ -28,6 +31,7 @@ enum Command {
 pub fn main() -> ExitCode {
     let cli = Cli::parse();
     let result = match cli.command {
+        Command::Calibrate(args) => calibrate::run(args),
         Command::Inspect(args) => inspect::run(args),
         Command::Merge(args) => merge::run(args),
     };

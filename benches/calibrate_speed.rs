@@ -1,0 +1,192 @@
+//! Speed against accuracy of `calibrate` on a 24 MP pair, for every stride × degree knob,
+//! beside OpenCV's CalibrateDebevec on the same pair (when the peer's Python is present).
+//!
+//! `cargo bench --bench calibrate_speed [-- --small]` (`--small`: 6 MP, for a quick look).
+//!
+//! The pair: the synthetic scene (6000×4000) through the sRGB curve and a film-S curve,
+//! 8-bit with 1 DN read noise, ratio 4, JPEG q95 (decoded once; decode time is not part
+//! of either side's figure). Times are the median of 5 runs; error as in
+//! `response_accuracy` (stops over codes 16..239; shape = after the best scale).
+
+use std::path::Path;
+use std::process::Command;
+use std::time::Instant;
+
+use filmback::frame::{self, BitDepth, Frame, Limits};
+use filmback::histogram::Histogram;
+use filmback::metadata::{Camera, CaptureTime, Exposure};
+use filmback::response::{Degree, Preset, Ratio, RatioSource, calibrate};
+use filmback::synthetic::{self, Encoding, ResponseCurve, Sensor, Shot};
+
+fn median_ms(mut f: impl FnMut()) -> f64 {
+    let mut t: Vec<f64> = (0..5)
+        .map(|_| {
+            let s = Instant::now();
+            f();
+            s.elapsed().as_secs_f64() * 1e3
+        })
+        .collect();
+    t.sort_by(f64::total_cmp);
+    t[2]
+}
+
+/// (own, shape) error in stops, RMS over channels, of `g(channel, code)`.
+fn errors(curve: &ResponseCurve, g: impl Fn(usize, usize) -> f64) -> (f64, f64) {
+    let truth: Vec<f64> = (16..=239)
+        .map(|k| curve.inverse(k as f64 / 255.0).log2())
+        .collect();
+    let (mut own2, mut shape2) = (0.0, 0.0);
+    for c in 0..3 {
+        let d: Vec<f64> = (16..=239)
+            .zip(&truth)
+            .map(|(k, t)| g(c, k).max(1e-300).log2() - t)
+            .collect();
+        let mean = d.iter().sum::<f64>() / d.len() as f64;
+        own2 += d.iter().map(|x| x * x).sum::<f64>() / d.len() as f64;
+        shape2 += d.iter().map(|x| (x - mean).powi(2)).sum::<f64>() / d.len() as f64;
+    }
+    ((own2 / 3.0).sqrt(), (shape2 / 3.0).sqrt())
+}
+
+fn shot(exposure: f64) -> Shot {
+    Shot {
+        camera: Camera::default(),
+        exposure: Exposure {
+            time_s: Some(exposure),
+            f_number: Some(1.0),
+            iso: Some(100.0),
+        },
+        captured_at: CaptureTime {
+            year: 2026,
+            month: 1,
+            day: 1,
+            hour: 0,
+            minute: 0,
+            second: 0,
+            nanos: None,
+            offset_minutes: None,
+        },
+    }
+}
+
+fn peer(dir: &Path, ratio: f64) -> Option<(f64, Vec<Vec<f64>>)> {
+    let out = Command::new("/work/shared/peer/setup.sh").output().ok()?;
+    let py = String::from_utf8(out.stdout).ok()?.trim().to_string();
+    let cases = serde_json::json!([{"dark": dir.join("dark.jpg"), "bright": dir.join("bright.jpg"), "t_dark": 1.0, "t_bright": ratio}]);
+    let manifest = dir.join("cases.json");
+    std::fs::write(&manifest, serde_json::to_vec(&cases).ok()?).ok()?;
+    let script = Path::new(env!("CARGO_MANIFEST_DIR")).join("benches/opencv_debevec.py");
+    let out = Command::new(py).arg(script).arg(&manifest).output().ok()?;
+    if !out.status.success() {
+        eprintln!(
+            "(OpenCV helper failed: {})",
+            String::from_utf8_lossy(&out.stderr)
+        );
+        return None;
+    }
+    let v: serde_json::Value = serde_json::from_slice(&out.stdout).ok()?;
+    let curve: Vec<Vec<f64>> = serde_json::from_value(v["curves"][0].clone()).ok()?;
+    Some((v["ms"][0].as_f64()?, curve))
+}
+
+fn main() {
+    let small = std::env::args().any(|a| a == "--small");
+    let (w, h) = if small { (3000, 2000) } else { (6000, 4000) };
+    let ratio = 4.0;
+    let started = Instant::now();
+    let scene = synthetic::scene(w, h, 3);
+    eprintln!("scene {w}x{h} in {:.1} s", started.elapsed().as_secs_f64());
+    let dir = tempfile::tempdir().unwrap();
+    for (name, curve) in [
+        ("srgb", ResponseCurve::Srgb),
+        ("film-s", ResponseCurve::FilmS),
+    ] {
+        let sensor = Sensor {
+            curve: curve.clone(),
+            bit_depth: BitDepth::Eight,
+            read_noise_dn: 1.0,
+            full_well_electrons: None,
+            seed: 11,
+        };
+        let frames: Vec<Frame> = [("dark.jpg", 0.5), ("bright.jpg", 2.0)]
+            .iter()
+            .map(|&(file, e)| {
+                let f = synthetic::expose(&scene, e, &sensor);
+                let bytes =
+                    synthetic::encode(&f, &shot(e), Encoding::Jpeg { quality: 95 }).unwrap();
+                std::fs::write(dir.path().join(file), &bytes).unwrap();
+                frame::decode(Path::new(file), &bytes, Limits::default())
+                    .unwrap()
+                    .frame
+            })
+            .collect();
+        let peer = peer(dir.path(), ratio);
+        println!("\n## {w}×{h} JPEG q95 pair, {name} curve, ratio {ratio}\n");
+        println!(
+            "| stride | degree | histograms (ms) | fit (ms) | total (ms) | own error | shape error | min confidence | vs OpenCV time | vs OpenCV shape error |"
+        );
+        println!("|---|---|---|---|---|---|---|---|---|---|");
+        for stride in [1, 2, 4, 8, 16] {
+            let mut hists = Vec::new();
+            let hist_ms = median_ms(|| {
+                hists = frames
+                    .iter()
+                    .map(|f| Histogram::of_frame(f, stride))
+                    .collect();
+            });
+            for (label, degree) in [
+                ("3", Degree::Fixed(3)),
+                ("6", Degree::Fixed(6)),
+                ("auto", Degree::Auto),
+            ] {
+                let mut result = None;
+                let fit_ms = median_ms(|| {
+                    result = Some(calibrate(
+                        &hists[0],
+                        &hists[1],
+                        Ratio::Known(ratio, RatioSource::Argument),
+                        degree,
+                    ));
+                });
+                let cal = result.unwrap().unwrap();
+                let (own, shape) = errors(&curve, |c, k| cal.response.eval(c, k as f64 / 255.0));
+                let conf = cal
+                    .channels
+                    .iter()
+                    .map(|c| c.fit.confidence)
+                    .fold(1.0, f64::min);
+                let (vt, ve) = match &peer {
+                    Some((ms, pc)) => {
+                        let (_, ps) = errors(&curve, |c, k| pc[k][c]);
+                        (
+                            format!("{:.2}×", (hist_ms + fit_ms) / ms),
+                            format!("{:.2}×", shape / ps),
+                        )
+                    }
+                    None => ("-".into(), "-".into()),
+                };
+                println!(
+                    "| {stride} | {label} | {hist_ms:.1} | {fit_ms:.1} | {:.1} | {own:.4} | {shape:.4} | {conf:.2} | {vt} | {ve} |",
+                    hist_ms + fit_ms
+                );
+            }
+        }
+        match &peer {
+            Some((ms, pc)) => {
+                let (_, ps) = errors(&curve, |c, k| pc[k][c]);
+                println!(
+                    "| OpenCV CalibrateDebevec | 70 samples, λ 10 | - | - | {ms:.1} | - | {ps:.4} | - | 1× | 1× |"
+                );
+            }
+            None => println!("(OpenCV peer unavailable: skipped)"),
+        }
+    }
+    println!(
+        "\nPresets: {}",
+        [Preset::Fast, Preset::Balanced, Preset::Accurate]
+            .iter()
+            .map(|p| format!("{p:?} = stride {} degree {:?}", p.stride(), p.degree()))
+            .collect::<Vec<_>>()
+            .join("; ")
+    );
+}

@@ -1,0 +1,435 @@
+//! Accuracy of response recovery against ground truth, and against OpenCV's
+//! CalibrateDebevec on the same pairs.
+//!
+//! `cargo bench --bench response_accuracy [-- --quick]`
+//!
+//! The synthetic scene (`filmback::synthetic`, 1024×768) is exposed at `1/√γ` and `√γ` through a
+//! known curve `f` (gamma 2.2, sRGB, film S, strong toe, and the DoRF curves of
+//! `../shared/testdata/response-curves/dorf-even.csv` when present), with Gaussian noise
+//! of 1 DN (8-bit) or 0.5/255 (16-bit), as 8-bit lossless, 8-bit JPEG q95, and 16-bit.
+//! Error = RMSE of `log₂ g − log₂ g_true` over codes 16..239 (stops), averaged (RMS) over
+//! the three channels; "own" uses the fit's normalisation `g(1) = 1`, "shape" removes the
+//! best global scale per channel (the mean log difference). OpenCV (optional: the peer's
+//! venv, `/work/shared/peer/setup.sh`) only has the shape error (its scale is arbitrary).
+
+use std::path::{Path, PathBuf};
+use std::process::Command;
+
+use filmback::frame::{self, BitDepth, Frame, Limits};
+use filmback::histogram::Histogram;
+use filmback::metadata::{Camera, CaptureTime, Exposure};
+use filmback::radiance::RadianceMap;
+use filmback::response::{Degree, Ratio, RatioSource, calibrate};
+use filmback::synthetic::{self, Encoding as FileEncoding, ResponseCurve as Curve, Sensor, Shot};
+
+const RATIOS: [f64; 7] = [1.25, 2.0, 4.0, 8.0, 16.0, 64.0, 256.0];
+const WIDTH: u32 = 1024;
+const HEIGHT: u32 = 768;
+/// Read noise of the 16-bit sensor in 16-bit codes (a quarter of an 8-bit code).
+const NOISE_16: f64 = 64.0;
+
+fn dorf_curves() -> Vec<(String, Curve)> {
+    let path = Path::new(env!("CARGO_MANIFEST_DIR"))
+        .join("../shared/testdata/response-curves/dorf-even.csv");
+    match synthetic::dorf_curves(&path) {
+        Ok(curves) => curves,
+        Err(e) => {
+            eprintln!("(DoRF curves unavailable: {e}: skipped)");
+            Vec::new()
+        }
+    }
+}
+
+#[derive(Clone, Copy, PartialEq)]
+enum Encoding {
+    Lossless8,
+    Jpeg95,
+    Sixteen,
+}
+
+impl Encoding {
+    fn name(self) -> &'static str {
+        match self {
+            Encoding::Lossless8 => "8-bit lossless",
+            Encoding::Jpeg95 => "8-bit JPEG q95",
+            Encoding::Sixteen => "16-bit",
+        }
+    }
+}
+
+/// Exposes the scene through `curve` (1 DN read noise at 8 bits, [`NOISE_16`] at 16),
+/// round-trips JPEG through the file codec, and returns the frame and its file bytes
+/// (PNG or JPEG with EXIF; none for 16-bit, which OpenCV's Debevec does not take).
+fn expose(
+    scene: &RadianceMap,
+    exposure: f64,
+    curve: &Curve,
+    enc: Encoding,
+    seed: u64,
+) -> (Frame, Option<Vec<u8>>) {
+    let sensor = Sensor {
+        curve: curve.clone(),
+        bit_depth: if enc == Encoding::Sixteen {
+            BitDepth::Sixteen
+        } else {
+            BitDepth::Eight
+        },
+        read_noise_dn: if enc == Encoding::Sixteen {
+            NOISE_16
+        } else {
+            1.0
+        },
+        full_well_electrons: None,
+        seed,
+    };
+    let frame = synthetic::expose(scene, exposure, &sensor);
+    let shot = Shot {
+        camera: Camera::default(),
+        exposure: Exposure {
+            time_s: Some(exposure),
+            f_number: Some(1.0),
+            iso: Some(100.0),
+        },
+        captured_at: CaptureTime {
+            year: 2026,
+            month: 1,
+            day: 1,
+            hour: 0,
+            minute: 0,
+            second: 0,
+            nanos: None,
+            offset_minutes: None,
+        },
+    };
+    match enc {
+        Encoding::Sixteen => (frame, None),
+        Encoding::Lossless8 => {
+            let bytes = synthetic::encode(&frame, &shot, FileEncoding::Png).unwrap();
+            (frame, Some(bytes))
+        }
+        Encoding::Jpeg95 => {
+            let bytes =
+                synthetic::encode(&frame, &shot, FileEncoding::Jpeg { quality: 95 }).unwrap();
+            let decoded = frame::decode(Path::new("synthetic.jpg"), &bytes, Limits::default())
+                .unwrap()
+                .frame;
+            (decoded, Some(bytes))
+        }
+    }
+}
+
+/// (own, shape) errors in stops of a curve given by `g(code)` for 3 channels.
+fn errors(curve: &Curve, g: impl Fn(usize, usize) -> f64) -> (f64, f64) {
+    let truth: Vec<f64> = (16..=239)
+        .map(|k| curve.inverse(k as f64 / 255.0).log2())
+        .collect();
+    let (mut own2, mut shape2) = (0.0, 0.0);
+    for c in 0..3 {
+        let d: Vec<f64> = (16..=239)
+            .zip(&truth)
+            .map(|(k, t)| g(c, k).max(1e-300).log2() - t)
+            .collect();
+        let mean = d.iter().sum::<f64>() / d.len() as f64;
+        own2 += d.iter().map(|x| x * x).sum::<f64>() / d.len() as f64;
+        shape2 += d.iter().map(|x| (x - mean).powi(2)).sum::<f64>() / d.len() as f64;
+    }
+    ((own2 / 3.0).sqrt(), (shape2 / 3.0).sqrt())
+}
+
+struct Outcome {
+    curve: String,
+    ratio: f64,
+    enc: Encoding,
+    own: f64,
+    shape: f64,
+    confidence: f64,
+    degree: usize,
+    failed: Option<String>,
+    peer_index: Option<usize>,
+}
+
+fn quantile(v: &mut [f64], q: f64) -> f64 {
+    if v.is_empty() {
+        return f64::NAN;
+    }
+    v.sort_by(f64::total_cmp);
+    v[((v.len() - 1) as f64 * q).round() as usize]
+}
+
+fn peer_python() -> Option<String> {
+    let out = Command::new("/work/shared/peer/setup.sh").output().ok()?;
+    let py = String::from_utf8(out.stdout).ok()?.trim().to_string();
+    let ok = Command::new(&py)
+        .args(["-c", "import cv2"])
+        .status()
+        .ok()?
+        .success();
+    ok.then_some(py)
+}
+
+fn main() {
+    let quick = std::env::args().any(|a| a == "--quick");
+    let mut curves: Vec<(String, Curve)> = Curve::builtin()
+        .into_iter()
+        .filter(|(n, _)| n != "linear")
+        .collect();
+    let mut dorf = dorf_curves();
+    if quick {
+        dorf = dorf.into_iter().step_by(10).collect();
+    }
+    curves.extend(dorf);
+    // `--curve NAME` restricts to one curve and prints its fitted and true g per 16 codes.
+    let args: Vec<String> = std::env::args().collect();
+    let only = args
+        .iter()
+        .position(|a| a == "--curve")
+        .and_then(|i| args.get(i + 1))
+        .cloned();
+    if let Some(name) = &only {
+        curves.retain(|(n, _)| n == name);
+    }
+    let py = peer_python();
+    if py.is_none() {
+        eprintln!("(OpenCV peer unavailable: comparison skipped)");
+    }
+    let dir = tempfile::tempdir().unwrap();
+    let radiance = synthetic::scene(WIDTH, HEIGHT, 7);
+    let mut outcomes = Vec::new();
+    let mut peer_cases = Vec::new();
+    let encodings = [Encoding::Lossless8, Encoding::Jpeg95, Encoding::Sixteen];
+    let started = std::time::Instant::now();
+    for (ci, (name, curve)) in curves.iter().enumerate() {
+        for &enc in &encodings {
+            for (ri, &ratio) in RATIOS.iter().enumerate() {
+                let seed = (ci * 100 + ri) as u64;
+                let (dark, dark_file) = expose(&radiance, ratio.sqrt().recip(), curve, enc, seed);
+                let (bright, bright_file) = expose(&radiance, ratio.sqrt(), curve, enc, seed + 50);
+                let result = calibrate(
+                    &Histogram::of_frame(&dark, 1),
+                    &Histogram::of_frame(&bright, 1),
+                    Ratio::Known(ratio, RatioSource::Argument),
+                    Degree::Auto,
+                );
+                let mut outcome = Outcome {
+                    curve: name.clone(),
+                    ratio,
+                    enc,
+                    own: f64::NAN,
+                    shape: f64::NAN,
+                    confidence: 0.0,
+                    degree: 0,
+                    failed: None,
+                    peer_index: None,
+                };
+                match result {
+                    Ok(cal) => {
+                        if only.is_some() {
+                            let ch = &cal.channels[1];
+                            println!(
+                                "{} ratio {ratio}: degree {} covered {:.4}..{:.4} eq {} resid {:.4} cond {:.1e} pred {:.4} conf {:.2}",
+                                enc.name(),
+                                ch.fit.degree,
+                                ch.fit.covered.0,
+                                ch.fit.covered.1,
+                                ch.fit.equations,
+                                ch.fit.residual_rms,
+                                ch.fit.condition,
+                                ch.fit.predicted_error,
+                                ch.fit.confidence
+                            );
+                            let line: Vec<String> = (0..=255)
+                                .step_by(16)
+                                .chain([239, 250, 255])
+                                .map(|k| {
+                                    let b = k as f64 / 255.0;
+                                    format!(
+                                        "{k}:{:+.3}",
+                                        cal.response.eval(1, b).log2() - curve.inverse(b).log2()
+                                    )
+                                })
+                                .collect();
+                            println!("  log2 g - log2 g_true: {}", line.join(" "));
+                        }
+                        let (own, shape) =
+                            errors(curve, |c, k| cal.response.eval(c, k as f64 / 255.0));
+                        outcome.own = own;
+                        outcome.shape = shape;
+                        outcome.confidence = cal
+                            .channels
+                            .iter()
+                            .map(|c| c.fit.confidence)
+                            .fold(1.0, f64::min);
+                        outcome.degree =
+                            cal.channels.iter().map(|c| c.fit.degree).max().unwrap_or(0);
+                    }
+                    Err(e) => outcome.failed = Some(e.to_string()),
+                }
+                if py.is_some() && enc != Encoding::Sixteen {
+                    let ext = if enc == Encoding::Jpeg95 {
+                        "jpg"
+                    } else {
+                        "png"
+                    };
+                    let stem: PathBuf = dir.path().join(format!("c{ci}_{}_{ri}", enc as u8));
+                    let (d, b) = (
+                        stem.with_extension(format!("d.{ext}")),
+                        stem.with_extension(format!("b.{ext}")),
+                    );
+                    std::fs::write(&d, dark_file.unwrap()).unwrap();
+                    std::fs::write(&b, bright_file.unwrap()).unwrap();
+                    outcome.peer_index = Some(peer_cases.len());
+                    peer_cases.push(serde_json::json!({"dark": d, "bright": b, "t_dark": 1.0, "t_bright": ratio}));
+                }
+                outcomes.push(outcome);
+            }
+        }
+    }
+    let ours_s = started.elapsed().as_secs_f64();
+    let peer_curves: Vec<Vec<Vec<f64>>> = match &py {
+        Some(py) => {
+            let manifest = dir.path().join("cases.json");
+            std::fs::write(&manifest, serde_json::to_vec(&peer_cases).unwrap()).unwrap();
+            let script = Path::new(env!("CARGO_MANIFEST_DIR")).join("benches/opencv_debevec.py");
+            let out = Command::new(py)
+                .arg(script)
+                .arg(&manifest)
+                .output()
+                .unwrap();
+            if !out.status.success() {
+                eprintln!(
+                    "(OpenCV helper failed: {})",
+                    String::from_utf8_lossy(&out.stderr)
+                );
+                Vec::new()
+            } else {
+                let v: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
+                serde_json::from_value(v["curves"].clone()).unwrap()
+            }
+        }
+        None => Vec::new(),
+    };
+    let peer_shape = |o: &Outcome| -> Option<f64> {
+        let pc = peer_curves.get(o.peer_index?)?;
+        let curve = &curves.iter().find(|(n, _)| *n == o.curve)?.1;
+        Some(errors(curve, |c, k| pc[k][c]).1)
+    };
+    println!(
+        "# Response recovery accuracy ({WIDTH}x{HEIGHT} RGB pairs, degree auto, {} curves: 4 built-in + {} DoRF; render+calibrate {ours_s:.1} s)",
+        curves.len(),
+        curves.len() - 4
+    );
+    println!();
+    println!(
+        "Errors in stops over codes 16..239, DoRF curves only (all curves if DoRF is absent). 'confident wrong' = confidence >= 0.5 but shape error > 0.1 stop."
+    );
+    println!();
+    println!(
+        "| encoding | ratio | n | fail | own median | own p90 | shape median | shape p90 | shape max | low conf. | confident wrong | degree median | OpenCV shape median | OpenCV p90 | ours better |"
+    );
+    println!("|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|");
+    let use_dorf = outcomes.iter().any(|o| o.curve.starts_with("dorf-"));
+    for &enc in &encodings {
+        for &ratio in &RATIOS {
+            let set: Vec<&Outcome> = outcomes
+                .iter()
+                .filter(|o| {
+                    o.enc == enc && o.ratio == ratio && (!use_dorf || o.curve.starts_with("dorf-"))
+                })
+                .collect();
+            let ok: Vec<&&Outcome> = set.iter().filter(|o| o.failed.is_none()).collect();
+            let mut own: Vec<f64> = ok.iter().map(|o| o.own).collect();
+            let mut shape: Vec<f64> = ok.iter().map(|o| o.shape).collect();
+            let mut degree: Vec<f64> = ok.iter().map(|o| o.degree as f64).collect();
+            let low = ok.iter().filter(|o| o.confidence < 0.5).count();
+            let wrong = ok
+                .iter()
+                .filter(|o| o.confidence >= 0.5 && o.shape > 0.1)
+                .count();
+            let peer: Vec<(f64, f64)> = set
+                .iter()
+                .filter_map(|o| {
+                    Some((
+                        peer_shape(o)?,
+                        if o.failed.is_none() {
+                            o.shape
+                        } else {
+                            f64::INFINITY
+                        },
+                    ))
+                })
+                .collect();
+            let (pm, pp, better) = if peer.is_empty() {
+                ("-".to_string(), "-".to_string(), "-".to_string())
+            } else {
+                let mut p: Vec<f64> = peer.iter().map(|x| x.0).collect();
+                let wins = peer.iter().filter(|(p, o)| o < p).count();
+                (
+                    format!("{:.4}", quantile(&mut p, 0.5)),
+                    format!("{:.4}", quantile(&mut p.clone(), 0.9)),
+                    format!("{:.0} %", 100.0 * wins as f64 / peer.len() as f64),
+                )
+            };
+            println!(
+                "| {} | {ratio} | {} | {} | {:.4} | {:.4} | {:.4} | {:.4} | {:.3} | {low} | {wrong} | {} | {pm} | {pp} | {better} |",
+                enc.name(),
+                set.len(),
+                set.len() - ok.len(),
+                quantile(&mut own, 0.5),
+                quantile(&mut own, 0.9),
+                quantile(&mut shape, 0.5),
+                quantile(&mut shape, 0.9),
+                quantile(&mut shape, 1.0),
+                quantile(&mut degree, 0.5),
+            );
+        }
+    }
+    println!();
+    println!("## Named curves at ratio 4");
+    println!();
+    println!("| curve | encoding | own | shape | confidence | degree | OpenCV shape |");
+    println!("|---|---|---|---|---|---|---|");
+    for o in outcomes
+        .iter()
+        .filter(|o| o.ratio == 4.0 && !o.curve.starts_with("dorf-"))
+    {
+        println!(
+            "| {} | {} | {:.4} | {:.4} | {:.2} | {} | {} |",
+            o.curve,
+            o.enc.name(),
+            o.own,
+            o.shape,
+            o.confidence,
+            o.degree,
+            peer_shape(o).map_or("-".into(), |p| format!("{p:.4}"))
+        );
+    }
+    let worst: Vec<&Outcome> = {
+        let mut v: Vec<&Outcome> = outcomes
+            .iter()
+            .filter(|o| o.ratio == 4.0 && o.enc == Encoding::Lossless8)
+            .collect();
+        v.sort_by(|a, b| b.shape.total_cmp(&a.shape));
+        v.into_iter().take(5).collect()
+    };
+    println!();
+    println!(
+        "Worst at ratio 4, 8-bit lossless: {}",
+        worst
+            .iter()
+            .map(|o| format!(
+                "{} {:.3} (conf {:.2}, deg {})",
+                o.curve, o.shape, o.confidence, o.degree
+            ))
+            .collect::<Vec<_>>()
+            .join("; ")
+    );
+    for o in outcomes.iter().filter(|o| o.failed.is_some()).take(5) {
+        println!(
+            "failed: {} {} ratio {}: {}",
+            o.curve,
+            o.enc.name(),
+            o.ratio,
+            o.failed.as_deref().unwrap_or("")
+        );
+    }
+}

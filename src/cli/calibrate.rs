@@ -1,0 +1,252 @@
+//! `filmback calibrate FRAME FRAME [--ratio R] [--degree auto|N] [--stride N] [--json]
+//! [--plot FILE.png] [-o response.toml]`: the camera's inverse response from two exposures.
+
+use std::path::{Path, PathBuf};
+use std::process::ExitCode;
+
+use anyhow::{Context, bail};
+use filmback::atomic::Overwrite;
+use filmback::frame::{self, Limits, LoadedFrame};
+use filmback::histogram::Histogram;
+use filmback::response::{
+    self, Calibration, Degree, MODEL_NAME, PRIOR_MID_GREY, Ratio, RatioSource,
+};
+use serde_json::{Value, json};
+
+mod plot;
+
+/// Arguments of `filmback calibrate`.
+#[derive(Debug, clap::Args)]
+pub struct Args {
+    /// Two exposures of the same scene, in any order (sorted by exposure).
+    #[arg(required = true, num_args = 2)]
+    frames: Vec<PathBuf>,
+    /// Exposure ratio bright/dark (> 1); overrides EXIF. Without it and without EXIF the
+    /// ratio is estimated (see `ratio_prior` in the output).
+    #[arg(long)]
+    ratio: Option<f64>,
+    /// Model size: `auto` (the data choose the smoothness) or a polynomial degree 1..=16.
+    #[arg(long, default_value = "auto", value_parser = parse_degree)]
+    degree: Degree,
+    /// Count every N-th pixel of every N-th row (a speed knob; 1 = all pixels).
+    #[arg(long, default_value_t = 1)]
+    stride: usize,
+    /// Print JSON instead of a table.
+    #[arg(long)]
+    json: bool,
+    /// Draw histograms, cumulative histograms, τ and g per channel into this PNG.
+    #[arg(long, value_name = "FILE.png")]
+    plot: Option<PathBuf>,
+    /// Save the response as a versioned TOML file (read by `merge` and the daemon).
+    #[arg(short = 'o', long = "output", value_name = "response.toml")]
+    output: Option<PathBuf>,
+}
+
+fn parse_degree(s: &str) -> Result<Degree, String> {
+    if s == "auto" {
+        return Ok(Degree::Auto);
+    }
+    match s.parse::<usize>() {
+        Ok(n) if (1..=response::fit::MAX_DEGREE).contains(&n) => Ok(Degree::Fixed(n)),
+        _ => Err(format!(
+            "expected `auto` or a degree 1..={}",
+            response::fit::MAX_DEGREE
+        )),
+    }
+}
+
+/// Mean brightness over all channels, from a histogram (for ordering frames without EXIF).
+fn mean_brightness(h: &Histogram) -> f64 {
+    let mut sum = 0.0;
+    let mut n = 0.0;
+    for c in 0..h.channels() {
+        let cum = h.cumulative(c);
+        let e = cum.edges();
+        for (k, &count) in h.counts(c).iter().enumerate() {
+            sum += count as f64 * 0.5 * (e[k] + e[k + 1]);
+            n += count as f64;
+        }
+    }
+    sum / n.max(1.0)
+}
+
+/// Runs the command.
+pub fn run(args: Args) -> anyhow::Result<ExitCode> {
+    if args.stride == 0 {
+        bail!("--stride must be at least 1");
+    }
+    let loaded: Vec<LoadedFrame> = args
+        .frames
+        .iter()
+        .map(|p| frame::load(p, Limits::default()))
+        .collect::<Result<_, _>>()?;
+    for l in &loaded {
+        if l.frame.channels() != loaded[0].frame.channels()
+            || l.frame.bit_depth() != loaded[0].frame.bit_depth()
+        {
+            bail!(
+                "{} and {} differ in channels or bit depth ({}×{}-bit against {}×{}-bit)",
+                loaded[0].path.display(),
+                l.path.display(),
+                loaded[0].frame.channels(),
+                loaded[0].frame.bit_depth().bits(),
+                l.frame.channels(),
+                l.frame.bit_depth().bits()
+            );
+        }
+    }
+    let hists: Vec<Histogram> = loaded
+        .iter()
+        .map(|l| Histogram::of_frame(&l.frame, args.stride))
+        .collect();
+    let exif: Vec<Option<f64>> = loaded
+        .iter()
+        .map(|l| l.metadata.exposure.relative())
+        .collect();
+    let (dark, ratio) = match (args.ratio, exif[0], exif[1]) {
+        (Some(r), ..) => {
+            if !(r.is_finite() && r > 1.0) {
+                bail!("--ratio {r}: must be a number above 1 (bright over dark exposure)");
+            }
+            let dark = match (exif[0], exif[1]) {
+                (Some(a), Some(b)) if a != b => usize::from(b < a),
+                _ => usize::from(mean_brightness(&hists[1]) < mean_brightness(&hists[0])),
+            };
+            (dark, Ratio::Known(r, RatioSource::Argument))
+        }
+        (None, Some(a), Some(b)) if a == b => bail!(
+            "{} and {} have the same EXIF exposure (t·S/N² = {a}): give --ratio if they differ",
+            loaded[0].path.display(),
+            loaded[1].path.display()
+        ),
+        (None, Some(a), Some(b)) => {
+            let dark = usize::from(b < a);
+            (dark, Ratio::Known(a.max(b) / a.min(b), RatioSource::Exif))
+        }
+        _ => (
+            usize::from(mean_brightness(&hists[1]) < mean_brightness(&hists[0])),
+            Ratio::Estimate,
+        ),
+    };
+    let bright = 1 - dark;
+    let calibration = response::calibrate(&hists[dark], &hists[bright], ratio, args.degree)
+        .with_context(|| {
+            format!(
+                "calibrating {} (dark) against {} (bright)",
+                loaded[dark].path.display(),
+                loaded[bright].path.display()
+            )
+        })?;
+    if let Some(path) = &args.output {
+        response::save(path, &calibration.record(), Overwrite::Replace)?;
+    }
+    if let Some(path) = &args.plot {
+        plot::write(path, &hists[dark], &hists[bright], &calibration)?;
+    }
+    let report = report(&calibration, &loaded[dark].path, &loaded[bright].path);
+    let text = if args.json {
+        serde_json::to_string_pretty(&report)? + "\n"
+    } else {
+        table(&report)
+    };
+    // A closed pipe (`| head`) is not worth a panic.
+    let _ = std::io::Write::write_all(&mut std::io::stdout().lock(), text.as_bytes());
+    Ok(ExitCode::SUCCESS)
+}
+
+/// Finite numbers as JSON numbers, anything else as `null`.
+fn number(x: f64) -> Value {
+    if x.is_finite() { json!(x) } else { Value::Null }
+}
+
+/// The `--json` contract of issue 3, with more fields.
+fn report(cal: &Calibration, dark: &Path, bright: &Path) -> Value {
+    let channels: Vec<Value> = cal
+        .channels
+        .iter()
+        .enumerate()
+        .map(|(c, ch)| {
+            let f = &ch.fit;
+            let g: Vec<f64> = (0..=255)
+                .map(|k| cal.response.eval(c, f64::from(k) / 255.0))
+                .collect();
+            json!({
+                "name": ch.name,
+                "model": MODEL_NAME,
+                "degree": f.degree,
+                "smoothing": number(f.smoothing),
+                "coefficients": f.coefficients,
+                "inverse_response": g,
+                "covered": [f.covered.0, f.covered.1],
+                "extrapolated": [[0.0, f.covered.0], [f.covered.1, 1.0]],
+                "residual_rms": number(f.residual_rms),
+                "equations": f.equations,
+                "condition_number": number(f.condition),
+                "predicted_error_stops": number(f.predicted_error),
+                "confidence": f.confidence,
+                "low_confidence": f.confidence < 0.5,
+                "borrowed_from": ch.borrowed_from,
+            })
+        })
+        .collect();
+    json!({
+        "ratio": cal.ratio,
+        "ratio_source": cal.ratio_source.as_str(),
+        "ratio_prior": (cal.ratio_source == RatioSource::Estimated).then(|| format!(
+            "g(0.5) = {PRIOR_MID_GREY:.4} as on the sRGB curve (g and the ratio trade off as g^k, ratio^k)"
+        )),
+        "dark": dark.display().to_string(),
+        "bright": bright.display().to_string(),
+        "channels": channels,
+    })
+}
+
+fn table(r: &Value) -> String {
+    use std::fmt::Write;
+    let mut out = String::new();
+    let _ = writeln!(
+        out,
+        "dark {}  bright {}\nratio {:.4} ({}){}",
+        r["dark"].as_str().unwrap_or("?"),
+        r["bright"].as_str().unwrap_or("?"),
+        r["ratio"].as_f64().unwrap_or(f64::NAN),
+        r["ratio_source"].as_str().unwrap_or("?"),
+        r["ratio_prior"]
+            .as_str()
+            .map_or(String::new(), |p| format!(", assuming {p}"))
+    );
+    let _ = writeln!(out, "model: {MODEL_NAME}");
+    let _ = writeln!(
+        out,
+        "{:<3} {:>6} {:>9} {:>15} {:>9} {:>9} {:>10} {:>10}  g(0.25) g(0.5) g(0.75)",
+        "ch", "degree", "smoothing", "covered", "residual", "equations", "condition", "confidence"
+    );
+    for ch in r["channels"].as_array().into_iter().flatten() {
+        let g = |k: usize| ch["inverse_response"][k].as_f64().unwrap_or(f64::NAN);
+        let f = |k: &str| ch[k].as_f64().unwrap_or(f64::NAN);
+        let mut note = String::new();
+        if let Some(d) = ch["borrowed_from"].as_str() {
+            note = format!("  (no usable tones: curve borrowed from {d})");
+        } else if ch["low_confidence"].as_bool() == Some(true) {
+            note = "  LOW CONFIDENCE".to_string();
+        }
+        let _ = writeln!(
+            out,
+            "{:<3} {:>6} {:>9.1e} {:>7.4}..{:<6.4} {:>8.4}s {:>9} {:>10.2e} {:>10.2}  {:.4} {:.4} {:.4}{note}",
+            ch["name"].as_str().unwrap_or("?"),
+            ch["degree"],
+            f("smoothing"),
+            ch["covered"][0].as_f64().unwrap_or(f64::NAN),
+            ch["covered"][1].as_f64().unwrap_or(f64::NAN),
+            f("residual_rms"),
+            ch["equations"],
+            f("condition_number"),
+            f("confidence"),
+            g(64),
+            g(128),
+            g(191),
+        );
+    }
+    out.push_str("outside the covered tones the curve is extrapolated\n");
+    out
+}

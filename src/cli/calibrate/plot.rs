@@ -1,0 +1,250 @@
+//! `--plot`: the report's Figure 3 per channel (one row each): the two histograms, the
+//! cumulative histograms, the intensity mapping τ, and the recovered g. Drawn by hand with
+//! the `image` crate and a 3×5 bitmap font (scaled 2×), written atomically as PNG.
+
+use std::path::Path;
+
+use anyhow::Context;
+use filmback::atomic::{self, Overwrite};
+use filmback::histogram::Histogram;
+use filmback::response::Calibration;
+use image::{Rgb, RgbImage};
+
+const PANEL_W: u32 = 300;
+const PANEL_H: u32 = 230;
+const LEFT: u32 = 34;
+const RIGHT: u32 = 10;
+const TOP: u32 = 22;
+const BOTTOM: u32 = 22;
+const DARK: Rgb<u8> = Rgb([30, 90, 200]);
+const BRIGHT: Rgb<u8> = Rgb([230, 120, 20]);
+const INK: Rgb<u8> = Rgb([20, 20, 20]);
+const GRID: Rgb<u8> = Rgb([215, 215, 215]);
+const COVERED: Rgb<u8> = Rgb([225, 245, 225]);
+
+/// 3×5 glyphs, five rows of three bits (top row first, leftmost bit first).
+fn glyph(c: char) -> Option<[u8; 5]> {
+    let rows = match c.to_ascii_uppercase() {
+        '0' => "111101101101111",
+        '1' => "010110010010111",
+        '2' => "111001111100111",
+        '3' => "111001111001111",
+        '4' => "101101111001001",
+        '5' => "111100111001111",
+        '6' => "111100111101111",
+        '7' => "111001001001001",
+        '8' => "111101111101111",
+        '9' => "111101111001111",
+        '.' => "000000000000010",
+        '-' => "000000111000000",
+        ':' => "000010000010000",
+        ',' => "000000000010100",
+        '(' => "010100100100010",
+        ')' => "010001001001010",
+        '/' => "001001010100100",
+        '=' => "000111000111000",
+        'A' => "010101111101101",
+        'B' => "110101110101110",
+        'C' => "011100100100011",
+        'D' => "110101101101110",
+        'E' => "111100110100111",
+        'F' => "111100110100100",
+        'G' => "011100101101011",
+        'H' => "101101111101101",
+        'I' => "111010010010111",
+        'K' => "101101110101101",
+        'L' => "100100100100111",
+        'M' => "101111111101101",
+        'N' => "110101101101101",
+        'O' => "010101101101010",
+        'P' => "110101110100100",
+        'R' => "110101110101101",
+        'S' => "011100010001110",
+        'T' => "111010010010010",
+        'U' => "101101101101111",
+        'V' => "101101101101010",
+        'W' => "101101111111101",
+        'X' => "101101010101101",
+        'Y' => "101101010010010",
+        _ => return None,
+    };
+    let b = rows.as_bytes();
+    let mut out = [0u8; 5];
+    for (r, row) in out.iter_mut().enumerate() {
+        *row = (0..3).fold(0, |acc, k| (acc << 1) | u8::from(b[r * 3 + k] == b'1'));
+    }
+    Some(out)
+}
+
+struct Canvas {
+    image: RgbImage,
+}
+
+impl Canvas {
+    fn put(&mut self, x: i64, y: i64, colour: Rgb<u8>) {
+        if x >= 0 && y >= 0 && (x as u32) < self.image.width() && (y as u32) < self.image.height() {
+            self.image.put_pixel(x as u32, y as u32, colour);
+        }
+    }
+
+    fn line(&mut self, (x0, y0): (f64, f64), (x1, y1): (f64, f64), colour: Rgb<u8>) {
+        let steps = (x1 - x0).abs().max((y1 - y0).abs()).ceil().max(1.0) as i64;
+        for i in 0..=steps {
+            let t = i as f64 / steps as f64;
+            let (x, y) = (x0 + t * (x1 - x0), y0 + t * (y1 - y0));
+            self.put(x.round() as i64, y.round() as i64, colour);
+        }
+    }
+
+    /// Text at 2× scale, top-left at `(x, y)`.
+    fn text(&mut self, x: i64, y: i64, s: &str, colour: Rgb<u8>) {
+        for (i, c) in s.chars().enumerate() {
+            let Some(rows) = glyph(c) else { continue };
+            for (r, bits) in rows.iter().enumerate() {
+                for k in 0..3 {
+                    if bits & (4 >> k) != 0 {
+                        for (dx, dy) in [(0, 0), (1, 0), (0, 1), (1, 1)] {
+                            self.put(x + i as i64 * 8 + k * 2 + dx, y + r as i64 * 2 + dy, colour);
+                        }
+                    }
+                }
+            }
+        }
+    }
+}
+
+/// One panel's plotting area: maps `[0,1]²` to pixels.
+struct Panel {
+    x0: f64,
+    y0: f64,
+    w: f64,
+    h: f64,
+}
+
+impl Panel {
+    fn at(&self, u: f64, v: f64) -> (f64, f64) {
+        (
+            self.x0 + u.clamp(0.0, 1.0) * self.w,
+            self.y0 + (1.0 - v.clamp(0.0, 1.0)) * self.h,
+        )
+    }
+
+    fn frame(&self, canvas: &mut Canvas, title: &str) {
+        for t in [0.0, 0.25, 0.5, 0.75, 1.0] {
+            canvas.line(self.at(t, 0.0), self.at(t, 1.0), GRID);
+            canvas.line(self.at(0.0, t), self.at(1.0, t), GRID);
+        }
+        canvas.line(self.at(0.0, 0.0), self.at(1.0, 0.0), INK);
+        canvas.line(self.at(0.0, 0.0), self.at(0.0, 1.0), INK);
+        for (t, label) in [(0.0, "0"), (0.5, "0.5"), (1.0, "1")] {
+            let (x, y) = self.at(t, 0.0);
+            canvas.text(x as i64 - 4 * label.len() as i64, y as i64 + 5, label, INK);
+            let (x, y) = self.at(0.0, t);
+            canvas.text(
+                x as i64 - 8 * label.len() as i64 - 4,
+                y as i64 - 5,
+                label,
+                INK,
+            );
+        }
+        canvas.text(self.x0 as i64, self.y0 as i64 - 18, title, INK);
+    }
+
+    fn polyline(&self, canvas: &mut Canvas, points: &[(f64, f64)], colour: Rgb<u8>) {
+        for w in points.windows(2) {
+            canvas.line(self.at(w[0].0, w[0].1), self.at(w[1].0, w[1].1), colour);
+        }
+    }
+}
+
+/// Draws the figure and publishes it atomically at `path`.
+pub fn write(
+    path: &Path,
+    dark: &Histogram,
+    bright: &Histogram,
+    cal: &Calibration,
+) -> anyhow::Result<()> {
+    let rows = cal.channels.len() as u32;
+    let mut canvas = Canvas {
+        image: RgbImage::from_pixel(4 * PANEL_W, rows * PANEL_H, Rgb([255, 255, 255])),
+    };
+    for (c, ch) in cal.channels.iter().enumerate() {
+        let panel = |i: u32| Panel {
+            x0: f64::from(i * PANEL_W + LEFT),
+            y0: f64::from(c as u32 * PANEL_H + TOP),
+            w: f64::from(PANEL_W - LEFT - RIGHT),
+            h: f64::from(PANEL_H - TOP - BOTTOM),
+        };
+        let (ca, cb) = (dark.cumulative(c), bright.cumulative(c));
+        // 1. Histograms, scaled to the 99th-percentile bin so clipping spikes stay visible
+        //    without flattening the rest.
+        let p = panel(0);
+        p.frame(&mut canvas, &format!("{} HISTOGRAMS", ch.name));
+        canvas.text(p.x0 as i64 + 150, p.y0 as i64 + 4, "DARK", DARK);
+        canvas.text(p.x0 as i64 + 150, p.y0 as i64 + 16, "BRIGHT", BRIGHT);
+        let mut all: Vec<u64> = ca.counts().iter().chain(cb.counts()).copied().collect();
+        all.sort_unstable();
+        let top = all[(all.len() - 1) * 99 / 100].max(1) as f64;
+        for (cum, colour) in [(&ca, DARK), (&cb, BRIGHT)] {
+            let e = cum.edges();
+            let pts: Vec<(f64, f64)> = cum
+                .counts()
+                .iter()
+                .enumerate()
+                .map(|(k, &n)| (0.5 * (e[k] + e[k + 1]), n as f64 / top))
+                .collect();
+            p.polyline(&mut canvas, &pts, colour);
+        }
+        // 2. Cumulative histograms.
+        let p = panel(1);
+        p.frame(&mut canvas, "CUMULATIVE H(B)");
+        for (cum, colour) in [(&ca, DARK), (&cb, BRIGHT)] {
+            let pts: Vec<(f64, f64)> = cum
+                .edges()
+                .iter()
+                .zip(cum.at_edges())
+                .map(|(&b, &h)| (b, h))
+                .collect();
+            p.polyline(&mut canvas, &pts, colour);
+        }
+        // 3. τ: each tone pair as a dot, over the diagonal.
+        let p = panel(2);
+        p.frame(&mut canvas, "TAU: DARK B TO BRIGHT B");
+        p.polyline(&mut canvas, &[(0.0, 0.0), (1.0, 1.0)], GRID);
+        for pair in &ch.pairs {
+            let (x, y) = p.at(pair.dark, pair.bright);
+            for (dx, dy) in [(0, 0), (1, 0), (0, 1), (1, 1)] {
+                canvas.put(x as i64 + dx, y as i64 + dy, INK);
+            }
+        }
+        // 4. g, with the covered tone range shaded (outside it: extrapolated).
+        let p = panel(3);
+        let (lo, hi) = ch.fit.covered;
+        if ch.borrowed_from.is_none() {
+            let (xa, _) = p.at(lo, 0.0);
+            let (xb, _) = p.at(hi, 0.0);
+            for x in xa as i64..=xb as i64 {
+                canvas.line((x as f64, p.y0), (x as f64, p.y0 + p.h - 1.0), COVERED);
+            }
+        }
+        let title = match ch.borrowed_from {
+            Some(d) => format!("G(B) BORROWED FROM {d}"),
+            None => format!("G(B) CONF {:.2}", ch.fit.confidence),
+        };
+        p.frame(&mut canvas, &title);
+        let pts: Vec<(f64, f64)> = (0..=400)
+            .map(|i| {
+                let b = f64::from(i) / 400.0;
+                (b, cal.response.eval(c, b))
+            })
+            .collect();
+        p.polyline(&mut canvas, &pts, INK);
+    }
+    let mut bytes = std::io::Cursor::new(Vec::new());
+    canvas
+        .image
+        .write_to(&mut bytes, image::ImageFormat::Png)
+        .context("encoding the plot")?;
+    atomic::publish(path, &bytes.into_inner(), Overwrite::Replace)?;
+    Ok(())
+}

@@ -1,0 +1,432 @@
+//! Response recovery: accuracy on synthetic pairs, stability at the extremes, and the
+//! `filmback calibrate` command's JSON, TOML and PNG outputs.
+
+use std::path::Path;
+use std::process::Command;
+
+use filmback::frame::{BitDepth, Frame, Samples};
+use filmback::histogram::Histogram;
+use filmback::metadata::{Camera, CaptureTime, Exposure};
+use filmback::radiance::RadianceMap;
+use filmback::response::{
+    self, Calibration, CalibrationError, Degree, Ratio, RatioSource, calibrate,
+};
+use filmback::synthetic::{self, Encoding, ResponseCurve, Sensor, Shot};
+
+const W: u32 = 384;
+const H: u32 = 256;
+
+fn scene() -> RadianceMap {
+    synthetic::scene(W, H, 5)
+}
+
+fn sensor(curve: ResponseCurve, depth: BitDepth) -> Sensor {
+    Sensor {
+        curve,
+        bit_depth: depth,
+        read_noise_dn: if depth == BitDepth::Eight { 1.0 } else { 64.0 },
+        full_well_electrons: None,
+        seed: 3,
+    }
+}
+
+/// The pair at exposures `1/√γ` and `√γ`.
+fn pair(scene: &RadianceMap, s: &Sensor, ratio: f64) -> (Frame, Frame) {
+    (
+        synthetic::expose(scene, ratio.sqrt().recip(), s),
+        synthetic::expose(scene, ratio.sqrt(), s),
+    )
+}
+
+fn run(
+    dark: &Frame,
+    bright: &Frame,
+    ratio: f64,
+    degree: Degree,
+) -> Result<Calibration, CalibrationError> {
+    calibrate(
+        &Histogram::of_frame(dark, 1),
+        &Histogram::of_frame(bright, 1),
+        Ratio::Known(ratio, RatioSource::Argument),
+        degree,
+    )
+}
+
+/// (own, shape) RMSE of `log₂ g − log₂ g_true` over codes 16..239, worst channel, stops.
+fn stops_error(cal: &Calibration, curve: &ResponseCurve) -> (f64, f64) {
+    let mut worst = (0.0f64, 0.0f64);
+    for c in 0..cal.response.channels() {
+        let d: Vec<f64> = (16..=239)
+            .map(|k| {
+                let b = f64::from(k) / 255.0;
+                cal.response.eval(c, b).log2() - curve.inverse(b).log2()
+            })
+            .collect();
+        let mean = d.iter().sum::<f64>() / d.len() as f64;
+        let own = (d.iter().map(|x| x * x).sum::<f64>() / d.len() as f64).sqrt();
+        let shape = (d.iter().map(|x| (x - mean).powi(2)).sum::<f64>() / d.len() as f64).sqrt();
+        worst = (worst.0.max(own), worst.1.max(shape));
+    }
+    worst
+}
+
+/// Every curve finite, monotone, `g(0) = 0`, `g(1) = 1`; every reported number finite.
+fn assert_sane(cal: &Calibration) {
+    for c in 0..cal.response.channels() {
+        let g = cal.response.samples(c);
+        assert!(g.iter().all(|v| v.is_finite()));
+        assert!(g.windows(2).all(|w| w[0] <= w[1]));
+        assert_eq!((g[0], g[g.len() - 1]), (0.0, 1.0));
+    }
+    for ch in &cal.channels {
+        let f = &ch.fit;
+        assert!((0.0..=1.0).contains(&f.confidence), "{f:?}");
+        assert!(f.residual_rms.is_finite() && f.coefficients.iter().all(|c| c.is_finite()));
+        assert!(f.coefficients.windows(2).all(|w| w[0] <= w[1]));
+    }
+}
+
+fn min_confidence(cal: &Calibration) -> f64 {
+    cal.channels
+        .iter()
+        .map(|c| c.fit.confidence)
+        .fold(1.0, f64::min)
+}
+
+#[test]
+fn gamma_and_srgb_at_ratio_4_within_bounds() {
+    let scene = scene();
+    for curve in [ResponseCurve::Gamma(2.2), ResponseCurve::Srgb] {
+        let (dark, bright) = pair(&scene, &sensor(curve.clone(), BitDepth::Eight), 4.0);
+        let cal = run(&dark, &bright, 4.0, Degree::Auto).unwrap();
+        assert_sane(&cal);
+        let (own, shape) = stops_error(&cal, &curve);
+        assert!(
+            own < 0.03 && shape < 0.015,
+            "{curve:?}: own {own:.4} shape {shape:.4}"
+        );
+        assert!(min_confidence(&cal) > 0.5, "{curve:?}");
+    }
+}
+
+#[test]
+fn fixed_degree_12_is_monotone_and_accurate() {
+    let curve = ResponseCurve::Srgb;
+    let (dark, bright) = pair(&scene(), &sensor(curve.clone(), BitDepth::Eight), 4.0);
+    let cal = run(&dark, &bright, 4.0, Degree::Fixed(12)).unwrap();
+    assert_sane(&cal);
+    assert!(cal.channels.iter().all(|c| c.fit.degree == 12));
+    let (own, shape) = stops_error(&cal, &curve);
+    assert!(own < 0.03 && shape < 0.015, "own {own:.4} shape {shape:.4}");
+}
+
+#[test]
+fn ratio_near_one_is_low_confidence() {
+    let (dark, bright) = pair(
+        &scene(),
+        &sensor(ResponseCurve::Srgb, BitDepth::Eight),
+        1.01,
+    );
+    match run(&dark, &bright, 1.01, Degree::Auto) {
+        Ok(cal) => {
+            eprintln!("confidence {:.3}", min_confidence(&cal));
+            assert_sane(&cal);
+            assert!(
+                min_confidence(&cal) < 0.5,
+                "confident at ratio 1.01: {:?}",
+                cal.channels[1].fit
+            );
+        }
+        Err(e) => panic!("{e}"),
+    }
+}
+
+#[test]
+fn ratio_1000_is_low_confidence_or_refused() {
+    let (dark, bright) = pair(
+        &scene(),
+        &sensor(ResponseCurve::Srgb, BitDepth::Eight),
+        1000.0,
+    );
+    match run(&dark, &bright, 1000.0, Degree::Auto) {
+        Ok(cal) => {
+            eprintln!("confidence {:.3}", min_confidence(&cal));
+            assert_sane(&cal);
+            assert!(min_confidence(&cal) < 0.5, "{:?}", cal.channels[1].fit);
+        }
+        Err(e) => assert!(
+            !dbg!(e.to_string()).is_empty() && e.to_string().contains("usable"),
+            "{e}"
+        ),
+    }
+}
+
+#[test]
+fn almost_all_clipped_frame_is_low_confidence_or_refused() {
+    let scene = scene();
+    let s = sensor(ResponseCurve::Gamma(2.2), BitDepth::Eight);
+    let dark = synthetic::expose(&scene, 1.0, &s);
+    let bright = synthetic::expose(&scene, 2000.0, &s);
+    let clipped = match bright.samples() {
+        Samples::Eight(v) => v.iter().filter(|&&c| c == 255).count() as f64 / v.len() as f64,
+        Samples::Sixteen(_) => unreachable!("8-bit sensor"),
+    };
+    assert!(clipped > 0.95, "{clipped}");
+    match run(&dark, &bright, 2000.0, Degree::Auto) {
+        Ok(cal) => {
+            eprintln!("confidence {:.3}", min_confidence(&cal));
+            assert_sane(&cal);
+            assert!(min_confidence(&cal) < 0.5);
+        }
+        Err(e) => assert!(
+            !dbg!(e.to_string()).is_empty() && e.to_string().contains("usable"),
+            "{e}"
+        ),
+    }
+}
+
+fn grey(codes: impl Fn(usize) -> u8, channels: usize) -> Frame {
+    let n = (W * H) as usize;
+    let v = (0..n * channels).map(|i| codes(i / channels)).collect();
+    Frame::new(W, H, channels, Samples::Eight(v)).unwrap()
+}
+
+#[test]
+fn flat_grey_frames_are_a_clear_error() {
+    let err = run(&grey(|_| 118, 3), &grey(|_| 161, 3), 2.0, Degree::Auto).unwrap_err();
+    let text = err.to_string();
+    assert!(
+        text.contains("no channel") && text.contains("usable"),
+        "{text}"
+    );
+}
+
+#[test]
+fn three_levels_give_a_low_confidence_curve_or_an_error() {
+    let levels_dark = [30u8, 90, 160];
+    let levels_bright = [55u8, 125, 215];
+    let result = run(
+        &grey(|i| levels_dark[i % 3], 1),
+        &grey(|i| levels_bright[i % 3], 1),
+        2.0,
+        Degree::Auto,
+    );
+    match result {
+        Ok(cal) => {
+            eprintln!("confidence {:.3}", min_confidence(&cal));
+            assert_sane(&cal);
+            assert!(min_confidence(&cal) < 0.5, "{:?}", cal.channels[0].fit);
+        }
+        Err(e) => assert!(
+            !dbg!(e.to_string()).is_empty() && e.to_string().contains("usable"),
+            "{e}"
+        ),
+    }
+}
+
+#[test]
+fn sixteen_bit_frames_using_every_level() {
+    // Dark: every code 0..=65535 once (256×256). Bright: the same scene 4× brighter through
+    // gamma 2.2, clipped at full scale.
+    let dark: Vec<u16> = (0..=65535u16).collect();
+    let bright: Vec<u16> = dark
+        .iter()
+        .map(|&k| {
+            let x = 4.0 * (f64::from(k) / 65535.0).powf(2.2);
+            (x.min(1.0).powf(1.0 / 2.2) * 65535.0).round() as u16
+        })
+        .collect();
+    let mk = |v: Vec<u16>| Frame::new(256, 256, 1, Samples::Sixteen(v)).unwrap();
+    let (dark, bright) = (mk(dark), mk(bright));
+    assert_eq!(
+        Histogram::of_frame(&dark, 1)
+            .counts(0)
+            .iter()
+            .filter(|&&n| n == 16)
+            .count(),
+        4096
+    );
+    let cal = run(&dark, &bright, 4.0, Degree::Auto).unwrap();
+    assert_sane(&cal);
+    let (own, shape) = stops_error(&cal, &ResponseCurve::Gamma(2.2));
+    assert!(own < 0.01 && shape < 0.01, "own {own:.4} shape {shape:.4}");
+    assert!(min_confidence(&cal) > 0.8);
+}
+
+#[test]
+fn one_saturated_channel_borrows_a_curve_with_zero_confidence() {
+    let scene = scene();
+    let s = sensor(ResponseCurve::Gamma(2.2), BitDepth::Eight);
+    let (mut dark, mut bright) = pair(&scene, &s, 4.0);
+    for f in [&mut dark, &mut bright] {
+        let Samples::Eight(mut v) = f.samples().clone() else {
+            unreachable!()
+        };
+        v.iter_mut().step_by(3).for_each(|r| *r = 255);
+        *f = Frame::new(W, H, 3, Samples::Eight(v)).unwrap();
+    }
+    let cal = run(&dark, &bright, 4.0, Degree::Auto).unwrap();
+    assert_sane(&cal);
+    assert!(matches!(cal.channels[0].borrowed_from, Some("G" | "B")));
+    assert_eq!(cal.channels[0].fit.confidence, 0.0);
+    assert!(
+        cal.channels[1..]
+            .iter()
+            .all(|c| c.borrowed_from.is_none() && c.fit.confidence > 0.5)
+    );
+}
+
+#[test]
+fn swapped_frames_are_refused() {
+    let (dark, bright) = pair(&scene(), &sensor(ResponseCurve::Srgb, BitDepth::Eight), 4.0);
+    let err = run(&bright, &dark, 4.0, Degree::Auto).unwrap_err();
+    assert!(err.to_string().contains("swapped"), "{err}");
+}
+
+fn write_frame(path: &Path, frame: &Frame, exposure: Option<f64>) {
+    let shot = Shot {
+        camera: Camera::default(),
+        exposure: Exposure {
+            time_s: exposure,
+            f_number: exposure.map(|_| 4.0),
+            iso: exposure.map(|_| 100.0),
+        },
+        captured_at: CaptureTime {
+            year: 2026,
+            month: 3,
+            day: 1,
+            hour: 12,
+            minute: 0,
+            second: 0,
+            nanos: None,
+            offset_minutes: None,
+        },
+    };
+    synthetic::write(path, frame, &shot, Encoding::Png).unwrap();
+}
+
+fn filmback(args: &[&std::ffi::OsStr]) -> std::process::Output {
+    Command::new(env!("CARGO_BIN_EXE_filmback"))
+        .arg("calibrate")
+        .args(args)
+        .output()
+        .unwrap()
+}
+
+#[test]
+fn command_prints_the_json_contract_and_writes_toml_and_png() {
+    let dir = tempfile::tempdir().unwrap();
+    let (dark, bright) = pair(&scene(), &sensor(ResponseCurve::Srgb, BitDepth::Eight), 4.0);
+    let (a, b) = (dir.path().join("a.png"), dir.path().join("b.png"));
+    write_frame(&a, &bright, Some(1.0 / 15.0));
+    write_frame(&b, &dark, Some(1.0 / 60.0));
+    let toml = dir.path().join("response.toml");
+    let png = dir.path().join("figure.png");
+    // Bright first: the order must not matter.
+    let out = filmback(&[
+        a.as_os_str(),
+        b.as_os_str(),
+        "--json".as_ref(),
+        "-o".as_ref(),
+        toml.as_os_str(),
+        "--plot".as_ref(),
+        png.as_os_str(),
+    ]);
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let json: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
+    assert!((json["ratio"].as_f64().unwrap() - 4.0).abs() < 1e-9);
+    assert_eq!(json["ratio_source"], "exif");
+    assert_eq!(json["dark"], b.display().to_string());
+    let channels = json["channels"].as_array().unwrap();
+    assert_eq!(channels.len(), 3);
+    for (ch, name) in channels.iter().zip(["R", "G", "B"]) {
+        assert_eq!(ch["name"], name);
+        assert!(ch["degree"].as_u64().unwrap() >= 1);
+        let g: Vec<f64> = ch["inverse_response"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .map(|v| v.as_f64().unwrap())
+            .collect();
+        assert_eq!(g.len(), 256);
+        assert_eq!((g[0], g[255]), (0.0, 1.0));
+        assert!(g.windows(2).all(|w| w[0] <= w[1]));
+        let covered = ch["covered"].as_array().unwrap();
+        assert!(covered[0].as_f64().unwrap() < covered[1].as_f64().unwrap());
+        assert!(ch["residual_rms"].as_f64().unwrap() >= 0.0);
+        assert!((0.0..=1.0).contains(&ch["confidence"].as_f64().unwrap()));
+    }
+    let record = response::load(&toml).unwrap();
+    assert_eq!(record.ratio, Some(4.0));
+    assert_eq!(record.response.channels(), 3);
+    assert!(
+        (record.response.eval(1, 128.0 / 255.0)
+            - channels[1]["inverse_response"][128].as_f64().unwrap())
+        .abs()
+            < 1e-3
+    );
+    let figure = image::open(&png).unwrap();
+    assert_eq!((figure.width(), figure.height()), (1200, 690));
+
+    // --ratio overrides EXIF.
+    let out = filmback(&[
+        a.as_os_str(),
+        b.as_os_str(),
+        "--json".as_ref(),
+        "--ratio".as_ref(),
+        "3.5".as_ref(),
+    ]);
+    let json: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
+    assert_eq!(json["ratio_source"], "argument");
+    assert_eq!(json["ratio"], 3.5);
+}
+
+#[test]
+fn command_estimates_the_ratio_without_exif_and_says_so() {
+    let dir = tempfile::tempdir().unwrap();
+    let (dark, bright) = pair(&scene(), &sensor(ResponseCurve::Srgb, BitDepth::Eight), 4.0);
+    let (a, b) = (dir.path().join("a.png"), dir.path().join("b.png"));
+    write_frame(&a, &dark, None);
+    write_frame(&b, &bright, None);
+    let out = filmback(&[
+        a.as_os_str(),
+        b.as_os_str(),
+        "--json".as_ref(),
+        "--stride".as_ref(),
+        "2".as_ref(),
+    ]);
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let json: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
+    assert_eq!(json["ratio_source"], "estimated");
+    assert!(json["ratio_prior"].as_str().unwrap().contains("sRGB"));
+    // The scene went through sRGB, so the prior holds and the estimate is close to 4.
+    let r = json["ratio"].as_f64().unwrap();
+    assert!((r / 4.0).log2().abs() < 0.25, "{r}");
+}
+
+#[test]
+fn command_names_the_file_and_reason_on_bad_input() {
+    let dir = tempfile::tempdir().unwrap();
+    let bad = dir.path().join("broken.jpg");
+    std::fs::write(&bad, b"not an image").unwrap();
+    let out = filmback(&[bad.as_os_str(), bad.as_os_str()]);
+    assert!(!out.status.success());
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(err.contains("broken.jpg"), "{err}");
+    let out = filmback(&[
+        bad.as_os_str(),
+        bad.as_os_str(),
+        "--degree".as_ref(),
+        "0".as_ref(),
+    ]);
+    assert!(!out.status.success());
+    assert!(String::from_utf8_lossy(&out.stderr).contains("degree"));
+}
