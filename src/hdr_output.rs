@@ -21,7 +21,7 @@
 //! Compression (see [`Compression`]): PIZ by default, a lossless wavelet coder that does
 //! best on noisy photographic data; lossy coders only when asked for by name.
 //!
-//! Every file is published through [`atomic`](crate::atomic): a failure (unwritable
+//! Every file is published through [`crate::atomic`]: a failure (unwritable
 //! folder, full disk, encoder error) leaves no partial file.
 
 use std::io::{Seek, Write};

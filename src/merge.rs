@@ -52,7 +52,16 @@
 //! Per frame and channel, `w_k(code)` and `w_k(code)·x_k(code)` are tabulated once
 //! (256 entries for 8-bit frames, 65 536 for 16-bit), so the per-sample work is two table
 //! lookups and two additions per frame; rows are merged in parallel straight into the
-//! output buffer, without per-frame floating-point copies of the frames.
+//! output buffer, without per-frame floating-point copies of the frames. For the usual
+//! bracket, two 8-bit frames, every outcome is tabulated once per channel by code pair
+//! (65 536 entries), so a sample costs one lookup; [`PairMerge`] goes further and is
+//! evaluated while the file is encoded, so no radiance buffer exists at all.
+//!
+//! # Equal exposures
+//!
+//! Frames of equal exposure (within 1 %) are merged as duplicates: the weighted mean
+//! averages their noise. A set with only one distinct exposure is refused: it is not a
+//! bracket.
 
 use std::path::{Path, PathBuf};
 
