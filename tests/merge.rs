@@ -479,3 +479,116 @@ fn cli_unwritable_output_leaves_nothing() {
         .collect();
     assert_eq!(names.len(), 3, "{names:?}");
 }
+
+/// JPEGs with EXIF (as a tethered camera writes them): exposures come from EXIF, the
+/// header carries camera, capture date, frames and ratio; another body is refused.
+#[test]
+fn cli_reads_exif_and_fills_the_header() {
+    use exr::prelude::{AttributeValue, ReadChannels, ReadLayers, Text};
+    use filmback::metadata::CaptureTime;
+    use filmback::synthetic::{Encoding, Shot, write};
+
+    let dir = tempfile::tempdir().unwrap();
+    let truth = scene(96, 64, 12);
+    let camera = Camera {
+        make: Some("Filmback".into()),
+        model: Some("Synthetic One".into()),
+        serial: Some("0042".into()),
+        lens: None,
+    };
+    let first = CaptureTime {
+        year: 2026,
+        month: 11,
+        day: 22,
+        hour: 5,
+        minute: 30,
+        second: 0,
+        nanos: None,
+        offset_minutes: Some(60),
+    };
+    let shots = Shot::series(&camera, first, &[0.01, 0.04], 8.0, 100.0, 0.5);
+    let s = Sensor::noiseless(ResponseCurve::Srgb, BitDepth::Eight);
+    let mut paths = Vec::new();
+    for (k, shot) in shots.iter().enumerate() {
+        let frame = expose(&truth, shot.exposure.time_s.unwrap() * 25.0, &s);
+        let path = dir.path().join(format!("f{k}.jpg"));
+        write(&path, &frame, shot, Encoding::Jpeg { quality: 95 }).unwrap();
+        paths.push(path);
+    }
+    let out = dir.path().join("out");
+    let o = filmback()
+        .arg("merge")
+        .args([&paths[1], &paths[0]])
+        .arg("-o")
+        .arg(&out)
+        .output()
+        .unwrap();
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let image = exr::prelude::read()
+        .no_deep_data()
+        .largest_resolution_level()
+        .all_channels()
+        .first_valid_layer()
+        .all_attributes()
+        .from_file(out.join("f1.exr"))
+        .unwrap();
+    let attrs = &image.layer_data.attributes;
+    let text = |name: &str| match attrs.other.get(&Text::from(name)) {
+        Some(AttributeValue::Text(t)) => t.to_string(),
+        other => panic!("{name}: {other:?}"),
+    };
+    assert_eq!(text("cameraModel"), "Synthetic One");
+    assert_eq!(text("cameraSerialNumber"), "0042");
+    assert!(
+        text("filmbackFrame0").starts_with("f0.jpg: time 0.01 s"),
+        "{}",
+        text("filmbackFrame0")
+    );
+    assert!(text("filmbackResponse").contains("calibrated from f0.jpg and f1.jpg"));
+    assert_eq!(
+        attrs.other.get(&Text::from("filmbackExposureRatio")),
+        Some(&AttributeValue::F64(4.0))
+    );
+    assert_eq!(
+        attrs
+            .capture_date
+            .as_ref()
+            .map(|t| t.to_string())
+            .as_deref(),
+        Some("2026:11:22 05:30:00")
+    );
+    assert_eq!(attrs.utc_offset, Some(-3600.0));
+    assert_eq!(attrs.exposure, Some(0.04));
+    assert!(image.attributes.chromaticities.is_some());
+
+    // The same scene from another body is not a bracket.
+    let other = Camera {
+        serial: Some("0043".into()),
+        ..camera.clone()
+    };
+    let shot = Shot {
+        camera: other,
+        ..shots[1].clone()
+    };
+    let stranger = dir.path().join("stranger.jpg");
+    write(
+        &stranger,
+        &expose(&truth, 1.0, &s),
+        &shot,
+        Encoding::Jpeg { quality: 95 },
+    )
+    .unwrap();
+    let o = filmback()
+        .arg("merge")
+        .args([&paths[0], &stranger])
+        .arg("-o")
+        .arg(&out)
+        .output()
+        .unwrap();
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(!o.status.success());
+    assert!(
+        err.contains("f0.jpg") && err.contains("stranger.jpg") && err.contains("0043"),
+        "{err}"
+    );
+}
