@@ -9,7 +9,9 @@
 
 pub mod atomic;
 pub mod frame;
+pub mod hdr_output;
 pub mod histogram;
+pub mod merge;
 pub mod metadata;
 pub mod radiance;
 pub mod response;

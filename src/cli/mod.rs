@@ -7,6 +7,7 @@ use clap::{Parser, Subcommand};
 
 mod calibrate;
 mod inspect;
+mod merge;
 
 /// filmback: brackets from a tethered camera to HDR radiance maps and film renderings.
 #[derive(Debug, Parser)]
@@ -22,6 +23,8 @@ enum Command {
     Calibrate(calibrate::Args),
     /// Show each frame's size, depth, camera, exposure and capture time.
     Inspect(inspect::Args),
+    /// Merge a bracket into one OpenEXR radiance map.
+    Merge(merge::Args),
 }
 
 /// Parses the command line, runs the subcommand, and reports errors on stderr.
@@ -30,6 +33,7 @@ pub fn main() -> ExitCode {
     let result = match cli.command {
         Command::Calibrate(args) => calibrate::run(args),
         Command::Inspect(args) => inspect::run(args),
+        Command::Merge(args) => merge::run(args),
     };
     match result {
         Ok(code) => code,

@@ -1,0 +1,942 @@
+//! Radiance merge: a bracket of frames and the camera's inverse response become one
+//! high-dynamic-range [`RadianceMap`].
+//!
+//! # The estimate
+//!
+//! Frames are sorted by relative exposure `e_k = t·S/N²` (darkest first). Per pixel and
+//! channel, with `B_k` the frame's brightness and `g` the inverse response,
+//!
+//! ```text
+//! E = Σ_k w_k(B_k) · x_k(B_k)  /  Σ_k w_k(B_k),      x_k(B) = g(B) · e_ref / e_k
+//! ```
+//!
+//! # Scale convention
+//!
+//! `e_ref` is the exposure of the *longest* frame, so radiance is relative and
+//! dimensionless: a pixel at brightness `g⁻¹(1)` (that is `B = 1`, since `g(1) = 1`) in the
+//! longest exposure reads exactly 1.0. Mid-grey lands wherever the longest frame put it
+//! (about 0.18 for a normally exposed long frame with an sRGB-like response), and the
+//! brightest representable value is `e_ref / e_min`, the bracket's total ratio.
+//!
+//! # Weights
+//!
+//! Both weights are exactly zero at the codes that mean "clipped" (0 and the largest
+//! code) and positive everywhere in between.
+//!
+//! * [`Weighting::Hat`] (default), Debevec & Malik's triangle `w(B) = min(B, 1 − B)/0.5`:
+//!   trusts mid-tones and fades towards both ends, the same for every frame. Better when
+//!   the response is uncertain near its ends (the sRGB default for an unknown camera, a
+//!   fit whose data did not reach the extremes), with JPEG highlight roll-off, and when
+//!   the subject moved: every frame contributes, so nothing depends on one frame alone.
+//! * [`Weighting::NoiseAware`]: inverse variance of each frame's estimate under noise
+//!   that is constant in code values (read noise and quantisation, the regime of 8-bit
+//!   JPEGs and low-ISO captures): `Var x_k = (g'(B)·e_ref/e_k)²·σ²`, so
+//!   `w_k(B) = t(B) · (e_k / (e_ref · g'(B)))²`, with `t` a trust window that is 1 except
+//!   within 5 % of either end, where it falls linearly to 0 (codes there are distorted
+//!   by clipping of the noise). It prefers the longer exposure wherever that one is not
+//!   clipped, and gives a lower error than the hat when the response is known well (see
+//!   `tests/merge.rs`, which measures both).
+//!
+//! # Clipped everywhere
+//!
+//! A sample whose weight is zero in every frame has no estimate. The rule: if it is
+//! clipped high (the darkest frame's code is in the upper half) it takes the darkest
+//! frame's value `x_0(B_0)` — a lower bound of its true radiance; otherwise (clipped low)
+//! it takes the brightest frame's value `x_{N−1}(B_{N−1})` — an upper bound. Either way it
+//! is finite, never 0/0, and radiance stays monotone across the clip boundary, because
+//! just inside it the estimate is the same frame's `x(B)` at a smaller code. Such samples
+//! are counted ([`Merged::clipped_high`], [`Merged::clipped_low`]) and have confidence 0.
+//!
+//! # Speed
+//!
+//! Per frame and channel, `w_k(code)` and `w_k(code)·x_k(code)` are tabulated once
+//! (256 entries for 8-bit frames, 65 536 for 16-bit), so the per-sample work is two table
+//! lookups and two additions per frame; rows are merged in parallel straight into the
+//! output buffer, without per-frame floating-point copies of the frames. For the usual
+//! bracket, two 8-bit frames, every outcome is tabulated once per channel by code pair
+//! (65 536 entries), so a sample costs one lookup; [`PairMerge`] goes further and is
+//! evaluated while the file is encoded, so no radiance buffer exists at all.
+//!
+//! # Equal exposures
+//!
+//! Frames of equal exposure (within 1 %) are merged as duplicates: the weighted mean
+//! averages their noise. A set with only one distinct exposure is refused: it is not a
+//! bracket.
+
+use std::path::{Path, PathBuf};
+
+use rayon::prelude::*;
+
+use crate::frame::{BitDepth, Frame, Samples};
+use crate::metadata::Camera;
+use crate::radiance::RadianceMap;
+use crate::response::InverseResponse;
+
+/// How much each frame's sample is trusted (see the module docs for when to use which).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, serde::Serialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum Weighting {
+    /// `w(B) = min(B, 1 − B)/0.5`, the same for all frames.
+    #[default]
+    Hat,
+    /// Inverse variance under constant code-value noise: `t(B)·(e_k/(e_ref·g'(B)))²`.
+    NoiseAware,
+}
+
+/// One frame of a bracket, as the merge needs it.
+#[derive(Debug, Clone, Copy)]
+pub struct BracketFrame<'a> {
+    /// Where the frame came from; used only to name it in errors.
+    pub source: &'a Path,
+    /// The pixels.
+    pub frame: &'a Frame,
+    /// Relative exposure `e = t·S/N²` (any unit, the same for all frames), > 0.
+    pub exposure: f64,
+    /// The body that took it (compared field by field where both frames know it).
+    pub camera: &'a Camera,
+}
+
+/// Options of [`merge`].
+#[derive(Debug, Clone, Copy, Default)]
+pub struct MergeOptions {
+    /// The weight function.
+    pub weighting: Weighting,
+    /// Also return the per-pixel confidence (see [`Merged::confidence`]).
+    pub confidence: bool,
+}
+
+/// Why a bracket cannot be merged. Every variant names the files concerned.
+#[derive(Debug, thiserror::Error)]
+pub enum MergeError {
+    /// Fewer than two frames.
+    #[error("a merge needs at least 2 frames, got {0}")]
+    TooFewFrames(usize),
+    /// Two frames of different pixel dimensions.
+    #[error(
+        "{first} is {first_size} but {other} is {other_size}: frames of one bracket must share one size"
+    )]
+    SizeMismatch {
+        /// The first frame.
+        first: PathBuf,
+        /// Its size, `W×H×C`.
+        first_size: String,
+        /// The frame that differs.
+        other: PathBuf,
+        /// Its size.
+        other_size: String,
+    },
+    /// Two frames of different bit depth.
+    #[error(
+        "{first} is {first_bits}-bit but {other} is {other_bits}-bit: frames of one bracket must share one depth"
+    )]
+    DepthMismatch {
+        /// The first frame.
+        first: PathBuf,
+        /// Its bits per sample.
+        first_bits: u32,
+        /// The frame that differs.
+        other: PathBuf,
+        /// Its bits per sample.
+        other_bits: u32,
+    },
+    /// Two frames from different camera bodies.
+    #[error(
+        "{first} was taken by {first_camera} but {other} by {other_camera}: a bracket comes from one camera"
+    )]
+    CameraMismatch {
+        /// The first frame.
+        first: PathBuf,
+        /// Its camera.
+        first_camera: String,
+        /// The frame that differs.
+        other: PathBuf,
+        /// Its camera.
+        other_camera: String,
+    },
+    /// An exposure that is not a positive finite number.
+    #[error("{path}: exposure {exposure} is not a positive number")]
+    BadExposure {
+        /// The frame.
+        path: PathBuf,
+        /// The value given.
+        exposure: f64,
+    },
+    /// Every frame has the same exposure: nothing to extend the range with.
+    #[error(
+        "{first} and {other} have the same exposure ({exposure}) and there is no other: not a bracket"
+    )]
+    SingleExposure {
+        /// One frame.
+        first: PathBuf,
+        /// Another.
+        other: PathBuf,
+        /// The common exposure.
+        exposure: f64,
+    },
+    /// The response has 1 channel for RGB frames or 3 for grey ones.
+    #[error("the response has {response} channel(s) but {path} has {frame}")]
+    ChannelMismatch {
+        /// A frame.
+        path: PathBuf,
+        /// Its channels.
+        frame: usize,
+        /// The response's channels.
+        response: usize,
+    },
+}
+
+/// The result of [`merge`].
+#[derive(Debug, Clone)]
+pub struct Merged {
+    /// Linear relative radiance (scale: see the module docs).
+    pub radiance: RadianceMap,
+    /// Per pixel, the smallest over channels of `Σ_k w_k` (weights peak at 1, so the
+    /// range is `0..=N`); 0 where some channel was clipped in every frame. Present when
+    /// asked for in [`MergeOptions::confidence`].
+    pub confidence: Option<Vec<f32>>,
+    /// Input indices sorted by exposure, darkest first.
+    pub order: Vec<usize>,
+    /// The exposures in that order.
+    pub exposures: Vec<f64>,
+    /// Samples clipped high in every frame (value is a lower bound).
+    pub clipped_high: u64,
+    /// Samples clipped low in every frame (value is an upper bound).
+    pub clipped_low: u64,
+}
+
+impl Merged {
+    /// Ratio of the longest to the shortest exposure, `e_max/e_min`.
+    pub fn ratio(&self) -> f64 {
+        self.exposures[self.exposures.len() - 1] / self.exposures[0]
+    }
+}
+
+/// Exposures closer than this relative difference count as equal (1/3 stop is 26 %).
+const SAME_EXPOSURE: f64 = 0.01;
+
+/// Frames of equal exposure (within 1 %) are merged as duplicates: the weighted mean
+/// averages their noise. A set with only one distinct exposure is refused.
+pub fn merge(
+    frames: &[BracketFrame<'_>],
+    response: &InverseResponse,
+    options: MergeOptions,
+) -> Result<Merged, MergeError> {
+    check(frames, response)?;
+    let mut order: Vec<usize> = (0..frames.len()).collect();
+    order.sort_by(|&a, &b| frames[a].exposure.total_cmp(&frames[b].exposure));
+    let exposures: Vec<f64> = order.iter().map(|&i| frames[i].exposure).collect();
+    let first = frames[0].frame;
+    let (width, height, channels) = (first.width(), first.height(), first.channels());
+    let depth = first.bit_depth();
+    let tables = Tables::new(&exposures, response, channels, depth, options.weighting);
+
+    let mut pixels = vec![0.0f32; first.pixel_count() * channels];
+    let mut confidence = options
+        .confidence
+        .then(|| vec![0.0f32; first.pixel_count()]);
+    let sorted: Vec<&Frame> = order.iter().map(|&i| frames[i].frame).collect();
+    let (clipped_high, clipped_low) = match depth {
+        BitDepth::Eight => {
+            let codes: Vec<&[u8]> = sorted
+                .iter()
+                .map(|f| match f.samples() {
+                    Samples::Eight(v) => v.as_slice(),
+                    Samples::Sixteen(_) => unreachable!("depth checked"),
+                })
+                .collect();
+            match confidence.as_deref_mut() {
+                // The common case, an 8-bit pair, takes one lookup per sample.
+                None if codes.len() == 2 => {
+                    let table = PairTable::new(&tables);
+                    fill_pair(codes[0], codes[1], &table, width as usize, &mut pixels);
+                    count_clipped(codes[0], codes[1], &table)
+                }
+                conf => merge_codes(&codes, &tables, width as usize, &mut pixels, conf),
+            }
+        }
+        BitDepth::Sixteen => {
+            let codes: Vec<&[u16]> = sorted
+                .iter()
+                .map(|f| match f.samples() {
+                    Samples::Sixteen(v) => v.as_slice(),
+                    Samples::Eight(_) => unreachable!("depth checked"),
+                })
+                .collect();
+            merge_codes(
+                &codes,
+                &tables,
+                width as usize,
+                &mut pixels,
+                confidence.as_deref_mut(),
+            )
+        }
+    };
+    let radiance = RadianceMap::new(width, height, channels, pixels)
+        .expect("buffer sized from the frame's dimensions");
+    Ok(Merged {
+        radiance,
+        confidence,
+        order,
+        exposures,
+        clipped_high,
+        clipped_low,
+    })
+}
+
+fn check(frames: &[BracketFrame<'_>], response: &InverseResponse) -> Result<(), MergeError> {
+    if frames.len() < 2 {
+        return Err(MergeError::TooFewFrames(frames.len()));
+    }
+    let first = &frames[0];
+    let size = |f: &Frame| format!("{}×{}×{}", f.width(), f.height(), f.channels());
+    for f in frames {
+        if !(f.exposure.is_finite() && f.exposure > 0.0) {
+            return Err(MergeError::BadExposure {
+                path: f.source.to_path_buf(),
+                exposure: f.exposure,
+            });
+        }
+    }
+    for other in &frames[1..] {
+        let (a, b) = (first.frame, other.frame);
+        if (a.width(), a.height(), a.channels()) != (b.width(), b.height(), b.channels()) {
+            return Err(MergeError::SizeMismatch {
+                first: first.source.to_path_buf(),
+                first_size: size(a),
+                other: other.source.to_path_buf(),
+                other_size: size(b),
+            });
+        }
+        if a.bit_depth() != b.bit_depth() {
+            return Err(MergeError::DepthMismatch {
+                first: first.source.to_path_buf(),
+                first_bits: a.bit_depth().bits(),
+                other: other.source.to_path_buf(),
+                other_bits: b.bit_depth().bits(),
+            });
+        }
+        if !same_camera(first.camera, other.camera) {
+            return Err(MergeError::CameraMismatch {
+                first: first.source.to_path_buf(),
+                first_camera: describe(first.camera),
+                other: other.source.to_path_buf(),
+                other_camera: describe(other.camera),
+            });
+        }
+    }
+    if response.channels() != first.frame.channels() {
+        return Err(MergeError::ChannelMismatch {
+            path: first.source.to_path_buf(),
+            frame: first.frame.channels(),
+            response: response.channels(),
+        });
+    }
+    let distinct = frames[1..]
+        .iter()
+        .any(|f| (f.exposure / first.exposure - 1.0).abs() >= SAME_EXPOSURE);
+    if !distinct {
+        return Err(MergeError::SingleExposure {
+            first: first.source.to_path_buf(),
+            other: frames[1].source.to_path_buf(),
+            exposure: first.exposure,
+        });
+    }
+    Ok(())
+}
+
+/// Same body unless make, model or serial are known for both and differ.
+fn same_camera(a: &Camera, b: &Camera) -> bool {
+    let agree = |x: &Option<String>, y: &Option<String>| match (x, y) {
+        (Some(x), Some(y)) => x == y,
+        _ => true,
+    };
+    agree(&a.make, &b.make) && agree(&a.model, &b.model) && agree(&a.serial, &b.serial)
+}
+
+fn describe(c: &Camera) -> String {
+    let part = |x: &Option<String>| x.clone().unwrap_or_else(|| "?".to_string());
+    format!(
+        "{} {} (serial {})",
+        part(&c.make),
+        part(&c.model),
+        part(&c.serial)
+    )
+}
+
+/// Per frame `k` and channel `c`, indexed by code: `[w_k(code), w_k(code)·x_k(code)]`,
+/// and `x_k(code)` for the clipped-everywhere rule.
+struct Tables {
+    levels: usize,
+    channels: usize,
+    frames: usize,
+    weighted: Vec<[f32; 2]>,
+    value: Vec<f32>,
+}
+
+impl Tables {
+    fn new(
+        exposures: &[f64],
+        response: &InverseResponse,
+        channels: usize,
+        depth: BitDepth,
+        weighting: Weighting,
+    ) -> Tables {
+        let levels = depth.levels();
+        let e_ref = exposures[exposures.len() - 1];
+        let mut value = Vec::with_capacity(exposures.len() * channels * levels);
+        let mut weight = Vec::with_capacity(value.capacity());
+        for &e in exposures {
+            for c in 0..channels {
+                let g = response.table(c, levels);
+                let slope = match weighting {
+                    Weighting::Hat => Vec::new(),
+                    Weighting::NoiseAware => slope(response, c, levels),
+                };
+                for (code, &gv) in g.iter().enumerate() {
+                    let b = code as f64 / (levels - 1) as f64;
+                    value.push((f64::from(gv) * e_ref / e) as f32);
+                    weight.push(match weighting {
+                        Weighting::Hat => hat(b),
+                        Weighting::NoiseAware => trust(b) * (e / (e_ref * slope[code])).powi(2),
+                    });
+                }
+            }
+        }
+        // Normalise so the largest weight anywhere is 1 (confidence is then comparable
+        // between weightings and f32 never underflows).
+        let peak = weight.iter().copied().fold(0.0f64, f64::max);
+        let weighted = weight
+            .iter()
+            .zip(&value)
+            .map(|(&w, &x)| {
+                let w = (w / peak) as f32;
+                [w, w * x]
+            })
+            .collect();
+        Tables {
+            levels,
+            channels,
+            frames: exposures.len(),
+            weighted,
+            value,
+        }
+    }
+
+    fn index(&self, frame: usize, channel: usize, code: usize) -> usize {
+        (frame * self.channels + channel) * self.levels + code
+    }
+}
+
+/// Debevec & Malik's hat, peaking at 1: `min(B, 1 − B)/0.5`.
+fn hat(b: f64) -> f64 {
+    b.min(1.0 - b) / 0.5
+}
+
+/// 1 in the middle, falling linearly to 0 over the last 5 % at either end.
+fn trust(b: f64) -> f64 {
+    (b.min(1.0 - b) / 0.05).min(1.0)
+}
+
+/// `g'(B)` per code, a secant over ±1/256 of the range (so 16-bit codes do not see the
+/// response's sampling steps), floored at 0.01 so a flat stretch cannot get infinite
+/// weight (the mean slope of `g` is 1).
+fn slope(response: &InverseResponse, c: usize, levels: usize) -> Vec<f64> {
+    let h = 1.0 / 256.0;
+    (0..levels)
+        .map(|code| {
+            let b = code as f64 / (levels - 1) as f64;
+            let (lo, hi) = ((b - h).max(0.0), (b + h).min(1.0));
+            ((response.eval(c, hi) - response.eval(c, lo)) / (hi - lo)).max(0.01)
+        })
+        .collect()
+}
+
+/// Merges sorted frames' codes into `out`; returns the clipped-high and clipped-low counts.
+fn merge_codes<T: Copy + Into<usize> + Sync>(
+    frames: &[&[T]],
+    tables: &Tables,
+    width: usize,
+    out: &mut [f32],
+    confidence: Option<&mut [f32]>,
+) -> (u64, u64) {
+    let row_len = width * tables.channels;
+    let sum = |a: (u64, u64), b: (u64, u64)| (a.0 + b.0, a.1 + b.1);
+    match confidence {
+        Some(conf) => out
+            .par_chunks_mut(row_len)
+            .zip(conf.par_chunks_mut(width))
+            .enumerate()
+            .map(|(y, (row, conf))| merge_row(frames, tables, y * row_len, row, Some(conf)))
+            .reduce(|| (0, 0), sum),
+        None => out
+            .par_chunks_mut(row_len)
+            .enumerate()
+            .map(|(y, row)| merge_row(frames, tables, y * row_len, row, None))
+            .reduce(|| (0, 0), sum),
+    }
+}
+
+/// What one sample merges to.
+enum Estimate {
+    /// The weighted mean and the weight sum.
+    Weighted(f32, f32),
+    /// Clipped high in every frame: the darkest frame's value (a lower bound).
+    High(f32),
+    /// Clipped low in every frame: the brightest frame's value (an upper bound).
+    Low(f32),
+}
+
+/// The estimate of channel `c` from the sorted frames' codes (`code(k)`).
+#[inline(always)]
+fn estimate(tables: &Tables, c: usize, code: impl Fn(usize) -> usize) -> Estimate {
+    let (mut num, mut den) = (0.0f32, 0.0f32);
+    for k in 0..tables.frames {
+        let [w, wx] = tables.weighted[tables.index(k, c, code(k))];
+        num += wx;
+        den += w;
+    }
+    if den > 0.0 {
+        return Estimate::Weighted(num / den, den);
+    }
+    let (darkest, brightest) = (0, tables.frames - 1);
+    let dark_code = code(darkest);
+    if dark_code >= tables.levels / 2 {
+        Estimate::High(tables.value[tables.index(darkest, c, dark_code)])
+    } else {
+        Estimate::Low(tables.value[tables.index(brightest, c, code(brightest))])
+    }
+}
+
+fn merge_row<T: Copy + Into<usize>>(
+    frames: &[&[T]],
+    tables: &Tables,
+    start: usize,
+    row: &mut [f32],
+    mut confidence: Option<&mut [f32]>,
+) -> (u64, u64) {
+    let channels = tables.channels;
+    let rows: Vec<&[T]> = frames
+        .iter()
+        .map(|f| &f[start..start + row.len()])
+        .collect();
+    let (mut high, mut low) = (0u64, 0u64);
+    for (p, pixel) in row.chunks_exact_mut(channels).enumerate() {
+        let mut least = f32::INFINITY;
+        for (c, out) in pixel.iter_mut().enumerate() {
+            let i = p * channels + c;
+            let (value, den) = match estimate(tables, c, |k| rows[k][i].into()) {
+                Estimate::Weighted(v, den) => (v, den),
+                Estimate::High(v) => {
+                    high += 1;
+                    (v, 0.0)
+                }
+                Estimate::Low(v) => {
+                    low += 1;
+                    (v, 0.0)
+                }
+            };
+            *out = value;
+            least = least.min(den);
+        }
+        if let Some(conf) = confidence.as_deref_mut() {
+            conf[p] = least;
+        }
+    }
+    (high, low)
+}
+
+/// For a pair of 8-bit frames, every outcome tabulated per channel by
+/// `(dark code << 8) | bright code`: 65 536 values per channel (256 KB), so a sample
+/// costs one lookup; `clipped` marks the clipped-everywhere entries (+1 high, −1 low).
+struct PairTable {
+    channels: usize,
+    value: Vec<f32>,
+    clipped: Vec<i8>,
+}
+
+impl PairTable {
+    #[inline(always)]
+    fn index(&self, channel: usize, dark: u8, bright: u8) -> usize {
+        (channel << 16) | (usize::from(dark) << 8) | usize::from(bright)
+    }
+
+    fn new(tables: &Tables) -> PairTable {
+        let n = tables.channels << 16;
+        let mut value = Vec::with_capacity(n);
+        let mut clipped = Vec::with_capacity(n);
+        for c in 0..tables.channels {
+            for pair in 0..1usize << 16 {
+                let codes = [pair >> 8, pair & 0xff];
+                let (v, flag) = match estimate(tables, c, |k| codes[k]) {
+                    Estimate::Weighted(v, _) => (v, 0),
+                    Estimate::High(v) => (v, 1),
+                    Estimate::Low(v) => (v, -1),
+                };
+                value.push(v);
+                clipped.push(flag);
+            }
+        }
+        PairTable {
+            channels: tables.channels,
+            value,
+            clipped,
+        }
+    }
+}
+
+/// Fills `out` from two 8-bit frames through a [`PairTable`], rows in parallel.
+fn fill_pair(dark: &[u8], bright: &[u8], table: &PairTable, width: usize, out: &mut [f32]) {
+    let channels = table.channels;
+    let row_len = width * channels;
+    out.par_chunks_mut(row_len)
+        .enumerate()
+        .for_each(|(y, row)| {
+            let start = y * row_len;
+            let (d, b) = (
+                &dark[start..start + row_len],
+                &bright[start..start + row_len],
+            );
+            let pixels = row
+                .chunks_exact_mut(channels)
+                .zip(d.chunks_exact(channels).zip(b.chunks_exact(channels)));
+            for (o, (dp, bp)) in pixels {
+                for c in 0..channels {
+                    o[c] = table.value[table.index(c, dp[c], bp[c])];
+                }
+            }
+        });
+}
+
+/// Samples clipped high and low in both frames. Weights vanish only at codes 0 and 255,
+/// so only samples whose dark code is one of those are looked up.
+fn count_clipped(dark: &[u8], bright: &[u8], table: &PairTable) -> (u64, u64) {
+    let chunk = table.channels << 14;
+    dark.par_chunks(chunk)
+        .zip(bright.par_chunks(chunk))
+        .map(|(d, b)| {
+            let (mut high, mut low) = (0u64, 0u64);
+            for (i, (&dc, &bc)) in d.iter().zip(b).enumerate() {
+                if matches!(dc, 0 | 255) {
+                    match table.clipped[table.index(i % table.channels, dc, bc)] {
+                        1 => high += 1,
+                        -1 => low += 1,
+                        _ => {}
+                    }
+                }
+            }
+            (high, low)
+        })
+        .reduce(|| (0, 0), |a, b| (a.0 + b.0, a.1 + b.1))
+}
+
+/// A merge of two 8-bit frames evaluated sample by sample on demand, never held as a
+/// whole image: an encoder can pull [`PairMerge::sample`] while it writes, which saves
+/// the `f32` radiance buffer (12 bytes per RGB pixel) and the time to fill it. The values
+/// are exactly those of [`merge`] (same tables).
+pub struct PairMerge<'a> {
+    dark: &'a [u8],
+    bright: &'a [u8],
+    table: PairTable,
+    width: u32,
+    height: u32,
+    /// Input indices sorted by exposure, darkest first.
+    pub order: Vec<usize>,
+    /// The exposures in that order.
+    pub exposures: Vec<f64>,
+    /// Samples clipped high in both frames (value is a lower bound).
+    pub clipped_high: u64,
+    /// Samples clipped low in both frames (value is an upper bound).
+    pub clipped_low: u64,
+}
+
+impl<'a> PairMerge<'a> {
+    /// Prepares the merge of `frames` when they are two 8-bit frames (`Ok(None)` otherwise;
+    /// use [`merge`] then). Checks the bracket exactly as [`merge`] does.
+    pub fn new(
+        frames: &[BracketFrame<'a>],
+        response: &InverseResponse,
+        weighting: Weighting,
+    ) -> Result<Option<PairMerge<'a>>, MergeError> {
+        check(frames, response)?;
+        if frames.len() != 2 {
+            return Ok(None);
+        }
+        let (dark, bright) = if frames[0].exposure <= frames[1].exposure {
+            (0, 1)
+        } else {
+            (1, 0)
+        };
+        let (Samples::Eight(d), Samples::Eight(b)) =
+            (frames[dark].frame.samples(), frames[bright].frame.samples())
+        else {
+            return Ok(None);
+        };
+        let exposures = vec![frames[dark].exposure, frames[bright].exposure];
+        let first = frames[0].frame;
+        let tables = Tables::new(
+            &exposures,
+            response,
+            first.channels(),
+            BitDepth::Eight,
+            weighting,
+        );
+        let table = PairTable::new(&tables);
+        let (clipped_high, clipped_low) = count_clipped(d, b, &table);
+        Ok(Some(PairMerge {
+            dark: d,
+            bright: b,
+            table,
+            width: first.width(),
+            height: first.height(),
+            order: vec![dark, bright],
+            exposures,
+            clipped_high,
+            clipped_low,
+        }))
+    }
+
+    /// Width in pixels.
+    pub fn width(&self) -> u32 {
+        self.width
+    }
+
+    /// Height in pixels.
+    pub fn height(&self) -> u32 {
+        self.height
+    }
+
+    /// 1 (grey) or 3 (RGB).
+    pub fn channels(&self) -> usize {
+        self.table.channels
+    }
+
+    /// Radiance of channel `channel` of pixel `pixel` (row-major index).
+    #[inline]
+    pub fn sample(&self, pixel: usize, channel: usize) -> f32 {
+        let i = pixel * self.table.channels + channel;
+        self.table.value[self.table.index(channel, self.dark[i], self.bright[i])]
+    }
+
+    /// The largest value any sample can take (over all code pairs), an upper bound of the
+    /// image's maximum: `e_max/e_min` for the sRGB-like responses (clipped high).
+    pub fn max_value(&self) -> f32 {
+        self.table.value.iter().copied().fold(0.0, f32::max)
+    }
+
+    /// Ratio of the longer to the shorter exposure.
+    pub fn ratio(&self) -> f64 {
+        self.exposures[1] / self.exposures[0]
+    }
+
+    /// Evaluates every sample into a [`RadianceMap`] (rows in parallel).
+    pub fn to_map(&self) -> RadianceMap {
+        let mut pixels = vec![0.0f32; self.dark.len()];
+        fill_pair(
+            self.dark,
+            self.bright,
+            &self.table,
+            self.width as usize,
+            &mut pixels,
+        );
+        RadianceMap::new(self.width, self.height, self.table.channels, pixels)
+            .expect("buffer sized from the frames")
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn grey(width: u32, codes: Vec<u8>) -> Frame {
+        let h = codes.len() as u32 / width;
+        Frame::new(width, h, 1, Samples::Eight(codes)).unwrap()
+    }
+
+    fn linear() -> InverseResponse {
+        InverseResponse::from_samples(vec![vec![0.0, 1.0]]).unwrap()
+    }
+
+    fn bracket<'a>(frames: &'a [(Frame, f64)], camera: &'a Camera) -> Vec<BracketFrame<'a>> {
+        frames
+            .iter()
+            .map(|(frame, exposure)| BracketFrame {
+                source: Path::new("frame"),
+                frame,
+                exposure: *exposure,
+                camera,
+            })
+            .collect()
+    }
+
+    #[test]
+    fn consistent_frames_give_the_common_radiance_in_any_order() {
+        // Linear response, ratio 4: code 40 at e=1 and code 160 at e=4 both mean
+        // radiance 160/255 relative to the longest frame.
+        let cam = Camera::default();
+        let frames = [(grey(2, vec![160, 160]), 4.0), (grey(2, vec![40, 40]), 1.0)];
+        let merged = merge(&bracket(&frames, &cam), &linear(), MergeOptions::default()).unwrap();
+        assert_eq!(merged.order, vec![1, 0]);
+        for &v in merged.radiance.pixels() {
+            assert!((v - 160.0 / 255.0).abs() < 1e-6, "{v}");
+        }
+        assert_eq!(merged.ratio(), 4.0);
+    }
+
+    #[test]
+    fn clipped_everywhere_takes_the_bounding_frame() {
+        let cam = Camera::default();
+        let frames = [(grey(2, vec![255, 0]), 1.0), (grey(2, vec![255, 0]), 4.0)];
+        let options = MergeOptions {
+            confidence: true,
+            ..MergeOptions::default()
+        };
+        let merged = merge(&bracket(&frames, &cam), &linear(), options).unwrap();
+        // Clipped high: darkest frame's g(1)·e_ref/e_0 = 4. Clipped low: brightest's g(0) = 0.
+        assert_eq!(merged.radiance.pixels(), &[4.0, 0.0]);
+        assert_eq!((merged.clipped_high, merged.clipped_low), (1, 1));
+        assert_eq!(merged.confidence.unwrap(), vec![0.0, 0.0]);
+    }
+
+    #[test]
+    fn noise_aware_prefers_the_longer_exposure() {
+        let cam = Camera::default();
+        // The frames disagree (as noise would make them): the longer one should win.
+        let frames = [(grey(1, vec![64]), 1.0), (grey(1, vec![200]), 4.0)];
+        let b = bracket(&frames, &cam);
+        let long = 200.0 / 255.0;
+        let hat = merge(&b, &linear(), MergeOptions::default()).unwrap();
+        let noise = merge(
+            &b,
+            &linear(),
+            MergeOptions {
+                weighting: Weighting::NoiseAware,
+                confidence: false,
+            },
+        )
+        .unwrap();
+        let (h, n) = (hat.radiance.pixels()[0], noise.radiance.pixels()[0]);
+        assert!((n - long).abs() < (h - long).abs(), "hat {h} noise {n}");
+    }
+
+    #[test]
+    fn refuses_bad_brackets_naming_files() {
+        let cam = Camera::default();
+        let a = grey(2, vec![1, 2]);
+        let b = grey(1, vec![1, 2]);
+        let frames = [
+            BracketFrame {
+                source: Path::new("a.jpg"),
+                frame: &a,
+                exposure: 1.0,
+                camera: &cam,
+            },
+            BracketFrame {
+                source: Path::new("b.jpg"),
+                frame: &b,
+                exposure: 2.0,
+                camera: &cam,
+            },
+        ];
+        let err = merge(&frames, &linear(), MergeOptions::default()).unwrap_err();
+        let text = err.to_string();
+        assert!(text.contains("a.jpg") && text.contains("b.jpg"), "{text}");
+        assert!(matches!(
+            merge(&frames[..1], &linear(), MergeOptions::default()),
+            Err(MergeError::TooFewFrames(1))
+        ));
+        let same = [
+            frames[0],
+            BracketFrame {
+                frame: &a,
+                ..frames[0]
+            },
+        ];
+        assert!(matches!(
+            merge(&same, &linear(), MergeOptions::default()),
+            Err(MergeError::SingleExposure { .. })
+        ));
+        let other_cam = Camera {
+            model: Some("X".into()),
+            ..Camera::default()
+        };
+        let cam_a = Camera {
+            model: Some("Y".into()),
+            ..Camera::default()
+        };
+        let two = [
+            BracketFrame {
+                camera: &cam_a,
+                ..frames[0]
+            },
+            BracketFrame {
+                frame: &a,
+                camera: &other_cam,
+                ..frames[1]
+            },
+        ];
+        let err = merge(&two, &linear(), MergeOptions::default()).unwrap_err();
+        assert!(matches!(err, MergeError::CameraMismatch { .. }), "{err}");
+        let bad = [
+            frames[0],
+            BracketFrame {
+                frame: &a,
+                exposure: f64::NAN,
+                ..frames[1]
+            },
+        ];
+        assert!(matches!(
+            merge(&bad, &linear(), MergeOptions::default()),
+            Err(MergeError::BadExposure { .. })
+        ));
+    }
+
+    #[test]
+    fn sixteen_bit_frames_use_all_levels() {
+        let cam = Camera::default();
+        let f = |v: u16| Frame::new(1, 1, 1, Samples::Sixteen(vec![v])).unwrap();
+        let frames = [(f(1000), 1.0), (f(4000), 4.0)];
+        let merged = merge(&bracket(&frames, &cam), &linear(), MergeOptions::default()).unwrap();
+        let v = merged.radiance.pixels()[0];
+        assert!((v - 4000.0 / 65535.0).abs() < 1e-6, "{v}");
+    }
+
+    #[test]
+    fn pair_table_matches_the_general_path() {
+        let cam = Camera::default();
+        // Every code pair once, so every table entry is compared.
+        let (dark, bright): (Vec<u8>, Vec<u8>) = (0..65536u32)
+            .map(|i| ((i >> 8) as u8, (i & 0xff) as u8))
+            .unzip();
+        let frame = |v: Vec<u8>| Frame::new(256, 256, 1, Samples::Eight(v)).unwrap();
+        let frames = [(frame(dark), 0.5), (frame(bright), 2.0)];
+        let g = InverseResponse::srgb(1, 1024);
+        for weighting in [Weighting::Hat, Weighting::NoiseAware] {
+            let run = |confidence| {
+                let options = MergeOptions {
+                    weighting,
+                    confidence,
+                };
+                merge(&bracket(&frames, &cam), &g, options).unwrap()
+            };
+            let (fast, general) = (run(false), run(true));
+            assert_eq!(fast.radiance, general.radiance, "{weighting:?}");
+            assert_eq!(
+                (fast.clipped_high, fast.clipped_low),
+                (general.clipped_high, general.clipped_low)
+            );
+            assert_eq!(
+                (fast.clipped_high, fast.clipped_low),
+                (2, 2),
+                "high: (255, 255), (255, 0); low: (0, 0), (0, 255)"
+            );
+            assert!(fast.radiance.pixels().iter().all(|v| v.is_finite()));
+            let lazy = PairMerge::new(&bracket(&frames, &cam), &g, weighting)
+                .unwrap()
+                .unwrap();
+            assert_eq!(lazy.to_map(), fast.radiance);
+            assert_eq!((lazy.clipped_high, lazy.clipped_low), (2, 2));
+            assert_eq!(lazy.sample(300, 0), fast.radiance.pixels()[300]);
+            assert!(lazy.max_value() >= fast.radiance.pixels().iter().copied().fold(0.0, f32::max));
+        }
+    }
+}
