@@ -8,7 +8,10 @@
 //! and demos; [`atomic`] publishes every output file without ever exposing a partial one.
 
 pub mod atomic;
+pub mod film;
 pub mod frame;
 pub mod metadata;
 pub mod radiance;
+pub mod rendering;
 pub mod response;
+pub mod tonemap;
