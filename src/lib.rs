@@ -14,4 +14,5 @@ pub mod metadata;
 pub mod radiance;
 pub mod rendering;
 pub mod response;
+pub mod synthetic;
 pub mod tonemap;
