@@ -5,7 +5,9 @@ use std::process::ExitCode;
 
 use clap::{Parser, Subcommand};
 
+mod films;
 mod inspect;
+mod render;
 
 /// filmback: brackets from a tethered camera to HDR radiance maps and film renderings.
 #[derive(Debug, Parser)]
@@ -19,6 +21,10 @@ struct Cli {
 enum Command {
     /// Show each frame's size, depth, camera, exposure and capture time.
     Inspect(inspect::Args),
+    /// List film stocks, plot their curves (--plot), or make the contact sheet.
+    Films(films::Args),
+    /// Render an OpenEXR radiance map through film stocks and tone maps.
+    Render(render::Args),
 }
 
 /// Parses the command line, runs the subcommand, and reports errors on stderr.
@@ -26,6 +32,8 @@ pub fn main() -> ExitCode {
     let cli = Cli::parse();
     let result = match cli.command {
         Command::Inspect(args) => inspect::run(args),
+        Command::Films(args) => films::run(args),
+        Command::Render(args) => render::run(args),
     };
     match result {
         Ok(code) => code,
