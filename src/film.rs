@@ -1050,8 +1050,8 @@ mod tests {
                 }
                 let bound = curve.max_gradient() * (1.0 + 2f64.powi(-11)).log10() / 2.0;
                 println!(
-                    "{} {}: worst {worst:.2e} D, bound {bound:.2e} D",
-                    stock.id, LAYERS[c]
+                    "{} {layer}: worst {worst:.2e} D, bound {bound:.2e} D",
+                    stock.id
                 );
                 assert!(bound <= TABLE_MAX_ERROR_D, "{} bound {bound}", stock.id);
                 assert!(
