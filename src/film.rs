@@ -31,7 +31,7 @@ use rayon::prelude::*;
 use serde::Deserialize;
 
 use crate::radiance::RadianceMap;
-use crate::rendering::{DisplayImage, srgb_encode};
+use crate::rendering::{DisplayImage, srgb_encode, srgb_encode_u16};
 
 /// Why a stock could not be loaded or a rendering could not be made.
 #[derive(Debug, thiserror::Error)]
@@ -765,9 +765,10 @@ pub fn scene_key(map: &RadianceMap, key: Key) -> f64 {
     let pixels = map.pixels();
     let count = pixels.len() / ch;
     let stride = count.div_ceil(1 << 20).max(1);
-    let (sum, n) = (0..count)
-        .step_by(stride)
-        .map(|i| {
+    let (sum, n) = (0..count.div_ceil(stride))
+        .into_par_iter()
+        .map(|j| {
+            let i = j * stride;
             let p = &pixels[i * ch..i * ch + ch];
             if ch == 3 {
                 luminance(p[0], p[1], p[2])
@@ -776,7 +777,8 @@ pub fn scene_key(map: &RadianceMap, key: Key) -> f64 {
             }
         })
         .filter(|l| l.is_finite() && *l > 0.0)
-        .fold((0.0f64, 0usize), |(s, n), l| (s + f64::from(l).ln(), n + 1));
+        .map(|l| (f64::from(l).ln(), 1usize))
+        .reduce(|| (0.0, 0), |a, b| (a.0 + b.0, a.1 + b.1));
     if n == 0 { 1.0 } else { (sum / n as f64).exp() }
 }
 
@@ -950,10 +952,7 @@ impl Development {
                 // Keep chromaticity: scale a channel above white down with the others.
                 let peak = rgb[0].max(rgb[1]).max(rgb[2]);
                 let norm = if peak > 1.0 { 1.0 / peak } else { 1.0 };
-                rgb.map(|v| {
-                    let v = if v.is_finite() { v * norm } else { 1.0 };
-                    (srgb_encode(v) * 65535.0).round() as u16
-                })
+                rgb.map(|v| srgb_encode_u16(if v.is_finite() { v * norm } else { 1.0 }))
             }
         }
     }

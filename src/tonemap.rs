@@ -9,7 +9,7 @@ use rayon::prelude::*;
 
 use crate::film::luminance;
 use crate::radiance::RadianceMap;
-use crate::rendering::{DisplayImage, srgb_encode};
+use crate::rendering::{DisplayImage, srgb_encode_u16};
 
 /// A tone-mapping operator and its parameters.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -133,7 +133,7 @@ fn map_luminance(map: &RadianceMap, display: impl Fn(f32) -> f32 + Sync) -> Disp
                     [0.0; 3]
                 };
                 for (o, v) in o.iter_mut().zip(rgb) {
-                    *o = (srgb_encode(v) * 65535.0).round() as u16;
+                    *o = srgb_encode_u16(v);
                 }
             }
         });
@@ -375,7 +375,15 @@ mod tests {
                     luminance(lin[0], lin[1], lin[2])
                 })
                 .collect();
-            assert!(lum.windows(2).all(|w| w[1] >= w[0]), "{op:?}: {lum:?}");
+            // Monotone up to the sRGB table's stated 1.1e-4 relative error (clipped pixels
+            // of one chromaticity can straddle a table bucket).
+            let bad = lum.windows(2).position(|w| w[1] < w[0] * (1.0 - 2.5e-4));
+            assert!(
+                bad.is_none(),
+                "{op:?}: at {bad:?}: {:?} {:?}",
+                &lum[bad.unwrap_or(0)..bad.unwrap_or(0) + 2],
+                &s[bad.unwrap_or(0) * 3..bad.unwrap_or(0) * 3 + 6]
+            );
             assert_eq!(&s[..3], &[0, 0, 0]);
             // A mid-tone pixel: red stays the largest channel, blue the smallest.
             let p = &s[2000 * 3..2000 * 3 + 3];
