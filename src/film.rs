@@ -31,7 +31,7 @@ use rayon::prelude::*;
 use serde::Deserialize;
 
 use crate::radiance::RadianceMap;
-use crate::rendering::{DisplayImage, srgb_encode, srgb_encode_u16};
+use crate::rendering::{Depth, DisplayImage, srgb_encode, srgb_encode_u16, to_8bit};
 
 /// Why a stock could not be loaded or a rendering could not be made.
 #[derive(Debug, thiserror::Error)]
@@ -958,7 +958,51 @@ impl Development {
     }
 }
 
-/// Renders `map` through a reversal stock at relative exposure `t`.
+impl Development {
+    /// Develops a whole map at `depth` bits per sample (rows in parallel).
+    pub fn render(&self, map: &RadianceMap, depth: Depth) -> DisplayImage {
+        let ch = map.channels();
+        let width = map.width() as usize;
+        let height = map.height() as usize;
+        let rows = map.pixels().par_chunks(width * ch);
+        let colour = |p: &[f32]| {
+            if ch == 3 {
+                [p[0], p[1], p[2]]
+            } else {
+                [p[0]; 3]
+            }
+        };
+        match depth {
+            Depth::Sixteen => {
+                let mut samples = vec![0u16; width * height * 3];
+                samples
+                    .par_chunks_mut(width * 3)
+                    .zip(rows)
+                    .for_each(|(out, row)| {
+                        for (o, p) in out.chunks_exact_mut(3).zip(row.chunks_exact(ch)) {
+                            o.copy_from_slice(&self.pixel(colour(p)));
+                        }
+                    });
+                DisplayImage::new(map.width(), map.height(), samples)
+            }
+            Depth::Eight => {
+                let mut samples = vec![0u8; width * height * 3];
+                samples
+                    .par_chunks_mut(width * 3)
+                    .zip(rows)
+                    .for_each(|(out, row)| {
+                        for (o, p) in out.chunks_exact_mut(3).zip(row.chunks_exact(ch)) {
+                            let v = self.pixel(colour(p));
+                            o.copy_from_slice(&[to_8bit(v[0]), to_8bit(v[1]), to_8bit(v[2])]);
+                        }
+                    });
+                DisplayImage::new_8bit(map.width(), map.height(), samples)
+            }
+        }
+    }
+}
+
+/// Renders `map` through a reversal stock at relative exposure `t`, 16 bits per sample.
 pub fn render(
     map: &RadianceMap,
     stock: &Stock,
@@ -967,23 +1011,7 @@ pub fn render(
     key: Key,
 ) -> Result<DisplayImage, FilmError> {
     let development = Development::new(stock, exposure, scene_key(map, key), mode)?;
-    let ch = map.channels();
-    let width = map.width() as usize;
-    let mut samples = vec![0u16; width * map.height() as usize * 3];
-    samples
-        .par_chunks_mut(width * 3)
-        .zip(map.pixels().par_chunks(width * ch))
-        .for_each(|(out, row)| {
-            for (o, p) in out.chunks_exact_mut(3).zip(row.chunks_exact(ch)) {
-                let e = if ch == 3 {
-                    [p[0], p[1], p[2]]
-                } else {
-                    [p[0]; 3]
-                };
-                o.copy_from_slice(&development.pixel(e));
-            }
-        });
-    Ok(DisplayImage::new(map.width(), map.height(), samples))
+    Ok(development.render(map, Depth::Sixteen))
 }
 
 #[cfg(test)]

@@ -9,6 +9,7 @@
 //! through `image`'s encoder, TIFF through `kamadak-exif`'s TIFF writer so that the EXIF
 //! sub-IFD (exposure, date) sits in the same file as the pixels.
 
+use std::borrow::Cow;
 use std::io::Cursor;
 use std::path::{Path, PathBuf};
 use std::str::FromStr;
@@ -60,16 +61,37 @@ pub enum RenderingError {
     },
 }
 
-/// An 8-bit-per-sample-or-better display image: RGB, sRGB-encoded, 16 bits per sample.
+/// Bits per sample of a display image.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Depth {
+    /// 8 bits (JPEG, PNG 8).
+    Eight,
+    /// 16 bits (PNG 16, TIFF 16).
+    Sixteen,
+}
+
+/// A display image: RGB, sRGB-encoded, 8 or 16 bits per sample.
 #[derive(Debug, Clone, PartialEq)]
 pub struct DisplayImage {
     width: u32,
     height: u32,
-    samples: Vec<u16>,
+    samples: Samples,
+}
+
+#[derive(Debug, Clone, PartialEq)]
+enum Samples {
+    Eight(Vec<u8>),
+    Sixteen(Vec<u16>),
+}
+
+/// `round(v · 255 / 65535)`: a 16-bit sample at 8 bits.
+#[inline]
+pub fn to_8bit(v: u16) -> u8 {
+    ((u32::from(v) * 255 + 32767) / 65535) as u8
 }
 
 impl DisplayImage {
-    /// Wraps interleaved RGB samples (`width·height·3` of them).
+    /// Wraps interleaved 16-bit RGB samples (`width·height·3` of them).
     ///
     /// # Panics
     /// If the length does not match: callers build the buffer from the same dimensions.
@@ -78,7 +100,20 @@ impl DisplayImage {
         DisplayImage {
             width,
             height,
-            samples,
+            samples: Samples::Sixteen(samples),
+        }
+    }
+
+    /// Wraps interleaved 8-bit RGB samples.
+    ///
+    /// # Panics
+    /// If the length does not match.
+    pub fn new_8bit(width: u32, height: u32, samples: Vec<u8>) -> DisplayImage {
+        assert_eq!(samples.len(), width as usize * height as usize * 3);
+        DisplayImage {
+            width,
+            height,
+            samples: Samples::Eight(samples),
         }
     }
 
@@ -92,22 +127,53 @@ impl DisplayImage {
         self.height
     }
 
-    /// Interleaved sRGB-encoded RGB, 0..=65535.
-    pub fn samples(&self) -> &[u16] {
-        &self.samples
+    /// Bits per sample.
+    pub fn depth(&self) -> Depth {
+        match self.samples {
+            Samples::Eight(_) => Depth::Eight,
+            Samples::Sixteen(_) => Depth::Sixteen,
+        }
     }
 
-    /// The same image at 8 bits: `round(v / 257)`.
-    pub fn to_u8(&self) -> Vec<u8> {
-        let mut out = vec![0u8; self.samples.len()];
-        out.par_chunks_mut(1 << 16)
-            .zip(self.samples.par_chunks(1 << 16))
-            .for_each(|(o, s)| {
-                for (o, &s) in o.iter_mut().zip(s) {
-                    *o = ((u32::from(s) * 255 + 32767) / 65535) as u8;
-                }
-            });
-        out
+    /// Interleaved sRGB-encoded RGB at 16 bits (8-bit images scaled by 257).
+    pub fn samples(&self) -> Cow<'_, [u16]> {
+        match &self.samples {
+            Samples::Sixteen(s) => Cow::Borrowed(s),
+            Samples::Eight(s) => Cow::Owned(s.iter().map(|&v| u16::from(v) * 257).collect()),
+        }
+    }
+
+    /// Interleaved sRGB-encoded RGB at 8 bits ([`to_8bit`] of 16-bit images).
+    pub fn to_u8(&self) -> Cow<'_, [u8]> {
+        match &self.samples {
+            Samples::Eight(s) => Cow::Borrowed(s),
+            Samples::Sixteen(s) => {
+                let mut out = vec![0u8; s.len()];
+                out.par_chunks_mut(1 << 16)
+                    .zip(s.par_chunks(1 << 16))
+                    .for_each(|(o, s)| {
+                        for (o, &s) in o.iter_mut().zip(s) {
+                            *o = to_8bit(s);
+                        }
+                    });
+                Cow::Owned(out)
+            }
+        }
+    }
+
+    /// The image at `depth` (a copy only when it differs).
+    pub fn at_depth(self, depth: Depth) -> DisplayImage {
+        match (depth, &self.samples) {
+            (Depth::Eight, Samples::Sixteen(_)) => {
+                let s = self.to_u8().into_owned();
+                DisplayImage::new_8bit(self.width, self.height, s)
+            }
+            (Depth::Sixteen, Samples::Eight(_)) => {
+                let s = self.samples().into_owned();
+                DisplayImage::new(self.width, self.height, s)
+            }
+            _ => self,
+        }
     }
 }
 
@@ -328,6 +394,14 @@ pub enum Format {
 }
 
 impl Format {
+    /// Bits per sample the format stores.
+    pub fn depth(self) -> Depth {
+        match self {
+            Format::Jpeg { .. } | Format::Png8 => Depth::Eight,
+            Format::Png16 | Format::Tiff16 => Depth::Sixteen,
+        }
+    }
+
     /// File extension.
     pub fn extension(self) -> &'static str {
         match self {
@@ -406,7 +480,11 @@ pub fn encode(
             if format == Format::Png8 {
                 encoder.write_image(&image.to_u8(), w, h, image::ExtendedColorType::Rgb8)
             } else {
-                let bytes: Vec<u8> = image.samples.iter().flat_map(|s| s.to_ne_bytes()).collect();
+                let bytes: Vec<u8> = image
+                    .samples()
+                    .iter()
+                    .flat_map(|s| s.to_ne_bytes())
+                    .collect();
                 encoder.write_image(&bytes, w, h, image::ExtendedColorType::Rgb16)
             }
             .map_err(|e| e.to_string())
@@ -424,7 +502,11 @@ fn tiff16(image: &DisplayImage, exif: &SourceExif) -> Result<Vec<u8>, String> {
     let (w, h) = (image.width, image.height);
     let rows_per_strip = 64u32;
     let row_bytes = w as usize * 6;
-    let bytes: Vec<u8> = image.samples.iter().flat_map(|s| s.to_le_bytes()).collect();
+    let bytes: Vec<u8> = image
+        .samples()
+        .iter()
+        .flat_map(|s| s.to_le_bytes())
+        .collect();
     let strips: Vec<&[u8]> = bytes.chunks(row_bytes * rows_per_strip as usize).collect();
     let tiff = |tag: u16, value: Value| Field {
         tag: Tag(exif::Context::Tiff, tag),
@@ -547,16 +629,20 @@ impl Look {
         }
     }
 
-    /// Renders `map` in this look.
-    pub fn render(&self, map: &RadianceMap) -> Result<DisplayImage, RenderingError> {
+    /// Renders `map` in this look at `depth` bits per sample.
+    pub fn render(&self, map: &RadianceMap, depth: Depth) -> Result<DisplayImage, RenderingError> {
         match self {
             Look::Film {
                 stock,
                 exposure,
                 colour,
                 key,
-            } => Ok(film::render(map, stock, *exposure, *colour, *key)?),
-            Look::Tonemap(op) => Ok(op.apply(map)),
+            } => {
+                let development =
+                    film::Development::new(stock, *exposure, film::scene_key(map, *key), *colour)?;
+                Ok(development.render(map, depth))
+            }
+            Look::Tonemap(op) => Ok(op.apply(map).at_depth(depth)),
         }
     }
 }
@@ -592,7 +678,7 @@ pub fn render_all(
 ) -> Result<Vec<PathBuf>, RenderingError> {
     let mut written = Vec::with_capacity(looks.len());
     for look in looks {
-        let image = look.render(map)?;
+        let image = look.render(map, outputs.format.depth())?;
         let path = outputs.dir.join(format!(
             "{}.{}.{}",
             outputs.stem,
@@ -680,7 +766,7 @@ mod tests {
             assert_eq!((decoded.width(), decoded.height()), (32, 8));
             if format == Format::Png16 || format == Format::Tiff16 {
                 let rgb = decoded.to_rgb16();
-                assert_eq!(rgb.as_raw().as_slice(), img.samples(), "{format:?}");
+                assert_eq!(rgb.as_raw().as_slice(), &*img.samples(), "{format:?}");
             }
             let e = read_back(&bytes);
             let get = |t: Tag| {
