@@ -987,18 +987,32 @@ impl Development {
             }
             Depth::Eight => {
                 let mut samples = vec![0u8; width * height * 3];
-                samples
-                    .par_chunks_mut(width * 3)
-                    .zip(rows)
-                    .for_each(|(out, row)| {
-                        for (o, p) in out.chunks_exact_mut(3).zip(row.chunks_exact(ch)) {
-                            let v = self.pixel(colour(p));
-                            o.copy_from_slice(&[to_8bit(v[0]), to_8bit(v[1]), to_8bit(v[2])]);
-                        }
-                    });
+                self.render_rows_8bit(map, 0, &mut samples);
                 DisplayImage::new_8bit(map.width(), map.height(), samples)
             }
         }
+    }
+
+    /// Develops rows `first..first + out.len()/(3·width)` of `map` into 8-bit RGB `out`
+    /// (rows in parallel): the unit the streaming JPEG writer pulls.
+    pub fn render_rows_8bit(&self, map: &RadianceMap, first: usize, out: &mut [u8]) {
+        let ch = map.channels();
+        let width = map.width() as usize;
+        let rows = out.len() / (width * 3);
+        let input = &map.pixels()[first * width * ch..(first + rows) * width * ch];
+        out.par_chunks_mut(width * 3)
+            .zip(input.par_chunks(width * ch))
+            .for_each(|(out, row)| {
+                for (o, p) in out.chunks_exact_mut(3).zip(row.chunks_exact(ch)) {
+                    let e = if ch == 3 {
+                        [p[0], p[1], p[2]]
+                    } else {
+                        [p[0]; 3]
+                    };
+                    let v = self.pixel(e);
+                    o.copy_from_slice(&[to_8bit(v[0]), to_8bit(v[1]), to_8bit(v[2])]);
+                }
+            });
     }
 }
 

@@ -535,6 +535,147 @@ fn tiff16(image: &DisplayImage, exif: &SourceExif) -> Result<Vec<u8>, String> {
     Ok(out.into_inner())
 }
 
+/// Rows per band handed from the developing thread to the JPEG encoder (a multiple of the
+/// 16-row MCU of 4:2:0 JPEG).
+const BAND_ROWS: usize = 64;
+
+/// Row bands arriving from the developing thread, already in planar Y, Cb, Cr rows
+/// (`jpeg_encoder::rgb_to_ycbcr`, the encoder's own conversion), copied out row by row.
+struct Bands {
+    width: u16,
+    height: u16,
+    receiver: std::sync::mpsc::Receiver<Vec<u8>>,
+    /// (first row of the band, its rows of Y, Cb, Cr planes).
+    current: std::cell::RefCell<(usize, Vec<u8>)>,
+}
+
+impl jpeg_encoder::ImageBuffer for Bands {
+    fn get_jpeg_color_type(&self) -> jpeg_encoder::JpegColorType {
+        jpeg_encoder::JpegColorType::Ycbcr
+    }
+
+    fn width(&self) -> u16 {
+        self.width
+    }
+
+    fn height(&self) -> u16 {
+        self.height
+    }
+
+    fn fill_buffers(&self, y: u16, buffers: &mut [Vec<u8>; 4]) {
+        let w = usize::from(self.width);
+        let row_bytes = w * 3;
+        let mut current = self.current.borrow_mut();
+        let y = usize::from(y);
+        while y >= current.0 + current.1.len() / row_bytes {
+            let start = current.0 + current.1.len() / row_bytes;
+            // The developer never stops early; if it died, its panic surfaces when the
+            // scope joins it, and these rows are black meanwhile.
+            let band = self
+                .receiver
+                .recv()
+                .unwrap_or_else(|_| vec![0; row_bytes * BAND_ROWS]);
+            *current = (start, band);
+        }
+        let row = &current.1[(y - current.0) * row_bytes..][..row_bytes];
+        for (plane, buffer) in row.chunks_exact(w).zip(buffers.iter_mut()) {
+            buffer.extend_from_slice(plane);
+        }
+    }
+}
+
+/// Develops `map` through a stock and encodes it as JPEG at once: one thread develops
+/// bands of 64 rows (in parallel within the band, colour conversion included) while the
+/// single-threaded encoder consumes them, so developing hides behind encoding on a
+/// 2-core machine. Decodes to the 8-bit [`film::Development::render`] within JPEG error.
+pub fn encode_film_jpeg(
+    map: &RadianceMap,
+    development: &film::Development,
+    quality: u8,
+    exif: &SourceExif,
+    out: &mut impl std::io::Write,
+) -> Result<(), String> {
+    let (w, h) = (map.width(), map.height());
+    let width = u16::try_from(w).map_err(|_| "JPEG is limited to 65535 pixels wide")?;
+    let height = u16::try_from(h).map_err(|_| "JPEG is limited to 65535 pixels high")?;
+    let mut encoder = jpeg_encoder::Encoder::new(out, quality);
+    encoder
+        .add_icc_profile(srgb_icc_profile())
+        .map_err(|e| e.to_string())?;
+    let mut app1 = b"Exif\0\0".to_vec();
+    app1.extend_from_slice(&exif.tiff_block()?);
+    encoder
+        .add_app_segment(1, app1)
+        .map_err(|e| e.to_string())?;
+    let (sender, receiver) = std::sync::mpsc::sync_channel::<Vec<u8>>(4);
+    let w = w as usize;
+    std::thread::scope(|scope| {
+        scope.spawn(move || {
+            for first in (0..h as usize).step_by(BAND_ROWS) {
+                let rows = BAND_ROWS.min(h as usize - first);
+                let mut rgb = vec![0u8; rows * w * 3];
+                development.render_rows_8bit(map, first, &mut rgb);
+                let mut planar = vec![0u8; rows * w * 3];
+                planar
+                    .par_chunks_mut(w * 3)
+                    .zip(rgb.par_chunks(w * 3))
+                    .for_each(|(out, rgb)| {
+                        let (luma, chroma) = out.split_at_mut(w);
+                        let (cb, cr) = chroma.split_at_mut(w);
+                        for (i, p) in rgb.chunks_exact(3).enumerate() {
+                            let (y, b, r) = jpeg_encoder::rgb_to_ycbcr(p[0], p[1], p[2]);
+                            luma[i] = y;
+                            cb[i] = b;
+                            cr[i] = r;
+                        }
+                    });
+                if sender.send(planar).is_err() {
+                    break;
+                }
+            }
+        });
+        let bands = Bands {
+            width,
+            height,
+            receiver,
+            current: std::cell::RefCell::new((0, Vec::new())),
+        };
+        encoder.encode_image(bands).map_err(|e| e.to_string())
+    })
+}
+
+/// Renders `look` and encodes it in `format`; film looks to JPEG take the streaming path
+/// ([`encode_film_jpeg`]).
+pub fn encode_look(
+    map: &RadianceMap,
+    look: &Look,
+    format: Format,
+    exif: &SourceExif,
+    out: &mut impl std::io::Write,
+) -> Result<(), RenderingError> {
+    let encode_error = |reason: String| RenderingError::Encode {
+        path: PathBuf::new(),
+        format: format!("{format:?}"),
+        reason,
+    };
+    if let (
+        Look::Film {
+            stock,
+            exposure,
+            colour,
+            key,
+        },
+        Format::Jpeg { quality },
+    ) = (look, format)
+    {
+        let development =
+            film::Development::new(stock, *exposure, film::scene_key(map, *key), *colour)?;
+        return encode_film_jpeg(map, &development, quality, exif, out).map_err(encode_error);
+    }
+    let image = look.render(map, format.depth())?;
+    encode(&image, format, exif, out).map_err(encode_error)
+}
+
 /// Encodes and publishes `image` at `path` atomically.
 pub fn write(
     path: &Path,
@@ -678,21 +819,41 @@ pub fn render_all(
 ) -> Result<Vec<PathBuf>, RenderingError> {
     let mut written = Vec::with_capacity(looks.len());
     for look in looks {
-        let image = look.render(map, outputs.format.depth())?;
         let path = outputs.dir.join(format!(
             "{}.{}.{}",
             outputs.stem,
             look.name(),
             outputs.format.extension()
         ));
-        write(
-            &path,
-            &image,
-            outputs.format,
-            outputs.exif,
-            outputs.overwrite,
-        )?;
-        written.push(path);
+        // A look that cannot be rendered (a negative stock) fails before any file exists.
+        if let Look::Film { stock, .. } = look
+            && stock.kind == film::Kind::Negative
+        {
+            return Err(FilmError::Negative {
+                id: stock.id.clone(),
+            }
+            .into());
+        }
+        let mut failure = None;
+        let published = atomic::publish_with(&path, outputs.overwrite, |w| {
+            encode_look(map, look, outputs.format, outputs.exif, w).map_err(|e| {
+                let reason = e.to_string();
+                failure = Some(e);
+                reason
+            })
+        });
+        match (published, failure) {
+            (Ok(()), _) => written.push(path),
+            (Err(_), Some(RenderingError::Encode { format, reason, .. })) => {
+                return Err(RenderingError::Encode {
+                    path,
+                    format,
+                    reason,
+                });
+            }
+            (Err(_), Some(other)) => return Err(other),
+            (Err(e), None) => return Err(e.into()),
+        }
     }
     Ok(written)
 }
@@ -797,6 +958,46 @@ mod tests {
             };
             assert!(has_icc, "{format:?} lacks the ICC profile");
         }
+    }
+
+    #[test]
+    fn streaming_jpeg_decodes_to_the_developed_image() {
+        let catalogue = film::Catalogue::builtin().unwrap();
+        let stock = catalogue.get("velvia50").unwrap();
+        let map = crate::synthetic::scene(200, 150, 3);
+        let development = film::Development::new(
+            stock,
+            1.0,
+            film::scene_key(&map, Key::LogAverage),
+            ColourMode::PerLayer,
+        )
+        .unwrap();
+        let reference = development.render(&map, Depth::Eight);
+        let mut streamed = Vec::new();
+        encode_film_jpeg(&map, &development, 95, &exif(), &mut streamed).unwrap();
+        let mut whole = Vec::new();
+        encode(
+            &reference,
+            Format::Jpeg { quality: 95 },
+            &exif(),
+            &mut whole,
+        )
+        .unwrap();
+        let a = image::load_from_memory(&streamed).unwrap().to_rgb8();
+        let b = image::load_from_memory(&whole).unwrap().to_rgb8();
+        let mean_diff = a
+            .as_raw()
+            .iter()
+            .zip(b.as_raw())
+            .map(|(&x, &y)| f64::from(x.abs_diff(y)))
+            .sum::<f64>()
+            / a.as_raw().len() as f64;
+        assert!(mean_diff < 0.5, "mean difference {mean_diff}");
+        assert!(
+            read_back(&streamed)
+                .get_field(Tag::Software, In::PRIMARY)
+                .is_some()
+        );
     }
 
     #[test]
