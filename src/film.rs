@@ -37,12 +37,12 @@ use crate::rendering::{Depth, DisplayImage, srgb_encode, srgb_encode_u16, to_8bi
 #[derive(Debug, thiserror::Error)]
 pub enum FilmError {
     /// The stock file could not be read.
-    #[error("{path}: cannot read: {source}")]
+    #[error("{path}: cannot read: {io}")]
     Read {
         /// The stock file.
         path: PathBuf,
         /// What the operating system said.
-        source: std::io::Error,
+        io: std::io::Error,
     },
     /// The file is not TOML of the expected form (missing or unknown key, wrong type).
     #[error("{path}: {reason}")]
@@ -99,12 +99,12 @@ pub enum FilmError {
         other: String,
     },
     /// The stock folder could not be listed.
-    #[error("{path}: cannot list stock folder: {source}")]
+    #[error("{path}: cannot list stock folder: {io}")]
     Folder {
         /// The folder.
         path: PathBuf,
         /// What the operating system said.
-        source: std::io::Error,
+        io: std::io::Error,
     },
     /// No stock has that id.
     #[error("unknown film stock {id:?} (known: {known})")]
@@ -406,9 +406,9 @@ impl Stock {
 
     /// Reads and validates a stock file.
     pub fn load(path: &Path) -> Result<Stock, FilmError> {
-        let text = std::fs::read_to_string(path).map_err(|source| FilmError::Read {
+        let text = std::fs::read_to_string(path).map_err(|io| FilmError::Read {
             path: path.to_path_buf(),
-            source,
+            io,
         })?;
         Stock::from_toml(&text, path)
     }
@@ -591,15 +591,15 @@ impl Catalogue {
 
     /// Adds every `*.toml` in `folder` (sorted by name). A user stock may not reuse an id.
     pub fn with_folder(mut self, folder: &Path) -> Result<Catalogue, FilmError> {
-        let listing = std::fs::read_dir(folder).map_err(|source| FilmError::Folder {
+        let listing = std::fs::read_dir(folder).map_err(|io| FilmError::Folder {
             path: folder.to_path_buf(),
-            source,
+            io,
         })?;
         let mut paths = Vec::new();
         for entry in listing {
-            let entry = entry.map_err(|source| FilmError::Folder {
+            let entry = entry.map_err(|io| FilmError::Folder {
                 path: folder.to_path_buf(),
-                source,
+                io,
             })?;
             let path = entry.path();
             if path.extension().is_some_and(|e| e == "toml") {
