@@ -8,11 +8,14 @@
 //! and demos; [`atomic`] publishes every output file without ever exposing a partial one.
 
 pub mod atomic;
+pub mod film;
 pub mod frame;
 pub mod hdr_output;
 pub mod histogram;
 pub mod merge;
 pub mod metadata;
 pub mod radiance;
+pub mod rendering;
 pub mod response;
 pub mod synthetic;
+pub mod tonemap;

@@ -6,8 +6,10 @@ use std::process::ExitCode;
 use clap::{Parser, Subcommand};
 
 mod calibrate;
+mod films;
 mod inspect;
 mod merge;
+mod render;
 
 /// filmback: brackets from a tethered camera to HDR radiance maps and film renderings.
 #[derive(Debug, Parser)]
@@ -25,6 +27,10 @@ enum Command {
     Inspect(inspect::Args),
     /// Merge a bracket into one OpenEXR radiance map.
     Merge(merge::Args),
+    /// List film stocks, plot their curves (--plot), or make the contact sheet.
+    Films(films::Args),
+    /// Render an OpenEXR radiance map through film stocks and tone maps.
+    Render(render::Args),
 }
 
 /// Parses the command line, runs the subcommand, and reports errors on stderr.
@@ -34,6 +40,8 @@ pub fn main() -> ExitCode {
         Command::Calibrate(args) => calibrate::run(args),
         Command::Inspect(args) => inspect::run(args),
         Command::Merge(args) => merge::run(args),
+        Command::Films(args) => films::run(args),
+        Command::Render(args) => render::run(args),
     };
     match result {
         Ok(code) => code,

@@ -1,0 +1,246 @@
+//! 24 MP radiance map in memory → film rendering → encoded JPEG (target ≤ 0.4 s on the
+//! 2-core machine), per colour mode and JPEG quality, with the error each knob costs; the
+//! `image` crate's JPEG encoder for comparison; and the peer (OpenCV's Reinhard tone map +
+//! JPEG q95, the same calls as `shared/peer/opencv_merge.py`) on the same map, as a ratio.
+//!
+//! `cargo bench --bench film_speed` (set FILMBACK_PEER_PYTHON to the peer's venv python;
+//! default `/tmp/filmback-peer-venv/bin/python`, skipped when absent).
+
+use std::hint::black_box;
+use std::path::Path;
+use std::time::{Duration, Instant};
+
+use filmback::film::{self, Catalogue, ColourMode, Key};
+use filmback::radiance::RadianceMap;
+use filmback::rendering::{self, Depth, Format, Look, SourceExif};
+use filmback::synthetic;
+
+const RUNS: usize = 3;
+
+fn best<T>(mut f: impl FnMut() -> T) -> (Duration, T) {
+    let mut best = Duration::MAX;
+    let mut last = None;
+    for _ in 0..RUNS {
+        let start = Instant::now();
+        let out = black_box(f());
+        best = best.min(start.elapsed());
+        last = Some(out);
+    }
+    (best, last.expect("RUNS > 0"))
+}
+
+fn ms(d: Duration) -> f64 {
+    d.as_secs_f64() * 1e3
+}
+
+/// PSNR (dB) of a decoded JPEG against the 8-bit image it encoded.
+fn psnr(reference: &[u8], jpeg: &[u8]) -> f64 {
+    let decoded = image::load_from_memory(jpeg)
+        .expect("our JPEG decodes")
+        .to_rgb8();
+    let se: f64 = reference
+        .iter()
+        .zip(decoded.as_raw())
+        .map(|(&a, &b)| (f64::from(a) - f64::from(b)).powi(2))
+        .sum();
+    let mse = se / reference.len() as f64;
+    10.0 * (255.0f64 * 255.0 / mse).log10()
+}
+
+fn main() {
+    let (w, h) = (6000u32, 4000u32);
+    println!(
+        "film_speed: {w}×{h} ({:.0} MP) synthetic scene, {} rayon threads, best of {RUNS}",
+        f64::from(w * h) / 1e6,
+        rayon::current_num_threads()
+    );
+    let start = Instant::now();
+    let map = synthetic::scene(w, h, 1);
+    println!(
+        "scene built in {:.0} ms (not timed below)\n",
+        ms(start.elapsed())
+    );
+    let catalogue = Catalogue::builtin().expect("built-in stocks");
+    let stock = catalogue.get("velvia50").expect("velvia50");
+
+    println!(
+        "{:<12} {:>7} {:>8} {:>12} {:>9} {:>10} {:>11} {:>9} {:>9}",
+        "colour",
+        "quality",
+        "key ms",
+        "film→8bit ms",
+        "jpeg ms",
+        "serial ms",
+        "streamed ms",
+        "PSNR dB",
+        "PSNR str"
+    );
+    let exif = SourceExif::default();
+    let mut reference_u8 = Vec::new();
+    let mut ours_q95 = Duration::ZERO;
+    for (mode, name) in [
+        (ColourMode::PerLayer, "per-layer"),
+        (ColourMode::Luminance, "luminance"),
+        (ColourMode::NeutralGrey, "neutral"),
+    ] {
+        for quality in [85u8, 92, 95] {
+            let (t_key, key) = best(|| film::scene_key(&map, Key::LogAverage));
+            let development = film::Development::new(stock, 1.0, key, mode).expect("reversal");
+            let (t_film, image) = best(|| development.render(&map, Depth::Eight));
+            let rgb = image.to_u8().into_owned();
+            let (t_jpeg, jpeg) = best(|| {
+                let mut out = Vec::with_capacity(8 << 20);
+                rendering::encode(&image, Format::Jpeg { quality }, &exif, &mut out)
+                    .expect("encodes");
+                out
+            });
+            // End to end in one go, as `render_all` does it (key + film + 8-bit + JPEG).
+            let look = Look::Film {
+                stock: Box::new(stock.clone()),
+                exposure: 1.0,
+                colour: mode,
+                key: Key::LogAverage,
+            };
+            // End to end as `render_all` does it: key, then developing streamed into the
+            // encoder (developing on one core while the encoder runs on the other) …
+            let (t_total, streamed) = best(|| {
+                let mut out = Vec::with_capacity(8 << 20);
+                rendering::encode_look(&map, &look, Format::Jpeg { quality }, &exif, &mut out)
+                    .expect("encodes");
+                out
+            });
+            // … against the two stages one after the other.
+            let (t_serial, _) = best(|| {
+                let image = look.render(&map, Depth::Eight).expect("renders");
+                let mut out = Vec::with_capacity(8 << 20);
+                rendering::encode(&image, Format::Jpeg { quality }, &exif, &mut out)
+                    .expect("encodes");
+                out.len()
+            });
+            println!(
+                "{name:<12} {quality:>7} {:>8.1} {:>12.1} {:>9.1} {:>10.1} {:>11.1} {:>9.2} {:>9.2}",
+                ms(t_key),
+                ms(t_film),
+                ms(t_jpeg),
+                ms(t_serial),
+                ms(t_total),
+                psnr(&rgb, &jpeg),
+                psnr(&rgb, &streamed)
+            );
+            if mode == ColourMode::PerLayer && quality == 95 {
+                ours_q95 = t_total;
+                reference_u8 = rgb;
+            }
+        }
+    }
+    let mut worst = 0.0f64;
+    for c in 0..3 {
+        let curve = stock.layer(c);
+        let table = film::ExposureTable::new(curve, |d| d);
+        let (a, b) = curve.log_h_range();
+        for i in 0..100_000 {
+            let h = 10f64.powf(a + (b - a) * f64::from(i) / 1e5) as f32;
+            worst = worst.max((table.get(h) - curve.density(f64::from(h).log10())).abs());
+        }
+    }
+    println!(
+        "\ndensity table ({}): worst {worst:.2e} D over 100k exposures per layer (stated bound {} D)",
+        stock.id,
+        film::TABLE_MAX_ERROR_D
+    );
+
+    // The `image` crate's baseline encoder on the same 8-bit buffer, quality 95.
+    let (t_ours, ours) = best(|| {
+        let mut out = Vec::new();
+        jpeg_encoder::Encoder::new(&mut out, 95)
+            .encode(
+                &reference_u8,
+                w as u16,
+                h as u16,
+                jpeg_encoder::ColorType::Rgb,
+            )
+            .expect("encodes");
+        out
+    });
+    let (t_image, theirs) = best(|| {
+        let mut out = Vec::new();
+        image::codecs::jpeg::JpegEncoder::new_with_quality(&mut out, 95)
+            .encode(&reference_u8, w, h, image::ExtendedColorType::Rgb8)
+            .expect("encodes");
+        out
+    });
+    println!("\nJPEG encoder, q95, same 8-bit 24 MP buffer:");
+    println!(
+        "  jpeg-encoder (simd)   {:>7.1} ms  {:>6.2} MB  PSNR {:.2} dB",
+        ms(t_ours),
+        ours.len() as f64 / 1e6,
+        psnr(&reference_u8, &ours)
+    );
+    println!(
+        "  image::JpegEncoder    {:>7.1} ms  {:>6.2} MB  PSNR {:.2} dB   ({:.2}× slower)",
+        ms(t_image),
+        theirs.len() as f64 / 1e6,
+        psnr(&reference_u8, &theirs),
+        t_image.as_secs_f64() / t_ours.as_secs_f64()
+    );
+
+    peer(&map, ours_q95);
+}
+
+/// The peer's tone-map + JPEG stage on the same map: `cv2.createTonemapReinhard(2.2)` and a
+/// q95 JPEG, timed inside Python (load excluded).
+fn peer(map: &RadianceMap, ours: Duration) {
+    let python = std::env::var("FILMBACK_PEER_PYTHON")
+        .unwrap_or_else(|_| "/tmp/filmback-peer-venv/bin/python".into());
+    if !Path::new(&python).exists() {
+        println!("\npeer: skipped ({python} absent; run shared/peer/setup.sh)");
+        return;
+    }
+    let dir = std::env::temp_dir().join(format!("filmback-bench-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).expect("temp dir");
+    let raw = dir.join("map.f32");
+    // OpenCV wants BGR.
+    let bgr: Vec<u8> = map
+        .pixels()
+        .chunks(3)
+        .flat_map(|p| [p[2], p[1], p[0]])
+        .flat_map(f32::to_le_bytes)
+        .collect();
+    std::fs::write(&raw, &bgr).expect("write raw map");
+    let script = format!(
+        r#"
+import time, numpy as np, cv2
+hdr = np.fromfile({raw:?}, dtype='<f4').reshape({h}, {w}, 3)
+best = 1e9
+for _ in range({RUNS}):
+    t = time.perf_counter()
+    ldr = cv2.createTonemapReinhard(2.2).process(hdr)
+    ok, buf = cv2.imencode('.jpg', np.clip(np.nan_to_num(ldr) * 255 + 0.5, 0, 255).astype(np.uint8), [cv2.IMWRITE_JPEG_QUALITY, 95])
+    best = min(best, time.perf_counter() - t)
+print(best * 1000)
+"#,
+        raw = raw.display().to_string(),
+        h = map.height(),
+        w = map.width(),
+    );
+    let out = std::process::Command::new(&python)
+        .arg("-c")
+        .arg(script)
+        .output();
+    let _ = std::fs::remove_dir_all(&dir);
+    match out {
+        Ok(o) if o.status.success() => {
+            let peer_ms: f64 = String::from_utf8_lossy(&o.stdout)
+                .trim()
+                .parse()
+                .unwrap_or(f64::NAN);
+            println!(
+                "\npeer (OpenCV Reinhard + JPEG q95): {peer_ms:.1} ms; filmback film + JPEG q95 (streamed): {:.1} ms; ratio peer/filmback {:.2}×",
+                ms(ours),
+                peer_ms / ms(ours)
+            );
+        }
+        Ok(o) => println!("\npeer: failed: {}", String::from_utf8_lossy(&o.stderr)),
+        Err(e) => println!("\npeer: cannot run {python}: {e}"),
+    }
+}

@@ -1,0 +1,393 @@
+//! Tone-mapping operators: linear range rescaling and Ward Larson's histogram adjustment.
+//!
+//! Both map luminance `L = 0.2126 R + 0.7152 G + 0.0722 B` (Rec. 709, linear) to a
+//! display value `v ∈ [0, 1]` and keep chromaticity: each channel becomes `v · E_c / L`,
+//! scaled down together if one would exceed 1; then sRGB encoding. Pixels with `L ≤ 0`
+//! or NaN display black, `L = +∞` white.
+
+use rayon::prelude::*;
+
+use crate::film::luminance;
+use crate::radiance::RadianceMap;
+use crate::rendering::{DisplayImage, srgb_encode_u16};
+
+/// A tone-mapping operator and its parameters.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum Operator {
+    /// `v = (L − L_lo)/(L_hi − L_lo)` clamped, with `L_lo`, `L_hi` the given percentiles
+    /// (in %) of the luminance: the report's equation (7) with a robust range.
+    Linear {
+        /// Lower percentile (%), black.
+        low: f64,
+        /// Upper percentile (%), white.
+        high: f64,
+    },
+    /// Histogram adjustment (Ward Larson, Rushmeier & Piatko 1997).
+    Histogram(HistogramAdjustment),
+}
+
+impl Operator {
+    /// Linear on the 1st and 99th percentiles.
+    pub const LINEAR: Operator = Operator::Linear {
+        low: 1.0,
+        high: 99.0,
+    };
+
+    /// Parses `linear`, `histogram` or `histogram-naive`.
+    pub fn parse(name: &str) -> Option<Operator> {
+        match name {
+            "linear" => Some(Operator::LINEAR),
+            "histogram" => Some(Operator::Histogram(HistogramAdjustment::default())),
+            "histogram-naive" => Some(Operator::Histogram(HistogramAdjustment {
+                ceiling: false,
+                ..HistogramAdjustment::default()
+            })),
+            _ => None,
+        }
+    }
+
+    /// Short name for file names.
+    pub fn name(&self) -> &'static str {
+        match self {
+            Operator::Linear { .. } => "linear",
+            Operator::Histogram(h) if h.ceiling => "histogram",
+            Operator::Histogram(_) => "histogram-naive",
+        }
+    }
+
+    /// Renders `map` for display.
+    pub fn apply(&self, map: &RadianceMap) -> DisplayImage {
+        match *self {
+            Operator::Linear { low, high } => {
+                let lum = luminances(map);
+                let (lo, hi) = percentiles(&lum, low, high);
+                let span = (hi - lo).max(f32::MIN_POSITIVE);
+                map_luminance(map, |l| ((l - lo) / span).clamp(0.0, 1.0))
+            }
+            Operator::Histogram(h) => {
+                let curve = h.fit(&luminances(map));
+                map_luminance(map, |l| curve.display_value(l))
+            }
+        }
+    }
+}
+
+fn luminances(map: &RadianceMap) -> Vec<f32> {
+    let ch = map.channels();
+    map.pixels()
+        .par_chunks(ch)
+        .map(|p| {
+            if ch == 3 {
+                luminance(p[0], p[1], p[2])
+            } else {
+                p[0]
+            }
+        })
+        .collect()
+}
+
+/// The `low` and `high` percentiles (%) of the finite luminances (0 if there are none).
+fn percentiles(lum: &[f32], low: f64, high: f64) -> (f32, f32) {
+    let mut finite: Vec<f32> = lum.iter().copied().filter(|l| l.is_finite()).collect();
+    if finite.is_empty() {
+        return (0.0, 0.0);
+    }
+    let mut pick = |p: f64| {
+        let i = ((p / 100.0) * (finite.len() - 1) as f64).round() as usize;
+        let i = i.min(finite.len() - 1);
+        *finite.select_nth_unstable_by(i, f32::total_cmp).1
+    };
+    let lo = pick(low);
+    let hi = pick(high);
+    (lo, hi)
+}
+
+/// Applies `v = display(L)` to every pixel, keeping chromaticity, and encodes sRGB.
+fn map_luminance(map: &RadianceMap, display: impl Fn(f32) -> f32 + Sync) -> DisplayImage {
+    let ch = map.channels();
+    let mut samples = vec![0u16; map.width() as usize * map.height() as usize * 3];
+    samples
+        .par_chunks_mut(3 * 4096)
+        .zip(map.pixels().par_chunks(ch * 4096))
+        .for_each(|(out, pixels)| {
+            for (o, p) in out.chunks_exact_mut(3).zip(pixels.chunks_exact(ch)) {
+                let e = if ch == 3 {
+                    [p[0], p[1], p[2]]
+                } else {
+                    [p[0]; 3]
+                };
+                let e = e.map(|v| if v.is_nan() { 0.0 } else { v.max(0.0) });
+                let l = luminance(e[0], e[1], e[2]);
+                let rgb = if l == f32::INFINITY || e.iter().any(|v| v.is_infinite()) {
+                    [1.0; 3]
+                } else if l > 0.0 {
+                    let v = display(l);
+                    let rgb = e.map(|c| v * (c / l));
+                    let peak = rgb[0].max(rgb[1]).max(rgb[2]);
+                    if peak > 1.0 {
+                        rgb.map(|c| c / peak)
+                    } else {
+                        rgb
+                    }
+                } else {
+                    [0.0; 3]
+                };
+                for (o, v) in o.iter_mut().zip(rgb) {
+                    *o = srgb_encode_u16(v);
+                }
+            }
+        });
+    DisplayImage::new(map.width(), map.height(), samples)
+}
+
+/// Histogram adjustment parameters (Ward Larson, Rushmeier & Piatko 1997, §4–5).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct HistogramAdjustment {
+    /// Number of bins over the scene's log10 luminance range (the paper uses 100).
+    pub bins: usize,
+    /// Display luminance range `L_d,max / L_d,min` (an sRGB display: about 100:1).
+    pub display_range: f64,
+    /// Apply the linear contrast ceiling (the full method); `false` is the naive
+    /// histogram equalisation the report also shows.
+    pub ceiling: bool,
+}
+
+impl Default for HistogramAdjustment {
+    fn default() -> HistogramAdjustment {
+        HistogramAdjustment {
+            bins: 100,
+            display_range: 100.0,
+            ceiling: true,
+        }
+    }
+}
+
+/// A fitted histogram adjustment: display log luminance as a function of world log
+/// luminance, `log L_d = log L_d,min + (log L_d,max − log L_d,min) · P(log L_w)`, with
+/// `P` the cumulative of the (trimmed) histogram, linear within each bin.
+#[derive(Debug, Clone, PartialEq)]
+pub struct ToneCurve {
+    /// log10 world luminance of the first bin's lower edge.
+    b_min: f64,
+    /// Bin width in log10 units.
+    width: f64,
+    /// P at each bin edge (`bins + 1` values, 0 to 1).
+    cumulative: Vec<f64>,
+    /// log10(L_d,max / L_d,min).
+    display_log_range: f64,
+    /// When the scene's range fits the display: `log L_d = log L_d,max + (b − b_max)`.
+    linear: bool,
+}
+
+impl HistogramAdjustment {
+    /// Fits the tone curve to the luminances (non-finite and non-positive ones ignored).
+    ///
+    /// With the ceiling: a contrast no greater than the scene's (`dL_d/dL_w ≤ L_d/L_w`,
+    /// i.e. slope ≤ 1 in log–log) requires `f(b_i) ≤ T·Δb / (log L_d,max − log L_d,min)`
+    /// for every bin count `f(b_i)`, `T` the total count. Bins over the ceiling are
+    /// trimmed and the ceiling recomputed from the new total, repeatedly (the paper's
+    /// iteration), until the trimmings fall below 10⁻⁶·T — tighter than the paper's
+    /// 2.5 %, so the ceiling holds to a part in 10⁶. If the total falls below 2.5 % of
+    /// the pixels, or the scene's range is within the display's, the curve is linear.
+    pub fn fit(&self, luminances: &[f32]) -> ToneCurve {
+        let logs: Vec<f64> = luminances
+            .iter()
+            .filter(|l| l.is_finite() && **l > 0.0)
+            .map(|&l| f64::from(l).log10())
+            .collect();
+        let display_log_range = self.display_range.log10();
+        let (b_min, b_max) = logs
+            .iter()
+            .fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), &x| {
+                (a.min(x), b.max(x))
+            });
+        let bins = self.bins.max(1);
+        let linear_curve = |b_min: f64, b_max: f64| ToneCurve {
+            b_min,
+            width: (b_max - b_min).max(1e-12),
+            cumulative: vec![0.0, 1.0],
+            display_log_range,
+            linear: true,
+        };
+        if logs.is_empty() {
+            return linear_curve(0.0, 0.0);
+        }
+        if self.ceiling && b_max - b_min <= display_log_range {
+            return linear_curve(b_min, b_max);
+        }
+        let width = ((b_max - b_min) / bins as f64).max(1e-12);
+        let mut counts = vec![0f64; bins];
+        for &x in &logs {
+            let i = (((x - b_min) / width) as usize).min(bins - 1);
+            counts[i] += 1.0;
+        }
+        if self.ceiling {
+            let pixels = logs.len() as f64;
+            let mut converged = false;
+            for _ in 0..10_000 {
+                let total: f64 = counts.iter().sum();
+                if total < 0.025 * pixels {
+                    break;
+                }
+                let ceiling = total * width / display_log_range;
+                let trimmed: f64 = counts.iter().map(|&f| (f - ceiling).max(0.0)).sum();
+                for f in &mut counts {
+                    *f = f.min(ceiling);
+                }
+                if trimmed <= 1e-6 * total {
+                    converged = true;
+                    break;
+                }
+            }
+            if !converged {
+                return linear_curve(b_min, b_max);
+            }
+        }
+        let total: f64 = counts.iter().sum();
+        let mut cumulative = Vec::with_capacity(bins + 1);
+        let mut run = 0.0;
+        cumulative.push(0.0);
+        for f in &counts {
+            run += f;
+            cumulative.push(run / total);
+        }
+        ToneCurve {
+            b_min,
+            width,
+            cumulative,
+            display_log_range,
+            linear: false,
+        }
+    }
+}
+
+impl ToneCurve {
+    /// `log10 (L_d / L_d,max)` for world log10 luminance `b` (0 at the top, down to
+    /// `−log10(display range)`).
+    pub fn display_log(&self, b: f64) -> f64 {
+        let bins = self.cumulative.len() - 1;
+        let b_max = self.b_min + self.width * bins as f64;
+        if self.linear {
+            return (b.min(b_max) - b_max).max(-self.display_log_range);
+        }
+        let x = ((b - self.b_min) / self.width).clamp(0.0, bins as f64);
+        let i = (x as usize).min(bins - 1);
+        let p = self.cumulative[i] + (x - i as f64) * (self.cumulative[i + 1] - self.cumulative[i]);
+        -self.display_log_range * (1.0 - p)
+    }
+
+    /// Display value `v = (L_d − L_d,min) / (L_d,max − L_d,min)` for world luminance `l`:
+    /// the display's own black (`L_d,min`) is drive value 0.
+    pub fn display_value(&self, l: f32) -> f32 {
+        let rel = 10f64.powf(self.display_log(f64::from(l).log10()));
+        let floor = 10f64.powf(-self.display_log_range);
+        (((rel - floor) / (1.0 - floor)).clamp(0.0, 1.0)) as f32
+    }
+
+    /// The world log10 luminance range the curve spans.
+    pub fn world_range(&self) -> (f64, f64) {
+        let bins = self.cumulative.len() - 1;
+        (self.b_min, self.b_min + self.width * bins as f64)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A scene with a big cluster of similar luminances (a wall) and a sparse long tail:
+    /// the naive equalisation spends most of the display range on the cluster.
+    fn clustered() -> Vec<f32> {
+        let mut l = Vec::new();
+        for i in 0..20_000 {
+            l.push(0.18 * (1.0 + 0.05 * ((i % 100) as f32 / 100.0)));
+        }
+        for i in 0..2_000 {
+            l.push(10f32.powf(-4.0 + 8.0 * i as f32 / 2000.0));
+        }
+        l
+    }
+
+    fn max_slope(curve: &ToneCurve) -> f64 {
+        let (a, b) = curve.world_range();
+        let n = 20_000;
+        let step = (b - a) / n as f64;
+        (0..n)
+            .map(|i| {
+                let x = a + i as f64 * step;
+                (curve.display_log(x + step) - curve.display_log(x)) / step
+            })
+            .fold(0.0, f64::max)
+    }
+
+    #[test]
+    fn ceiling_holds_and_naive_breaks_it() {
+        let l = clustered();
+        let full = HistogramAdjustment::default().fit(&l);
+        assert!(max_slope(&full) <= 1.0 + 1e-5, "slope {}", max_slope(&full));
+        let naive = HistogramAdjustment {
+            ceiling: false,
+            ..Default::default()
+        }
+        .fit(&l);
+        assert!(max_slope(&naive) > 5.0, "naive slope {}", max_slope(&naive));
+    }
+
+    #[test]
+    fn narrow_scene_maps_linearly() {
+        let l: Vec<f32> = (0..1000).map(|i| 1.0 + i as f32 / 100.0).collect();
+        let curve = HistogramAdjustment::default().fit(&l);
+        let (a, b) = curve.world_range();
+        let d = curve.display_log(b) - curve.display_log(a);
+        assert!((d - (b - a)).abs() < 1e-9);
+    }
+
+    #[test]
+    fn mapping_is_monotone_and_keeps_chromaticity() {
+        // 64×64 grey-to-colour gradient over six decades; pixel 0 is black.
+        let mut pixels = Vec::new();
+        for i in 0..64 * 64 {
+            let l = if i == 0 {
+                0.0
+            } else {
+                10f32.powf(-3.0 + 6.0 * i as f32 / 4096.0)
+            };
+            pixels.extend_from_slice(&[l * 1.6, l * 0.8, l * 0.3]);
+        }
+        let map = RadianceMap::new(64, 64, 3, pixels).unwrap();
+        for op in [Operator::LINEAR, Operator::parse("histogram").unwrap()] {
+            let img = op.apply(&map);
+            let s = img.samples();
+            let lum: Vec<f32> = s
+                .chunks(3)
+                .map(|p| {
+                    let lin = p
+                        .iter()
+                        .map(|&v| {
+                            let v = f32::from(v) / 65535.0;
+                            if v <= 0.04045 {
+                                v / 12.92
+                            } else {
+                                ((v + 0.055) / 1.055).powf(2.4)
+                            }
+                        })
+                        .collect::<Vec<_>>();
+                    luminance(lin[0], lin[1], lin[2])
+                })
+                .collect();
+            // Monotone up to the sRGB table's stated 1.1e-4 relative error (clipped pixels
+            // of one chromaticity can straddle a table bucket).
+            let bad = lum.windows(2).position(|w| w[1] < w[0] * (1.0 - 2.5e-4));
+            assert!(
+                bad.is_none(),
+                "{op:?}: at {bad:?}: {:?} {:?}",
+                &lum[bad.unwrap_or(0)..bad.unwrap_or(0) + 2],
+                &s[bad.unwrap_or(0) * 3..bad.unwrap_or(0) * 3 + 6]
+            );
+            assert_eq!(&s[..3], &[0, 0, 0]);
+            // A mid-tone pixel: red stays the largest channel, blue the smallest.
+            let p = &s[2000 * 3..2000 * 3 + 3];
+            assert!(p[0] > p[1] && p[1] > p[2], "{op:?}: {p:?}");
+        }
+    }
+}

@@ -1,0 +1,413 @@
+//! The physics a film rendering must hold: the stocks' own speeds, a grey ramp that
+//! reproduces the curve, t = 1/2 as exactly one stop, pathological radiance, and the
+//! histogram adjustment's contrast ceiling.
+
+use std::path::Path;
+
+use filmback::atomic::Overwrite;
+use filmback::film::{
+    Catalogue, ColourMode, Development, FilmError, Key, Kind, Stock, TABLE_MAX_ERROR_D, luminance,
+    render, scene_key,
+};
+use filmback::radiance::RadianceMap;
+use filmback::rendering::{self, Format, Look, Outputs, SourceExif, srgb_encode};
+use filmback::synthetic;
+use filmback::tonemap::{HistogramAdjustment, Operator};
+
+fn catalogue() -> Catalogue {
+    Catalogue::builtin().expect("built-in stocks are valid")
+}
+
+#[test]
+fn computed_speed_agrees_with_the_rating_within_a_third_of_a_stop() {
+    let mut checked = 0;
+    for stock in catalogue().stocks() {
+        let speed = stock
+            .speed()
+            .expect("every built-in curve reaches its speed points");
+        let stops = (speed.iso / stock.iso).log2();
+        println!(
+            "{:<14} rated {:>5} computed {:>7.1} ({:+.2} stops){}",
+            stock.id,
+            stock.iso,
+            speed.iso,
+            stops,
+            if stock.uncertain.is_some() {
+                " [flagged uncertain]"
+            } else {
+                ""
+            }
+        );
+        if stock.kind == Kind::Reversal && stock.uncertain.is_none() {
+            assert!(stops.abs() <= 1.0 / 3.0, "{}: {stops:+.2} stops", stock.id);
+            checked += 1;
+        }
+    }
+    assert_eq!(
+        checked, 5,
+        "Velvia 50/100, Provia 100F, Ektachrome 100, Kodachrome 64"
+    );
+    // The two flagged stocks are flagged for a reason the numbers show.
+    let cat = catalogue();
+    let provia = cat.get("provia400").unwrap();
+    assert!(provia.uncertain.is_some());
+    assert!((provia.speed().unwrap().iso / 400.0).log2() > 1.0 / 3.0);
+    assert!(cat.get("p1600").unwrap().uncertain.is_some());
+}
+
+fn srgb_decode(v: u16) -> f64 {
+    let v = f64::from(v) / 65535.0;
+    if v <= 0.04045 {
+        v / 12.92
+    } else {
+        ((v + 0.055) / 1.055).powf(2.4)
+    }
+}
+
+/// A neutral ramp of `n` pixels, `E_i = 2^(i/16)·2^-40` built from a 16-entry table times
+/// exact powers of two, so that `E_{i+16} = 2·E_i` exactly in `f32`.
+fn ramp(n: usize) -> RadianceMap {
+    let frac: Vec<f32> = (0..16).map(|j| 2f32.powf(j as f32 / 16.0)).collect();
+    let mut pixels = Vec::with_capacity(n * 3);
+    for i in 0..n {
+        let e = frac[i % 16] * 2f32.powi(i as i32 / 16 - 40);
+        pixels.extend_from_slice(&[e, e, e]);
+    }
+    RadianceMap::new(n as u32, 1, 3, pixels).unwrap()
+}
+
+#[test]
+fn grey_ramp_reproduces_each_stock_curve_and_is_monotone() {
+    let map = ramp(16 * 80);
+    for stock in catalogue()
+        .stocks()
+        .iter()
+        .filter(|s| s.kind == Kind::Reversal)
+    {
+        // Meter a grey of 1.0: H = 8/S · E.
+        let img = render(&map, stock, 1.0, ColourMode::PerLayer, Key::Grey(1.0)).unwrap();
+        let s = img.samples();
+        let mut worst = 0.0f64;
+        for (i, px) in s.chunks(3).enumerate() {
+            let e = f64::from(map.pixels()[i * 3]);
+            let log_h = (stock.metered_exposure() * e).log10();
+            for c in 0..3 {
+                let curve = stock.layer(c);
+                let t = srgb_decode(px[c]);
+                let d_shown = curve.d_min() - t.max(1e-12).log10();
+                // Compare densities where the display still resolves them (T > 1/4000).
+                if t > 2.5e-4 {
+                    worst = worst.max((d_shown - curve.density(log_h)).abs());
+                }
+                if i > 0 {
+                    assert!(
+                        px[c] >= s[(i - 1) * 3 + c],
+                        "{} layer {c} not monotone at {i}",
+                        stock.id
+                    );
+                }
+            }
+        }
+        println!(
+            "{:<14} worst density error through the display: {worst:.5} D",
+            stock.id
+        );
+        // Table error (≤ 0.001 D) plus 16-bit quantisation of the encoded value.
+        assert!(
+            worst <= TABLE_MAX_ERROR_D + 0.004,
+            "{}: {worst:.4} D",
+            stock.id
+        );
+        // The ramp spans the whole curve: the base (white) at the top.
+        assert_eq!(&s[s.len() - 3..], &[65535, 65535, 65535], "{}", stock.id);
+    }
+}
+
+#[test]
+fn half_exposure_is_exactly_one_stop_less_exposure() {
+    let cat = catalogue();
+    let stock = cat.get("provia400").unwrap();
+    let full = Development::new(stock, 1.0, 0.18, ColourMode::PerLayer).unwrap();
+    let half = Development::new(stock, 0.5, 0.18, ColourMode::PerLayer).unwrap();
+    for c in 0..3 {
+        assert_eq!(half.scale[c], full.scale[c] / 2.0);
+    }
+    let map = ramp(16 * 60);
+    let at_full = render(&map, stock, 1.0, ColourMode::PerLayer, Key::Grey(1.0)).unwrap();
+    let at_half = render(&map, stock, 0.5, ColourMode::PerLayer, Key::Grey(1.0)).unwrap();
+    let (a, b) = (at_full.samples(), at_half.samples());
+    for i in 16..map.width() as usize {
+        assert_eq!(
+            b[i * 3..i * 3 + 3],
+            a[(i - 16) * 3..(i - 16) * 3 + 3],
+            "pixel {i}"
+        );
+    }
+    // ±ev is the same scale as the fraction.
+    let ev: filmback::film::Request = "provia400@-1ev".parse().unwrap();
+    assert_eq!(ev.exposure, 0.5);
+}
+
+fn poisoned() -> RadianceMap {
+    let special = [
+        0.0f32,
+        1e-40, // subnormal
+        f32::MIN_POSITIVE,
+        1e30,
+        f32::MAX,
+        f32::NAN,
+        f32::INFINITY,
+        f32::NEG_INFINITY,
+        -1.0,
+    ];
+    let mut pixels = Vec::new();
+    for &v in &special {
+        pixels.extend_from_slice(&[v, v, v]);
+    }
+    // A pixel poisoned in one channel only, and ordinary grey.
+    pixels.extend_from_slice(&[f32::NAN, 0.18, 0.18]);
+    pixels.extend_from_slice(&[0.18, f32::INFINITY, 0.18]);
+    for _ in 0..5 {
+        pixels.extend_from_slice(&[0.18, 0.18, 0.18]);
+    }
+    RadianceMap::new(16, 1, 3, pixels).unwrap()
+}
+
+#[test]
+fn pathological_radiance_gives_valid_display_values() {
+    let map = poisoned();
+    let cat = catalogue();
+    for stock in cat.stocks().iter().filter(|s| s.kind == Kind::Reversal) {
+        for mode in [
+            ColourMode::PerLayer,
+            ColourMode::Luminance,
+            ColourMode::NeutralGrey,
+        ] {
+            let img = render(&map, stock, 1.0, mode, Key::LogAverage).unwrap();
+            let s = img.samples();
+            let px = |i: usize| [s[i * 3], s[i * 3 + 1], s[i * 3 + 2]];
+            let black = px(0);
+            // No light (0, subnormal, NaN, −∞, negative) is the film's D-max; 1e30, MAX and
+            // +∞ are its base (white); none of them panics or wraps.
+            for i in [1, 2, 5, 7, 8] {
+                assert_eq!(px(i), black, "{} {mode:?} pixel {i}", stock.id);
+            }
+            for i in [3, 4, 6] {
+                assert_eq!(px(i), [65535; 3], "{} {mode:?} pixel {i}", stock.id);
+            }
+            assert!(
+                black.iter().all(|&v| v < 65535 / 8),
+                "{} {mode:?} {black:?}",
+                stock.id
+            );
+        }
+    }
+    for op in [
+        Operator::LINEAR,
+        Operator::parse("histogram").unwrap(),
+        Operator::parse("histogram-naive").unwrap(),
+    ] {
+        let s = op.apply(&map).samples().to_vec();
+        assert_eq!(&s[0..3], &[0, 0, 0], "{op:?}");
+        assert_eq!(&s[5 * 3..5 * 3 + 3], &[0, 0, 0], "{op:?} NaN");
+        assert_eq!(&s[6 * 3..6 * 3 + 3], &[65535; 3], "{op:?} +inf");
+    }
+}
+
+#[test]
+fn the_key_ignores_pixels_without_finite_light() {
+    let clean = ramp(320);
+    let mut pixels = clean.pixels().to_vec();
+    for (k, i) in (0..pixels.len()).step_by(3 * 7).enumerate() {
+        let v = [f32::NAN, f32::INFINITY, 0.0, -3.0][k % 4];
+        pixels[i..i + 3].copy_from_slice(&[v, v, v]);
+    }
+    let dirty = RadianceMap::new(320, 1, 3, pixels.clone()).unwrap();
+    let (sum, n) = pixels
+        .chunks(3)
+        .map(|p| luminance(p[0], p[1], p[2]))
+        .filter(|l| l.is_finite() && *l > 0.0)
+        .fold((0.0f64, 0usize), |(s, n), l| (s + f64::from(l).ln(), n + 1));
+    let expected = (sum / n as f64).exp();
+    let key = scene_key(&dirty, Key::LogAverage);
+    assert!(key.is_finite() && key > 0.0);
+    assert!((key / expected - 1.0).abs() < 1e-9, "{key} vs {expected}");
+    let black =
+        RadianceMap::new(2, 1, 3, vec![0.0, 0.0, 0.0, f32::NAN, f32::NAN, f32::NAN]).unwrap();
+    assert_eq!(scene_key(&black, Key::LogAverage), 1.0);
+}
+
+#[test]
+fn colour_modes_behave_on_grey() {
+    let cat = catalogue();
+    let stock = cat.get("velvia50").unwrap();
+    let grey = RadianceMap::new(1, 1, 3, vec![0.18; 3]).unwrap();
+    let lum = render(&grey, stock, 1.0, ColourMode::Luminance, Key::Grey(0.18)).unwrap();
+    let s = lum.samples();
+    assert!(
+        s[0] == s[1] && s[1] == s[2],
+        "luminance mode must stay grey: {s:?}"
+    );
+    let neutral = render(&grey, stock, 1.0, ColourMode::NeutralGrey, Key::Grey(0.18)).unwrap();
+    let n: Vec<f64> = neutral.samples().iter().map(|&v| srgb_decode(v)).collect();
+    let spread = n.iter().cloned().fold(f64::NEG_INFINITY, f64::max)
+        / n.iter().cloned().fold(f64::INFINITY, f64::min);
+    assert!(spread < 1.01, "neutral-grey mode: metered grey {n:?}");
+    // The key in luminance mode lands on the green curve at 8/S.
+    let expected = srgb_encode(10f32.powf(
+        -(stock.layer(1).density(stock.metered_exposure().log10()) - stock.layer(1).d_min()) as f32,
+    ));
+    assert!((f32::from(s[1]) / 65535.0 - expected).abs() < 2e-3);
+}
+
+fn slope_of(curve: &filmback::tonemap::ToneCurve) -> f64 {
+    let (a, b) = curve.world_range();
+    let n = 50_000;
+    let step = (b - a) / n as f64;
+    (0..n)
+        .map(|i| {
+            let x = a + i as f64 * step;
+            (curve.display_log(x + step) - curve.display_log(x)) / step
+        })
+        .fold(0.0, f64::max)
+}
+
+#[test]
+fn histogram_adjustment_never_exceeds_the_linear_ceiling() {
+    for seed in [1, 2, 3] {
+        let scene = synthetic::scene(256, 192, seed);
+        let lum: Vec<f32> = scene
+            .pixels()
+            .chunks(3)
+            .map(|p| luminance(p[0], p[1], p[2]))
+            .collect();
+        let full = HistogramAdjustment::default().fit(&lum);
+        let s = slope_of(&full);
+        println!("seed {seed}: steepest display/world log slope {s:.6}");
+        assert!(s <= 1.0 + 1e-5, "seed {seed}: slope {s}");
+        let naive = HistogramAdjustment {
+            ceiling: false,
+            ..Default::default()
+        }
+        .fit(&lum);
+        assert!(
+            slope_of(&naive) > 1.0,
+            "the naive variant is expected to exaggerate contrast"
+        );
+    }
+}
+
+fn write_stock(dir: &Path, name: &str, text: &str) {
+    std::fs::write(dir.join(name), text).unwrap();
+}
+
+const USER_STOCK: &str = r#"
+id = "myslide"
+name = "My slide film"
+maker = "Me"
+kind = "reversal"
+iso = 200
+density = "Status A"
+source = "measured on my densitometer"
+[layers]
+red = [[-3.0, 3.0], [-2.0, 2.5], [-1.0, 1.0], [0.0, 0.2]]
+green = [[-3.0, 3.1], [-2.0, 2.6], [-1.0, 1.1], [0.0, 0.2]]
+blue = [[-3.0, 3.2], [-2.0, 2.7], [-1.0, 1.2], [0.0, 0.2]]
+"#;
+
+#[test]
+fn user_stock_folder_adds_stocks_and_names_bad_points() {
+    let dir = tempfile::tempdir().unwrap();
+    write_stock(dir.path(), "myslide.toml", USER_STOCK);
+    let cat = catalogue().with_folder(dir.path()).unwrap();
+    let mine = cat.get("myslide").unwrap();
+    assert_eq!(mine.iso, 200.0);
+    assert!(mine.speed().is_some());
+
+    let bad = tempfile::tempdir().unwrap();
+    write_stock(
+        bad.path(),
+        "broken.toml",
+        &USER_STOCK.replace("[-1.0, 1.1]", "[-1.0, 2.9]"),
+    );
+    let err = catalogue().with_folder(bad.path()).unwrap_err();
+    let msg = err.to_string();
+    assert!(
+        msg.contains("broken.toml") && msg.contains("layer green, point 3"),
+        "{msg}"
+    );
+
+    let dup = tempfile::tempdir().unwrap();
+    write_stock(
+        dup.path(),
+        "v.toml",
+        &USER_STOCK.replace("myslide", "velvia50"),
+    );
+    assert!(matches!(
+        catalogue().with_folder(dup.path()),
+        Err(FilmError::Duplicate { .. })
+    ));
+
+    let syntax = tempfile::tempdir().unwrap();
+    write_stock(
+        syntax.path(),
+        "s.toml",
+        &USER_STOCK.replace("iso = 200", "iso = \"fast\""),
+    );
+    let msg = catalogue()
+        .with_folder(syntax.path())
+        .unwrap_err()
+        .to_string();
+    assert!(msg.contains("s.toml") && msg.contains("iso"), "{msg}");
+
+    let two_layers = USER_STOCK.replace("blue = ", "# blue = ");
+    let err = Stock::from_toml(&two_layers, Path::new("two.toml")).unwrap_err();
+    assert!(err.to_string().contains("blue"), "{err}");
+}
+
+#[test]
+fn render_all_writes_each_look_atomically_and_refuses_to_clobber() {
+    let cat = catalogue();
+    let map = synthetic::scene(96, 64, 7);
+    let looks = vec![
+        Look::film(&cat, "velvia50@1/2", ColourMode::PerLayer, Key::LogAverage).unwrap(),
+        Look::Tonemap(Operator::parse("histogram").unwrap()),
+    ];
+    let dir = tempfile::tempdir().unwrap();
+    let exif = SourceExif::default();
+    let outputs = Outputs {
+        dir: dir.path(),
+        stem: "scene",
+        format: Format::Png16,
+        overwrite: Overwrite::Refuse,
+        exif: &exif,
+    };
+    let written = rendering::render_all(&map, &looks, &outputs).unwrap();
+    let names: Vec<String> = written
+        .iter()
+        .map(|p| p.file_name().unwrap().to_string_lossy().into_owned())
+        .collect();
+    assert_eq!(names, ["scene.velvia50-t0.5.png", "scene.histogram.png"]);
+    assert!(rendering::render_all(&map, &looks, &outputs).is_err());
+    let leftovers = std::fs::read_dir(dir.path()).unwrap().count();
+    assert_eq!(leftovers, 2, "no temporary files remain");
+    assert!(Look::film(&cat, "portra400", ColourMode::PerLayer, Key::LogAverage).is_err());
+    assert!(Look::film(&cat, "nosuchfilm@1", ColourMode::PerLayer, Key::LogAverage).is_err());
+}
+
+#[test]
+fn exr_round_trip_through_the_reader() {
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("map.exr");
+    let (w, h) = (24usize, 16usize);
+    exr::prelude::write_rgb_file(&path, w, h, |x, y| {
+        (x as f32 * 0.5, y as f32 * 0.25, 1e-3 * (x + y) as f32)
+    })
+    .unwrap();
+    let map = rendering::read_exr(&path).unwrap();
+    assert_eq!((map.width(), map.height(), map.channels()), (24, 16, 3));
+    let i = (5 * w + 7) * 3;
+    assert_eq!(&map.pixels()[i..i + 3], &[3.5, 1.25, 0.012]);
+    let err = rendering::read_exr(&dir.path().join("missing.exr")).unwrap_err();
+    assert!(err.to_string().contains("missing.exr"));
+}
