@@ -8,7 +8,12 @@
 //! and demos; [`atomic`] publishes every output file without ever exposing a partial one.
 
 pub mod atomic;
+pub mod bracket;
+pub mod cache;
+pub mod config;
+pub mod daemon;
 pub mod frame;
+pub mod journal;
 pub mod metadata;
 pub mod radiance;
 pub mod response;
