@@ -60,7 +60,7 @@ pub struct Input {
     /// Size in bytes.
     pub size: u64,
     /// Modification time, nanoseconds since the Unix epoch.
-    pub modified_ns: i128,
+    pub modified_ns: i64,
 }
 
 /// A settled frame with what its EXIF said (pixels are not loaded yet).
