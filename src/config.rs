@@ -545,7 +545,7 @@ impl Watch {
             .extension()
             .and_then(|e| e.to_str())
             .map(str::to_ascii_lowercase);
-        ext.is_some_and(|e| self.extensions.iter().any(|x| *x == e))
+        ext.is_some_and(|e| self.extensions.contains(&e))
     }
 }
 
@@ -583,6 +583,7 @@ mod tests {
         assert_eq!(c.bracket.singles, Singles::Render);
         assert_eq!(c.daemon.jobs, 2);
         assert_eq!(c.render.films, vec!["velvia50".to_string()]);
+        assert_eq!(c.render.tonemaps, vec!["linear".to_string()]);
         assert_eq!(c.render.recalibrate, Recalibrate::Auto);
         assert!(c.cameras.is_empty());
         // An empty file is the defaults.

@@ -5,7 +5,11 @@ use std::process::ExitCode;
 
 use clap::{Parser, Subcommand};
 
+mod cache;
+mod check_config;
 mod inspect;
+mod status;
+mod watch;
 
 /// filmback: brackets from a tethered camera to HDR radiance maps and film renderings.
 #[derive(Debug, Parser)]
@@ -19,6 +23,14 @@ struct Cli {
 enum Command {
     /// Show each frame's size, depth, camera, exposure and capture time.
     Inspect(inspect::Args),
+    /// Watch the ingest folder and develop every bracket that lands in it (the daemon).
+    Watch(watch::Args),
+    /// What the daemon has done and is doing: brackets, pending work, rejected files.
+    Status(status::Args),
+    /// Validate a configuration file without starting.
+    CheckConfig(check_config::Args),
+    /// The per-camera response cache: list, show, reset.
+    Cache(cache::Args),
 }
 
 /// Parses the command line, runs the subcommand, and reports errors on stderr.
@@ -26,6 +38,10 @@ pub fn main() -> ExitCode {
     let cli = Cli::parse();
     let result = match cli.command {
         Command::Inspect(args) => inspect::run(args),
+        Command::Watch(args) => watch::run(args),
+        Command::Status(args) => status::run(args),
+        Command::CheckConfig(args) => check_config::run(args),
+        Command::Cache(args) => cache::run(args),
     };
     match result {
         Ok(code) => code,
