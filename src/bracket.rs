@@ -282,11 +282,13 @@ impl Grouper {
             .collect()
     }
 
-    /// True when `path` waits in an open group.
-    pub fn holds(&self, path: &std::path::Path) -> bool {
-        self.open
-            .values()
-            .any(|o| o.frames.iter().any(|c| c.input.path == path))
+    /// Restarts the gap clock of every open group: called while the daemon is not taking
+    /// new files (queue full), so a bracket is not closed early for lack of frames that
+    /// are in fact waiting on disk.
+    pub fn postpone(&mut self, now: f64) {
+        for open in self.open.values_mut() {
+            open.last_arrival = now;
+        }
     }
 }
 
@@ -419,6 +421,11 @@ mod tests {
         assert_eq!(late.len(), 1);
         assert_eq!(names(&late[0]), ["b", "c"]);
         assert_eq!(g.waiting(), 0);
+        // Postponed groups wait a full gap from the postponement.
+        g.push(shot("d", &c, 0.0, 20.0), 10.0);
+        g.postpone(11.5);
+        assert!(g.expire(13.0).is_empty());
+        assert_eq!(g.expire(13.6).len(), 1);
     }
 
     #[test]

@@ -79,7 +79,13 @@ fn srgb(x: f64) -> f64 {
 /// JPEG bytes of the scene as `shot` records it, with EXIF; `e_ref` is the exposure that
 /// renders mid-grey at `srgb(0.18)`.
 pub fn encode(width: u16, height: u16, shot: &DemoShot, e_ref: f64) -> Result<Vec<u8>, DemoError> {
-    let gain = shot.exposure() / e_ref;
+    let pixels = render(width, height, shot.exposure() / e_ref);
+    encode_pixels(&pixels, width, height, shot)
+}
+
+/// Interleaved 8-bit RGB of the scene at relative exposure `gain` (1 = mid-grey at
+/// `srgb(0.18)`).
+pub fn render(width: u16, height: u16, gain: f64) -> Vec<u8> {
     let mut pixels = Vec::with_capacity(usize::from(width) * usize::from(height) * 3);
     for y in 0..height {
         for x in 0..width {
@@ -94,6 +100,16 @@ pub fn encode(width: u16, height: u16, shot: &DemoShot, e_ref: f64) -> Result<Ve
             }
         }
     }
+    pixels
+}
+
+/// JPEG bytes of already rendered RGB pixels, with `shot`'s EXIF.
+pub fn encode_pixels(
+    pixels: &[u8],
+    width: u16,
+    height: u16,
+    shot: &DemoShot,
+) -> Result<Vec<u8>, DemoError> {
     let exif = exif_bytes(shot)?;
     let mut out = Vec::new();
     let mut encoder = jpeg_encoder::Encoder::new(&mut out, 90);
@@ -101,7 +117,7 @@ pub fn encode(width: u16, height: u16, shot: &DemoShot, e_ref: f64) -> Result<Ve
         .add_exif_metadata(&exif)
         .map_err(|e| DemoError::Encode(e.to_string()))?;
     encoder
-        .encode(&pixels, width, height, jpeg_encoder::ColorType::Rgb)
+        .encode(pixels, width, height, jpeg_encoder::ColorType::Rgb)
         .map_err(|e| DemoError::Encode(e.to_string()))?;
     Ok(out)
 }

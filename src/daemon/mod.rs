@@ -47,6 +47,9 @@ pub const STATUS_FILE: &str = "status.json";
 /// promises 10 s.
 pub const STOP_GRACE: Duration = Duration::from_secs(8);
 
+/// How long a file still being written keeps open brackets from closing by the gap.
+const WRITER_PATIENCE: Duration = Duration::from_secs(60);
+
 /// Longest delay between retries of a bracket whose outputs could not be written.
 const MAX_RETRY: Duration = Duration::from_secs(300);
 
@@ -134,6 +137,7 @@ struct Work {
 /// A file seen but not yet complete.
 #[derive(Debug)]
 struct Candidate {
+    first_seen: Instant,
     seen: Option<Input>,
     stable_since: Instant,
     closed: bool,
@@ -347,6 +351,7 @@ impl State {
             return;
         }
         let cand = self.candidates.entry(path).or_insert(Candidate {
+            first_seen: Instant::now(),
             seen: None,
             stable_since: Instant::now(),
             closed: false,
@@ -382,6 +387,16 @@ impl State {
             }
         }
         let now = self.now_s();
+        // A frame still being written (or waiting on disk behind a full queue) may belong
+        // to an open bracket: its gap clock starts when intake has caught up. A writer
+        // stuck for over a minute no longer holds brackets open.
+        let writing = self
+            .candidates
+            .values()
+            .any(|c| c.first_seen.elapsed() < WRITER_PATIENCE);
+        if writing || self.queue.len() >= self.config.daemon.queue {
+            self.grouper.postpone(now);
+        }
         for closed in self.grouper.expire(now) {
             self.queue.push_back(Work {
                 closed,
@@ -483,9 +498,14 @@ impl State {
             }
         }
         // A batch (start-up scan, burst) enters in capture-time order.
-        frames.sort_by(|a, b| a.time_s.total_cmp(&b.time_s));
+        frames.sort_by(|a, b| {
+            a.time_s
+                .total_cmp(&b.time_s)
+                .then_with(|| a.input.path.cmp(&b.input.path))
+        });
         let now = self.now_s();
         for c in frames {
+            tracing::debug!(file = %c.input.path.display(), time_s = c.time_s, "frame taken");
             self.taken.insert(c.input.path.clone());
             for closed in self.grouper.push(c, now) {
                 self.queue.push_back(Work {
