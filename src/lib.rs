@@ -17,3 +17,4 @@ pub mod journal;
 pub mod metadata;
 pub mod radiance;
 pub mod response;
+pub mod synthetic;

@@ -1,0 +1,196 @@
+//! Synthetic ground truth: a procedural HDR scene, exposed through a known camera response
+//! with noise and quantisation, written as JPEG, PNG or TIFF with EXIF exposure tags.
+//!
+//! Every stage downstream (histograms, response recovery, merge, film rendering, the
+//! daemon) can be tested end to end against numbers known exactly: the scene radiance
+//! ([`scene`]), the response `f` and its inverse `g` ([`ResponseCurve`]), the exposures
+//! ([`Shot`]) and the sensor noise ([`Sensor`]).
+//!
+//! ```
+//! use filmback::frame::BitDepth;
+//! use filmback::synthetic::{expose, scene, ResponseCurve, Sensor};
+//!
+//! let radiance = scene(64, 48, 7);
+//! let sensor = Sensor::noiseless(ResponseCurve::Srgb, BitDepth::Eight);
+//! let frame = expose(&radiance, 1.0, &sensor);
+//! assert_eq!((frame.width(), frame.height(), frame.channels()), (64, 48, 3));
+//! ```
+
+mod curve;
+mod encode;
+mod scene;
+mod sensor;
+
+use std::path::PathBuf;
+
+use crate::atomic::PublishError;
+use crate::metadata::{Camera, CaptureTime, Exposure};
+
+pub use curve::{ResponseCurve, dorf_curves};
+pub use encode::{Encoding, encode, write};
+pub use scene::{MID_GREY, scene};
+pub use sensor::{Sensor, bracket, expose};
+
+/// How one synthetic frame was taken: what goes into its EXIF.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Shot {
+    /// The camera body (make, model, serial; the lens is not written).
+    pub camera: Camera,
+    /// Exposure time, f-number and ISO; all three are needed to expose and to encode.
+    pub exposure: Exposure,
+    /// Capture time (with sub-seconds and UTC offset when set).
+    pub captured_at: CaptureTime,
+}
+
+impl Shot {
+    /// A bracket on one body at one aperture and ISO: shot `k` has exposure time
+    /// `times_s[k]` seconds and is captured `k · interval_s` seconds after `first`
+    /// (sub-seconds are recorded whenever the result has them).
+    pub fn series(
+        camera: &Camera,
+        first: CaptureTime,
+        times_s: &[f64],
+        f_number: f64,
+        iso: f64,
+        interval_s: f64,
+    ) -> Vec<Shot> {
+        times_s
+            .iter()
+            .enumerate()
+            .map(|(k, &time_s)| Shot {
+                camera: camera.clone(),
+                exposure: Exposure {
+                    time_s: Some(time_s),
+                    f_number: Some(f_number),
+                    iso: Some(iso),
+                },
+                captured_at: later(first, k as f64 * interval_s),
+            })
+            .collect()
+    }
+}
+
+/// `t` advanced by `seconds` (≥ 0) on the camera's clock, to the nanosecond.
+fn later(t: CaptureTime, seconds: f64) -> CaptureTime {
+    // Whole seconds since 1970 of the civil time (exact in f64), then nanoseconds.
+    let whole = CaptureTime { nanos: None, ..t }.local_seconds() as i64;
+    let total = i128::from(whole) * 1_000_000_000
+        + i128::from(t.nanos.unwrap_or(0))
+        + (seconds.max(0.0) * 1e9).round() as i128;
+    let (secs, nanos) = (
+        total.div_euclid(1_000_000_000) as i64,
+        total.rem_euclid(1_000_000_000) as u32,
+    );
+    let (days, of_day) = (secs.div_euclid(86_400), secs.rem_euclid(86_400));
+    // Civil date from days since 1970-01-01 (H. Hinnant's algorithm).
+    let z = days + 719_468;
+    let era = z.div_euclid(146_097);
+    let doe = z - era * 146_097;
+    let yoe = (doe - doe / 1460 + doe / 36_524 - doe / 146_096) / 365;
+    let doy = doe - (365 * yoe + yoe / 4 - yoe / 100);
+    let mp = (5 * doy + 2) / 153;
+    let day = doy - (153 * mp + 2) / 5 + 1;
+    let month = if mp < 10 { mp + 3 } else { mp - 9 };
+    let year = yoe + era * 400 + i64::from(month <= 2);
+    CaptureTime {
+        year: year as u16,
+        month: month as u8,
+        day: day as u8,
+        hour: (of_day / 3600) as u8,
+        minute: (of_day / 60 % 60) as u8,
+        second: (of_day % 60) as u8,
+        nanos: (t.nanos.is_some() || nanos != 0).then_some(nanos),
+        offset_minutes: t.offset_minutes,
+    }
+}
+
+/// Why synthetic material could not be made or written.
+#[derive(Debug, thiserror::Error)]
+pub enum SyntheticError {
+    /// A file could not be read.
+    #[error("{path}: cannot read: {source}")]
+    Read {
+        /// The file.
+        path: PathBuf,
+        /// What the operating system said.
+        source: std::io::Error,
+    },
+    /// A curve file has a malformed line (line 0: the file as a whole).
+    #[error("{path}:{line}: {reason}")]
+    Parse {
+        /// The file.
+        path: PathBuf,
+        /// 1-based line number.
+        line: usize,
+        /// What is wrong.
+        reason: String,
+    },
+    /// A response curve breaks its invariants.
+    #[error("invalid response curve: {0}")]
+    Curve(String),
+    /// A shot lacks exposure time, f-number or ISO, so its exposure is unknown.
+    #[error("shot {shot}: exposure time, f-number and ISO are all needed")]
+    UnknownExposure {
+        /// Index of the shot in the bracket.
+        shot: usize,
+    },
+    /// A frame or its EXIF could not be encoded.
+    #[error("cannot encode {format}: {reason}")]
+    Encode {
+        /// JPEG, PNG, TIFF or EXIF.
+        format: &'static str,
+        /// What went wrong.
+        reason: String,
+    },
+    /// The encoded file could not be published (the error names the path).
+    #[error(transparent)]
+    Publish(#[from] PublishError),
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn series_advances_the_capture_time_across_midnight_and_new_year() {
+        let first = CaptureTime {
+            year: 2025,
+            month: 12,
+            day: 31,
+            hour: 23,
+            minute: 59,
+            second: 58,
+            nanos: None,
+            offset_minutes: Some(60),
+        };
+        let shots = Shot::series(
+            &Camera::default(),
+            first,
+            &[0.01, 0.04, 0.16],
+            8.0,
+            200.0,
+            1.25,
+        );
+        assert_eq!(shots[0].captured_at, first);
+        assert_eq!(
+            shots[1].captured_at.to_rfc3339(),
+            "2025-12-31T23:59:59.25+01:00"
+        );
+        assert_eq!(
+            shots[2].captured_at.to_rfc3339(),
+            "2026-01-01T00:00:00.5+01:00"
+        );
+        assert_eq!(shots[2].exposure.relative(), Some(0.16 * 200.0 / 64.0));
+        let leap = CaptureTime {
+            year: 2024,
+            month: 2,
+            day: 28,
+            hour: 12,
+            ..first
+        };
+        assert_eq!(
+            later(leap, 86_400.0).to_rfc3339(),
+            "2024-02-29T12:59:58+01:00"
+        );
+    }
+}
