@@ -13,9 +13,12 @@ use std::sync::Arc;
 use std::sync::atomic::{AtomicUsize, Ordering};
 use std::time::{Duration, Instant};
 
+use filmback::atomic::{self, Overwrite};
 use filmback::config::Config;
 use filmback::daemon::{self, Control, Develop, DevelopError, Developed, Job, PlainMerge, demo};
+use filmback::frame::BitDepth;
 use filmback::journal::{self, Entry};
+use filmback::synthetic::{self, Encoding, ResponseCurve, Sensor};
 
 const W: u16 = 96;
 const H: u16 = 64;
@@ -118,16 +121,11 @@ impl Rig {
 /// A three-frame AEB of `model` at `second`, named `<prefix>-1.jpg` …
 fn aeb(model: &str, second: u32, prefix: &str) -> Vec<(String, Vec<u8>)> {
     let shots = demo::aeb(model, None, second);
-    let e_ref = shots[1].exposure();
-    shots
-        .iter()
+    demo::jpegs(u32::from(W), u32::from(H), &shots, u64::from(second))
+        .unwrap()
+        .into_iter()
         .enumerate()
-        .map(|(i, s)| {
-            (
-                format!("{prefix}-{}.jpg", i + 1),
-                demo::encode(W, H, s, e_ref).unwrap(),
-            )
-        })
+        .map(|(i, bytes)| (format!("{prefix}-{}.jpg", i + 1), bytes))
         .collect()
 }
 
@@ -522,16 +520,11 @@ fn kill_9_mid_merge_then_restart_loses_and_repeats_nothing() {
         .enumerate()
         .flat_map(|(b, prefix)| {
             let shots = demo::aeb("Body K", None, 10 + 20 * b as u32);
-            let e_ref = shots[1].exposure();
-            shots
+            demo::jpegs(w, h, &shots, b as u64)
+                .unwrap()
                 .into_iter()
                 .enumerate()
-                .map(|(i, s)| {
-                    (
-                        format!("{prefix}-{}.jpg", i + 1),
-                        demo::encode(w, h, &s, e_ref).unwrap(),
-                    )
-                })
+                .map(|(i, bytes)| (format!("{prefix}-{}.jpg", i + 1), bytes))
                 .collect::<Vec<_>>()
         })
         .collect();
@@ -561,7 +554,7 @@ fn kill_9_mid_merge_then_restart_loses_and_repeats_nothing() {
     assert_eq!(listing(&out), expected, "no temporary file left");
     for name in ["k-1.exr", "m-1.exr"] {
         let image = exr::prelude::read_all_flat_layers_from_file(out.join(name)).unwrap();
-        assert_eq!(image.layer_data[0].size.x(), usize::from(w));
+        assert_eq!(image.layer_data[0].size.x(), w as usize);
     }
     assert_eq!(journaled_brackets(&root.join("state")), ["k-1", "m-1"]);
 
@@ -580,27 +573,26 @@ fn burst_of_200_frames_is_worked_off_with_nothing_dropped() {
     std::fs::create_dir_all(root.join("ingest")).unwrap();
     let config = root.join("filmback.toml");
     std::fs::write(&config, config_text(root, &[])).unwrap();
-    // 66 brackets of 3 and one of 2, 2 s apart in capture time; the three renderings are
-    // shared, the EXIF differs per frame.
-    let pixels: Vec<Vec<u8>> = [60.0 / 250.0, 1.0, 60.0 / 15.0]
-        .iter()
-        .map(|&g| demo::render(320, 240, g))
-        .collect();
+    // 66 brackets of 3 and one of 2, 2 s apart in capture time; the three exposures of
+    // the scene are shared, the EXIF differs per frame.
+    let first = demo::aeb("Body B", None, 10);
+    let scene = synthetic::scene(320, 240, 3);
+    let sensor = Sensor::noiseless(ResponseCurve::Srgb, BitDepth::Eight);
+    let scale = 1.0 / first[1].exposure.relative().unwrap();
+    let exposed = synthetic::bracket(&scene, &sensor, &first, scale).unwrap();
     let frames: Vec<(String, Vec<u8>)> = (0..200)
         .map(|i| {
             let shot = &demo::aeb("Body B", None, 10 + 2 * (i / 3) as u32)[i % 3];
             let name = format!("b{:03}-{}.jpg", i / 3, i % 3 + 1);
-            (
-                name,
-                demo::encode_pixels(&pixels[i % 3], 320, 240, shot).unwrap(),
-            )
+            let jpeg = synthetic::encode(&exposed[i % 3], shot, Encoding::Jpeg { quality: 90 });
+            (name, jpeg.unwrap())
         })
         .collect();
     let mut child = spawn_binary(&config);
     wait_for_status(&root.join("state"), |s| s.running);
     let start = Instant::now();
     for (name, bytes) in &frames {
-        demo::publish_frame(&root.join("ingest"), name, bytes).unwrap();
+        atomic::publish(&root.join("ingest").join(name), bytes, Overwrite::Replace).unwrap();
     }
     let expected: BTreeSet<String> = (0..67)
         .flat_map(|b| bracket_outputs(&[&format!("b{b:03}-1")]))

@@ -120,33 +120,24 @@ fn forward_signals(
     })
 }
 
-/// Drops one synthetic bracket (three 1200×800 JPEGs, −2/0/+2 EV) into the ingest
-/// folder, the way a tethering tool does.
+/// Drops one synthetic bracket (three 1200×800 JPEGs with EXIF, −2/0/+2 EV) into the
+/// ingest folder, the way a tethering tool does.
 async fn demo_feed(ingest: PathBuf) {
     tokio::time::sleep(Duration::from_millis(500)).await;
     let stamp = filmback::journal::unix_now();
     let shots = demo::aeb("Demo Camera", Some("0001"), (stamp % 3600) as u32);
-    let e_ref = shots[1].exposure();
-    for (i, shot) in shots.iter().enumerate() {
+    let made = tokio::task::spawn_blocking(move || demo::jpegs(1200, 800, &shots, stamp)).await;
+    let jpegs = match made {
+        Ok(Ok(j)) => j,
+        Ok(Err(e)) => return warn!(error = %e, "demo bracket not made"),
+        Err(e) => return warn!(error = %e, "demo feed failed"),
+    };
+    for (i, bytes) in jpegs.iter().enumerate() {
         let name = format!("demo-{stamp}-{}.jpg", i + 1);
-        let dir = ingest.clone();
-        let shot = shot.clone();
-        let written = tokio::task::spawn_blocking(move || {
-            let bytes = demo::encode(1200, 800, &shot, e_ref)?;
-            demo::drop_frame(&dir, &name, &bytes)
-        })
-        .await;
-        match written {
-            Ok(Ok(path)) => info!(file = %path.display(), "demo frame dropped"),
-            Ok(Err(e)) => {
-                warn!(error = %e, "demo frame not written");
-                return;
-            }
-            Err(e) => {
-                warn!(error = %e, "demo feed failed");
-                return;
-            }
+        match demo::drop_frame(&ingest, &name, bytes) {
+            Ok(path) => info!(file = %path.display(), "demo frame dropped"),
+            Err(e) => return warn!(error = %e, "demo frame not written"),
         }
-        tokio::time::sleep(Duration::from_millis(200)).await;
+        tokio::time::sleep(Duration::from_millis(300)).await;
     }
 }

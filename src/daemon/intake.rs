@@ -140,6 +140,16 @@ pub(crate) fn identify(path: &Path) -> std::io::Result<Input> {
     })
 }
 
+/// True when a JPEG's last scan (`FF DA`) is followed by an end-of-image marker
+/// (`FF D9`). Entropy-coded data never contains `FF DA` or `FF D9` (a data byte `FF` is
+/// stuffed as `FF 00`), so a file cut short anywhere after its headers fails this test,
+/// while an embedded thumbnail (inside APP1, before the main scan) cannot fake it. The
+/// decoder alone is lenient and fills a truncated image with grey.
+fn jpeg_complete(bytes: &[u8]) -> bool {
+    let last_scan = bytes.windows(2).rposition(|w| w == [0xFF, 0xDA]);
+    last_scan.is_some_and(|i| bytes[i..].windows(2).any(|w| w == [0xFF, 0xD9]))
+}
+
 /// What reading a settled file found.
 #[derive(Debug)]
 pub(crate) enum Probe {
@@ -187,6 +197,9 @@ pub(crate) fn probe(path: &Path) -> Probe {
         .with_guessed_format()
         .map_err(|e| e.to_string())
         .and_then(|r| match r.format() {
+            Some(image::ImageFormat::Jpeg) if !jpeg_complete(&bytes) => {
+                Err("JPEG data ends before its end-of-image marker (truncated file)".to_string())
+            }
             Some(image::ImageFormat::Jpeg | image::ImageFormat::Png | image::ImageFormat::Tiff) => {
                 r.into_dimensions()
                     .map_err(|e| format!("unreadable image header: {e}"))
@@ -210,4 +223,49 @@ pub(crate) fn probe(path: &Path) -> Probe {
         time_s,
         input: before,
     })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::daemon::demo;
+
+    #[test]
+    fn truncated_jpeg_is_incomplete() {
+        let shots = demo::aeb("Body", None, 1);
+        let jpeg = demo::jpegs(96, 64, &shots, 3).unwrap().remove(1);
+        assert!(jpeg_complete(&jpeg));
+        for cut in [jpeg.len() - 1, jpeg.len() / 2, jpeg.len() / 3, 100] {
+            assert!(!jpeg_complete(&jpeg[..cut]), "cut at {cut}");
+        }
+        assert!(!jpeg_complete(b""));
+    }
+
+    #[test]
+    fn probe_reads_exif_and_rejects_with_reasons() {
+        let dir = tempfile::tempdir().unwrap();
+        let shots = demo::aeb("Body", Some("9"), 1);
+        let jpeg = demo::jpegs(96, 64, &shots, 3).unwrap().remove(2);
+        let good = dir.path().join("a.jpg");
+        std::fs::write(&good, &jpeg).unwrap();
+        match probe(&good) {
+            Probe::Frame(c) => {
+                assert_eq!(c.camera.serial.as_deref(), Some("9"));
+                assert!((c.exposure.unwrap() - 100.0 / 15.0 / 64.0).abs() < 1e-9);
+                assert_eq!(c.input.size, jpeg.len() as u64);
+            }
+            other => panic!("{other:?}"),
+        }
+        let cut = dir.path().join("b.jpg");
+        std::fs::write(&cut, &jpeg[..jpeg.len() / 2]).unwrap();
+        let p = probe(&cut);
+        assert!(
+            matches!(&p, Probe::Rejected(_, r) if r.contains("truncated")),
+            "{p:?}"
+        );
+        let empty = dir.path().join("c.jpg");
+        std::fs::write(&empty, b"").unwrap();
+        assert!(matches!(probe(&empty), Probe::Rejected(_, r) if r.contains("empty")));
+        assert!(matches!(probe(&dir.path().join("none.jpg")), Probe::Gone));
+    }
 }
