@@ -199,8 +199,9 @@ impl Develop for PlainMerge {
             }
         }
         drop(frames);
-        let radiance: Vec<f32> = num.iter().zip(&den).map(|(a, b)| a / b).collect();
-        drop((num, den));
+        let mut radiance = num;
+        radiance.iter_mut().zip(&den).for_each(|(e, w)| *e /= w);
+        drop(den);
         stages.push(("merge", t1.elapsed()));
         let mut outputs = Vec::new();
         let rgb = |i: usize| -> (f32, f32, f32) {
