@@ -537,6 +537,13 @@ fn kill_9_mid_merge_then_restart_loses_and_repeats_nothing() {
     let done_before = journal::read(&root.join("state")).unwrap().len();
     assert!(done_before < 2, "killed before both brackets finished");
 
+    // Restart, and stop it with SIGTERM while it develops: it exits cleanly within 10 s.
+    let mut child = spawn_binary(&config);
+    let pid = child.id();
+    wait_for_status(&root.join("state"), |s| s.pid == pid && s.in_flight > 0);
+    let took = terminate(&mut child);
+    assert!(took < Duration::from_secs(10), "stop took {took:?}");
+
     let mut child = spawn_binary(&config);
     let out = root.join("out");
     let expected = bracket_outputs(&["k-1", "m-1"]);
@@ -701,4 +708,129 @@ fn sighup_with_a_bad_config_keeps_the_running_one() {
     put(&root.join("ingest"), &aeb("Body A", 10, "v"));
     expect_outputs(&root.join("out"), &bracket_outputs(&["v-1"]), T);
     terminate(&mut child);
+}
+
+#[test]
+fn frame_failing_in_development_is_rejected_and_the_rest_regrouped() {
+    // The developer finds frame 2 unusable only when decoding it (as a real decoder may).
+    let developer = |job: &Job| -> Result<Developed, DevelopError> {
+        if let Some(bad) = job
+            .frames
+            .iter()
+            .find(|c| c.input.path.ends_with("p-2.jpg"))
+        {
+            return Err(DevelopError::Frame {
+                path: bad.input.path.clone(),
+                reason: "decoder: corrupt entropy data".into(),
+            });
+        }
+        PlainMerge.develop(job)
+    };
+    let mut rig = Rig::start(&[], Arc::new(developer), |_| {});
+    put(&rig.ingest(), &aeb("Body A", 10, "p"));
+    expect_outputs(&rig.out(), &bracket_outputs(&["p-1"]), T);
+    let state = rig.state();
+    rig.stop();
+    assert_eq!(
+        rejected(&state),
+        [(
+            "p-2.jpg".to_string(),
+            "decoder: corrupt entropy data".to_string()
+        )]
+    );
+    let entries = journal::read(&state).unwrap();
+    assert!(
+        entries
+            .iter()
+            .any(|e| matches!(e, Entry::Bracket { inputs, .. } if inputs.len() == 2)),
+        "{entries:?}"
+    );
+}
+
+#[test]
+fn good_fits_refine_the_camera_cache_and_later_brackets_receive_it() {
+    use filmback::response::InverseResponse;
+    let seen_cached = Arc::new(AtomicUsize::new(0));
+    let seen = Arc::clone(&seen_cached);
+    // A developer that "fits" a gamma-2.2 curve with confidence 0.9.
+    let developer = move |job: &Job| -> Result<Developed, DevelopError> {
+        if job.cached.is_some() {
+            seen.fetch_add(1, Ordering::SeqCst);
+        }
+        let mut dev = PlainMerge.develop(job)?;
+        let g: Vec<f64> = (0..65).map(|i| (f64::from(i) / 64.0).powf(2.2)).collect();
+        dev.fit = Some((InverseResponse::from_samples(vec![g; 3]).unwrap(), 0.9));
+        Ok(dev)
+    };
+    let mut rig = Rig::start(&[], Arc::new(developer), |_| {});
+    put(&rig.ingest(), &aeb("Body F", 10, "q"));
+    expect_outputs(&rig.out(), &bracket_outputs(&["q-1"]), T);
+    put(&rig.ingest(), &aeb("Body F", 30, "s"));
+    expect_outputs(&rig.out(), &bracket_outputs(&["q-1", "s-1"]), T);
+    let state = rig.state();
+    rig.stop();
+    assert_eq!(
+        seen_cached.load(Ordering::SeqCst),
+        1,
+        "the second bracket got the cache"
+    );
+    let cache = filmback::cache::ResponseCache::new(&state);
+    let entry = cache.find("Body F").unwrap();
+    assert_eq!(entry.brackets, 2);
+    assert!((entry.weight - 1.8).abs() < 1e-12);
+    assert!((entry.response.eval(0, 0.5) - 0.5f64.powf(2.2)).abs() < 1e-9);
+    let out = Command::new(env!("CARGO_BIN_EXE_filmback"))
+        .args(["cache", "list", "--state"])
+        .arg(&state)
+        .output()
+        .unwrap();
+    let text = String::from_utf8_lossy(&out.stdout);
+    assert!(
+        text.contains("Body F") && text.contains("2 brackets"),
+        "{text}"
+    );
+    let out = Command::new(env!("CARGO_BIN_EXE_filmback"))
+        .args(["cache", "reset", "body f", "--state"])
+        .arg(&state)
+        .output()
+        .unwrap();
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    assert!(cache.list().unwrap().is_empty());
+}
+
+#[test]
+fn check_config_names_file_line_and_key() {
+    let dir = tempfile::tempdir().unwrap();
+    let bad = dir.path().join("studio.toml");
+    std::fs::write(&bad, "[watch]\nsettle_ms = 500\n\n[bracket]\nmax_gap = 3\n").unwrap();
+    let out = Command::new(env!("CARGO_BIN_EXE_filmback"))
+        .args(["check-config"])
+        .arg(&bad)
+        .output()
+        .unwrap();
+    assert!(!out.status.success());
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(
+        err.contains(&format!("{}:5:1: max_gap: unknown field", bad.display())),
+        "{err}"
+    );
+    // The commented example is valid and equals the built-in defaults.
+    let example = Path::new(env!("CARGO_MANIFEST_DIR")).join("config/filmback.toml");
+    let out = Command::new(env!("CARGO_BIN_EXE_filmback"))
+        .args(["check-config"])
+        .arg(&example)
+        .output()
+        .unwrap();
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let mut from_file = Config::load(&example).unwrap();
+    from_file.source = None;
+    assert_eq!(from_file, Config::defaults());
 }
