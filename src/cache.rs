@@ -122,6 +122,11 @@ impl ResponseCache {
         }
     }
 
+    /// The folder holding the entries.
+    pub fn dir(&self) -> &Path {
+        &self.dir
+    }
+
     /// Where a body's entry lives.
     pub fn path_for(&self, camera: &CameraId) -> PathBuf {
         self.dir.join(format!("{}.toml", slug(camera)))

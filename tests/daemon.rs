@@ -188,7 +188,7 @@ fn journaled_brackets(state: &Path) -> Vec<String> {
             Entry::Bracket { inputs, .. } => {
                 for i in inputs {
                     assert!(
-                        seen.insert(i.path.clone()),
+                        seen.insert(i.clone()),
                         "{} developed twice",
                         i.path.display()
                     );
@@ -204,7 +204,7 @@ fn journaled_brackets(state: &Path) -> Vec<String> {
             }
             Entry::Single { input, .. } => {
                 assert!(
-                    seen.insert(input.path.clone()),
+                    seen.insert(input.clone()),
                     "{} developed twice",
                     input.path.display()
                 );
@@ -545,6 +545,9 @@ fn kill_9_mid_merge_then_restart_loses_and_repeats_nothing() {
     assert!(took < Duration::from_secs(10), "stop took {took:?}");
 
     let mut child = spawn_binary(&config);
+    let pid = child.id();
+    // (Its signal handlers are in place once it reports.)
+    wait_for_status(&root.join("state"), |s| s.pid == pid && s.running);
     let out = root.join("out");
     let expected = bracket_outputs(&["k-1", "m-1"]);
     let start = Instant::now();
@@ -833,4 +836,30 @@ fn check_config_names_file_line_and_key() {
     let mut from_file = Config::load(&example).unwrap();
     from_file.source = None;
     assert_eq!(from_file, Config::defaults());
+}
+
+#[test]
+fn reused_file_names_never_replace_finished_outputs() {
+    let mut rig = Rig::start(&[], Arc::new(PlainMerge), |_| {});
+    put(&rig.ingest(), &aeb("Body A", 10, "n"));
+    expect_outputs(&rig.out(), &bracket_outputs(&["n-1"]), T);
+    let first_exr = std::fs::read(rig.out().join("n-1.exr")).unwrap();
+    // The camera's counter wraps: new frames arrive under the same names.
+    for i in 1..=3 {
+        std::fs::remove_file(rig.ingest().join(format!("n-{i}.jpg"))).unwrap();
+    }
+    put(&rig.ingest(), &aeb("Body A", 50, "n"));
+    let start = Instant::now();
+    while journaled_brackets(&rig.state()).len() < 2 {
+        assert!(start.elapsed() < T);
+        std::thread::sleep(Duration::from_millis(50));
+    }
+    let id = match journal::read(&rig.state()).unwrap().pop() {
+        Some(Entry::Bracket { id, .. }) => id,
+        other => panic!("{other:?}"),
+    };
+    let second = format!("n-1-{}", &id[..8]);
+    expect_outputs(&rig.out(), &bracket_outputs(&["n-1", &second]), T);
+    assert_eq!(std::fs::read(rig.out().join("n-1.exr")).unwrap(), first_exr);
+    rig.stop();
 }

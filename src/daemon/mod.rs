@@ -184,7 +184,13 @@ pub async fn run(
             source,
         })?;
     }
-    remove_temporaries(&folders.out);
+    for dir in [
+        folders.out.clone(),
+        folders.state.clone(),
+        ResponseCache::new(&folders.state).dir().to_path_buf(),
+    ] {
+        remove_temporaries(&dir);
+    }
     let journal = Journal::open(&folders.state)?;
     let (notices, mut rx) = mpsc::unbounded_channel();
     let now = Instant::now();
@@ -290,6 +296,11 @@ fn remove_temporaries(dir: &Path) {
             }
         }
     }
+}
+
+fn file_stem(path: &Path) -> String {
+    path.file_stem()
+        .map_or_else(String::new, |s| s.to_string_lossy().into_owned())
 }
 
 fn folder_id(dir: &Path) -> Option<(u64, u64)> {
@@ -573,7 +584,7 @@ impl State {
                 },
                 preset,
                 out: self.config.folders.out.clone(),
-                stem: work.closed.stem(),
+                stem: self.output_stem(&work.closed),
             };
             let developer = Arc::clone(&self.developer);
             self.in_flight.spawn_blocking(move || {
@@ -593,6 +604,30 @@ impl State {
             });
         }
         Ok(())
+    }
+
+    /// The first frame's stem, unless an earlier, different bracket already published
+    /// under it (a camera's file counter wrapped, or inputs were replaced): then
+    /// `<stem>-<first 8 hex digits of the id>`, so no finished output is ever replaced.
+    fn output_stem(&self, closed: &Closed) -> String {
+        let (stem, id) = (closed.stem(), closed.id());
+        let taken = self.journal.entries().iter().any(|e| match e {
+            Entry::Bracket {
+                id: other, inputs, ..
+            } => *other != id && inputs.first().is_some_and(|i| file_stem(&i.path) == stem),
+            Entry::Single {
+                id: other,
+                input,
+                outputs,
+                ..
+            } => *other != id && !outputs.is_empty() && file_stem(&input.path) == stem,
+            _ => false,
+        });
+        if taken {
+            format!("{stem}-{}", &id[..8])
+        } else {
+            stem
+        }
     }
 
     fn release(&mut self, closed: &Closed) {
