@@ -863,3 +863,25 @@ fn reused_file_names_never_replace_finished_outputs() {
     assert_eq!(std::fs::read(rig.out().join("n-1.exr")).unwrap(), first_exr);
     rig.stop();
 }
+
+#[test]
+fn polling_mode_and_archive_folder() {
+    let dir = tempfile::tempdir().unwrap();
+    let archive = dir.path().join("archive");
+    let archive_line = format!("archive = \"{}\"", archive.display());
+    let mut rig = Rig::start(
+        &[
+            ("watch", "mode = \"poll\""),
+            ("watch", "poll_ms = 100"),
+            ("folders", &archive_line),
+        ],
+        Arc::new(PlainMerge),
+        |_| {},
+    );
+    put(&rig.ingest(), &aeb("Body P", 10, "w"));
+    expect_outputs(&rig.out(), &bracket_outputs(&["w-1"]), T);
+    rig.stop();
+    assert!(listing(&rig.ingest()).is_empty(), "inputs moved away");
+    let expected: BTreeSet<String> = (1..=3).map(|i| format!("w-{i}.jpg")).collect();
+    assert_eq!(listing(&archive), expected);
+}
