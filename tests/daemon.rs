@@ -885,3 +885,26 @@ fn polling_mode_and_archive_folder() {
     let expected: BTreeSet<String> = (1..=3).map(|i| format!("w-{i}.jpg")).collect();
     assert_eq!(listing(&archive), expected);
 }
+
+#[test]
+fn reload_applies_new_rules_but_keeps_folders() {
+    let mut rig = Rig::start(&[], Arc::new(PlainMerge), |_| {});
+    let mut text = config_text(&rig.root, &[("bracket", "size = 2")]);
+    text = text.replace(
+        &format!("out = \"{}\"", rig.out().display()),
+        "out = \"/nonexistent/elsewhere\"",
+    );
+    let config = Config::from_str(&text, Some(Path::new("reloaded.toml"))).unwrap();
+    rig.control
+        .blocking_send(Control::Reload(Box::new(config)))
+        .unwrap();
+    std::thread::sleep(Duration::from_millis(200));
+    // Size 2 now: a three-frame AEB gives a pair and a single.
+    put(&rig.ingest(), &aeb("Body R", 10, "z"));
+    let expected: BTreeSet<String> = bracket_outputs(&["z-1"])
+        .into_iter()
+        .chain(["z-3.linear.jpg".to_string()])
+        .collect();
+    expect_outputs(&rig.out(), &expected, T);
+    rig.stop();
+}
