@@ -156,6 +156,8 @@ struct State {
     watcher: Option<intake::ActiveWatcher>,
     /// `(device, inode)` of the watched ingest folder; `None` while it is missing.
     watched: Option<(u64, u64)>,
+    /// After a failed attempt to watch, the next one waits until then.
+    watch_retry_at: Instant,
     last_rescan: Instant,
     candidates: HashMap<PathBuf, Candidate>,
     /// Paths in the grouper, queue, retry list or in flight.
@@ -204,6 +206,7 @@ pub async fn run(
         notices,
         watcher: None,
         watched: None,
+        watch_retry_at: now,
         last_rescan: now,
         candidates: HashMap::new(),
         taken: HashSet::new(),
@@ -330,6 +333,9 @@ impl State {
         if id == self.watched && (id.is_none() || self.watcher.is_some()) {
             return;
         }
+        if id == self.watched && Instant::now() < self.watch_retry_at {
+            return;
+        }
         self.watcher = None;
         self.watched = id;
         if id.is_none() {
@@ -341,10 +347,10 @@ impl State {
                 self.watcher = Some(w);
                 info!(ingest = %dir.display(), "watching ingest folder");
             }
-            // Keep going on scans alone; the next tick tries again.
+            // Keep going on scans alone (every `poll`); try again in 10 s.
             Err(e) => {
                 error!(error = %e, "cannot watch; falling back to periodic scans");
-                self.watched = None;
+                self.watch_retry_at = Instant::now() + Duration::from_secs(10);
             }
         }
         self.rescan();
