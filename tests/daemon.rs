@@ -908,3 +908,24 @@ fn reload_applies_new_rules_but_keeps_folders() {
     expect_outputs(&rig.out(), &expected, T);
     rig.stop();
 }
+
+#[test]
+fn recursive_watch_takes_frames_in_sub_folders() {
+    let mut rig = Rig::start(
+        &[("watch", "recursive = true")],
+        Arc::new(PlainMerge),
+        |root| {
+            // Present before start, one level down.
+            let early = root.join("ingest/session-1");
+            std::fs::create_dir_all(&early).unwrap();
+            put(&early, &aeb("Body S", 10, "i"));
+        },
+    );
+    // A folder made while running, then filled.
+    let late = rig.ingest().join("session-2");
+    std::fs::create_dir(&late).unwrap();
+    std::thread::sleep(Duration::from_millis(300));
+    put(&late, &aeb("Body S", 30, "j"));
+    expect_outputs(&rig.out(), &bracket_outputs(&["i-1", "j-1"]), T);
+    rig.stop();
+}
