@@ -39,6 +39,14 @@ pub enum ConfigError {
         /// What is wrong.
         message: String,
     },
+    /// The folders are valid one by one but not together.
+    #[error("{path}: [folders]: {reason}")]
+    Folders {
+        /// The file.
+        path: PathBuf,
+        /// What is wrong.
+        reason: String,
+    },
 }
 
 /// How the ingest folder is watched.
@@ -357,7 +365,32 @@ impl Config {
         let label = path.map_or_else(|| PathBuf::from("<built-in defaults>"), Path::to_path_buf);
         let defaults: RawConfig = parse(DEFAULT_TOML, Path::new("<built-in defaults>"))?;
         let user: RawConfig = parse(text, &label)?;
-        Ok(merge(defaults, user, path.map(Path::to_path_buf)))
+        let config = merge(defaults, user, path.map(Path::to_path_buf));
+        config.check_folders(&label)?;
+        Ok(config)
+    }
+
+    /// Checks the folders together (again after command-line overrides): outputs written
+    /// into the watched folder would come back as frames. `label` names the source.
+    pub fn check_folders(&self, label: &Path) -> Result<(), ConfigError> {
+        let f = &self.folders;
+        let inside =
+            |dir: &Path| dir == f.ingest || (self.watch.recursive && dir.starts_with(&f.ingest));
+        for (name, dir) in [("out", &f.out), ("state", &f.state)]
+            .into_iter()
+            .chain(f.archive.as_ref().map(|a| ("archive", a)))
+        {
+            if inside(dir) {
+                return Err(ConfigError::Folders {
+                    path: label.to_path_buf(),
+                    reason: format!(
+                        "{name} = {:?} is (inside) the watched ingest folder {:?}; its files would be taken as frames",
+                        dir, f.ingest
+                    ),
+                });
+            }
+        }
+        Ok(())
     }
 
     /// The preset for a camera body: a preset naming this model and serial, else one
@@ -665,6 +698,18 @@ t = -1
             .unwrap_err()
             .to_string();
         assert!(msg.starts_with("/etc/f.toml:2:8: jobs: "), "{msg}");
+    }
+
+    #[test]
+    fn outputs_inside_the_ingest_folder_are_refused() {
+        let err = Config::from_str("[folders]\nout = \"ingest\"\n", Some(Path::new("s.toml")))
+            .unwrap_err()
+            .to_string();
+        assert!(err.starts_with("s.toml: [folders]: out = "), "{err}");
+        let text = "[folders]\nout = \"ingest/out\"\n[watch]\nrecursive = true\n";
+        assert!(Config::from_str(text, Some(Path::new("s.toml"))).is_err());
+        let text = "[folders]\nout = \"ingest/out\"\n";
+        assert!(Config::from_str(text, Some(Path::new("s.toml"))).is_ok());
     }
 
     #[test]

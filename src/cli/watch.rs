@@ -1,6 +1,6 @@
 //! `filmback watch [--config FILE] [--ingest DIR] [--out DIR] [--state DIR] [--demo]`.
 
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 use std::process::ExitCode;
 use std::sync::Arc;
 use std::time::Duration;
@@ -48,6 +48,11 @@ impl Args {
         if let Some(d) = &self.state {
             config.folders.state.clone_from(d);
         }
+        let label = match &self.config {
+            Some(p) => format!("{} with command-line folders", p.display()),
+            None => "command line".to_string(),
+        };
+        config.check_folders(Path::new(&label))?;
         Ok(config)
     }
 }
