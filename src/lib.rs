@@ -8,10 +8,15 @@
 //! and demos; [`atomic`] publishes every output file without ever exposing a partial one.
 
 pub mod atomic;
+pub mod bracket;
+pub mod cache;
+pub mod config;
+pub mod daemon;
 pub mod film;
 pub mod frame;
 pub mod hdr_output;
 pub mod histogram;
+pub mod journal;
 pub mod merge;
 pub mod metadata;
 pub mod radiance;

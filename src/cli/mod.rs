@@ -5,11 +5,15 @@ use std::process::ExitCode;
 
 use clap::{Parser, Subcommand};
 
+mod cache;
 mod calibrate;
+mod check_config;
 mod films;
 mod inspect;
 mod merge;
 mod render;
+mod status;
+mod watch;
 
 /// filmback: brackets from a tethered camera to HDR radiance maps and film renderings.
 #[derive(Debug, Parser)]
@@ -31,6 +35,14 @@ enum Command {
     Films(films::Args),
     /// Render an OpenEXR radiance map through film stocks and tone maps.
     Render(render::Args),
+    /// Watch the ingest folder and develop every bracket that lands in it (the daemon).
+    Watch(watch::Args),
+    /// What the daemon has done and is doing: brackets, pending work, rejected files.
+    Status(status::Args),
+    /// Validate a configuration file without starting.
+    CheckConfig(check_config::Args),
+    /// The per-camera response cache: list, show, reset.
+    Cache(cache::Args),
 }
 
 /// Parses the command line, runs the subcommand, and reports errors on stderr.
@@ -42,6 +54,10 @@ pub fn main() -> ExitCode {
         Command::Merge(args) => merge::run(args),
         Command::Films(args) => films::run(args),
         Command::Render(args) => render::run(args),
+        Command::Watch(args) => watch::run(args),
+        Command::Status(args) => status::run(args),
+        Command::CheckConfig(args) => check_config::run(args),
+        Command::Cache(args) => cache::run(args),
     };
     match result {
         Ok(code) => code,

@@ -1,0 +1,268 @@
+//! Daemon latency and throughput on 24 MP JPEG pairs.
+//!
+//! `cargo bench --bench daemon_latency [-- --mp 24 --stream 6]`
+//!
+//! 1. **Direct**: the developer alone (decode, merge, EXR, one JPEG rendering) on a pair,
+//!    called as a function: the work the daemon wraps.
+//! 2. **Latency**: the daemon running; the pair is renamed into the ingest folder the way a
+//!    tethering tool does; time from the rename of the last frame to all outputs (EXR +
+//!    JPEG) being in place. Printed with its ratio to (1).
+//! 3. **Stream**: `--stream N` pairs renamed in at once; brackets per minute and CPU use
+//!    (user + system time over wall time, in cores; the machine's core count for scale).
+//!
+//! The developer is the one `filmback watch` runs ([`PlainMerge`]); when the fitted
+//! response / film pipeline is connected behind the same `Develop` trait, rerun this.
+
+use std::path::{Path, PathBuf};
+use std::sync::Arc;
+use std::time::{Duration, Instant};
+
+use filmback::bracket::{CameraId, Capture, Input};
+use filmback::config::Config;
+use filmback::daemon::{self, Control, Develop, Job, PlainMerge, demo};
+use filmback::metadata;
+
+fn arg(name: &str, default: u32) -> u32 {
+    let args: Vec<String> = std::env::args().collect();
+    args.iter()
+        .position(|a| a == name)
+        .and_then(|i| args.get(i + 1))
+        .and_then(|v| v.parse().ok())
+        .unwrap_or(default)
+}
+
+/// Seconds of CPU (user + system) this process has used, from `/proc/self/stat`.
+fn cpu_seconds() -> f64 {
+    let stat = std::fs::read_to_string("/proc/self/stat").unwrap_or_default();
+    let fields: Vec<&str> = stat
+        .rsplit(')')
+        .next()
+        .unwrap_or("")
+        .split_whitespace()
+        .collect();
+    // Fields 14 and 15 of stat(5) are utime and stime; after the ')' they are 12th, 13th.
+    let ticks: f64 = fields
+        .get(11..13)
+        .map(|f| f.iter().filter_map(|v| v.parse::<f64>().ok()).sum())
+        .unwrap_or(0.0);
+    ticks / 100.0
+}
+
+fn peak_rss_mib() -> u64 {
+    std::fs::read_to_string("/proc/self/status")
+        .ok()
+        .and_then(|s| {
+            s.lines()
+                .find(|l| l.starts_with("VmHWM:"))
+                .and_then(|l| l.split_whitespace().nth(1))
+                .and_then(|v| v.parse::<u64>().ok())
+        })
+        .map_or(0, |kb| kb / 1024)
+}
+
+fn capture(path: &Path, bytes: &[u8]) -> Capture {
+    let m = metadata::read(bytes);
+    Capture {
+        input: Input {
+            path: path.to_path_buf(),
+            size: bytes.len() as u64,
+            modified_ns: 0,
+        },
+        camera: CameraId {
+            make: m.camera.make,
+            model: m.camera.model,
+            serial: m.camera.serial,
+        },
+        exposure: m.exposure.relative(),
+        time_s: m.captured_at.map_or(0.0, |t| t.local_seconds()),
+    }
+}
+
+fn wait_for(paths: &[PathBuf], timeout: Duration) -> Duration {
+    let start = Instant::now();
+    while !paths.iter().all(|p| p.exists()) {
+        assert!(
+            start.elapsed() < timeout,
+            "outputs did not appear: {paths:?}"
+        );
+        std::thread::sleep(Duration::from_millis(1));
+    }
+    start.elapsed()
+}
+
+fn main() {
+    let mp = arg("--mp", 24);
+    let stream = arg("--stream", 6) as usize;
+    let (w, h) = if mp >= 24 {
+        (6000u32, 4000u32)
+    } else {
+        (1500, 1000)
+    };
+    let dir = tempfile::tempdir().expect("temp folder");
+    let root = dir.path();
+    let staging = root.join("staging");
+    std::fs::create_dir_all(&staging).unwrap();
+
+    let t = Instant::now();
+    let shots = demo::aeb("Bench Body", None, 10);
+    let pair = &shots[..2];
+    let jpegs = demo::jpegs(w, h, pair, 5).expect("synthetic pair");
+    println!(
+        "pair: 2 × {w}×{h} JPEG ({:.1} + {:.1} MB), made in {:.1} s",
+        jpegs[0].len() as f64 / 1e6,
+        jpegs[1].len() as f64 / 1e6,
+        t.elapsed().as_secs_f64()
+    );
+
+    // 1. Direct.
+    let config = Config::from_str(
+        &format!(
+            "[folders]\ningest = \"{}\"\nout = \"{}\"\nstate = \"{}\"\n[bracket]\nsize = 2\n[render]\nfilms = []\ntonemaps = [\"linear\"]\n",
+            root.join("ingest").display(),
+            root.join("out").display(),
+            root.join("state").display()
+        ),
+        Some(Path::new("bench.toml")),
+    )
+    .unwrap();
+    let direct_out = root.join("direct");
+    std::fs::create_dir_all(&direct_out).unwrap();
+    let frames: Vec<Capture> = jpegs
+        .iter()
+        .enumerate()
+        .map(|(i, b)| {
+            let p = staging.join(format!("direct-{i}.jpg"));
+            std::fs::write(&p, b).unwrap();
+            capture(&p, b)
+        })
+        .collect();
+    let job = Job {
+        id: "bench".into(),
+        camera: frames[0].camera.clone(),
+        frames,
+        preset: config.render.clone(),
+        cached: None,
+        out: direct_out,
+        stem: "direct".into(),
+    };
+    let mut direct = Vec::new();
+    for _ in 0..3 {
+        let t = Instant::now();
+        let dev = PlainMerge.develop(&job).expect("direct develop");
+        direct.push(t.elapsed());
+        assert_eq!(dev.outputs.len(), 2);
+    }
+    direct.sort();
+    let direct_median = direct[1];
+    let stages = PlainMerge.develop(&job).unwrap().stages;
+    println!(
+        "direct develop (median of 3): {:.2} s  [{}]",
+        direct_median.as_secs_f64(),
+        stages
+            .iter()
+            .map(|(s, d)| format!("{s} {:.2} s", d.as_secs_f64()))
+            .collect::<Vec<_>>()
+            .join(", ")
+    );
+
+    // 2. and 3. through the daemon.
+    let (control, rx) = tokio::sync::mpsc::channel(4);
+    let daemon_config = config.clone();
+    let thread = std::thread::spawn(move || {
+        let rt = tokio::runtime::Builder::new_multi_thread()
+            .enable_all()
+            .build()
+            .unwrap();
+        rt.block_on(daemon::run(daemon_config, Arc::new(PlainMerge), rx))
+    });
+    let ingest = root.join("ingest");
+    let out = root.join("out");
+    while !ingest.exists() {
+        std::thread::sleep(Duration::from_millis(10));
+    }
+    std::thread::sleep(Duration::from_millis(300));
+    // Stage a pair in the same file system, then rename it in (what tethering tools do).
+    let stage = |name: &str, second: u32| -> Vec<(PathBuf, PathBuf)> {
+        let shots = demo::aeb("Bench Body", None, second);
+        (0..2)
+            .map(|i| {
+                // Same pixels, fresh EXIF (capture time) per pair.
+                let bytes = rewrite_exif(&jpegs[i], &shots[i]);
+                let tmp = staging.join(format!("{name}-{}.jpg", i + 1));
+                std::fs::write(&tmp, bytes).unwrap();
+                (tmp, ingest.join(format!("{name}-{}.jpg", i + 1)))
+            })
+            .collect()
+    };
+    let outputs = |name: &str| {
+        vec![
+            out.join(format!("{name}-1.exr")),
+            out.join(format!("{name}-1.linear.jpg")),
+        ]
+    };
+    let mut latency = Vec::new();
+    for run in 0..3 {
+        let name = format!("lat{run}");
+        let files = stage(&name, 100 + 20 * run);
+        std::fs::rename(&files[0].0, &files[0].1).unwrap();
+        std::thread::sleep(Duration::from_millis(100));
+        std::fs::rename(&files[1].0, &files[1].1).unwrap();
+        latency.push(wait_for(&outputs(&name), Duration::from_secs(300)));
+        std::thread::sleep(Duration::from_millis(500));
+    }
+    latency.sort();
+    let lat = latency[1];
+    println!(
+        "latency, last frame renamed in → EXR + JPEG in place (median of 3): {:.2} s = {:.2}× direct",
+        lat.as_secs_f64(),
+        lat.as_secs_f64() / direct_median.as_secs_f64()
+    );
+
+    let staged: Vec<(String, Vec<(PathBuf, PathBuf)>)> = (0..stream)
+        .map(|i| {
+            let name = format!("str{i}");
+            let files = stage(&name, 400 + 20 * i as u32);
+            (name, files)
+        })
+        .collect();
+    let cpu0 = cpu_seconds();
+    let t = Instant::now();
+    for (_, files) in &staged {
+        for (tmp, dest) in files {
+            std::fs::rename(tmp, dest).unwrap();
+        }
+    }
+    for (name, _) in &staged {
+        wait_for(&outputs(name), Duration::from_secs(600));
+    }
+    let wall = t.elapsed().as_secs_f64();
+    let cpu = cpu_seconds() - cpu0;
+    let cores = std::thread::available_parallelism().map_or(1, |n| n.get());
+    println!(
+        "stream: {stream} pairs in {wall:.1} s = {:.1} brackets/min; CPU {:.2} cores busy of {cores} ({:.0} %); jobs = {}",
+        stream as f64 * 60.0 / wall,
+        cpu / wall,
+        100.0 * cpu / wall / cores as f64,
+        config.daemon.jobs
+    );
+    println!(
+        "peak RSS of the whole benchmark process: {} MiB",
+        peak_rss_mib()
+    );
+    control.blocking_send(Control::Stop).unwrap();
+    thread.join().unwrap().unwrap();
+}
+
+/// The same JPEG with the EXIF of `shot` (re-encoding 24 MP per pair would dominate the
+/// set-up time): decode once, re-encode with the new EXIF through the synthetic writer.
+fn rewrite_exif(jpeg: &[u8], shot: &filmback::synthetic::Shot) -> Vec<u8> {
+    let frame = filmback::frame::decode(Path::new("bench.jpg"), jpeg, Default::default())
+        .unwrap()
+        .frame;
+    filmback::synthetic::encode(
+        &frame,
+        shot,
+        filmback::synthetic::Encoding::Jpeg { quality: 90 },
+    )
+    .unwrap()
+}

@@ -1,0 +1,84 @@
+//! `filmback cache list | show CAMERA | reset CAMERA`: the per-body response cache.
+
+use std::path::PathBuf;
+use std::process::ExitCode;
+
+use filmback::cache::ResponseCache;
+
+/// Arguments of `filmback cache`.
+#[derive(Debug, clap::Args)]
+pub struct Args {
+    /// State folder of the daemon.
+    #[arg(long, value_name = "DIR", default_value = ".filmback", global = true)]
+    state: PathBuf,
+    #[command(subcommand)]
+    action: Action,
+}
+
+#[derive(Debug, clap::Subcommand)]
+enum Action {
+    /// One line per cached camera body.
+    List,
+    /// A body's curve g(B) at B = 0, 0.1, …, 1 per channel (CAMERA: name or part of it).
+    Show {
+        /// Camera name as `list` prints it, or a unique part of it.
+        camera: String,
+    },
+    /// Forget a body's curve; the next good bracket starts it afresh.
+    Reset {
+        /// Camera name as `list` prints it, or a unique part of it.
+        camera: String,
+    },
+}
+
+/// Runs the action.
+pub fn run(args: Args) -> anyhow::Result<ExitCode> {
+    let cache = ResponseCache::new(&args.state);
+    match args.action {
+        Action::List => {
+            let entries = cache.list()?;
+            if entries.is_empty() {
+                println!("no cached responses in {}", args.state.display());
+            }
+            for e in entries {
+                match e {
+                    Ok(c) => println!(
+                        "{}\t{} brackets\tweight {:.2}\t{} channel(s)",
+                        c.camera,
+                        c.brackets,
+                        c.weight,
+                        c.response.channels()
+                    ),
+                    Err(e) => println!("unusable entry: {e}"),
+                }
+            }
+        }
+        Action::Show { camera } => {
+            let c = cache.find(&camera)?;
+            println!("camera    {}", c.camera);
+            println!("file      {}", cache.path_for(&c.camera).display());
+            println!("brackets  {}", c.brackets);
+            println!("weight    {:.3}", c.weight);
+            println!("updated   {} (Unix seconds)", c.updated);
+            println!("samples   {} per channel", c.response.samples(0).len());
+            print!("B     ");
+            for ch in 0..c.response.channels() {
+                print!("  g_{ch}(B)  ");
+            }
+            println!();
+            for i in 0..=10 {
+                let b = f64::from(i) / 10.0;
+                print!("{b:.1}   ");
+                for ch in 0..c.response.channels() {
+                    print!("  {:.5}  ", c.response.eval(ch, b));
+                }
+                println!();
+            }
+        }
+        Action::Reset { camera } => {
+            let who = cache.reset(&camera)?;
+            println!("forgot the cached response of {who}");
+        }
+    }
+    Ok(ExitCode::SUCCESS)
+}

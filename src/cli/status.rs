@@ -1,0 +1,134 @@
+//! `filmback status [--state DIR] [--json]`: what the daemon has done and is doing.
+
+use std::collections::HashMap;
+use std::path::{Path, PathBuf};
+use std::process::ExitCode;
+
+use filmback::cache::ResponseCache;
+use filmback::daemon::{self, Snapshot};
+use filmback::journal::{self, Entry};
+use serde_json::{Value, json};
+
+/// Arguments of `filmback status`.
+#[derive(Debug, clap::Args)]
+pub struct Args {
+    /// State folder of the daemon.
+    #[arg(long, value_name = "DIR", default_value = ".filmback")]
+    state: PathBuf,
+    /// Print one JSON object instead of text.
+    #[arg(long)]
+    json: bool,
+}
+
+/// True when the snapshot's process is still alive (Linux `/proc`).
+fn alive(snap: &Snapshot) -> bool {
+    snap.running && Path::new(&format!("/proc/{}", snap.pid)).exists()
+}
+
+/// Reads journal, status snapshot and cache; prints them.
+pub fn run(args: Args) -> anyhow::Result<ExitCode> {
+    if !args.state.is_dir() {
+        anyhow::bail!(
+            "{}: no state folder (has `filmback watch` run here? use --state DIR)",
+            args.state.display()
+        );
+    }
+    let entries = journal::read(&args.state)?;
+    // A file's latest entry decides: a rejected file that was rewritten and then
+    // developed is no longer listed as rejected.
+    let mut latest: HashMap<&Path, &Entry> = HashMap::new();
+    for e in &entries {
+        for i in e.inputs() {
+            latest.insert(i.path.as_path(), e);
+        }
+    }
+    let (mut brackets, mut singles, mut failed) = (0usize, 0usize, Vec::new());
+    let mut rejected = Vec::new();
+    for e in &entries {
+        match e {
+            Entry::Bracket { .. } => brackets += 1,
+            Entry::Single { .. } => singles += 1,
+            Entry::Failed { inputs, reason, .. } => {
+                if inputs
+                    .iter()
+                    .all(|i| std::ptr::eq(latest[i.path.as_path()], e))
+                {
+                    failed.push(json!({"inputs": inputs.iter().map(|i| i.path.display().to_string()).collect::<Vec<_>>(), "reason": reason}));
+                }
+            }
+            Entry::Rejected { input, reason, .. } => {
+                if std::ptr::eq(latest[input.path.as_path()], e) {
+                    rejected
+                        .push(json!({"file": input.path.display().to_string(), "reason": reason}));
+                }
+            }
+        }
+    }
+    let snap = daemon::read_snapshot(&args.state);
+    let running = snap.as_ref().is_some_and(alive);
+    let cache = ResponseCache::new(&args.state);
+    let cached: Vec<Value> = cache
+        .list()?
+        .into_iter()
+        .map(|r| match r {
+            Ok(c) => json!({"camera": c.camera.to_string(), "brackets": c.brackets, "weight": c.weight, "updated": c.updated}),
+            Err(e) => json!({"error": e.to_string()}),
+        })
+        .collect();
+    let report = json!({
+        "state": args.state.display().to_string(),
+        "running": running,
+        "daemon": snap.as_ref().map(|s| json!(s)),
+        "brackets_done": brackets,
+        "singles_done": singles,
+        "failed": failed,
+        "rejected": rejected,
+        "cache": cached,
+    });
+    if args.json {
+        println!("{}", serde_json::to_string_pretty(&report)?);
+        return Ok(ExitCode::SUCCESS);
+    }
+    println!("state folder  {}", args.state.display());
+    match &snap {
+        Some(s) if running => println!(
+            "daemon        running (pid {}), watching {}{}\n  pending     {} settling, {} in open brackets, {} queued, {} developing, {} retrying",
+            s.pid,
+            s.ingest.display(),
+            if s.watching { "" } else { " (folder missing!)" },
+            s.settling,
+            s.grouping,
+            s.queued,
+            s.in_flight,
+            s.retrying
+        ),
+        Some(s) => println!("daemon        not running (last pid {})", s.pid),
+        None => println!("daemon        never ran here"),
+    }
+    println!("done          {brackets} brackets, {singles} single frames");
+    println!("failed        {}", failed.len());
+    for f in &failed {
+        println!("  {}: {}", f["inputs"], f["reason"].as_str().unwrap_or(""));
+    }
+    println!("rejected      {}", rejected.len());
+    for r in &rejected {
+        println!(
+            "  {}: {}",
+            r["file"].as_str().unwrap_or(""),
+            r["reason"].as_str().unwrap_or("")
+        );
+    }
+    println!("cache         {} camera(s)", cached.len());
+    for c in &cached {
+        match c.get("error") {
+            Some(e) => println!("  unusable: {}", e.as_str().unwrap_or("")),
+            None => println!(
+                "  {} ({} brackets, weight {:.2})",
+                c["camera"].as_str().unwrap_or(""),
+                c["brackets"],
+                c["weight"].as_f64().unwrap_or(0.0)
+            ),
+        }
+    }
+    Ok(ExitCode::SUCCESS)
+}

@@ -1,0 +1,148 @@
+//! `filmback watch [--config FILE] [--ingest DIR] [--out DIR] [--state DIR] [--demo]`.
+
+use std::path::{Path, PathBuf};
+use std::process::ExitCode;
+use std::sync::Arc;
+use std::time::Duration;
+
+use anyhow::Context;
+use filmback::config::Config;
+use filmback::daemon::{self, Control, PlainMerge, demo};
+use tokio::signal::unix::{SignalKind, signal};
+use tokio::sync::mpsc;
+use tracing::{error, info, warn};
+
+/// Arguments of `filmback watch`.
+#[derive(Debug, Clone, clap::Args)]
+pub struct Args {
+    /// Configuration file (TOML); without it the built-in defaults apply.
+    #[arg(long, value_name = "FILE")]
+    config: Option<PathBuf>,
+    /// Ingest folder (overrides the file).
+    #[arg(long, value_name = "DIR")]
+    ingest: Option<PathBuf>,
+    /// Output folder (overrides the file).
+    #[arg(long, value_name = "DIR")]
+    out: Option<PathBuf>,
+    /// State folder: journal, response cache, status (overrides the file).
+    #[arg(long, value_name = "DIR")]
+    state: Option<PathBuf>,
+    /// After start, drop a synthetic three-frame bracket with EXIF into the ingest folder.
+    #[arg(long)]
+    demo: bool,
+}
+
+impl Args {
+    /// The file (or defaults) with the command-line folders on top.
+    fn config(&self) -> anyhow::Result<Config> {
+        let mut config = match &self.config {
+            Some(path) => Config::load(path)?,
+            None => Config::defaults(),
+        };
+        if let Some(d) = &self.ingest {
+            config.folders.ingest.clone_from(d);
+        }
+        if let Some(d) = &self.out {
+            config.folders.out.clone_from(d);
+        }
+        if let Some(d) = &self.state {
+            config.folders.state.clone_from(d);
+        }
+        let label = match &self.config {
+            Some(p) => format!("{} with command-line folders", p.display()),
+            None => "command line".to_string(),
+        };
+        config.check_folders(Path::new(&label))?;
+        Ok(config)
+    }
+}
+
+/// Human-readable logs on a terminal; plain lines (no colour, no timestamp: journald
+/// stamps them) when systemd captures stderr (`JOURNAL_STREAM` set).
+fn init_tracing() {
+    use std::io::IsTerminal;
+    let filter = tracing_subscriber::EnvFilter::try_from_default_env()
+        .unwrap_or_else(|_| tracing_subscriber::EnvFilter::new("info"));
+    let builder = tracing_subscriber::fmt()
+        .with_env_filter(filter)
+        .with_writer(std::io::stderr)
+        .with_target(false);
+    if std::env::var_os("JOURNAL_STREAM").is_some() {
+        builder.with_ansi(false).without_time().init();
+    } else {
+        builder.with_ansi(std::io::stderr().is_terminal()).init();
+    }
+}
+
+/// Runs the daemon until SIGTERM or SIGINT.
+pub fn run(args: Args) -> anyhow::Result<ExitCode> {
+    let config = args.config()?;
+    init_tracing();
+    let runtime = tokio::runtime::Builder::new_multi_thread()
+        .enable_all()
+        .build()
+        .context("cannot start the async runtime")?;
+    let result = runtime.block_on(async {
+        let (tx, rx) = mpsc::channel(4);
+        let signals = forward_signals(tx, args.clone())?;
+        tokio::spawn(signals);
+        if args.demo {
+            tokio::spawn(demo_feed(config.folders.ingest.clone()));
+        }
+        Ok::<_, anyhow::Error>(daemon::run(config, Arc::new(PlainMerge), rx).await?)
+    });
+    // Brackets abandoned at stop keep their blocking threads; don't wait for them.
+    runtime.shutdown_timeout(Duration::from_millis(500));
+    result?;
+    Ok(ExitCode::SUCCESS)
+}
+
+/// SIGTERM/SIGINT stop the daemon; SIGHUP re-reads the configuration and applies it
+/// only if it is valid (otherwise the old one is kept and the error logged).
+fn forward_signals(
+    tx: mpsc::Sender<Control>,
+    args: Args,
+) -> anyhow::Result<impl std::future::Future<Output = ()>> {
+    let mut term = signal(SignalKind::terminate()).context("cannot handle SIGTERM")?;
+    let mut int = signal(SignalKind::interrupt()).context("cannot handle SIGINT")?;
+    let mut hup = signal(SignalKind::hangup()).context("cannot handle SIGHUP")?;
+    Ok(async move {
+        loop {
+            tokio::select! {
+                _ = term.recv() => { info!("SIGTERM"); break; }
+                _ = int.recv() => { info!("SIGINT"); break; }
+                _ = hup.recv() => {
+                    let _ = sd_notify::notify(&[sd_notify::NotifyState::Reloading]);
+                    match args.config() {
+                        Ok(c) => { let _ = tx.send(Control::Reload(Box::new(c))).await; }
+                        Err(e) => error!(error = %format!("{e:#}"), "new configuration rejected; keeping the running one"),
+                    }
+                    let _ = sd_notify::notify(&[sd_notify::NotifyState::Ready]);
+                }
+            }
+        }
+        let _ = tx.send(Control::Stop).await;
+    })
+}
+
+/// Drops one synthetic bracket (three 1200×800 JPEGs with EXIF, −2/0/+2 EV) into the
+/// ingest folder, the way a tethering tool does.
+async fn demo_feed(ingest: PathBuf) {
+    tokio::time::sleep(Duration::from_millis(500)).await;
+    let stamp = filmback::journal::unix_now();
+    let shots = demo::aeb("Demo Camera", Some("0001"), (stamp % 3600) as u32);
+    let made = tokio::task::spawn_blocking(move || demo::jpegs(1200, 800, &shots, stamp)).await;
+    let jpegs = match made {
+        Ok(Ok(j)) => j,
+        Ok(Err(e)) => return warn!(error = %e, "demo bracket not made"),
+        Err(e) => return warn!(error = %e, "demo feed failed"),
+    };
+    for (i, bytes) in jpegs.iter().enumerate() {
+        let name = format!("demo-{stamp}-{}.jpg", i + 1);
+        match demo::drop_frame(&ingest, &name, bytes) {
+            Ok(path) => info!(file = %path.display(), "demo frame dropped"),
+            Err(e) => return warn!(error = %e, "demo frame not written"),
+        }
+        tokio::time::sleep(Duration::from_millis(300)).await;
+    }
+}

@@ -1,0 +1,271 @@
+//! Noticing files and taking only complete ones: the watcher (inotify or polling), the
+//! folder scan, and the probe that reads a settled file's EXIF and checks its header.
+
+use std::io::Cursor;
+use std::path::{Path, PathBuf};
+use std::time::UNIX_EPOCH;
+
+use notify::event::{AccessKind, AccessMode, ModifyKind, RenameMode};
+use notify::{EventKind, RecursiveMode, Watcher};
+use tokio::sync::mpsc::UnboundedSender;
+
+use crate::bracket::{CameraId, Capture, Input};
+use crate::config::{Watch, WatchMode};
+use crate::metadata;
+
+/// What the watcher reports to the daemon loop.
+#[derive(Debug)]
+pub(crate) enum Notice {
+    /// Something happened to this file; `closed` when its writer just closed it.
+    File { path: PathBuf, closed: bool },
+    /// Events may have been lost (queue overflow): rescan the folder.
+    Rescan,
+}
+
+/// A running watcher; dropping it stops watching.
+pub(crate) type ActiveWatcher = Box<dyn Watcher + Send>;
+
+/// Starts watching `dir` (inotify, or notify's poller for network shares).
+pub(crate) fn watch(
+    cfg: &Watch,
+    dir: &Path,
+    tx: UnboundedSender<Notice>,
+) -> Result<ActiveWatcher, String> {
+    let takes = cfg.clone();
+    let handler = move |res: notify::Result<notify::Event>| match res {
+        Ok(event) => {
+            if event.need_rescan() {
+                let _ = tx.send(Notice::Rescan);
+            }
+            // Complete: its writer closed it, or it was renamed into place (the
+            // write-to-temporary-then-rename convention of tethering tools and copiers).
+            let closed = matches!(
+                event.kind,
+                EventKind::Access(AccessKind::Close(AccessMode::Write))
+                    | EventKind::Modify(ModifyKind::Name(RenameMode::To | RenameMode::Both))
+            );
+            if matches!(event.kind, EventKind::Access(_)) && !closed {
+                return;
+            }
+            for path in event.paths {
+                let name = path.file_name().and_then(|n| n.to_str()).unwrap_or("");
+                if takes.takes(name) {
+                    let _ = tx.send(Notice::File { path, closed });
+                }
+            }
+        }
+        // The kernel's queue overflowed or the watch broke: a rescan recovers.
+        Err(_) => {
+            let _ = tx.send(Notice::Rescan);
+        }
+    };
+    let mode = if cfg.recursive {
+        RecursiveMode::Recursive
+    } else {
+        RecursiveMode::NonRecursive
+    };
+    let explain = |e: notify::Error| -> String {
+        let text = e.to_string();
+        match &e.kind {
+            notify::ErrorKind::MaxFilesWatch => format!(
+                "{}: too many inotify watches ({text}); raise fs.inotify.max_user_watches or set [watch] mode = \"poll\"",
+                dir.display()
+            ),
+            notify::ErrorKind::Io(io) if io.raw_os_error() == Some(24) => format!(
+                "{}: too many open files ({text}); raise the file-descriptor limit (LimitNOFILE=)",
+                dir.display()
+            ),
+            _ => format!("{}: cannot watch: {text}", dir.display()),
+        }
+    };
+    let mut watcher: ActiveWatcher = match cfg.mode {
+        WatchMode::Notify => Box::new(
+            notify::RecommendedWatcher::new(handler, notify::Config::default()).map_err(explain)?,
+        ),
+        WatchMode::Poll => Box::new(
+            notify::PollWatcher::new(
+                handler,
+                notify::Config::default().with_poll_interval(cfg.poll),
+            )
+            .map_err(explain)?,
+        ),
+    };
+    watcher.watch(dir, mode).map_err(explain)?;
+    Ok(watcher)
+}
+
+/// Every file under `dir` whose name is taken (sorted; sub-folders when `recursive`).
+/// A missing folder is an empty list.
+pub(crate) fn scan(cfg: &Watch, dir: &Path) -> Vec<PathBuf> {
+    let mut found = Vec::new();
+    let mut folders = vec![dir.to_path_buf()];
+    while let Some(folder) = folders.pop() {
+        let Ok(entries) = std::fs::read_dir(&folder) else {
+            continue;
+        };
+        for entry in entries.filter_map(Result::ok) {
+            let path = entry.path();
+            let Ok(kind) = entry.file_type() else {
+                continue;
+            };
+            let name = entry.file_name();
+            let name = name.to_string_lossy();
+            if kind.is_dir() {
+                if cfg.recursive && !name.starts_with('.') {
+                    folders.push(path);
+                }
+            } else if cfg.takes(&name) {
+                found.push(path);
+            }
+        }
+    }
+    found.sort();
+    found
+}
+
+/// Size and modification time of a file, as the journal identifies it.
+pub(crate) fn identify(path: &Path) -> std::io::Result<Input> {
+    let meta = std::fs::metadata(path)?;
+    if !meta.is_file() {
+        return Err(std::io::Error::other("not a regular file"));
+    }
+    let modified_ns = meta
+        .modified()?
+        .duration_since(UNIX_EPOCH)
+        .map_or(0, |d| i64::try_from(d.as_nanos()).unwrap_or(i64::MAX));
+    Ok(Input {
+        path: path.to_path_buf(),
+        size: meta.len(),
+        modified_ns,
+    })
+}
+
+/// True when a JPEG's last scan (`FF DA`) is followed by an end-of-image marker
+/// (`FF D9`). Entropy-coded data never contains `FF DA` or `FF D9` (a data byte `FF` is
+/// stuffed as `FF 00`), so a file cut short anywhere after its headers fails this test,
+/// while an embedded thumbnail (inside APP1, before the main scan) cannot fake it. The
+/// decoder alone is lenient and fills a truncated image with grey.
+fn jpeg_complete(bytes: &[u8]) -> bool {
+    let last_scan = bytes.windows(2).rposition(|w| w == [0xFF, 0xDA]);
+    last_scan.is_some_and(|i| bytes[i..].windows(2).any(|w| w == [0xFF, 0xD9]))
+}
+
+/// What reading a settled file found.
+#[derive(Debug)]
+pub(crate) enum Probe {
+    /// A frame with its EXIF.
+    Frame(Capture),
+    /// Not a usable frame; set aside with the reason.
+    Rejected(Input, String),
+    /// It changed while being read: still being written, look again later.
+    Changed,
+    /// It disappeared.
+    Gone,
+}
+
+/// Reads a settled file: EXIF (camera, exposure, capture time) and the image header
+/// (format and dimensions; the pixels are decoded later, by the developer).
+pub(crate) fn probe(path: &Path) -> Probe {
+    let before = match identify(path) {
+        Ok(i) => i,
+        Err(e) if e.kind() == std::io::ErrorKind::NotFound => return Probe::Gone,
+        Err(e) => {
+            return Probe::Rejected(
+                Input {
+                    path: path.to_path_buf(),
+                    size: 0,
+                    modified_ns: 0,
+                },
+                format!("cannot read: {e}"),
+            );
+        }
+    };
+    let bytes = match std::fs::read(path) {
+        Ok(b) => b,
+        Err(e) if e.kind() == std::io::ErrorKind::NotFound => return Probe::Gone,
+        Err(e) => return Probe::Rejected(before, format!("cannot read: {e}")),
+    };
+    match identify(path) {
+        Ok(after) if after == before => {}
+        Ok(_) => return Probe::Changed,
+        Err(_) => return Probe::Gone,
+    }
+    if bytes.is_empty() {
+        return Probe::Rejected(before, "file is empty (0 bytes)".to_string());
+    }
+    let header = image::ImageReader::new(Cursor::new(&bytes))
+        .with_guessed_format()
+        .map_err(|e| e.to_string())
+        .and_then(|r| match r.format() {
+            Some(image::ImageFormat::Jpeg) if !jpeg_complete(&bytes) => {
+                Err("JPEG data ends before its end-of-image marker (truncated file)".to_string())
+            }
+            Some(image::ImageFormat::Jpeg | image::ImageFormat::Png | image::ImageFormat::Tiff) => {
+                r.into_dimensions()
+                    .map_err(|e| format!("unreadable image header: {e}"))
+            }
+            _ => Err("not a JPEG, PNG or TIFF image (unrecognised content)".to_string()),
+        });
+    if let Err(reason) = header {
+        return Probe::Rejected(before, reason);
+    }
+    let meta = metadata::read(&bytes);
+    let time_s = meta
+        .captured_at
+        .map_or(before.modified_ns as f64 * 1e-9, |t| t.local_seconds());
+    Probe::Frame(Capture {
+        camera: CameraId {
+            make: meta.camera.make,
+            model: meta.camera.model,
+            serial: meta.camera.serial,
+        },
+        exposure: meta.exposure.relative(),
+        time_s,
+        input: before,
+    })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::daemon::demo;
+
+    #[test]
+    fn truncated_jpeg_is_incomplete() {
+        let shots = demo::aeb("Body", None, 1);
+        let jpeg = demo::jpegs(96, 64, &shots, 3).unwrap().remove(1);
+        assert!(jpeg_complete(&jpeg));
+        for cut in [jpeg.len() - 1, jpeg.len() / 2, jpeg.len() / 3, 100] {
+            assert!(!jpeg_complete(&jpeg[..cut]), "cut at {cut}");
+        }
+        assert!(!jpeg_complete(b""));
+    }
+
+    #[test]
+    fn probe_reads_exif_and_rejects_with_reasons() {
+        let dir = tempfile::tempdir().unwrap();
+        let shots = demo::aeb("Body", Some("9"), 1);
+        let jpeg = demo::jpegs(96, 64, &shots, 3).unwrap().remove(2);
+        let good = dir.path().join("a.jpg");
+        std::fs::write(&good, &jpeg).unwrap();
+        match probe(&good) {
+            Probe::Frame(c) => {
+                assert_eq!(c.camera.serial.as_deref(), Some("9"));
+                assert!((c.exposure.unwrap() - 100.0 / 15.0 / 64.0).abs() < 1e-9);
+                assert_eq!(c.input.size, jpeg.len() as u64);
+            }
+            other => panic!("{other:?}"),
+        }
+        let cut = dir.path().join("b.jpg");
+        std::fs::write(&cut, &jpeg[..jpeg.len() / 2]).unwrap();
+        let p = probe(&cut);
+        assert!(
+            matches!(&p, Probe::Rejected(_, r) if r.contains("truncated")),
+            "{p:?}"
+        );
+        let empty = dir.path().join("c.jpg");
+        std::fs::write(&empty, b"").unwrap();
+        assert!(matches!(probe(&empty), Probe::Rejected(_, r) if r.contains("empty")));
+        assert!(matches!(probe(&dir.path().join("none.jpg")), Probe::Gone));
+    }
+}

@@ -1,0 +1,360 @@
+//! The journal of finished work, in the state folder: `journal.jsonl`.
+//!
+//! One JSON object per line, appended and `fsync`ed before the daemon moves on, so a
+//! bracket counts as finished only once its outputs are all published *and* its line is
+//! on disk. After a crash (even `kill -9` mid-write) the start-up scan skips every input
+//! the journal names and redoes everything else; outputs are published atomically under
+//! deterministic names, so redoing never leaves a partial or a second copy. A torn last
+//! line (the crash hit the append itself) is ignored: that bracket is simply redone.
+//!
+//! Inputs are identified by path, size and modification time: a file rewritten under the
+//! same name is new work.
+
+use std::collections::HashSet;
+use std::fs::{self, File, OpenOptions};
+use std::io::{self, Write};
+use std::path::{Path, PathBuf};
+
+use serde::{Deserialize, Serialize};
+
+use crate::bracket::{Alone, CameraId, Input};
+
+/// File name of the journal inside the state folder.
+pub const FILE_NAME: &str = "journal.jsonl";
+
+/// Why the journal cannot be read or appended to (fatal for the daemon: without it, work
+/// could be lost or duplicated).
+#[derive(Debug, thiserror::Error)]
+pub enum JournalError {
+    /// Reading, creating or appending failed.
+    #[error("{path}: {source}")]
+    Io {
+        /// The journal (or state folder).
+        path: PathBuf,
+        /// What the operating system said.
+        source: io::Error,
+    },
+    /// A line other than the last is not a journal entry: the file was edited or damaged.
+    #[error("{path}:{line}: not a journal entry: {reason}")]
+    Corrupt {
+        /// The journal.
+        path: PathBuf,
+        /// 1-based line.
+        line: usize,
+        /// The parser's message.
+        reason: String,
+    },
+}
+
+/// Where a bracket's response came from.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum ResponseSource {
+    /// Fitted from this bracket's histograms.
+    Fitted,
+    /// The camera's cached curve.
+    Cached,
+    /// A standard curve (sRGB), for lack of both.
+    Standard,
+}
+
+impl std::fmt::Display for ResponseSource {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(match self {
+            ResponseSource::Fitted => "fitted",
+            ResponseSource::Cached => "cached",
+            ResponseSource::Standard => "standard (sRGB)",
+        })
+    }
+}
+
+/// One line of the journal.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(tag = "kind", rename_all = "snake_case")]
+pub enum Entry {
+    /// A bracket merged and all its outputs published.
+    Bracket {
+        /// [`crate::bracket::fingerprint`] of the inputs.
+        id: String,
+        /// The body.
+        camera: CameraId,
+        /// The frames, in capture order.
+        inputs: Vec<Input>,
+        /// Published outputs.
+        outputs: Vec<PathBuf>,
+        /// Exposure ratio `e_max / e_min`.
+        ratio: f64,
+        /// Where the response came from.
+        response: ResponseSource,
+        /// Unix time, seconds.
+        at: u64,
+    },
+    /// A frame alone: rendered (outputs) or only reported (no outputs).
+    Single {
+        /// Fingerprint of the input.
+        id: String,
+        /// The body.
+        camera: CameraId,
+        /// The frame.
+        input: Input,
+        /// Why it was alone.
+        alone: Alone,
+        /// Published outputs (empty when only reported).
+        outputs: Vec<PathBuf>,
+        /// Unix time, seconds.
+        at: u64,
+    },
+    /// A file that is not a usable frame; set aside, retried only if it changes.
+    Rejected {
+        /// The file.
+        input: Input,
+        /// Why.
+        reason: String,
+        /// Unix time, seconds.
+        at: u64,
+    },
+    /// A bracket whose frames are fine but whose pixels could not be developed (e.g.
+    /// frames of different sizes); retried only if an input changes.
+    Failed {
+        /// Fingerprint of the inputs.
+        id: String,
+        /// The frames.
+        inputs: Vec<Input>,
+        /// Why.
+        reason: String,
+        /// Unix time, seconds.
+        at: u64,
+    },
+}
+
+impl Entry {
+    /// The inputs this entry settles.
+    pub fn inputs(&self) -> Vec<&Input> {
+        match self {
+            Entry::Bracket { inputs, .. } | Entry::Failed { inputs, .. } => inputs.iter().collect(),
+            Entry::Single { input, .. } | Entry::Rejected { input, .. } => vec![input],
+        }
+    }
+}
+
+/// Seconds since the Unix epoch, now.
+pub fn unix_now() -> u64 {
+    std::time::SystemTime::now()
+        .duration_since(std::time::UNIX_EPOCH)
+        .map_or(0, |d| d.as_secs())
+}
+
+/// The open journal: everything recorded so far, and an append handle.
+#[derive(Debug)]
+pub struct Journal {
+    path: PathBuf,
+    file: File,
+    entries: Vec<Entry>,
+    settled: HashSet<Input>,
+}
+
+impl Journal {
+    /// Opens (creating the state folder and file if needed) and reads the journal.
+    pub fn open(state: &Path) -> Result<Journal, JournalError> {
+        let path = state.join(FILE_NAME);
+        fs::create_dir_all(state).map_err(|source| JournalError::Io {
+            path: state.to_path_buf(),
+            source,
+        })?;
+        let entries = read(state)?;
+        let file = OpenOptions::new()
+            .create(true)
+            .append(true)
+            .open(&path)
+            .map_err(|source| JournalError::Io {
+                path: path.clone(),
+                source,
+            })?;
+        let mut journal = Journal {
+            path,
+            file,
+            entries: Vec::new(),
+            settled: HashSet::new(),
+        };
+        // A torn last line (no newline) is cut off so the next entry starts cleanly.
+        let bytes = fs::read(&journal.path).map_err(|source| JournalError::Io {
+            path: journal.path.clone(),
+            source,
+        })?;
+        if !bytes.is_empty() && !bytes.ends_with(b"\n") {
+            let keep = bytes.iter().rposition(|&b| b == b'\n').map_or(0, |i| i + 1);
+            journal
+                .file
+                .set_len(keep as u64)
+                .and_then(|()| journal.file.sync_data())
+                .map_err(|source| JournalError::Io {
+                    path: journal.path.clone(),
+                    source,
+                })?;
+        }
+        for e in entries {
+            journal.note(e);
+        }
+        Ok(journal)
+    }
+
+    fn note(&mut self, entry: Entry) {
+        self.settled.extend(entry.inputs().into_iter().cloned());
+        self.entries.push(entry);
+    }
+
+    fn append_line(&mut self, line: &str) -> Result<(), JournalError> {
+        debug_assert!(!line.contains('\n'));
+        let io_err = |source| JournalError::Io {
+            path: self.path.clone(),
+            source,
+        };
+        // One write per line: O_APPEND keeps concurrent appends whole.
+        self.file
+            .write_all(format!("{line}\n").as_bytes())
+            .map_err(io_err)?;
+        self.file.sync_data().map_err(io_err)
+    }
+
+    /// Appends an entry and syncs it to disk.
+    pub fn record(&mut self, entry: Entry) -> Result<(), JournalError> {
+        let line = serde_json::to_string(&entry).expect("journal entries serialise");
+        self.append_line(&line)?;
+        self.note(entry);
+        Ok(())
+    }
+
+    /// True when the journal settles this exact input (same path, size and mtime).
+    pub fn is_settled(&self, input: &Input) -> bool {
+        self.settled.contains(input)
+    }
+
+    /// Everything recorded, oldest first.
+    pub fn entries(&self) -> &[Entry] {
+        &self.entries
+    }
+
+    /// The journal file.
+    pub fn path(&self) -> &Path {
+        &self.path
+    }
+}
+
+/// Reads the journal of a state folder without opening it for writing (for `status`).
+/// A missing file is an empty journal; an unparsable *last* line is a torn append and is
+/// skipped; any other unparsable line is an error.
+pub fn read(state: &Path) -> Result<Vec<Entry>, JournalError> {
+    let path = state.join(FILE_NAME);
+    let text = match fs::read_to_string(&path) {
+        Ok(t) => t,
+        Err(e) if e.kind() == io::ErrorKind::NotFound => return Ok(Vec::new()),
+        Err(source) => return Err(JournalError::Io { path, source }),
+    };
+    let lines: Vec<&str> = text.lines().collect();
+    let mut entries = Vec::with_capacity(lines.len());
+    for (i, line) in lines.iter().enumerate() {
+        if line.trim().is_empty() {
+            continue;
+        }
+        match serde_json::from_str::<Entry>(line) {
+            Ok(e) => entries.push(e),
+            Err(_) if i + 1 == lines.len() && !text.ends_with('\n') => {}
+            Err(e) => {
+                return Err(JournalError::Corrupt {
+                    path,
+                    line: i + 1,
+                    reason: e.to_string(),
+                });
+            }
+        }
+    }
+    Ok(entries)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn input(name: &str) -> Input {
+        Input {
+            path: PathBuf::from(format!("/in/{name}")),
+            size: 42,
+            modified_ns: 1_700_000_000_123_456_789,
+        }
+    }
+
+    fn bracket(names: &[&str]) -> Entry {
+        Entry::Bracket {
+            id: "0123456789abcdef".into(),
+            camera: CameraId {
+                make: Some("Canon".into()),
+                model: Some("EOS R5".into()),
+                serial: None,
+            },
+            inputs: names.iter().map(|n| input(n)).collect(),
+            outputs: vec![PathBuf::from("/out/a.exr")],
+            ratio: 4.0,
+            response: ResponseSource::Fitted,
+            at: 1,
+        }
+    }
+
+    #[test]
+    fn survives_reopen_and_settles_exact_inputs() {
+        let dir = tempfile::tempdir().unwrap();
+        let state = dir.path().join("state");
+        {
+            let mut j = Journal::open(&state).unwrap();
+            j.record(bracket(&["a.jpg", "b.jpg"])).unwrap();
+            j.record(Entry::Rejected {
+                input: input("bad.jpg"),
+                reason: "not a JPEG".into(),
+                at: 2,
+            })
+            .unwrap();
+        }
+        let j = Journal::open(&state).unwrap();
+        assert_eq!(j.entries().len(), 2);
+        assert!(j.is_settled(&input("a.jpg")));
+        assert!(j.is_settled(&input("bad.jpg")));
+        assert!(!j.is_settled(&input("c.jpg")));
+        let mut rewritten = input("a.jpg");
+        rewritten.size = 43;
+        assert!(!j.is_settled(&rewritten), "a rewritten file is new work");
+    }
+
+    #[test]
+    fn torn_last_line_is_skipped_and_next_entry_starts_fresh() {
+        let dir = tempfile::tempdir().unwrap();
+        {
+            let mut j = Journal::open(dir.path()).unwrap();
+            j.record(bracket(&["a.jpg", "b.jpg"])).unwrap();
+        }
+        let path = dir.path().join(FILE_NAME);
+        let mut f = OpenOptions::new().append(true).open(&path).unwrap();
+        f.write_all(b"{\"kind\":\"bracket\",\"id\":\"ff").unwrap();
+        drop(f);
+        let mut j = Journal::open(dir.path()).unwrap();
+        assert_eq!(j.entries().len(), 1);
+        j.record(bracket(&["c.jpg", "d.jpg"])).unwrap();
+        drop(j);
+        let j = Journal::open(dir.path()).unwrap();
+        assert_eq!(j.entries().len(), 2);
+        assert!(j.is_settled(&input("d.jpg")));
+    }
+
+    #[test]
+    fn damage_in_the_middle_is_an_error_naming_the_line() {
+        let dir = tempfile::tempdir().unwrap();
+        fs::write(dir.path().join(FILE_NAME), "garbage\n{}\n").unwrap();
+        let err = Journal::open(dir.path()).unwrap_err();
+        let msg = err.to_string();
+        assert!(msg.contains("journal.jsonl:1:"), "{msg}");
+    }
+
+    #[test]
+    fn missing_journal_reads_empty() {
+        let dir = tempfile::tempdir().unwrap();
+        assert!(read(&dir.path().join("nothing")).unwrap().is_empty());
+    }
+}

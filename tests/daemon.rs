@@ -1,0 +1,931 @@
+//! Fault tests of the watch-folder daemon on the real file system.
+//!
+//! Each test drives the daemon (in-process, or the real binary where a process must be
+//! killed or run as another user) through a temporary folder and asserts the exact set
+//! of outputs: nothing missing, nothing twice, no temporary file left, every EXR readable.
+//! Frames are small JPEGs with EXIF from `filmback::daemon::demo`; settle times are short.
+
+use std::collections::BTreeSet;
+use std::io::Write;
+use std::path::{Path, PathBuf};
+use std::process::{Child, Command, Stdio};
+use std::sync::Arc;
+use std::sync::atomic::{AtomicUsize, Ordering};
+use std::time::{Duration, Instant};
+
+use filmback::atomic::{self, Overwrite};
+use filmback::config::Config;
+use filmback::daemon::{self, Control, Develop, DevelopError, Developed, Job, PlainMerge, demo};
+use filmback::frame::BitDepth;
+use filmback::journal::{self, Entry};
+use filmback::synthetic::{self, Encoding, ResponseCurve, Sensor};
+
+const W: u16 = 96;
+const H: u16 = 64;
+
+/// Test settings: short settle and gap, small queue. `overrides` are `(section, line)`
+/// pairs: the line replaces that key's default line (or is added to the section).
+fn config_text(root: &Path, overrides: &[(&str, &str)]) -> String {
+    let mut text = format!(
+        r#"
+[folders]
+ingest = "{ingest}"
+out = "{out}"
+state = "{state}"
+[watch]
+settle_ms = 150
+rescan_s = 2
+[bracket]
+max_gap_s = 1.0
+size = 3
+[daemon]
+jobs = 2
+queue = 8
+retry_s = 1
+[render]
+films = []
+tonemaps = ["linear"]
+"#,
+        ingest = root.join("ingest").display(),
+        out = root.join("out").display(),
+        state = root.join("state").display(),
+    );
+    for (section, line) in overrides {
+        let key = line.split('=').next().unwrap().trim();
+        text = text
+            .lines()
+            .filter(|l| l.split('=').next().unwrap().trim() != key)
+            .collect::<Vec<_>>()
+            .join("\n");
+        text = text.replace(&format!("[{section}]"), &format!("[{section}]\n{line}"));
+    }
+    text
+}
+
+struct Rig {
+    _dir: tempfile::TempDir,
+    root: PathBuf,
+    control: tokio::sync::mpsc::Sender<Control>,
+    thread: Option<std::thread::JoinHandle<daemon::Summary>>,
+}
+
+impl Rig {
+    /// Starts the daemon in-process (its own runtime on a thread).
+    fn start(
+        overrides: &[(&str, &str)],
+        developer: Arc<dyn Develop>,
+        before: impl FnOnce(&Path),
+    ) -> Rig {
+        let dir = tempfile::tempdir().unwrap();
+        let root = dir.path().to_path_buf();
+        std::fs::create_dir_all(root.join("ingest")).unwrap();
+        before(&root);
+        let config = Config::from_str(&config_text(&root, overrides), Some(Path::new("test.toml")))
+            .expect("test config is valid");
+        let (control, rx) = tokio::sync::mpsc::channel(4);
+        let thread = std::thread::spawn(move || {
+            let rt = tokio::runtime::Builder::new_multi_thread()
+                .worker_threads(2)
+                .enable_all()
+                .build()
+                .unwrap();
+            rt.block_on(daemon::run(config, developer, rx))
+                .expect("daemon ran")
+        });
+        Rig {
+            _dir: dir,
+            root,
+            control,
+            thread: Some(thread),
+        }
+    }
+
+    fn ingest(&self) -> PathBuf {
+        self.root.join("ingest")
+    }
+
+    fn out(&self) -> PathBuf {
+        self.root.join("out")
+    }
+
+    fn state(&self) -> PathBuf {
+        self.root.join("state")
+    }
+
+    fn stop(&mut self) -> daemon::Summary {
+        self.control.blocking_send(Control::Stop).unwrap();
+        self.thread.take().unwrap().join().unwrap()
+    }
+}
+
+/// A three-frame AEB of `model` at `second`, named `<prefix>-1.jpg` …
+fn aeb(model: &str, second: u32, prefix: &str) -> Vec<(String, Vec<u8>)> {
+    let shots = demo::aeb(model, None, second);
+    demo::jpegs(u32::from(W), u32::from(H), &shots, u64::from(second))
+        .unwrap()
+        .into_iter()
+        .enumerate()
+        .map(|(i, bytes)| (format!("{prefix}-{}.jpg", i + 1), bytes))
+        .collect()
+}
+
+fn put(dir: &Path, frames: &[(String, Vec<u8>)]) {
+    for (name, bytes) in frames {
+        demo::drop_frame(dir, name, bytes).unwrap();
+    }
+}
+
+fn bracket_outputs(stems: &[&str]) -> BTreeSet<String> {
+    stems
+        .iter()
+        .flat_map(|s| [format!("{s}.exr"), format!("{s}.linear.jpg")])
+        .collect()
+}
+
+fn listing(dir: &Path) -> BTreeSet<String> {
+    std::fs::read_dir(dir)
+        .map(|d| {
+            d.filter_map(Result::ok)
+                .map(|e| e.file_name().to_string_lossy().into_owned())
+                .collect()
+        })
+        .unwrap_or_default()
+}
+
+/// Waits until `out` holds exactly `expected`, then a little longer to see that nothing
+/// else appears; checks no temporary file is left and every EXR reads back.
+fn expect_outputs(out: &Path, expected: &BTreeSet<String>, timeout: Duration) {
+    let start = Instant::now();
+    while listing(out) != *expected {
+        assert!(
+            start.elapsed() < timeout,
+            "timed out after {timeout:?}: out holds {:?}, expected {expected:?}",
+            listing(out)
+        );
+        std::thread::sleep(Duration::from_millis(50));
+    }
+    std::thread::sleep(Duration::from_millis(1500));
+    assert_eq!(listing(out), *expected, "nothing extra appears later");
+    for name in expected.iter().filter(|n| n.ends_with(".exr")) {
+        let image = exr::prelude::read_all_flat_layers_from_file(out.join(name))
+            .unwrap_or_else(|e| panic!("{name} unreadable: {e}"));
+        let size = image.layer_data[0].size;
+        assert_eq!(
+            (size.x(), size.y()),
+            (usize::from(W), usize::from(H)),
+            "{name}"
+        );
+    }
+}
+
+/// Every input developed at most once, and the journal's brackets by first input stem.
+fn journaled_brackets(state: &Path) -> Vec<String> {
+    let entries = journal::read(state).unwrap();
+    let mut seen = BTreeSet::new();
+    let mut stems = Vec::new();
+    for e in &entries {
+        match e {
+            Entry::Bracket { inputs, .. } => {
+                for i in inputs {
+                    assert!(
+                        seen.insert(i.clone()),
+                        "{} developed twice",
+                        i.path.display()
+                    );
+                }
+                stems.push(
+                    inputs[0]
+                        .path
+                        .file_stem()
+                        .unwrap()
+                        .to_string_lossy()
+                        .into_owned(),
+                );
+            }
+            Entry::Single { input, .. } => {
+                assert!(
+                    seen.insert(input.clone()),
+                    "{} developed twice",
+                    input.path.display()
+                );
+            }
+            _ => {}
+        }
+    }
+    stems.sort();
+    stems
+}
+
+fn rejected(state: &Path) -> Vec<(String, String)> {
+    journal::read(state)
+        .unwrap()
+        .into_iter()
+        .filter_map(|e| match e {
+            Entry::Rejected { input, reason, .. } => Some((
+                input
+                    .path
+                    .file_name()
+                    .unwrap()
+                    .to_string_lossy()
+                    .into_owned(),
+                reason,
+            )),
+            _ => None,
+        })
+        .collect()
+}
+
+const T: Duration = Duration::from_secs(30);
+
+#[test]
+fn files_present_before_start_are_developed() {
+    let mut rig = Rig::start(&[], Arc::new(PlainMerge), |root| {
+        put(&root.join("ingest"), &aeb("Body A", 10, "a"));
+        put(&root.join("ingest"), &aeb("Body A", 20, "b"));
+    });
+    expect_outputs(&rig.out(), &bracket_outputs(&["a-1", "b-1"]), T);
+    let state = rig.state();
+    let summary = rig.stop();
+    assert_eq!(summary.finished, 2);
+    assert_eq!(journaled_brackets(&state), ["a-1", "b-1"]);
+}
+
+#[test]
+fn slow_writer_is_taken_only_when_complete() {
+    let mut rig = Rig::start(
+        &[("watch", "settle_ms = 400")],
+        Arc::new(PlainMerge),
+        |_| {},
+    );
+    let frames = aeb("Body A", 10, "s");
+    put(&rig.ingest(), &frames[..2]);
+    // The third frame trickles in over 3 s through one open handle.
+    let (name, bytes) = &frames[2];
+    let mut f = std::fs::File::create(rig.ingest().join(name)).unwrap();
+    let chunks: Vec<&[u8]> = bytes.chunks(bytes.len().div_ceil(20)).collect();
+    for chunk in chunks {
+        f.write_all(chunk).unwrap();
+        f.flush().unwrap();
+        std::thread::sleep(Duration::from_millis(150));
+    }
+    drop(f);
+    expect_outputs(&rig.out(), &bracket_outputs(&["s-1"]), T);
+    let state = rig.state();
+    rig.stop();
+    assert!(rejected(&state).is_empty(), "{:?}", rejected(&state));
+    // All three frames in one bracket: the partial file was never taken.
+    let entries = journal::read(&state).unwrap();
+    assert!(matches!(&entries[..], [Entry::Bracket { inputs, .. }] if inputs.len() == 3));
+}
+
+#[test]
+fn temporary_names_wait_for_the_rename() {
+    let mut rig = Rig::start(&[], Arc::new(PlainMerge), |_| {});
+    let frames = aeb("Body A", 10, "r");
+    // Written under temporary names first; nothing may happen yet.
+    for (i, (name, bytes)) in frames.iter().enumerate() {
+        let tmp = match i {
+            0 => format!("{name}.tmp"),
+            1 => format!(".{name}"),
+            _ => format!("{name}.part"),
+        };
+        std::fs::write(rig.ingest().join(tmp), bytes).unwrap();
+    }
+    std::fs::write(
+        rig.ingest().join("never-renamed.jpg.crdownload"),
+        &frames[0].1,
+    )
+    .unwrap();
+    std::thread::sleep(Duration::from_millis(1000));
+    assert!(listing(&rig.out()).is_empty());
+    for (i, (name, _)) in frames.iter().enumerate() {
+        let tmp = match i {
+            0 => format!("{name}.tmp"),
+            1 => format!(".{name}"),
+            _ => format!("{name}.part"),
+        };
+        std::fs::rename(rig.ingest().join(tmp), rig.ingest().join(name)).unwrap();
+    }
+    expect_outputs(&rig.out(), &bracket_outputs(&["r-1"]), T);
+    let state = rig.state();
+    rig.stop();
+    assert_eq!(journaled_brackets(&state), ["r-1"]);
+}
+
+#[test]
+fn corrupt_frames_are_set_aside_and_the_rest_developed() {
+    let mut rig = Rig::start(&[], Arc::new(PlainMerge), |_| {});
+    let frames = aeb("Body A", 10, "c");
+    let good = aeb("Body A", 30, "d");
+    // c-2 is garbage with a JPEG name: rejected at the header; c-1 and c-3 still merge.
+    put(&rig.ingest(), &[frames[0].clone()]);
+    demo::drop_frame(&rig.ingest(), "c-2.jpg", b"this is not a JPEG at all").unwrap();
+    put(&rig.ingest(), &[frames[2].clone()]);
+    // d-2 has a valid header but its data is cut short: the decoder rejects it during
+    // development, and d-1 with d-3 is developed without it.
+    let mut cut = good[1].1.clone();
+    cut.truncate(cut.len() / 3);
+    put(
+        &rig.ingest(),
+        &[
+            good[0].clone(),
+            ("d-2.jpg".to_string(), cut),
+            good[2].clone(),
+        ],
+    );
+    expect_outputs(&rig.out(), &bracket_outputs(&["c-1", "d-1"]), T);
+    let state = rig.state();
+    rig.stop();
+    let names: Vec<String> = rejected(&state).into_iter().map(|(n, _)| n).collect();
+    assert!(names.contains(&"c-2.jpg".to_string()), "{names:?}");
+    assert!(names.contains(&"d-2.jpg".to_string()), "{names:?}");
+    assert_eq!(names.len(), 2, "{names:?}");
+    assert_eq!(journaled_brackets(&state), ["c-1", "d-1"]);
+    // `status` lists them with reasons.
+    let out = Command::new(env!("CARGO_BIN_EXE_filmback"))
+        .args(["status", "--json", "--state"])
+        .arg(&state)
+        .output()
+        .unwrap();
+    let status: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
+    assert_eq!(status["brackets_done"], 2);
+    let listed: Vec<&str> = status["rejected"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|r| r["file"].as_str().unwrap())
+        .collect();
+    assert!(listed.iter().any(|f| f.ends_with("c-2.jpg")), "{listed:?}");
+    assert!(
+        status["rejected"][0]["reason"]
+            .as_str()
+            .unwrap()
+            .contains("not a JPEG"),
+        "{status}"
+    );
+}
+
+#[test]
+fn interleaved_cameras_and_repeated_exposure() {
+    let mut rig = Rig::start(&[], Arc::new(PlainMerge), |_| {});
+    let a = aeb("Body A", 10, "a");
+    let b = aeb("Body B", 10, "b");
+    for i in 0..3 {
+        put(&rig.ingest(), &[a[i].clone(), b[i].clone()]);
+    }
+    // Body C: −2, 0, 0 (repeat), +2 EV → brackets [x-1, x-2] and [y-2, y-3].
+    let c = aeb("Body C", 40, "x");
+    let c2 = aeb("Body C", 41, "y");
+    put(
+        &rig.ingest(),
+        &[c[0].clone(), c[1].clone(), c2[1].clone(), c2[2].clone()],
+    );
+    expect_outputs(
+        &rig.out(),
+        &bracket_outputs(&["a-1", "b-1", "x-1", "y-2"]),
+        T,
+    );
+    let state = rig.state();
+    rig.stop();
+    assert_eq!(journaled_brackets(&state), ["a-1", "b-1", "x-1", "y-2"]);
+}
+
+#[test]
+fn output_write_error_is_retried_and_the_daemon_stays_alive() {
+    let calls = Arc::new(AtomicUsize::new(0));
+    let counted = Arc::clone(&calls);
+    let developer = move |job: &Job| -> Result<Developed, DevelopError> {
+        counted.fetch_add(1, Ordering::SeqCst);
+        PlainMerge.develop(job)
+    };
+    let mut rig = Rig::start(&[], Arc::new(developer), |root| {
+        // The EXR's name is occupied by a folder: publishing fails with a real I/O error
+        // (as on a full or read-only file system) until the folder goes away.
+        std::fs::create_dir_all(root.join("out/e-1.exr")).unwrap();
+    });
+    put(&rig.ingest(), &aeb("Body A", 10, "e"));
+    let start = Instant::now();
+    while calls.load(Ordering::SeqCst) < 2 {
+        assert!(start.elapsed() < T, "no retry happened");
+        std::thread::sleep(Duration::from_millis(50));
+    }
+    // Meanwhile other work goes on.
+    put(&rig.ingest(), &aeb("Body A", 30, "f"));
+    let start = Instant::now();
+    while !rig.out().join("f-1.exr").exists() {
+        assert!(start.elapsed() < T, "daemon stalled");
+        std::thread::sleep(Duration::from_millis(50));
+    }
+    std::fs::remove_dir(rig.out().join("e-1.exr")).unwrap();
+    expect_outputs(&rig.out(), &bracket_outputs(&["e-1", "f-1"]), T);
+    let state = rig.state();
+    rig.stop();
+    assert_eq!(journaled_brackets(&state), ["e-1", "f-1"]);
+    assert!(calls.load(Ordering::SeqCst) >= 3);
+}
+
+#[test]
+fn ingest_folder_deleted_and_recreated() {
+    let mut rig = Rig::start(&[], Arc::new(PlainMerge), |_| {});
+    put(&rig.ingest(), &aeb("Body A", 10, "g"));
+    expect_outputs(&rig.out(), &bracket_outputs(&["g-1"]), T);
+    std::fs::remove_dir_all(rig.ingest()).unwrap();
+    std::thread::sleep(Duration::from_millis(500));
+    std::fs::create_dir(rig.ingest()).unwrap();
+    std::thread::sleep(Duration::from_millis(500));
+    put(&rig.ingest(), &aeb("Body A", 30, "h"));
+    expect_outputs(&rig.out(), &bracket_outputs(&["g-1", "h-1"]), T);
+    let state = rig.state();
+    rig.stop();
+    assert_eq!(journaled_brackets(&state), ["g-1", "h-1"]);
+}
+
+#[test]
+fn single_frames_are_rendered_or_reported() {
+    let mut rig = Rig::start(&[], Arc::new(PlainMerge), |_| {});
+    let a = aeb("Body A", 10, "solo");
+    put(&rig.ingest(), &a[..1]);
+    // A single has no extended range: renderings only, no EXR.
+    let expected: BTreeSet<String> = ["solo-1.linear.jpg".to_string()].into();
+    expect_outputs(&rig.out(), &expected, T);
+    let state = rig.state();
+    rig.stop();
+    let entries = journal::read(&state).unwrap();
+    assert!(matches!(&entries[..], [Entry::Single { outputs, .. }] if outputs.len() == 1));
+
+    let mut rig = Rig::start(
+        &[("bracket", "singles = \"report\"")],
+        Arc::new(PlainMerge),
+        |_| {},
+    );
+    put(&rig.ingest(), &a[..1]);
+    let start = Instant::now();
+    while journal::read(&rig.state()).unwrap().is_empty() {
+        assert!(start.elapsed() < T);
+        std::thread::sleep(Duration::from_millis(50));
+    }
+    assert!(listing(&rig.out()).is_empty());
+    let state = rig.state();
+    rig.stop();
+    let entries = journal::read(&state).unwrap();
+    assert!(matches!(&entries[..], [Entry::Single { outputs, .. }] if outputs.is_empty()));
+}
+
+// --- The real binary as a child process --------------------------------------------
+
+fn spawn_binary(config: &Path) -> Child {
+    Command::new(env!("CARGO_BIN_EXE_filmback"))
+        .args(["watch", "--config"])
+        .arg(config)
+        .env("RUST_LOG", "info")
+        .stdout(Stdio::null())
+        .stderr(std::fs::File::create(config.with_extension("log")).unwrap())
+        .spawn()
+        .unwrap()
+}
+
+fn terminate(child: &mut Child) -> Duration {
+    let start = Instant::now();
+    Command::new("kill")
+        .args(["-TERM", &child.id().to_string()])
+        .status()
+        .unwrap();
+    let status = child.wait().unwrap();
+    assert!(status.success(), "{status}");
+    start.elapsed()
+}
+
+fn wait_for_status(state: &Path, ok: impl Fn(&daemon::Snapshot) -> bool) {
+    let start = Instant::now();
+    loop {
+        if daemon::read_snapshot(state).is_some_and(|s| ok(&s)) {
+            return;
+        }
+        assert!(start.elapsed() < T, "status never matched");
+        std::thread::sleep(Duration::from_millis(20));
+    }
+}
+
+#[test]
+fn kill_9_mid_merge_then_restart_loses_and_repeats_nothing() {
+    let dir = tempfile::tempdir().unwrap();
+    let root = dir.path();
+    std::fs::create_dir_all(root.join("ingest")).unwrap();
+    let config = root.join("filmback.toml");
+    std::fs::write(&config, config_text(root, &[])).unwrap();
+    // Frames large enough that a merge takes a while.
+    let (w, h) = (1000, 700);
+    let frames: Vec<(String, Vec<u8>)> = ["k", "m"]
+        .iter()
+        .enumerate()
+        .flat_map(|(b, prefix)| {
+            let shots = demo::aeb("Body K", None, 10 + 20 * b as u32);
+            demo::jpegs(w, h, &shots, b as u64)
+                .unwrap()
+                .into_iter()
+                .enumerate()
+                .map(|(i, bytes)| (format!("{prefix}-{}.jpg", i + 1), bytes))
+                .collect::<Vec<_>>()
+        })
+        .collect();
+    let mut child = spawn_binary(&config);
+    put(&root.join("ingest"), &frames);
+    wait_for_status(&root.join("state"), |s| s.in_flight > 0);
+    std::thread::sleep(Duration::from_millis(300));
+    child.kill().unwrap(); // SIGKILL
+    child.wait().unwrap();
+    let done_before = journal::read(&root.join("state")).unwrap().len();
+    assert!(done_before < 2, "killed before both brackets finished");
+
+    // Restart, and stop it with SIGTERM while it develops: it exits cleanly within 10 s.
+    let mut child = spawn_binary(&config);
+    let pid = child.id();
+    wait_for_status(&root.join("state"), |s| s.pid == pid && s.in_flight > 0);
+    let took = terminate(&mut child);
+    assert!(took < Duration::from_secs(10), "stop took {took:?}");
+
+    let mut child = spawn_binary(&config);
+    let pid = child.id();
+    // (Its signal handlers are in place once it reports.)
+    wait_for_status(&root.join("state"), |s| s.pid == pid && s.running);
+    let out = root.join("out");
+    let expected = bracket_outputs(&["k-1", "m-1"]);
+    let start = Instant::now();
+    while listing(&out) != expected || journal::read(&root.join("state")).unwrap().len() < 2 {
+        assert!(
+            start.elapsed() < Duration::from_secs(60),
+            "out holds {:?}",
+            listing(&out)
+        );
+        std::thread::sleep(Duration::from_millis(50));
+    }
+    let took = terminate(&mut child);
+    assert!(took < Duration::from_secs(10), "stop took {took:?}");
+    assert_eq!(listing(&out), expected, "no temporary file left");
+    for name in ["k-1.exr", "m-1.exr"] {
+        let image = exr::prelude::read_all_flat_layers_from_file(out.join(name)).unwrap();
+        assert_eq!(image.layer_data[0].size.x(), w as usize);
+    }
+    assert_eq!(journaled_brackets(&root.join("state")), ["k-1", "m-1"]);
+
+    // A third start finds everything done and does nothing.
+    let mut child = spawn_binary(&config);
+    wait_for_status(&root.join("state"), |s| s.running && s.pid == child.id());
+    std::thread::sleep(Duration::from_millis(800));
+    terminate(&mut child);
+    assert_eq!(journal::read(&root.join("state")).unwrap().len(), 2);
+}
+
+#[test]
+fn burst_of_200_frames_is_worked_off_with_nothing_dropped() {
+    let dir = tempfile::tempdir().unwrap();
+    let root = dir.path();
+    std::fs::create_dir_all(root.join("ingest")).unwrap();
+    let config = root.join("filmback.toml");
+    std::fs::write(&config, config_text(root, &[])).unwrap();
+    // 66 brackets of 3 and one of 2, 2 s apart in capture time; the three exposures of
+    // the scene are shared, the EXIF differs per frame.
+    let first = demo::aeb("Body B", None, 10);
+    let scene = synthetic::scene(320, 240, 3);
+    let sensor = Sensor::noiseless(ResponseCurve::Srgb, BitDepth::Eight);
+    let scale = 1.0 / first[1].exposure.relative().unwrap();
+    let exposed = synthetic::bracket(&scene, &sensor, &first, scale).unwrap();
+    let frames: Vec<(String, Vec<u8>)> = (0..200)
+        .map(|i| {
+            let shot = &demo::aeb("Body B", None, 10 + 2 * (i / 3) as u32)[i % 3];
+            let name = format!("b{:03}-{}.jpg", i / 3, i % 3 + 1);
+            let jpeg = synthetic::encode(&exposed[i % 3], shot, Encoding::Jpeg { quality: 90 });
+            (name, jpeg.unwrap())
+        })
+        .collect();
+    let mut child = spawn_binary(&config);
+    wait_for_status(&root.join("state"), |s| s.running);
+    let start = Instant::now();
+    for (name, bytes) in &frames {
+        atomic::publish(&root.join("ingest").join(name), bytes, Overwrite::Replace).unwrap();
+    }
+    let expected: BTreeSet<String> = (0..67)
+        .flat_map(|b| bracket_outputs(&[&format!("b{b:03}-1")]))
+        .collect();
+    let out = root.join("out");
+    let mut peak_queue = 0;
+    while listing(&out) != expected {
+        let got = listing(&out);
+        assert!(
+            start.elapsed() < Duration::from_secs(120),
+            "{} of {} outputs; extra {:?}",
+            got.len(),
+            expected.len(),
+            got.difference(&expected).collect::<Vec<_>>()
+        );
+        if let Some(s) = daemon::read_snapshot(&root.join("state")) {
+            assert!(s.in_flight <= 2, "at most `jobs` in flight: {s:?}");
+            assert!(s.queued <= 8 + 3, "queue bounded: {s:?}");
+            peak_queue = peak_queue.max(s.queued);
+        }
+        std::thread::sleep(Duration::from_millis(20));
+    }
+    let took = start.elapsed();
+    let status = std::fs::read_to_string(format!("/proc/{}/status", child.id())).unwrap();
+    let peak_kb: u64 = status
+        .lines()
+        .find(|l| l.starts_with("VmHWM:"))
+        .and_then(|l| l.split_whitespace().nth(1))
+        .and_then(|v| v.parse().ok())
+        .unwrap();
+    eprintln!(
+        "burst: 200 frames (320x240) -> 67 brackets in {:.1} s, peak RSS {} MiB, peak queue {peak_queue}",
+        took.as_secs_f64(),
+        peak_kb / 1024
+    );
+    terminate(&mut child);
+    let brackets = journaled_brackets(&root.join("state"));
+    assert_eq!(brackets.len(), 67);
+    assert_eq!(listing(&out), expected);
+}
+
+#[test]
+fn unreadable_file_is_rejected_with_the_reason() {
+    use std::os::unix::fs::PermissionsExt;
+    let dir = tempfile::tempdir().unwrap();
+    let root = dir.path();
+    for d in ["ingest", "out", "state"] {
+        std::fs::create_dir_all(root.join(d)).unwrap();
+        std::fs::set_permissions(root.join(d), std::fs::Permissions::from_mode(0o777)).unwrap();
+    }
+    std::fs::set_permissions(root, std::fs::Permissions::from_mode(0o755)).unwrap();
+    let config = root.join("filmback.toml");
+    std::fs::write(&config, config_text(root, &[])).unwrap();
+    let frames = aeb("Body U", 10, "u");
+    put(&root.join("ingest"), &frames);
+    std::fs::set_permissions(
+        root.join("ingest/u-2.jpg"),
+        std::fs::Permissions::from_mode(0o000),
+    )
+    .unwrap();
+    // Permissions do not bind root: run the daemon as `nobody` then.
+    let is_root = Command::new("id").arg("-u").output().unwrap().stdout == b"0\n";
+    let mut command = if is_root {
+        let mut c = Command::new("setpriv");
+        c.args(["--reuid=65534", "--regid=65534", "--clear-groups"])
+            .arg(env!("CARGO_BIN_EXE_filmback"));
+        c
+    } else {
+        Command::new(env!("CARGO_BIN_EXE_filmback"))
+    };
+    // The test binary's folder must be reachable for `nobody`.
+    let mut child = command
+        .args(["watch", "--config"])
+        .arg(&config)
+        .stdout(Stdio::null())
+        .stderr(Stdio::null())
+        .spawn()
+        .unwrap();
+    expect_outputs(&root.join("out"), &bracket_outputs(&["u-1"]), T);
+    terminate(&mut child);
+    let r = rejected(&root.join("state"));
+    assert_eq!(r.len(), 1, "{r:?}");
+    assert_eq!(r[0].0, "u-2.jpg");
+    assert!(r[0].1.contains("ermission denied"), "{r:?}");
+}
+
+#[test]
+fn sighup_with_a_bad_config_keeps_the_running_one() {
+    let dir = tempfile::tempdir().unwrap();
+    let root = dir.path();
+    std::fs::create_dir_all(root.join("ingest")).unwrap();
+    let config = root.join("filmback.toml");
+    std::fs::write(&config, config_text(root, &[])).unwrap();
+    let mut child = spawn_binary(&config);
+    wait_for_status(&root.join("state"), |s| s.running);
+    std::fs::write(&config, "[daemon]\njobs = 0\n").unwrap();
+    Command::new("kill")
+        .args(["-HUP", &child.id().to_string()])
+        .status()
+        .unwrap();
+    std::thread::sleep(Duration::from_millis(300));
+    assert!(
+        child.try_wait().unwrap().is_none(),
+        "daemon survived the bad reload"
+    );
+    put(&root.join("ingest"), &aeb("Body A", 10, "v"));
+    expect_outputs(&root.join("out"), &bracket_outputs(&["v-1"]), T);
+    terminate(&mut child);
+}
+
+#[test]
+fn frame_failing_in_development_is_rejected_and_the_rest_regrouped() {
+    // The developer finds frame 2 unusable only when decoding it (as a real decoder may).
+    let developer = |job: &Job| -> Result<Developed, DevelopError> {
+        if let Some(bad) = job
+            .frames
+            .iter()
+            .find(|c| c.input.path.ends_with("p-2.jpg"))
+        {
+            return Err(DevelopError::Frame {
+                path: bad.input.path.clone(),
+                reason: "decoder: corrupt entropy data".into(),
+            });
+        }
+        PlainMerge.develop(job)
+    };
+    let mut rig = Rig::start(&[], Arc::new(developer), |_| {});
+    put(&rig.ingest(), &aeb("Body A", 10, "p"));
+    expect_outputs(&rig.out(), &bracket_outputs(&["p-1"]), T);
+    let state = rig.state();
+    rig.stop();
+    assert_eq!(
+        rejected(&state),
+        [(
+            "p-2.jpg".to_string(),
+            "decoder: corrupt entropy data".to_string()
+        )]
+    );
+    let entries = journal::read(&state).unwrap();
+    assert!(
+        entries
+            .iter()
+            .any(|e| matches!(e, Entry::Bracket { inputs, .. } if inputs.len() == 2)),
+        "{entries:?}"
+    );
+}
+
+#[test]
+fn good_fits_refine_the_camera_cache_and_later_brackets_receive_it() {
+    use filmback::response::InverseResponse;
+    let seen_cached = Arc::new(AtomicUsize::new(0));
+    let seen = Arc::clone(&seen_cached);
+    // A developer that "fits" a gamma-2.2 curve with confidence 0.9.
+    let developer = move |job: &Job| -> Result<Developed, DevelopError> {
+        if job.cached.is_some() {
+            seen.fetch_add(1, Ordering::SeqCst);
+        }
+        let mut dev = PlainMerge.develop(job)?;
+        let g: Vec<f64> = (0..65).map(|i| (f64::from(i) / 64.0).powf(2.2)).collect();
+        dev.fit = Some((InverseResponse::from_samples(vec![g; 3]).unwrap(), 0.9));
+        Ok(dev)
+    };
+    let mut rig = Rig::start(&[], Arc::new(developer), |_| {});
+    put(&rig.ingest(), &aeb("Body F", 10, "q"));
+    expect_outputs(&rig.out(), &bracket_outputs(&["q-1"]), T);
+    put(&rig.ingest(), &aeb("Body F", 30, "s"));
+    expect_outputs(&rig.out(), &bracket_outputs(&["q-1", "s-1"]), T);
+    let state = rig.state();
+    rig.stop();
+    assert_eq!(
+        seen_cached.load(Ordering::SeqCst),
+        1,
+        "the second bracket got the cache"
+    );
+    let cache = filmback::cache::ResponseCache::new(&state);
+    let entry = cache.find("Body F").unwrap();
+    assert_eq!(entry.brackets, 2);
+    assert!((entry.weight - 1.8).abs() < 1e-12);
+    assert!((entry.response.eval(0, 0.5) - 0.5f64.powf(2.2)).abs() < 1e-9);
+    let out = Command::new(env!("CARGO_BIN_EXE_filmback"))
+        .args(["cache", "list", "--state"])
+        .arg(&state)
+        .output()
+        .unwrap();
+    let text = String::from_utf8_lossy(&out.stdout);
+    assert!(
+        text.contains("Body F") && text.contains("2 brackets"),
+        "{text}"
+    );
+    let out = Command::new(env!("CARGO_BIN_EXE_filmback"))
+        .args(["cache", "reset", "body f", "--state"])
+        .arg(&state)
+        .output()
+        .unwrap();
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    assert!(cache.list().unwrap().is_empty());
+}
+
+#[test]
+fn check_config_names_file_line_and_key() {
+    let dir = tempfile::tempdir().unwrap();
+    let bad = dir.path().join("studio.toml");
+    std::fs::write(&bad, "[watch]\nsettle_ms = 500\n\n[bracket]\nmax_gap = 3\n").unwrap();
+    let out = Command::new(env!("CARGO_BIN_EXE_filmback"))
+        .args(["check-config"])
+        .arg(&bad)
+        .output()
+        .unwrap();
+    assert!(!out.status.success());
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(
+        err.contains(&format!("{}:5:1: max_gap: unknown field", bad.display())),
+        "{err}"
+    );
+    // The commented example is valid and equals the built-in defaults.
+    let example = Path::new(env!("CARGO_MANIFEST_DIR")).join("config/filmback.toml");
+    let out = Command::new(env!("CARGO_BIN_EXE_filmback"))
+        .args(["check-config"])
+        .arg(&example)
+        .output()
+        .unwrap();
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let mut from_file = Config::load(&example).unwrap();
+    from_file.source = None;
+    assert_eq!(from_file, Config::defaults());
+}
+
+#[test]
+fn reused_file_names_never_replace_finished_outputs() {
+    let mut rig = Rig::start(&[], Arc::new(PlainMerge), |_| {});
+    put(&rig.ingest(), &aeb("Body A", 10, "n"));
+    expect_outputs(&rig.out(), &bracket_outputs(&["n-1"]), T);
+    let first_exr = std::fs::read(rig.out().join("n-1.exr")).unwrap();
+    // The camera's counter wraps: new frames arrive under the same names.
+    for i in 1..=3 {
+        std::fs::remove_file(rig.ingest().join(format!("n-{i}.jpg"))).unwrap();
+    }
+    put(&rig.ingest(), &aeb("Body A", 50, "n"));
+    let start = Instant::now();
+    while journaled_brackets(&rig.state()).len() < 2 {
+        assert!(start.elapsed() < T);
+        std::thread::sleep(Duration::from_millis(50));
+    }
+    let id = match journal::read(&rig.state()).unwrap().pop() {
+        Some(Entry::Bracket { id, .. }) => id,
+        other => panic!("{other:?}"),
+    };
+    let second = format!("n-1-{}", &id[..8]);
+    expect_outputs(&rig.out(), &bracket_outputs(&["n-1", &second]), T);
+    assert_eq!(std::fs::read(rig.out().join("n-1.exr")).unwrap(), first_exr);
+    rig.stop();
+}
+
+#[test]
+fn polling_mode_and_archive_folder() {
+    let dir = tempfile::tempdir().unwrap();
+    let archive = dir.path().join("archive");
+    let archive_line = format!("archive = \"{}\"", archive.display());
+    let mut rig = Rig::start(
+        &[
+            ("watch", "mode = \"poll\""),
+            ("watch", "poll_ms = 100"),
+            ("folders", &archive_line),
+        ],
+        Arc::new(PlainMerge),
+        |_| {},
+    );
+    put(&rig.ingest(), &aeb("Body P", 10, "w"));
+    expect_outputs(&rig.out(), &bracket_outputs(&["w-1"]), T);
+    rig.stop();
+    assert!(listing(&rig.ingest()).is_empty(), "inputs moved away");
+    let expected: BTreeSet<String> = (1..=3).map(|i| format!("w-{i}.jpg")).collect();
+    assert_eq!(listing(&archive), expected);
+}
+
+#[test]
+fn reload_applies_new_rules_but_keeps_folders() {
+    let mut rig = Rig::start(&[], Arc::new(PlainMerge), |_| {});
+    let mut text = config_text(&rig.root, &[("bracket", "size = 2")]);
+    text = text.replace(
+        &format!("out = \"{}\"", rig.out().display()),
+        "out = \"/nonexistent/elsewhere\"",
+    );
+    let config = Config::from_str(&text, Some(Path::new("reloaded.toml"))).unwrap();
+    rig.control
+        .blocking_send(Control::Reload(Box::new(config)))
+        .unwrap();
+    std::thread::sleep(Duration::from_millis(200));
+    // Size 2 now: a three-frame AEB gives a pair and a single.
+    put(&rig.ingest(), &aeb("Body R", 10, "z"));
+    let expected: BTreeSet<String> = bracket_outputs(&["z-1"])
+        .into_iter()
+        .chain(["z-3.linear.jpg".to_string()])
+        .collect();
+    expect_outputs(&rig.out(), &expected, T);
+    rig.stop();
+}
+
+#[test]
+fn recursive_watch_takes_frames_in_sub_folders() {
+    let mut rig = Rig::start(
+        &[("watch", "recursive = true")],
+        Arc::new(PlainMerge),
+        |root| {
+            // Present before start, one level down.
+            let early = root.join("ingest/session-1");
+            std::fs::create_dir_all(&early).unwrap();
+            put(&early, &aeb("Body S", 10, "i"));
+        },
+    );
+    // A folder made while running, then filled.
+    let late = rig.ingest().join("session-2");
+    std::fs::create_dir(&late).unwrap();
+    std::thread::sleep(Duration::from_millis(300));
+    put(&late, &aeb("Body S", 30, "j"));
+    expect_outputs(&rig.out(), &bracket_outputs(&["i-1", "j-1"]), T);
+    rig.stop();
+}
