@@ -1,9 +1,12 @@
-//! `filmback cache list | show CAMERA | reset CAMERA`: the per-body response cache.
+//! `filmback cache list | show CAMERA [--plot FILE.png] | reset CAMERA`: the per-body
+//! response cache.
 
 use std::path::PathBuf;
 use std::process::ExitCode;
 
-use filmback::cache::ResponseCache;
+use filmback::cache::{CachedResponse, ResponseCache};
+
+use super::calibrate::plot;
 
 /// Arguments of `filmback cache`.
 #[derive(Debug, clap::Args)]
@@ -23,6 +26,9 @@ enum Action {
     Show {
         /// Camera name as `list` prints it, or a unique part of it.
         camera: String,
+        /// Also draw g per channel into this PNG (the g panel of `calibrate --plot`).
+        #[arg(long, value_name = "FILE.png")]
+        plot: Option<PathBuf>,
     },
     /// Forget a body's curve; the next good bracket starts it afresh.
     Reset {
@@ -53,14 +59,20 @@ pub fn run(args: Args) -> anyhow::Result<ExitCode> {
                 }
             }
         }
-        Action::Show { camera } => {
+        Action::Show { camera, plot } => {
             let c = cache.find(&camera)?;
+            if let Some(path) = &plot {
+                plot::write_response(path, &c.response, &plot_title(&c))?;
+            }
             println!("camera    {}", c.camera);
             println!("file      {}", cache.path_for(&c.camera).display());
             println!("brackets  {}", c.brackets);
             println!("weight    {:.3}", c.weight);
             println!("updated   {} (Unix seconds)", c.updated);
             println!("samples   {} per channel", c.response.samples(0).len());
+            if let Some(path) = &plot {
+                println!("plot      {}", path.display());
+            }
             print!("B     ");
             for ch in 0..c.response.channels() {
                 print!("  g_{ch}(B)  ");
@@ -81,4 +93,17 @@ pub fn run(args: Args) -> anyhow::Result<ExitCode> {
         }
     }
     Ok(ExitCode::SUCCESS)
+}
+
+/// The figure title of `cache show --plot`: camera, brackets folded in, and weight.
+fn plot_title(c: &CachedResponse) -> String {
+    let brackets = if c.brackets == 1 {
+        "BRACKET"
+    } else {
+        "BRACKETS"
+    };
+    format!(
+        "CACHED G(B) OF {}: {} {brackets}, WEIGHT {:.2}",
+        c.camera, c.brackets, c.weight
+    )
 }

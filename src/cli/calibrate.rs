@@ -13,7 +13,7 @@ use filmback::response::{
 };
 use serde_json::{Value, json};
 
-mod plot;
+pub(crate) mod plot;
 
 /// Arguments of `filmback calibrate`.
 #[derive(Debug, clap::Args)]

@@ -1,13 +1,17 @@
 //! `--plot`: the report's Figure 3 per channel (one row each): the two histograms, the
 //! cumulative histograms, the intensity mapping τ, and the recovered g. Drawn by hand with
 //! the `image` crate and a 3×5 bitmap font (scaled 2×), written atomically as PNG.
+//!
+//! [`write_response`] draws the g panel alone, per channel, for any [`InverseResponse`]
+//! (`filmback cache show --plot`); both figures share [`draw_response`] and [`publish_png`],
+//! so the panels look the same and the file is published under the same policy.
 
 use std::path::Path;
 
 use anyhow::Context;
 use filmback::atomic::{self, Overwrite};
 use filmback::histogram::Histogram;
-use filmback::response::Calibration;
+use filmback::response::{Calibration, InverseResponse};
 use image::{Rgb, RgbImage};
 
 const PANEL_W: u32 = 300;
@@ -21,6 +25,15 @@ const BRIGHT: Rgb<u8> = Rgb([230, 120, 20]);
 const INK: Rgb<u8> = Rgb([20, 20, 20]);
 const GRID: Rgb<u8> = Rgb([215, 215, 215]);
 const COVERED: Rgb<u8> = Rgb([225, 245, 225]);
+/// Curve colours of the R, G and B channels in [`write_response`].
+const CHANNEL: [Rgb<u8>; 3] = [Rgb([210, 30, 30]), Rgb([20, 150, 40]), Rgb([30, 60, 220])];
+/// Curve colour of a single-channel (grey) response in [`write_response`].
+const GREY: Rgb<u8> = Rgb([110, 110, 110]);
+/// Height of the title strip above the panels of [`write_response`].
+const HEADER: u32 = 26;
+/// Whether a plot may replace an existing file: yes, like `-o` (a plot is a view of data
+/// kept elsewhere, so regenerating it in place is the normal use).
+const PLOT_OVERWRITE: Overwrite = Overwrite::Replace;
 
 /// 3×5 glyphs, five rows of three bits (top row first, leftmost bit first).
 fn glyph(c: char) -> Option<[u8; 5]> {
@@ -43,6 +56,9 @@ fn glyph(c: char) -> Option<[u8; 5]> {
         ')' => "010001001001010",
         '/' => "001001010100100",
         '=' => "000111000111000",
+        '#' => "101111101111101",
+        '+' => "000010111010000",
+        '_' => "000000000000111",
         'A' => "010101111101101",
         'B' => "110101110101110",
         'C' => "011100100100011",
@@ -52,12 +68,14 @@ fn glyph(c: char) -> Option<[u8; 5]> {
         'G' => "011100101101011",
         'H' => "101101111101101",
         'I' => "111010010010111",
+        'J' => "001001001101010",
         'K' => "101101110101101",
         'L' => "100100100100111",
         'M' => "101111111101101",
         'N' => "110101101101101",
         'O' => "010101101101010",
         'P' => "110101110100100",
+        'Q' => "010101101110011",
         'R' => "110101110101101",
         'S' => "011100010001110",
         'T' => "111010010010010",
@@ -66,6 +84,7 @@ fn glyph(c: char) -> Option<[u8; 5]> {
         'W' => "101101111111101",
         'X' => "101101010101101",
         'Y' => "101101010010010",
+        'Z' => "111001010100111",
         _ => return None,
     };
     let b = rows.as_bytes();
@@ -122,6 +141,17 @@ struct Panel {
 }
 
 impl Panel {
+    /// The panel in column `col` and row `row` of a grid of `PANEL_W × PANEL_H` cells
+    /// starting `top` pixels below the image's top edge.
+    fn cell(col: u32, row: u32, top: u32) -> Panel {
+        Panel {
+            x0: f64::from(col * PANEL_W + LEFT),
+            y0: f64::from(top + row * PANEL_H + TOP),
+            w: f64::from(PANEL_W - LEFT - RIGHT),
+            h: f64::from(PANEL_H - TOP - BOTTOM),
+        }
+    }
+
     fn at(&self, u: f64, v: f64) -> (f64, f64) {
         (
             self.x0 + u.clamp(0.0, 1.0) * self.w,
@@ -157,6 +187,47 @@ impl Panel {
     }
 }
 
+/// Draws the g panel of channel `c` of `response` into `p`: the `covered` tone range
+/// shaded (outside it the curve is extrapolated), grid, axes, labels, `title`, and
+/// `g_c(B)` sampled at 401 points in `colour`.
+fn draw_response(
+    canvas: &mut Canvas,
+    p: &Panel,
+    response: &InverseResponse,
+    c: usize,
+    title: &str,
+    colour: Rgb<u8>,
+    covered: Option<(f64, f64)>,
+) {
+    if let Some((lo, hi)) = covered {
+        let (xa, _) = p.at(lo, 0.0);
+        let (xb, _) = p.at(hi, 0.0);
+        for x in xa as i64..=xb as i64 {
+            canvas.line((x as f64, p.y0), (x as f64, p.y0 + p.h - 1.0), COVERED);
+        }
+    }
+    p.frame(canvas, title);
+    let pts: Vec<(f64, f64)> = (0..=400)
+        .map(|i| {
+            let b = f64::from(i) / 400.0;
+            (b, response.eval(c, b))
+        })
+        .collect();
+    p.polyline(canvas, &pts, colour);
+}
+
+/// Encodes `image` as PNG and publishes it atomically at `path` (replacing a file there).
+fn publish_png(path: &Path, image: &RgbImage) -> anyhow::Result<()> {
+    let mut bytes = std::io::Cursor::new(Vec::new());
+    image
+        .write_to(&mut bytes, image::ImageFormat::Png)
+        .with_context(|| format!("{}: encoding the plot", path.display()))?;
+    // The error's own text already carries the OS reason; as a message it is printed once
+    // (as a source it would be repeated by `{:#}`).
+    atomic::publish(path, &bytes.into_inner(), PLOT_OVERWRITE)
+        .map_err(|e| anyhow::anyhow!("writing the plot: {e}"))
+}
+
 /// Draws the figure and publishes it atomically at `path`.
 pub fn write(
     path: &Path,
@@ -169,12 +240,7 @@ pub fn write(
         image: RgbImage::from_pixel(4 * PANEL_W, rows * PANEL_H, Rgb([255, 255, 255])),
     };
     for (c, ch) in cal.channels.iter().enumerate() {
-        let panel = |i: u32| Panel {
-            x0: f64::from(i * PANEL_W + LEFT),
-            y0: f64::from(c as u32 * PANEL_H + TOP),
-            w: f64::from(PANEL_W - LEFT - RIGHT),
-            h: f64::from(PANEL_H - TOP - BOTTOM),
-        };
+        let panel = |i: u32| Panel::cell(i, c as u32, 0);
         let (ca, cb) = (dark.cumulative(c), bright.cumulative(c));
         // 1. Histograms, scaled to the 99th-percentile bin so clipping spikes stay visible
         //    without flattening the rest.
@@ -218,33 +284,54 @@ pub fn write(
             }
         }
         // 4. g, with the covered tone range shaded (outside it: extrapolated).
-        let p = panel(3);
-        let (lo, hi) = ch.fit.covered;
-        if ch.borrowed_from.is_none() {
-            let (xa, _) = p.at(lo, 0.0);
-            let (xb, _) = p.at(hi, 0.0);
-            for x in xa as i64..=xb as i64 {
-                canvas.line((x as f64, p.y0), (x as f64, p.y0 + p.h - 1.0), COVERED);
-            }
-        }
         let title = match ch.borrowed_from {
             Some(d) => format!("G(B) BORROWED FROM {d}"),
             None => format!("G(B) CONF {:.2}", ch.fit.confidence),
         };
-        p.frame(&mut canvas, &title);
-        let pts: Vec<(f64, f64)> = (0..=400)
-            .map(|i| {
-                let b = f64::from(i) / 400.0;
-                (b, cal.response.eval(c, b))
-            })
-            .collect();
-        p.polyline(&mut canvas, &pts, INK);
+        let covered = ch.borrowed_from.is_none().then_some(ch.fit.covered);
+        draw_response(
+            &mut canvas,
+            &panel(3),
+            &cal.response,
+            c,
+            &title,
+            INK,
+            covered,
+        );
     }
-    let mut bytes = std::io::Cursor::new(Vec::new());
-    canvas
-        .image
-        .write_to(&mut bytes, image::ImageFormat::Png)
-        .context("encoding the plot")?;
-    atomic::publish(path, &bytes.into_inner(), Overwrite::Replace)?;
-    Ok(())
+    publish_png(path, &canvas.image)
+}
+
+/// Draws `response` as g panels, one per channel side by side (R, G and B curves in their
+/// colours, a single channel in grey), under `title`, and publishes the PNG atomically at
+/// `path` (replacing a file there, as `calibrate --plot` does).
+///
+/// The image is `channels × 300` pixels wide (wider if `title` needs it) and 256 high.
+pub fn write_response(path: &Path, response: &InverseResponse, title: &str) -> anyhow::Result<()> {
+    let channels = response.channels();
+    let names: &[&str] = if channels == 1 {
+        &["Y"]
+    } else {
+        &["R", "G", "B"]
+    };
+    let title_w = LEFT + 8 * title.chars().count() as u32 + RIGHT;
+    let width = (channels as u32 * PANEL_W).max(title_w);
+    let mut canvas = Canvas {
+        image: RgbImage::from_pixel(width, HEADER + PANEL_H, Rgb([255, 255, 255])),
+    };
+    canvas.text(i64::from(LEFT), 8, title, INK);
+    for c in 0..channels {
+        let colour = if channels == 1 { GREY } else { CHANNEL[c % 3] };
+        let name = names.get(c).copied().unwrap_or("?");
+        draw_response(
+            &mut canvas,
+            &Panel::cell(c as u32, 0, HEADER),
+            response,
+            c,
+            &format!("{name} G(B)"),
+            colour,
+            None,
+        );
+    }
+    publish_png(path, &canvas.image)
 }

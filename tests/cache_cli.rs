@@ -1,0 +1,182 @@
+//! `filmback cache show CAMERA --plot FILE.png`: the cached curve drawn with the g panel of
+//! `calibrate --plot`, published atomically, replaced on a second run (as calibrate's plot
+//! is), and a clear error when the folder does not exist.
+
+use std::path::Path;
+use std::process::{Command, Output};
+
+use filmback::bracket::CameraId;
+use filmback::cache::{CachedResponse, ResponseCache};
+use filmback::response::InverseResponse;
+use image::RgbImage;
+
+/// Panel width of the figure (one panel per channel) and its height (title strip + panel).
+const PANEL_W: u32 = 300;
+const HEIGHT: u32 = 256;
+
+fn camera() -> CameraId {
+    CameraId {
+        make: Some("Canon".to_string()),
+        model: Some("Canon EOS R5".to_string()),
+        serial: Some("042".to_string()),
+    }
+}
+
+/// A state folder whose cache holds an sRGB curve of `channels` channels for [`camera`].
+fn state_with_entry(dir: &Path, channels: usize) {
+    ResponseCache::new(dir)
+        .put(&CachedResponse {
+            camera: camera(),
+            response: InverseResponse::srgb(channels, 1024),
+            weight: 2.5,
+            brackets: 3,
+            updated: 1_700_000_000,
+        })
+        .unwrap();
+}
+
+fn filmback(state: &Path, args: &[&std::ffi::OsStr]) -> Output {
+    Command::new(env!("CARGO_BIN_EXE_filmback"))
+        .arg("cache")
+        .arg("--state")
+        .arg(state)
+        .args(args)
+        .output()
+        .unwrap()
+}
+
+fn show_plot(state: &Path, camera: &str, png: &Path) -> Output {
+    filmback(
+        state,
+        &[
+            "show".as_ref(),
+            camera.as_ref(),
+            "--plot".as_ref(),
+            png.as_os_str(),
+        ],
+    )
+}
+
+fn assert_success(out: &Output) {
+    assert!(
+        out.status.success(),
+        "status {:?}\nstdout: {}\nstderr: {}",
+        out.status,
+        String::from_utf8_lossy(&out.stdout),
+        String::from_utf8_lossy(&out.stderr)
+    );
+}
+
+/// Columns (x) of the pixels matching `is`, per panel of width [`PANEL_W`].
+fn columns_per_panel(image: &RgbImage, is: impl Fn([u8; 3]) -> bool) -> Vec<usize> {
+    let mut per_panel = vec![0; (image.width() / PANEL_W) as usize + 1];
+    for (x, _, p) in image.enumerate_pixels() {
+        if is(p.0) {
+            per_panel[(x / PANEL_W) as usize] += 1;
+        }
+    }
+    per_panel
+}
+
+#[test]
+fn show_plot_draws_each_channel_in_its_colour_and_replaces_on_rerun() {
+    let dir = tempfile::tempdir().unwrap();
+    let state = dir.path().join("state");
+    state_with_entry(&state, 3);
+    let png = dir.path().join("out.png");
+
+    let out = show_plot(&state, "eos r5", &png);
+    assert_success(&out);
+    let stdout = String::from_utf8_lossy(&out.stdout);
+    assert!(stdout.contains("Canon EOS R5 #042"), "{stdout}");
+    assert!(stdout.contains(&png.display().to_string()), "{stdout}");
+
+    let figure = image::open(&png).unwrap().to_rgb8();
+    assert_eq!((figure.width(), figure.height()), (3 * PANEL_W, HEIGHT));
+    // R, G and B curves, each in its own panel (left to right), none elsewhere.
+    let red = columns_per_panel(&figure, |[r, g, b]| r > 180 && g < 80 && b < 80);
+    let green = columns_per_panel(&figure, |[r, g, b]| g > 120 && r < 60 && b < 80);
+    let blue = columns_per_panel(&figure, |[r, g, b]| b > 180 && r < 60 && g < 100);
+    for (k, counts) in [red, green, blue].iter().enumerate() {
+        for (panel, &n) in counts.iter().enumerate() {
+            if panel == k {
+                // The curve spans the panel: at least one pixel per plotted column.
+                assert!(n > 200, "channel {k}: only {n} curve pixels in its panel");
+            } else {
+                assert_eq!(n, 0, "channel {k}'s colour in panel {panel}");
+            }
+        }
+    }
+    // The sRGB curve is convex: at B = 0.5 it is near g = 0.21, well below the diagonal.
+    // In the R panel (plot area x 34..290, y 48..234), find the curve at the middle column.
+    let x_mid = 34 + (290 - 34) / 2;
+    let ys: Vec<u32> = (0..figure.height())
+        .filter(|&y| {
+            let [r, g, b] = figure.get_pixel(x_mid, y).0;
+            r > 180 && g < 80 && b < 80
+        })
+        .collect();
+    assert!(!ys.is_empty(), "no R curve pixel at the middle column");
+    let g_at_mid = (234.0 - f64::from(ys[0])) / (234.0 - 48.0);
+    assert!(
+        (g_at_mid - 0.214).abs() < 0.03,
+        "g(0.5) drawn at {g_at_mid}"
+    );
+
+    // Second run without removing the file: replaced, like `calibrate --plot` does.
+    std::fs::write(&png, b"not a png").unwrap();
+    let out = show_plot(&state, "eos r5", &png);
+    assert_success(&out);
+    let again = image::open(&png).unwrap().to_rgb8();
+    assert_eq!(again, figure, "the rerun draws the same figure");
+    let names: Vec<String> = std::fs::read_dir(dir.path())
+        .unwrap()
+        .map(|e| e.unwrap().file_name().to_string_lossy().into_owned())
+        .collect();
+    assert!(
+        names.iter().all(|n| !n.contains("filmback-tmp")),
+        "temporary file left behind: {names:?}"
+    );
+}
+
+#[test]
+fn show_plot_of_a_grey_response_is_one_grey_curve() {
+    let dir = tempfile::tempdir().unwrap();
+    state_with_entry(dir.path(), 1);
+    let png = dir.path().join("grey.png");
+    assert_success(&show_plot(dir.path(), "canon", &png));
+    let figure = image::open(&png).unwrap().to_rgb8();
+    // One panel; wider than it only if the title needs the room.
+    assert!(figure.width() >= PANEL_W, "{}", figure.width());
+    assert_eq!(figure.height(), HEIGHT);
+    let grey = figure
+        .pixels()
+        .filter(|p| {
+            let [r, g, b] = p.0;
+            r == g && g == b && (80..=150).contains(&r)
+        })
+        .count();
+    assert!(grey > 200, "only {grey} grey curve pixels");
+    let coloured = figure
+        .pixels()
+        .filter(|p| {
+            let [r, g, b] = p.0;
+            r.max(g).max(b) - r.min(g).min(b) > 60
+        })
+        .count();
+    assert_eq!(coloured, 0, "a grey response has no coloured curve");
+}
+
+#[test]
+fn show_plot_into_a_missing_folder_names_the_path() {
+    let dir = tempfile::tempdir().unwrap();
+    state_with_entry(dir.path(), 3);
+    let png = dir.path().join("no-such-folder").join("out.png");
+    let out = show_plot(dir.path(), "eos r5", &png);
+    assert!(!out.status.success(), "{out:?}");
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert!(stderr.contains(&png.display().to_string()), "{stderr}");
+    assert!(stderr.contains("cannot write"), "{stderr}");
+    assert!(!png.exists());
+    assert!(!png.parent().unwrap().exists());
+}
