@@ -2,16 +2,16 @@
 //!
 //! `cargo bench --bench daemon_latency [-- --mp 24 --stream 6]`
 //!
-//! 1. **Direct**: the developer alone (decode, merge, EXR, one JPEG rendering) on a pair,
+//! 1. **Direct**: the developer alone (decode, merge, EXR, two JPEG renderings, Velvia 50 and linear) on a pair,
 //!    called as a function: the work the daemon wraps.
 //! 2. **Latency**: the daemon running; the pair is renamed into the ingest folder the way a
 //!    tethering tool does; time from the rename of the last frame to all outputs (EXR +
-//!    JPEG) being in place. Printed with its ratio to (1).
+//!    two JPEGs) being in place. Printed with its ratio to (1).
 //! 3. **Stream**: `--stream N` pairs renamed in at once; brackets per minute and CPU use
 //!    (user + system time over wall time, in cores; the machine's core count for scale).
 //!
-//! The developer is the one `filmback watch` runs ([`PlainMerge`]); when the fitted
-//! response / film pipeline is connected behind the same `Develop` trait, rerun this.
+//! The developer is the one `filmback watch` runs ([`Darkroom`]: response fit, merge, EXR
+//! and the configured renderings).
 
 use std::path::{Path, PathBuf};
 use std::sync::Arc;
@@ -19,7 +19,7 @@ use std::time::{Duration, Instant};
 
 use filmback::bracket::{CameraId, Capture, Input};
 use filmback::config::Config;
-use filmback::daemon::{self, Control, Develop, Job, PlainMerge, demo};
+use filmback::daemon::{self, Control, Darkroom, Develop, Job, demo};
 use filmback::metadata;
 
 fn arg(name: &str, default: u32) -> u32 {
@@ -117,7 +117,7 @@ fn main() {
     // 1. Direct.
     let config = Config::from_str(
         &format!(
-            "[folders]\ningest = \"{}\"\nout = \"{}\"\nstate = \"{}\"\n[bracket]\nsize = 2\n[render]\nfilms = []\ntonemaps = [\"linear\"]\n",
+            "[folders]\ningest = \"{}\"\nout = \"{}\"\nstate = \"{}\"\n[bracket]\nsize = 2\n[render]\nfilms = [\"velvia50\"]\ntonemaps = [\"linear\"]\n",
             root.join("ingest").display(),
             root.join("out").display(),
             root.join("state").display()
@@ -144,17 +144,18 @@ fn main() {
         cached: None,
         out: direct_out,
         stem: "direct".into(),
+        stocks: None,
     };
     let mut direct = Vec::new();
     for _ in 0..3 {
         let t = Instant::now();
-        let dev = PlainMerge.develop(&job).expect("direct develop");
+        let dev = Darkroom.develop(&job).expect("direct develop");
         direct.push(t.elapsed());
-        assert_eq!(dev.outputs.len(), 2);
+        assert_eq!(dev.outputs.len(), 3);
     }
     direct.sort();
     let direct_median = direct[1];
-    let stages = PlainMerge.develop(&job).unwrap().stages;
+    let stages = Darkroom.develop(&job).unwrap().stages;
     println!(
         "direct develop (median of 3): {:.2} s  [{}]",
         direct_median.as_secs_f64(),
@@ -173,7 +174,7 @@ fn main() {
             .enable_all()
             .build()
             .unwrap();
-        rt.block_on(daemon::run(daemon_config, Arc::new(PlainMerge), rx))
+        rt.block_on(daemon::run(daemon_config, Arc::new(Darkroom), rx))
     });
     let ingest = root.join("ingest");
     let out = root.join("out");
@@ -197,6 +198,7 @@ fn main() {
     let outputs = |name: &str| {
         vec![
             out.join(format!("{name}-1.exr")),
+            out.join(format!("{name}-1.velvia50-t1.jpg")),
             out.join(format!("{name}-1.linear.jpg")),
         ]
     };

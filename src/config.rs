@@ -132,15 +132,25 @@ pub struct LookName(pub String);
 
 impl TryFrom<String> for LookName {
     type Error = String;
+    /// A name, optionally followed by `@t` (a film's relative exposure: `0.5`, `1/2`,
+    /// `-1ev`). Whether the stock or tone map exists is checked once the whole file is
+    /// read (user stocks come from `folders.stocks`).
     fn try_from(s: String) -> Result<Self, String> {
-        if s.is_empty()
-            || !s
+        let (name, exposure) = match s.split_once('@') {
+            Some((n, e)) => (n, Some(e)),
+            None => (s.as_str(), None),
+        };
+        if name.is_empty()
+            || !name
                 .chars()
                 .all(|c| c.is_ascii_lowercase() || c.is_ascii_digit() || c == '-' || c == '_')
         {
             return Err(format!(
-                "{s:?} is not a valid name (lower-case letters, digits, '-', '_')"
+                "{s:?} is not a valid name (lower-case letters, digits, '-', '_', then optionally @t)"
             ));
+        }
+        if let Some(e) = exposure {
+            crate::film::parse_exposure(e).map_err(|reason| format!("{s:?}: {reason}"))?;
         }
         Ok(LookName(s))
     }
@@ -166,6 +176,7 @@ struct RawFolders {
     out: Option<PathBuf>,
     state: Option<PathBuf>,
     archive: Option<PathBuf>,
+    stocks: Option<PathBuf>,
 }
 
 #[derive(Debug, Default, Deserialize)]
@@ -249,6 +260,8 @@ pub struct Folders {
     pub state: PathBuf,
     /// Finished inputs are moved here, when set.
     pub archive: Option<PathBuf>,
+    /// Extra film stock files (`*.toml`) beside the built-in ones, when set.
+    pub stocks: Option<PathBuf>,
 }
 
 /// How files are noticed and when they count as complete.
@@ -367,7 +380,61 @@ impl Config {
         let user: RawConfig = parse(text, &label)?;
         let config = merge(defaults, user, path.map(Path::to_path_buf));
         config.check_folders(&label)?;
+        config.check_looks(&label, text)?;
         Ok(config)
+    }
+
+    /// Checks that every preset's films and tone maps exist and can be rendered (a
+    /// negative stock cannot), with the stocks of `folders.stocks` if set. An error names
+    /// the line where the name appears in `text`.
+    fn check_looks(&self, label: &Path, text: &str) -> Result<(), ConfigError> {
+        let catalogue =
+            crate::film::Catalogue::builtin().and_then(|c| match &self.folders.stocks {
+                Some(dir) => c.with_folder(dir),
+                None => Ok(c),
+            });
+        let catalogue = catalogue.map_err(|e| ConfigError::Invalid {
+            path: label.to_path_buf(),
+            line: line_of(text, "stocks"),
+            column: 1,
+            key: "folders.stocks".into(),
+            message: e.to_string(),
+        })?;
+        let presets = std::iter::once(("render".to_string(), &self.render)).chain(
+            self.cameras.iter().map(|c| {
+                (
+                    format!("camera.{:?}", c.preset.name.as_deref().unwrap_or("")),
+                    &c.preset,
+                )
+            }),
+        );
+        for (table, preset) in presets {
+            for (key, names) in [("films", &preset.films), ("tonemaps", &preset.tonemaps)] {
+                for name in names {
+                    let (films, tonemaps) = if key == "films" {
+                        (std::slice::from_ref(name), &[][..])
+                    } else {
+                        (&[][..], std::slice::from_ref(name))
+                    };
+                    crate::rendering::looks(
+                        &catalogue,
+                        films,
+                        tonemaps,
+                        0.0,
+                        crate::film::ColourMode::PerLayer,
+                        crate::film::Key::LogAverage,
+                    )
+                    .map_err(|e| ConfigError::Invalid {
+                        path: label.to_path_buf(),
+                        line: line_of(text, &format!("\"{name}\"")),
+                        column: 1,
+                        key: format!("{table}.{key}"),
+                        message: e.to_string(),
+                    })?;
+                }
+            }
+        }
+        Ok(())
     }
 
     /// Checks the folders together (again after command-line overrides): outputs written
@@ -443,6 +510,13 @@ fn line_column(text: &str, offset: usize) -> (usize, usize) {
     (line, column)
 }
 
+/// The 1-based line of the first occurrence of `needle` in `text` (1 if absent: the
+/// value came from the defaults).
+fn line_of(text: &str, needle: &str) -> usize {
+    text.find(needle)
+        .map_or(1, |at| text[..at].matches('\n').count() + 1)
+}
+
 /// User values over defaults. The defaults file sets every key, so each `expect` holds
 /// by construction (and the embedded-defaults test checks it).
 fn merge(d: RawConfig, u: RawConfig, source: Option<PathBuf>) -> Config {
@@ -478,6 +552,7 @@ fn merge(d: RawConfig, u: RawConfig, source: Option<PathBuf>) -> Config {
             out: uf.out.or(df.out).expect(MISSING),
             state: uf.state.or(df.state).expect(MISSING),
             archive: uf.archive.or(df.archive),
+            stocks: uf.stocks.or(df.stocks),
         },
         watch: Watch {
             mode: uw.mode.or(dw.mode).expect(MISSING),

@@ -18,6 +18,7 @@ use std::path::{Path, PathBuf};
 use serde::{Deserialize, Serialize};
 
 use crate::bracket::{Alone, CameraId, Input};
+use crate::darkroom::Source;
 
 /// File name of the journal inside the state folder.
 pub const FILE_NAME: &str = "journal.jsonl";
@@ -46,28 +47,6 @@ pub enum JournalError {
     },
 }
 
-/// Where a bracket's response came from.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
-#[serde(rename_all = "snake_case")]
-pub enum ResponseSource {
-    /// Fitted from this bracket's histograms.
-    Fitted,
-    /// The camera's cached curve.
-    Cached,
-    /// A standard curve (sRGB), for lack of both.
-    Standard,
-}
-
-impl std::fmt::Display for ResponseSource {
-    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        f.write_str(match self {
-            ResponseSource::Fitted => "fitted",
-            ResponseSource::Cached => "cached",
-            ResponseSource::Standard => "standard (sRGB)",
-        })
-    }
-}
-
 /// One line of the journal.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(tag = "kind", rename_all = "snake_case")]
@@ -85,7 +64,7 @@ pub enum Entry {
         /// Exposure ratio `e_max / e_min`.
         ratio: f64,
         /// Where the response came from.
-        response: ResponseSource,
+        response: Source,
         /// Unix time, seconds.
         at: u64,
     },
@@ -294,7 +273,7 @@ mod tests {
             inputs: names.iter().map(|n| input(n)).collect(),
             outputs: vec![PathBuf::from("/out/a.exr")],
             ratio: 4.0,
-            response: ResponseSource::Fitted,
+            response: Source::Fitted,
             at: 1,
         }
     }

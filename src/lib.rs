@@ -12,6 +12,7 @@ pub mod bracket;
 pub mod cache;
 pub mod config;
 pub mod daemon;
+pub mod darkroom;
 pub mod film;
 pub mod frame;
 pub mod hdr_output;

@@ -245,7 +245,8 @@ pub struct SourceExif {
 }
 
 /// Primary-image tags carried over: who and what made the shot, and how it was exposed.
-const CARRIED: [Tag; 20] = [
+/// Not `Orientation`: frames are turned upright when loaded, so renderings are upright.
+const CARRIED: [Tag; 19] = [
     Tag::Make,
     Tag::Model,
     Tag::BodySerialNumber,
@@ -265,7 +266,6 @@ const CARRIED: [Tag; 20] = [
     Tag::DateTime,
     Tag::Artist,
     Tag::Copyright,
-    Tag::Orientation,
 ];
 
 fn ascii(tag: Tag, s: &str) -> Field {
@@ -795,6 +795,40 @@ fn exposure_label(t: f64) -> String {
     s.trim_end_matches('0').trim_end_matches('.').to_string()
 }
 
+/// `DIR/STEM.LOOK.EXT`, the file a rendering of `look` is written to.
+pub fn look_path(dir: &Path, stem: &str, look: &Look, format: Format) -> PathBuf {
+    dir.join(format!("{stem}.{}.{}", look.name(), format.extension()))
+}
+
+/// The looks of film requests (`velvia50`, `provia400@1/2`, …) and tone-map names
+/// (`linear`, `histogram`, `histogram-naive`), in that order. Every film's relative
+/// exposure is multiplied by `2^stops` (a preset's exposure offset; 0 for none).
+pub fn looks(
+    catalogue: &Catalogue,
+    films: &[String],
+    tonemaps: &[String],
+    stops: f64,
+    colour: ColourMode,
+    key: Key,
+) -> Result<Vec<Look>, RenderingError> {
+    let mut looks = Vec::with_capacity(films.len() + tonemaps.len());
+    for request in films {
+        let mut look = Look::film(catalogue, request, colour, key)?;
+        if let Look::Film { exposure, .. } = &mut look {
+            *exposure *= stops.exp2();
+        }
+        looks.push(look);
+    }
+    for name in tonemaps {
+        let op = tonemap::Operator::parse(name).ok_or_else(|| RenderingError::Parse {
+            text: name.clone(),
+            reason: "unknown tone map: expected linear, histogram or histogram-naive".into(),
+        })?;
+        looks.push(Look::Tonemap(op));
+    }
+    Ok(looks)
+}
+
 /// Where and how renderings are written.
 #[derive(Debug, Clone)]
 pub struct Outputs<'a> {
@@ -820,12 +854,7 @@ pub fn render_all(
 ) -> Result<Vec<PathBuf>, RenderingError> {
     let mut written = Vec::with_capacity(looks.len());
     for look in looks {
-        let path = outputs.dir.join(format!(
-            "{}.{}.{}",
-            outputs.stem,
-            look.name(),
-            outputs.format.extension()
-        ));
+        let path = look_path(outputs.dir, outputs.stem, look, outputs.format);
         // A look that cannot be rendered (a negative stock) fails before any file exists.
         if let Look::Film { stock, .. } = look
             && stock.kind == film::Kind::Negative

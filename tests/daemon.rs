@@ -15,7 +15,7 @@ use std::time::{Duration, Instant};
 
 use filmback::atomic::{self, Overwrite};
 use filmback::config::Config;
-use filmback::daemon::{self, Control, Develop, DevelopError, Developed, Job, PlainMerge, demo};
+use filmback::daemon::{self, Control, Darkroom, Develop, DevelopError, Developed, Job, demo};
 use filmback::frame::BitDepth;
 use filmback::journal::{self, Entry};
 use filmback::synthetic::{self, Encoding, ResponseCurve, Sensor};
@@ -239,7 +239,7 @@ const T: Duration = Duration::from_secs(30);
 
 #[test]
 fn files_present_before_start_are_developed() {
-    let mut rig = Rig::start(&[], Arc::new(PlainMerge), |root| {
+    let mut rig = Rig::start(&[], Arc::new(Darkroom), |root| {
         put(&root.join("ingest"), &aeb("Body A", 10, "a"));
         put(&root.join("ingest"), &aeb("Body A", 20, "b"));
     });
@@ -252,11 +252,7 @@ fn files_present_before_start_are_developed() {
 
 #[test]
 fn slow_writer_is_taken_only_when_complete() {
-    let mut rig = Rig::start(
-        &[("watch", "settle_ms = 400")],
-        Arc::new(PlainMerge),
-        |_| {},
-    );
+    let mut rig = Rig::start(&[("watch", "settle_ms = 400")], Arc::new(Darkroom), |_| {});
     let frames = aeb("Body A", 10, "s");
     put(&rig.ingest(), &frames[..2]);
     // The third frame trickles in over 3 s through one open handle.
@@ -280,7 +276,7 @@ fn slow_writer_is_taken_only_when_complete() {
 
 #[test]
 fn temporary_names_wait_for_the_rename() {
-    let mut rig = Rig::start(&[], Arc::new(PlainMerge), |_| {});
+    let mut rig = Rig::start(&[], Arc::new(Darkroom), |_| {});
     let frames = aeb("Body A", 10, "r");
     // Written under temporary names first; nothing may happen yet.
     for (i, (name, bytes)) in frames.iter().enumerate() {
@@ -314,7 +310,7 @@ fn temporary_names_wait_for_the_rename() {
 
 #[test]
 fn corrupt_frames_are_set_aside_and_the_rest_developed() {
-    let mut rig = Rig::start(&[], Arc::new(PlainMerge), |_| {});
+    let mut rig = Rig::start(&[], Arc::new(Darkroom), |_| {});
     let frames = aeb("Body A", 10, "c");
     let good = aeb("Body A", 30, "d");
     // c-2 is garbage with a JPEG name: rejected at the header; c-1 and c-3 still merge.
@@ -367,7 +363,7 @@ fn corrupt_frames_are_set_aside_and_the_rest_developed() {
 
 #[test]
 fn interleaved_cameras_and_repeated_exposure() {
-    let mut rig = Rig::start(&[], Arc::new(PlainMerge), |_| {});
+    let mut rig = Rig::start(&[], Arc::new(Darkroom), |_| {});
     let a = aeb("Body A", 10, "a");
     let b = aeb("Body B", 10, "b");
     for i in 0..3 {
@@ -396,7 +392,7 @@ fn output_write_error_is_retried_and_the_daemon_stays_alive() {
     let counted = Arc::clone(&calls);
     let developer = move |job: &Job| -> Result<Developed, DevelopError> {
         counted.fetch_add(1, Ordering::SeqCst);
-        PlainMerge.develop(job)
+        Darkroom.develop(job)
     };
     let mut rig = Rig::start(&[], Arc::new(developer), |root| {
         // The EXR's name is occupied by a folder: publishing fails with a real I/O error
@@ -426,7 +422,7 @@ fn output_write_error_is_retried_and_the_daemon_stays_alive() {
 
 #[test]
 fn ingest_folder_deleted_and_recreated() {
-    let mut rig = Rig::start(&[], Arc::new(PlainMerge), |_| {});
+    let mut rig = Rig::start(&[], Arc::new(Darkroom), |_| {});
     put(&rig.ingest(), &aeb("Body A", 10, "g"));
     expect_outputs(&rig.out(), &bracket_outputs(&["g-1"]), T);
     std::fs::remove_dir_all(rig.ingest()).unwrap();
@@ -442,7 +438,7 @@ fn ingest_folder_deleted_and_recreated() {
 
 #[test]
 fn single_frames_are_rendered_or_reported() {
-    let mut rig = Rig::start(&[], Arc::new(PlainMerge), |_| {});
+    let mut rig = Rig::start(&[], Arc::new(Darkroom), |_| {});
     let a = aeb("Body A", 10, "solo");
     put(&rig.ingest(), &a[..1]);
     // A single has no extended range: renderings only, no EXR.
@@ -455,7 +451,7 @@ fn single_frames_are_rendered_or_reported() {
 
     let mut rig = Rig::start(
         &[("bracket", "singles = \"report\"")],
-        Arc::new(PlainMerge),
+        Arc::new(Darkroom),
         |_| {},
     );
     put(&rig.ingest(), &a[..1]);
@@ -727,7 +723,7 @@ fn frame_failing_in_development_is_rejected_and_the_rest_regrouped() {
                 reason: "decoder: corrupt entropy data".into(),
             });
         }
-        PlainMerge.develop(job)
+        Darkroom.develop(job)
     };
     let mut rig = Rig::start(&[], Arc::new(developer), |_| {});
     put(&rig.ingest(), &aeb("Body A", 10, "p"));
@@ -760,7 +756,7 @@ fn good_fits_refine_the_camera_cache_and_later_brackets_receive_it() {
         if job.cached.is_some() {
             seen.fetch_add(1, Ordering::SeqCst);
         }
-        let mut dev = PlainMerge.develop(job)?;
+        let mut dev = Darkroom.develop(job)?;
         let g: Vec<f64> = (0..65).map(|i| (f64::from(i) / 64.0).powf(2.2)).collect();
         dev.fit = Some((InverseResponse::from_samples(vec![g; 3]).unwrap(), 0.9));
         Ok(dev)
@@ -840,7 +836,7 @@ fn check_config_names_file_line_and_key() {
 
 #[test]
 fn reused_file_names_never_replace_finished_outputs() {
-    let mut rig = Rig::start(&[], Arc::new(PlainMerge), |_| {});
+    let mut rig = Rig::start(&[], Arc::new(Darkroom), |_| {});
     put(&rig.ingest(), &aeb("Body A", 10, "n"));
     expect_outputs(&rig.out(), &bracket_outputs(&["n-1"]), T);
     let first_exr = std::fs::read(rig.out().join("n-1.exr")).unwrap();
@@ -875,7 +871,7 @@ fn polling_mode_and_archive_folder() {
             ("watch", "poll_ms = 100"),
             ("folders", &archive_line),
         ],
-        Arc::new(PlainMerge),
+        Arc::new(Darkroom),
         |_| {},
     );
     put(&rig.ingest(), &aeb("Body P", 10, "w"));
@@ -888,7 +884,7 @@ fn polling_mode_and_archive_folder() {
 
 #[test]
 fn reload_applies_new_rules_but_keeps_folders() {
-    let mut rig = Rig::start(&[], Arc::new(PlainMerge), |_| {});
+    let mut rig = Rig::start(&[], Arc::new(Darkroom), |_| {});
     let mut text = config_text(&rig.root, &[("bracket", "size = 2")]);
     text = text.replace(
         &format!("out = \"{}\"", rig.out().display()),
@@ -913,7 +909,7 @@ fn reload_applies_new_rules_but_keeps_folders() {
 fn recursive_watch_takes_frames_in_sub_folders() {
     let mut rig = Rig::start(
         &[("watch", "recursive = true")],
-        Arc::new(PlainMerge),
+        Arc::new(Darkroom),
         |root| {
             // Present before start, one level down.
             let early = root.join("ingest/session-1");

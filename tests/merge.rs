@@ -383,7 +383,7 @@ fn cli_writes_once_and_reports_json() {
     let report: serde_json::Value = serde_json::from_slice(&first.stdout).unwrap();
     let exr = out.join("b.exr");
     assert_eq!(report["outputs"][0], exr.display().to_string());
-    assert_eq!(report["response"]["source"], "default");
+    assert_eq!(report["response"]["source"], "standard");
     assert!((report["ratio"].as_f64().unwrap() - 4.0).abs() < 1e-9);
     for stage in ["decode", "merge", "encode", "write"] {
         assert!(

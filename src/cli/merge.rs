@@ -1,27 +1,28 @@
-//! `filmback merge FRAME... -o DIR`: a bracket to one OpenEXR radiance map.
+//! `filmback merge FRAME... -o DIR [--film STOCK[@t]]... [--tonemap OP]...`: a bracket to
+//! one OpenEXR radiance map and its renderings, through [`filmback::darkroom`].
 //!
 //! Stages, each timed for `--json`: decode (frames in parallel), histogram and fit (when
-//! the response is calibrated from this bracket), merge, encode, write (atomic publish).
+//! the response is calibrated from this bracket), merge, encode and write (the EXR),
+//! render (the renderings).
 
-use std::io::Cursor;
-use std::path::{Path, PathBuf};
+use std::path::PathBuf;
 use std::process::ExitCode;
-use std::time::Instant;
+use std::time::{Duration, Instant};
 
 use anyhow::{Context, bail};
 use clap::ValueEnum;
-use filmback::atomic::{self, Overwrite};
+use filmback::atomic::Overwrite;
+use filmback::darkroom::{self, GivenResponse, Prints, ResponsePolicy, Source};
 use filmback::frame::{self, Limits, LoadedFrame, Samples};
-use filmback::hdr_output::RadianceSource;
-use filmback::hdr_output::{
-    self, Compression, ExrOptions, FrameRecord, Overflow, Provenance, SampleFormat,
-};
-use filmback::histogram::Histogram;
-use filmback::merge::{self, BracketFrame, MergeOptions, Merged, PairMerge, Weighting};
+use filmback::hdr_output::{Compression, ExrOptions, Overflow, SampleFormat};
+use filmback::merge::{MergeOptions, Weighting};
 use filmback::metadata::Exposure;
-use filmback::response::{self, Degree, InverseResponse, Ratio, RatioSource};
+use filmback::rendering::SourceExif;
+use filmback::response::{self, RatioSource};
 use rayon::prelude::*;
 use serde_json::json;
+
+use super::looks::LookArgs;
 
 /// Arguments of `filmback merge`.
 #[derive(Debug, clap::Args)]
@@ -29,9 +30,12 @@ pub struct Args {
     /// The bracket's frames (JPEG, PNG, TIFF), in any order; at least two.
     #[arg(required = true, num_args = 2..)]
     frames: Vec<PathBuf>,
-    /// Output folder (created if missing); the file is DIR/<stem of the first frame>.exr.
+    /// Output folder (created if missing); the file is DIR/<stem of the first frame>.exr,
+    /// each rendering DIR/<stem>.<look>.jpg.
     #[arg(short, long, value_name = "DIR")]
     output: PathBuf,
+    #[command(flatten)]
+    looks: LookArgs,
     /// Use this response file (written by `filmback calibrate -o`) instead of calibrating.
     #[arg(long, value_name = "FILE", conflicts_with = "srgb")]
     response: Option<PathBuf>,
@@ -65,7 +69,7 @@ pub struct Args {
     /// Also write a Radiance RGBE file DIR/<stem>.hdr.
     #[arg(long)]
     radiance_hdr: bool,
-    /// Replace existing output files.
+    /// Replace existing output files (EXR, HDR and renderings).
     #[arg(long)]
     force: bool,
     /// Print a JSON report (outputs, response, frames, timings in ms).
@@ -101,65 +105,53 @@ enum Weight {
     NoiseAware,
 }
 
-/// Milliseconds per stage; `None` for a stage that did not run.
-#[derive(Debug, Default, serde::Serialize)]
-struct Timings {
-    decode: Option<f64>,
-    histogram: Option<f64>,
-    fit: Option<f64>,
-    merge: Option<f64>,
-    encode: Option<f64>,
-    write: Option<f64>,
-    total: f64,
-}
-
-fn ms(since: Instant) -> f64 {
-    (since.elapsed().as_secs_f64() * 1e4).round() / 10.0
-}
-
-/// The merged bracket: evaluated during encoding, or held as a map.
-enum Radiance<'a> {
-    Fused(PairMerge<'a>),
-    Buffered(Merged),
-}
-
-impl Radiance<'_> {
-    /// Input order (darkest first), exposure ratio, samples clipped (high, low).
-    fn summary(&self) -> (Vec<usize>, f64, (u64, u64)) {
-        match self {
-            Radiance::Fused(p) => (p.order.clone(), p.ratio(), (p.clipped_high, p.clipped_low)),
-            Radiance::Buffered(m) => (m.order.clone(), m.ratio(), (m.clipped_high, m.clipped_low)),
-        }
-    }
-}
-
-/// The response used and where it came from.
-struct Chosen {
-    response: InverseResponse,
-    report: serde_json::Value,
-    summary: String,
-}
-
 /// Runs the command.
 pub fn run(args: Args) -> anyhow::Result<ExitCode> {
     let start = Instant::now();
-    let mut timings = Timings::default();
-    let overwrite = if args.force {
-        Overwrite::Replace
-    } else {
-        Overwrite::Refuse
-    };
+    let (looks, format) = args.looks.looks()?;
     let stem = args.frames[0]
         .file_stem()
-        .with_context(|| format!("{}: no file name", args.frames[0].display()))?;
-    let exr_path = args.output.join(stem).with_extension("exr");
-    let hdr_path = args.output.join(stem).with_extension("hdr");
-    let mut outputs = vec![exr_path.clone()];
-    if args.radiance_hdr {
-        outputs.push(hdr_path.clone());
-    }
+        .and_then(|s| s.to_str())
+        .with_context(|| format!("{}: no usable file name", args.frames[0].display()))?
+        .to_string();
+    let exif = SourceExif::from_frame_bytes(
+        &std::fs::read(&args.frames[0])
+            .with_context(|| format!("{}: cannot read", args.frames[0].display()))?,
+    );
+    let prints = Prints {
+        dir: &args.output,
+        stem: &stem,
+        exr: Some(ExrOptions {
+            sample: match args.exr {
+                ExrSample::Half => SampleFormat::Half,
+                ExrSample::Float => SampleFormat::Float,
+            },
+            compression: match args.compression {
+                ExrCompression::Piz => Compression::Piz,
+                ExrCompression::Zip => Compression::Zip,
+                ExrCompression::Rle => Compression::Rle,
+                ExrCompression::None => Compression::None,
+                ExrCompression::Pxr24 => Compression::Pxr24,
+                ExrCompression::B44 => Compression::B44,
+            },
+            overflow: match args.overflow {
+                HalfOverflow::Scale => Overflow::Scale,
+                HalfOverflow::Clamp => Overflow::Clamp,
+            },
+        }),
+        radiance_hdr: args.radiance_hdr,
+        looks: &looks,
+        format,
+        exif: &exif,
+        overwrite: if args.force {
+            Overwrite::Replace
+        } else {
+            Overwrite::Refuse
+        },
+    };
+    let planned = prints.paths();
     if !args.force
-        && let Some(existing) = outputs.iter().find(|p| p.exists())
+        && let Some(existing) = planned.iter().find(|p| p.exists())
     {
         bail!(
             "{}: already exists (use --force to replace it)",
@@ -170,27 +162,17 @@ pub fn run(args: Args) -> anyhow::Result<ExitCode> {
         .with_context(|| format!("{}: cannot create output folder", args.output.display()))?;
 
     let t = Instant::now();
-    let frames: Vec<LoadedFrame> = args
+    let mut frames: Vec<LoadedFrame> = args
         .frames
         .par_iter()
         .map(|p| frame::load(p, Limits::default()))
         .collect::<Result<_, _>>()?;
-    timings.decode = Some(ms(t));
-
-    let (exposures, exposure_source) = exposures(&args, &frames)?;
-    let bracket: Vec<BracketFrame<'_>> = frames
-        .iter()
-        .zip(&exposures)
-        .map(|(f, &exposure)| BracketFrame {
-            source: &f.path,
-            frame: &f.frame,
-            exposure,
-            camera: &f.metadata.camera,
-        })
-        .collect();
-    let chosen = choose_response(&args, &bracket, exposure_source, &mut timings)?;
-
-    let t = Instant::now();
+    let decode = t.elapsed();
+    let (exposures, ratio_source) = exposures(&args, &frames)?;
+    for (f, t) in frames.iter_mut().zip(&args.times) {
+        f.metadata.exposure.time_s = Some(parse_time(t)?);
+    }
+    let policy = response_policy(&args, frames[0].frame.channels())?;
     let options = MergeOptions {
         weighting: match args.weight {
             Weight::Hat => Weighting::Hat,
@@ -198,137 +180,58 @@ pub fn run(args: Args) -> anyhow::Result<ExitCode> {
         },
         confidence: args.confidence,
     };
-    // An 8-bit pair (the usual tethered bracket) is merged while the EXR is encoded, one
-    // table lookup per sample, with no radiance buffer; anything else is merged first.
-    let fused = if options.confidence {
-        None
-    } else {
-        PairMerge::new(&bracket, &chosen.response, options.weighting)?
-    };
-    let merged = match fused {
-        Some(pair) => Radiance::Fused(pair),
-        None => Radiance::Buffered(merge::merge(&bracket, &chosen.response, options)?),
-    };
-    timings.merge = Some(ms(t));
-    let (order, ratio, clipped) = merged.summary();
-
-    let provenance = Provenance {
-        camera: frames[0].metadata.camera.clone(),
-        captured_at: frames[order[0]].metadata.captured_at,
-        frames: order
-            .iter()
-            .map(|&i| FrameRecord {
-                name: file_name(&frames[i].path),
-                exposure: times_or_exif(&args, &frames, i),
-                relative: exposures[i],
-            })
-            .collect(),
-        response: chosen.summary.clone(),
-        weighting: format!("{:?}", options.weighting),
-        clipped,
-    };
-    let mut warnings: Vec<String> = frames
-        .iter()
-        .flat_map(|f| {
-            f.metadata
-                .warnings
-                .iter()
-                .map(move |w| format!("{}: {w}", f.path.display()))
-        })
-        .collect();
-    let frame_report: Vec<_> = order
-        .iter()
-        .map(|&i| json!({ "path": frames[i].path.display().to_string(), "exposure": exposures[i] }))
-        .collect();
-    let t = Instant::now();
-    let exr_options = ExrOptions {
-        sample: match args.exr {
-            ExrSample::Half => SampleFormat::Half,
-            ExrSample::Float => SampleFormat::Float,
-        },
-        compression: match args.compression {
-            ExrCompression::Piz => Compression::Piz,
-            ExrCompression::Zip => Compression::Zip,
-            ExrCompression::Rle => Compression::Rle,
-            ExrCompression::None => Compression::None,
-            ExrCompression::Pxr24 => Compression::Pxr24,
-            ExrCompression::B44 => Compression::B44,
-        },
-        overflow: match args.overflow {
-            HalfOverflow::Scale => Overflow::Scale,
-            HalfOverflow::Clamp => Overflow::Clamp,
-        },
-    };
-    let mut exr = Cursor::new(Vec::new());
-    let (source, confidence): (&dyn RadianceSource, Option<&[f32]>) = match &merged {
-        Radiance::Fused(pair) => (pair, None),
-        Radiance::Buffered(m) => (&m.radiance, m.confidence.as_deref()),
-    };
-    let written = hdr_output::encode_exr(&mut exr, source, confidence, &provenance, exr_options)?;
-    let mut hdr = Vec::new();
-    if args.radiance_hdr {
-        hdr_output::encode_radiance_hdr(&mut hdr, source)?;
-    }
-    timings.encode = Some(ms(t));
-    warnings.extend(written.warnings.iter().cloned());
-
-    let t = Instant::now();
-    atomic::publish(&exr_path, exr.get_ref(), overwrite)?;
-    if args.radiance_hdr {
-        atomic::publish(&hdr_path, &hdr, overwrite)?;
-    }
-    timings.write = Some(ms(t));
-    timings.total = ms(start);
+    let mut developed =
+        darkroom::develop(&frames, &exposures, ratio_source, policy, options, &prints)?;
+    developed.stages.insert(0, ("decode", decode));
+    let total = start.elapsed();
 
     if args.json {
+        let mut timings = serde_json::Map::new();
+        for (stage, d) in &developed.stages {
+            timings.insert((*stage).to_string(), json!(ms(*d)));
+        }
+        timings.insert("total".into(), json!(ms(total)));
         let report = json!({
-            "outputs": outputs.iter().map(|p| p.display().to_string()).collect::<Vec<_>>(),
-            "response": chosen.report,
-            "frames": frame_report,
-            "ratio": ratio,
+            "outputs": developed.outputs.iter().map(|p| p.display().to_string()).collect::<Vec<_>>(),
+            "response": developed.response.report,
+            "frames": developed.order.iter().map(|&i| json!({
+                "path": frames[i].path.display().to_string(),
+                "exposure": exposures[i],
+            })).collect::<Vec<_>>(),
+            "ratio": developed.ratio,
             "weighting": options.weighting,
-            "merge_mode": match merged {
-                Radiance::Fused(_) => "fused into encode (8-bit pair: merge ms is the table build, the lookups are inside encode ms)",
-                Radiance::Buffered(_) => "buffered",
+            "merge_mode": if developed.fused {
+                "fused into encode (8-bit pair: merge ms is the table build, the lookups are inside encode ms)"
+            } else {
+                "buffered"
             },
-            "clipped": { "high": clipped.0, "low": clipped.1 },
-            "radiance_scale": written.scale,
-            "warnings": warnings,
+            "clipped": { "high": developed.clipped.0, "low": developed.clipped.1 },
+            "radiance_scale": developed.exr_scale,
+            "warnings": developed.warnings,
             "timings_ms": timings,
         });
         println!("{}", serde_json::to_string_pretty(&report)?);
     } else {
-        for w in &warnings {
+        for w in &developed.warnings {
             eprintln!("warning: {w}");
         }
-        for p in &outputs {
+        for p in &developed.outputs {
             println!("{}", p.display());
         }
         println!(
-            "  ratio {:.3} ({:.2} stops), response: {}, {} ms",
-            ratio,
-            ratio.log2(),
-            chosen.summary,
-            timings.total
+            "  ratio {:.3} ({:.2} stops), response: {}, {:.0} ms",
+            developed.ratio,
+            developed.ratio.log2(),
+            developed.response.summary,
+            ms(total)
         );
     }
     Ok(ExitCode::SUCCESS)
 }
 
-fn file_name(path: &Path) -> String {
-    path.file_name().map_or_else(
-        || path.display().to_string(),
-        |n| n.to_string_lossy().into_owned(),
-    )
-}
-
-/// The exposure settings recorded for frame `i`: EXIF, with `--times` replacing the time.
-fn times_or_exif(args: &Args, frames: &[LoadedFrame], i: usize) -> Exposure {
-    let mut e = frames[i].metadata.exposure;
-    if let Some(t) = args.times.get(i).and_then(|t| parse_time(t).ok()) {
-        e.time_s = Some(t);
-    }
-    e
+/// Milliseconds to 0.1 ms.
+fn ms(d: Duration) -> f64 {
+    (d.as_secs_f64() * 1e4).round() / 10.0
 }
 
 fn parse_time(text: &str) -> anyhow::Result<f64> {
@@ -425,15 +328,8 @@ fn mean_code(samples: &Samples) -> f64 {
 }
 
 /// Which response the merge uses: `--response FILE`; `--srgb`; otherwise calibrated from
-/// this bracket (the two adjacent frames in the middle of the exposure order, whose
-/// histograms share the most tones), with the ratio from the exposures.
-fn choose_response(
-    args: &Args,
-    bracket: &[BracketFrame<'_>],
-    ratio_source: RatioSource,
-    timings: &mut Timings,
-) -> anyhow::Result<Chosen> {
-    let channels = bracket[0].frame.channels();
+/// this bracket (see [`darkroom::choose_response`]), an error if that fails.
+fn response_policy(args: &Args, channels: usize) -> anyhow::Result<ResponsePolicy> {
     if let Some(path) = &args.response {
         let record = response::load(path)?;
         if record.response.channels() != channels {
@@ -447,78 +343,17 @@ fn choose_response(
             .channels
             .first()
             .map_or_else(String::new, |c| c.model.clone());
-        return Ok(Chosen {
-            summary: format!("loaded from {} ({model})", path.display()),
-            report: json!({ "source": "file", "path": path.display().to_string(), "model": model, "ratio": record.ratio }),
+        return Ok(ResponsePolicy::Use(GivenResponse {
             response: record.response,
-        });
+            source: Source::File,
+            label: format!("loaded from {} ({model})", path.display()),
+        }));
     }
     if args.srgb {
-        return Ok(Chosen {
-            response: InverseResponse::srgb(channels, 1024),
-            summary: "sRGB inverse (IEC 61966-2-1), default".to_string(),
-            report: json!({ "source": "default", "model": "sRGB inverse (IEC 61966-2-1)" }),
-        });
+        return Ok(ResponsePolicy::Use(GivenResponse::standard(channels)));
     }
-    let mut order: Vec<usize> = (0..bracket.len()).collect();
-    order.sort_by(|&a, &b| bracket[a].exposure.total_cmp(&bracket[b].exposure));
-    let mid = order.len() / 2;
-    let (dark, bright) = (&bracket[order[mid - 1]], &bracket[order[mid]]);
-    let t = Instant::now();
-    // About three million pixels are plenty for a 256- or 4096-bin histogram.
-    let stride = ((dark.frame.pixel_count() as f64 / 3e6).sqrt().floor() as usize).max(1);
-    let (h_dark, h_bright) = rayon::join(
-        || Histogram::of_frame(dark.frame, stride),
-        || Histogram::of_frame(bright.frame, stride),
-    );
-    timings.histogram = Some(ms(t));
-    let t = Instant::now();
-    let ratio = bright.exposure / dark.exposure;
-    let calibration = response::calibrate(
-        &h_dark,
-        &h_bright,
-        Ratio::Known(ratio, ratio_source),
-        Degree::Auto,
-    )
-    .with_context(|| {
-        format!(
-            "cannot calibrate the response from {} and {} (use --response FILE or --srgb)",
-            dark.source.display(),
-            bright.source.display()
-        )
-    })?;
-    timings.fit = Some(ms(t));
-    let degrees: Vec<String> = calibration
-        .channels
-        .iter()
-        .map(|c| format!("{} degree {}", c.name, c.fit.degree))
-        .collect();
-    let summary = format!(
-        "calibrated from {} and {} (ratio {ratio:.4}, {}): {}, {}",
-        file_name(dark.source),
-        file_name(bright.source),
-        ratio_source.as_str(),
-        response::MODEL_NAME,
-        degrees.join(", ")
-    );
-    let report = json!({
-        "source": "fitted",
-        "model": response::MODEL_NAME,
-        "frames": [dark.source.display().to_string(), bright.source.display().to_string()],
-        "ratio": ratio,
-        "ratio_source": ratio_source.as_str(),
-        "channels": calibration.channels.iter().map(|c| json!({
-            "name": c.name,
-            "degree": c.fit.degree,
-            "covered": [c.fit.covered.0, c.fit.covered.1],
-            "residual_rms_stops": c.fit.residual_rms,
-            "confidence": c.fit.confidence,
-            "borrowed_from": c.borrowed_from,
-        })).collect::<Vec<_>>(),
-    });
-    Ok(Chosen {
-        response: calibration.response,
-        summary,
-        report,
+    Ok(ResponsePolicy::Fit {
+        fallback: None,
+        min_confidence: 0.0,
     })
 }

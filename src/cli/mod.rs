@@ -10,6 +10,7 @@ mod calibrate;
 mod check_config;
 mod films;
 mod inspect;
+mod looks;
 mod merge;
 mod render;
 mod status;

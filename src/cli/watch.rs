@@ -7,10 +7,11 @@ use std::time::Duration;
 
 use anyhow::Context;
 use filmback::config::Config;
-use filmback::daemon::{self, Control, PlainMerge, demo};
+use filmback::daemon::{self, Control, Darkroom, demo};
+use filmback::journal::Entry;
 use tokio::signal::unix::{SignalKind, signal};
 use tokio::sync::mpsc;
-use tracing::{error, info, warn};
+use tracing::{error, info};
 
 /// Arguments of `filmback watch`.
 #[derive(Debug, Clone, clap::Args)]
@@ -27,7 +28,9 @@ pub struct Args {
     /// State folder: journal, response cache, status (overrides the file).
     #[arg(long, value_name = "DIR")]
     state: Option<PathBuf>,
-    /// After start, drop a synthetic three-frame bracket with EXIF into the ingest folder.
+    /// Demonstration: after start, drop a synthetic three-frame bracket with EXIF into the
+    /// ingest folder (as a tethering tool would), wait until it is developed, print the
+    /// outputs and stop.
     #[arg(long)]
     demo: bool,
 }
@@ -84,12 +87,24 @@ pub fn run(args: Args) -> anyhow::Result<ExitCode> {
         .context("cannot start the async runtime")?;
     let result = runtime.block_on(async {
         let (tx, rx) = mpsc::channel(4);
-        let signals = forward_signals(tx, args.clone())?;
+        let signals = forward_signals(tx.clone(), args.clone())?;
         tokio::spawn(signals);
-        if args.demo {
-            tokio::spawn(demo_feed(config.folders.ingest.clone()));
+        let demo = args.demo.then(|| {
+            tokio::spawn(demo_run(
+                config.folders.ingest.clone(),
+                config.folders.state.clone(),
+                tx,
+            ))
+        });
+        daemon::run(config, Arc::new(Darkroom), rx).await?;
+        // The demo stops the daemon once its bracket is settled; a signal may stop it
+        // first, and then the demo's wait is cut short.
+        if let Some(handle) = demo
+            && let Ok(Ok(outcome)) = tokio::time::timeout(Duration::from_secs(1), handle).await
+        {
+            outcome?;
         }
-        Ok::<_, anyhow::Error>(daemon::run(config, Arc::new(PlainMerge), rx).await?)
+        Ok::<_, anyhow::Error>(())
     });
     // Brackets abandoned at stop keep their blocking threads; don't wait for them.
     runtime.shutdown_timeout(Duration::from_millis(500));
@@ -125,24 +140,65 @@ fn forward_signals(
     })
 }
 
-/// Drops one synthetic bracket (three 1200×800 JPEGs with EXIF, −2/0/+2 EV) into the
-/// ingest folder, the way a tethering tool does.
-async fn demo_feed(ingest: PathBuf) {
+/// The demonstration: drops one synthetic bracket (three 1200×800 JPEGs with EXIF,
+/// −2/0/+2 EV) into the ingest folder the way a tethering tool does (written under a
+/// temporary name, then renamed), waits for the daemon's journal to settle it, prints
+/// what was written and stops the daemon.
+async fn demo_run(
+    ingest: PathBuf,
+    state: PathBuf,
+    control: mpsc::Sender<Control>,
+) -> anyhow::Result<()> {
+    let result = demo_bracket(&ingest, &state).await;
+    let _ = control.send(Control::Stop).await;
+    result
+}
+
+async fn demo_bracket(ingest: &Path, state: &Path) -> anyhow::Result<()> {
     tokio::time::sleep(Duration::from_millis(500)).await;
     let stamp = filmback::journal::unix_now();
     let shots = demo::aeb("Demo Camera", Some("0001"), (stamp % 3600) as u32);
-    let made = tokio::task::spawn_blocking(move || demo::jpegs(1200, 800, &shots, stamp)).await;
-    let jpegs = match made {
-        Ok(Ok(j)) => j,
-        Ok(Err(e)) => return warn!(error = %e, "demo bracket not made"),
-        Err(e) => return warn!(error = %e, "demo feed failed"),
-    };
+    let jpegs = tokio::task::spawn_blocking(move || demo::jpegs(1200, 800, &shots, stamp))
+        .await
+        .context("demo bracket")?
+        .context("cannot make the demo bracket")?;
+    let mut names = Vec::new();
     for (i, bytes) in jpegs.iter().enumerate() {
         let name = format!("demo-{stamp}-{}.jpg", i + 1);
-        match demo::drop_frame(&ingest, &name, bytes) {
-            Ok(path) => info!(file = %path.display(), "demo frame dropped"),
-            Err(e) => return warn!(error = %e, "demo frame not written"),
-        }
+        let path = demo::drop_frame(ingest, &name, bytes)
+            .with_context(|| format!("cannot write the demo frame {name}"))?;
+        info!(file = %path.display(), "demo frame dropped");
+        names.push(name);
         tokio::time::sleep(Duration::from_millis(300)).await;
     }
+    let ours = |inputs: Vec<&filmback::bracket::Input>| {
+        inputs.iter().any(|i| {
+            i.path
+                .file_name()
+                .is_some_and(|n| names.iter().any(|m| n == m.as_str()))
+        })
+    };
+    let deadline = tokio::time::Instant::now() + Duration::from_secs(120);
+    while tokio::time::Instant::now() < deadline {
+        tokio::time::sleep(Duration::from_millis(250)).await;
+        let Ok(entries) = filmback::journal::read(state) else {
+            continue;
+        };
+        let Some(entry) = entries.iter().rev().find(|e| ours(e.inputs())) else {
+            continue;
+        };
+        return match entry {
+            Entry::Bracket {
+                outputs, response, ..
+            } => {
+                println!("demo bracket developed (response: {response}):");
+                for o in outputs {
+                    println!("  {}", o.display());
+                }
+                Ok(())
+            }
+            other => anyhow::bail!("the demo bracket was not developed: {other:?}"),
+        };
+    }
+    anyhow::bail!("the demo bracket was not developed within 120 s")
 }

@@ -5,22 +5,29 @@
 //! outputs and the response it used. Everything about files appearing, queues, retries
 //! and restarts stays on the daemon's side; everything about pixels on this side.
 //!
-//! [`PlainMerge`] is a complete, small developer built only on the crate's shared stages
-//! (frame loading, [`InverseResponse`], [`atomic`]): it merges with the cached (else sRGB)
-//! response and writes the EXR and the `linear` tone map. It is what `filmback watch`
-//! runs until the fitted-response / film pipeline is connected behind this same trait.
+//! [`Darkroom`] is the developer `filmback watch` runs: the pipeline of
+//! [`crate::darkroom`] under the camera's preset. The response follows the preset's
+//! `recalibrate`: `auto` fits the bracket and falls back to the cached curve (else sRGB)
+//! when the fit is weaker than `min_confidence`; `always` uses the bracket's own fit (sRGB
+//! only if no fit is possible); `never` uses the cached curve (else sRGB). A single frame
+//! is rendered through the cached curve (else sRGB), without an EXR.
 
-use std::io::{Cursor, Write};
 use std::path::PathBuf;
-use std::time::{Duration, Instant};
+use std::time::Duration;
+
+use rayon::prelude::*;
 
 use crate::atomic::{self, Overwrite};
 use crate::bracket::{CameraId, Capture};
 use crate::cache::CachedResponse;
-use crate::config::Preset;
-use crate::frame::{self, Limits, Samples};
-use crate::journal::ResponseSource;
-use crate::response::InverseResponse;
+use crate::config::{Preset, Recalibrate};
+use crate::darkroom::{self, DarkroomError, GivenResponse, Prints, ResponsePolicy, Source};
+use crate::film::{Catalogue, ColourMode, Key};
+use crate::frame::{self, Limits, LoadedFrame};
+use crate::hdr_output::ExrOptions;
+use crate::merge::{MergeError, MergeOptions};
+use crate::rendering::{self, Format, SourceExif};
+use crate::response::{InverseResponse, RatioSource};
 
 /// One unit of work: a bracket (two or more frames) or a single frame.
 #[derive(Debug, Clone)]
@@ -39,19 +46,11 @@ pub struct Job {
     pub out: PathBuf,
     /// Output name stem (the first frame's file stem).
     pub stem: String,
+    /// Folder of extra film stocks beside the built-in ones, if configured.
+    pub stocks: Option<PathBuf>,
 }
 
 impl Job {
-    /// `out/<stem>.exr`.
-    pub fn exr_path(&self) -> PathBuf {
-        self.out.join(format!("{}.exr", self.stem))
-    }
-
-    /// `out/<stem>.<look>.jpg` for a film stock or tone map.
-    pub fn look_path(&self, look: &str) -> PathBuf {
-        self.out.join(format!("{}.{look}.jpg", self.stem))
-    }
-
     /// True for a single frame (renderings only, no extended range).
     pub fn is_single(&self) -> bool {
         self.frames.len() == 1
@@ -64,7 +63,7 @@ pub struct Developed {
     /// Every file published, in a stable order.
     pub outputs: Vec<PathBuf>,
     /// Where the response came from.
-    pub source: ResponseSource,
+    pub source: Source,
     /// The bracket's own fit and its confidence in `(0, 1]`, to refine the cache.
     pub fit: Option<(InverseResponse, f64)>,
     /// Wall time per stage, in order (`decode`, `merge`, `exr`, …).
@@ -129,176 +128,135 @@ where
     }
 }
 
-/// Merge with the cached (else sRGB) response; write the EXR and the `linear` tone map
-/// (see the module docs).
+/// The real developer (see the module docs).
 #[derive(Debug, Clone, Copy, Default)]
-pub struct PlainMerge;
+pub struct Darkroom;
 
-/// Hat weight `w(B) = min(B, 1 − B)`, floored at `1e-3` so a pixel clipped in every frame
-/// still takes a value (the mean of the frames' estimates) instead of `0/0`.
-fn hat(b: f32) -> f32 {
-    b.min(1.0 - b).max(1e-3)
-}
-
-impl Develop for PlainMerge {
-    fn develop(&self, job: &Job) -> Result<Developed, DevelopError> {
-        let mut stages = Vec::new();
-        let mut notes = Vec::new();
-        let t0 = Instant::now();
-        let mut frames = Vec::with_capacity(job.frames.len());
-        for capture in &job.frames {
-            let loaded = frame::load(&capture.input.path, Limits::default()).map_err(|e| {
-                DevelopError::Frame {
-                    path: capture.input.path.clone(),
-                    reason: e.to_string(),
-                }
-            })?;
-            frames.push(loaded.frame);
-        }
-        stages.push(("decode", t0.elapsed()));
-        let (w, h, ch) = (frames[0].width(), frames[0].height(), frames[0].channels());
-        if let Some((c, f)) = job
-            .frames
-            .iter()
-            .zip(&frames)
-            .find(|(_, f)| (f.width(), f.height(), f.channels()) != (w, h, ch))
-        {
-            return Err(DevelopError::Bracket(format!(
-                "{}: {}×{}×{} differs from the first frame's {w}×{h}×{ch}",
-                c.input.path.display(),
-                f.width(),
-                f.height(),
-                f.channels()
-            )));
-        }
-        let (response, source) = match &job.cached {
-            Some(c) if c.response.channels() == ch => (c.response.clone(), ResponseSource::Cached),
-            _ => (InverseResponse::srgb(ch, 1024), ResponseSource::Standard),
-        };
-        // E = Σ w(B_k)·g(B_k)/e_k / Σ w(B_k), per channel; e_k normalised to the first
-        // frame so the map's scale does not depend on ISO units.
-        let t1 = Instant::now();
-        let e0 = job.frames[0].exposure.unwrap_or(1.0);
-        let n = w as usize * h as usize * ch;
-        let mut num = vec![0f32; n];
-        let mut den = vec![0f32; n];
-        for (capture, f) in job.frames.iter().zip(&frames) {
-            let e = (capture.exposure.unwrap_or(e0) / e0) as f32;
-            let levels = f.bit_depth().levels();
-            let scale = 1.0 / f.bit_depth().max_code() as f32;
-            let tables: Vec<Vec<f32>> = (0..ch).map(|c| response.table(c, levels)).collect();
-            let mut add = |i: usize, code: usize| {
-                let b = code as f32 * scale;
-                let wt = hat(b);
-                num[i] += wt * tables[i % ch][code] / e;
-                den[i] += wt;
-            };
-            match f.samples() {
-                Samples::Eight(v) => v.iter().enumerate().for_each(|(i, &k)| add(i, k.into())),
-                Samples::Sixteen(v) => v.iter().enumerate().for_each(|(i, &k)| add(i, k.into())),
-            }
-        }
-        drop(frames);
-        let mut radiance = num;
-        radiance.iter_mut().zip(&den).for_each(|(e, w)| *e /= w);
-        drop(den);
-        stages.push(("merge", t1.elapsed()));
-        let mut outputs = Vec::new();
-        let rgb = |i: usize| -> (f32, f32, f32) {
-            if ch == 3 {
-                (radiance[3 * i], radiance[3 * i + 1], radiance[3 * i + 2])
-            } else {
-                (radiance[i], radiance[i], radiance[i])
-            }
-        };
-        if job.preset.exr && !job.is_single() {
-            let t2 = Instant::now();
-            let path = job.exr_path();
-            use exr::prelude::WritableImage;
-            let mut bytes = Cursor::new(Vec::new());
-            exr::prelude::Image::from_channels(
-                (w as usize, h as usize),
-                exr::prelude::SpecificChannels::rgb(|p: exr::prelude::Vec2<usize>| {
-                    rgb(p.y() * w as usize + p.x())
-                }),
-            )
-            .write()
-            .to_buffered(&mut bytes)
-            .map_err(|e| DevelopError::Output {
-                path: path.clone(),
+impl From<DarkroomError> for DevelopError {
+    fn from(e: DarkroomError) -> Self {
+        if let Some(path) = e.output_path() {
+            return DevelopError::Output {
+                path: path.to_path_buf(),
                 reason: e.to_string(),
-            })?;
-            atomic::publish(&path, bytes.get_ref(), Overwrite::Replace)?;
-            outputs.push(path);
-            stages.push(("exr", t2.elapsed()));
+            };
         }
-        for look in job.preset.tonemaps.iter().chain(&job.preset.films) {
-            if look != "linear" {
-                notes.push(format!("look {look:?} is not rendered by this developer"));
-                continue;
-            }
-            let t3 = Instant::now();
-            let path = job.look_path(look);
-            let jpeg = linear_jpeg(&radiance, w, h, ch, job.preset.jpeg_quality, job.preset.t)
-                .map_err(|reason| DevelopError::Output {
-                    path: path.clone(),
-                    reason,
-                })?;
-            atomic::publish(&path, &jpeg, Overwrite::Replace)?;
-            outputs.push(path);
-            stages.push(("linear", t3.elapsed()));
-        }
-        Ok(Developed {
-            outputs,
-            source,
-            fit: None,
-            stages,
-            notes,
-        })
+        DevelopError::Bracket(e.to_string())
     }
 }
 
-/// The `linear` tone map: radiance scaled so its 99th percentile times `2^t` is white,
-/// clipped, sRGB-encoded, JPEG at `quality`.
-fn linear_jpeg(
-    radiance: &[f32],
-    w: u32,
-    h: u32,
-    ch: usize,
-    quality: u8,
-    t: f64,
-) -> Result<Vec<u8>, String> {
-    let mut sorted: Vec<f32> = radiance.iter().copied().filter(|v| v.is_finite()).collect();
-    let k = (sorted.len().saturating_sub(1) * 99) / 100;
-    let p99 = if sorted.is_empty() {
-        1.0
-    } else {
-        *sorted.select_nth_unstable_by(k, f32::total_cmp).1
-    };
-    let scale = 2f32.powf(t as f32) / p99.max(f32::MIN_POSITIVE);
-    let encode = |v: f32| -> u8 {
-        let x = (v * scale).clamp(0.0, 1.0);
-        let s = if x <= 0.003_130_8 {
-            12.92 * x
-        } else {
-            1.055 * x.powf(1.0 / 2.4) - 0.055
+impl Darkroom {
+    /// The cached curve if it fits the frames, else the sRGB inverse.
+    fn fallback(job: &Job, channels: usize) -> GivenResponse {
+        match &job.cached {
+            Some(c) if c.response.channels() == channels => GivenResponse {
+                response: c.response.clone(),
+                source: Source::Cached,
+                label: format!("cached curve of {} ({} bracket(s))", c.camera, c.brackets),
+            },
+            _ => GivenResponse::standard(channels),
+        }
+    }
+}
+
+impl Develop for Darkroom {
+    fn develop(&self, job: &Job) -> Result<Developed, DevelopError> {
+        let start = std::time::Instant::now();
+        let frames: Vec<LoadedFrame> = job
+            .frames
+            .par_iter()
+            .map(|c| {
+                frame::load(&c.input.path, Limits::default()).map_err(|e| DevelopError::Frame {
+                    path: c.input.path.clone(),
+                    reason: e.to_string(),
+                })
+            })
+            .collect::<Result<_, _>>()?;
+        let decode = start.elapsed();
+        let preset = &job.preset;
+        let mut catalogue =
+            Catalogue::builtin().map_err(|e| DevelopError::Bracket(e.to_string()))?;
+        if let Some(dir) = &job.stocks {
+            catalogue = catalogue
+                .with_folder(dir)
+                .map_err(|e| DevelopError::Bracket(e.to_string()))?;
+        }
+        let looks = rendering::looks(
+            &catalogue,
+            &preset.films,
+            &preset.tonemaps,
+            preset.t,
+            ColourMode::PerLayer,
+            Key::LogAverage,
+        )
+        .map_err(|e| DevelopError::Bracket(format!("preset: {e}")))?;
+        // The renderings carry the first frame's EXIF (camera, lens, exposure, date,
+        // artist, copyright); a frame whose file vanished since decoding carries none.
+        let exif = std::fs::read(&job.frames[0].input.path)
+            .map(|bytes| SourceExif::from_frame_bytes(&bytes))
+            .unwrap_or_default();
+        std::fs::create_dir_all(&job.out).map_err(|e| DevelopError::Output {
+            path: job.out.clone(),
+            reason: e.to_string(),
+        })?;
+        let prints = Prints {
+            dir: &job.out,
+            stem: &job.stem,
+            exr: (preset.exr && !job.is_single()).then(ExrOptions::default),
+            radiance_hdr: false,
+            looks: &looks,
+            format: Format::Jpeg {
+                quality: preset.jpeg_quality,
+            },
+            exif: &exif,
+            // A complete file under a job's name is a leftover of an interrupted earlier
+            // attempt at this same job (names are unique per bracket): replace it.
+            overwrite: Overwrite::Replace,
         };
-        (s * 255.0 + 0.5) as u8
-    };
-    let pixels: Vec<u8> = radiance.iter().map(|&v| encode(v)).collect();
-    let mut out = Vec::new();
-    let color = if ch == 3 {
-        jpeg_encoder::ColorType::Rgb
-    } else {
-        jpeg_encoder::ColorType::Luma
-    };
-    let (w16, h16) = (
-        u16::try_from(w).map_err(|_| format!("width {w} exceeds JPEG's 65535"))?,
-        u16::try_from(h).map_err(|_| format!("height {h} exceeds JPEG's 65535"))?,
-    );
-    jpeg_encoder::Encoder::new(&mut out, quality)
-        .encode(&pixels, w16, h16, color)
-        .map_err(|e| e.to_string())?;
-    out.flush().map_err(|e| e.to_string())?;
-    Ok(out)
+        let channels = frames[0].frame.channels();
+        let developed = if job.is_single() {
+            darkroom::develop_single(&frames[0], Self::fallback(job, channels), &prints)?
+        } else {
+            let exposures: Vec<f64> = job
+                .frames
+                .iter()
+                .map(|c| {
+                    c.exposure.ok_or_else(|| {
+                        DarkroomError::Merge(MergeError::BadExposure {
+                            path: c.input.path.clone(),
+                            exposure: f64::NAN,
+                        })
+                    })
+                })
+                .collect::<Result<_, _>>()?;
+            let fallback = Self::fallback(job, channels);
+            let policy = match preset.recalibrate {
+                Recalibrate::Never => ResponsePolicy::Use(fallback),
+                Recalibrate::Always => ResponsePolicy::Fit {
+                    fallback: Some(GivenResponse::standard(channels)),
+                    min_confidence: 0.0,
+                },
+                Recalibrate::Auto => ResponsePolicy::Fit {
+                    fallback: Some(fallback),
+                    min_confidence: preset.min_confidence,
+                },
+            };
+            darkroom::develop(
+                &frames,
+                &exposures,
+                RatioSource::Exif,
+                policy,
+                MergeOptions::default(),
+                &prints,
+            )?
+        };
+        let mut stages = vec![("decode", decode)];
+        stages.extend(developed.stages);
+        Ok(Developed {
+            outputs: developed.outputs,
+            source: developed.response.source,
+            fit: developed.response.fit,
+            stages,
+            notes: developed.warnings,
+        })
+    }
 }

@@ -30,7 +30,7 @@ use tokio::sync::mpsc;
 use tokio::task::JoinSet;
 use tracing::{error, info, warn};
 
-pub use develop::{Develop, DevelopError, Developed, Job, PlainMerge};
+pub use develop::{Darkroom, Develop, DevelopError, Developed, Job};
 
 use crate::atomic::{self, Overwrite};
 use crate::bracket::{Alone, Bracket, Closed, Grouper, Input};
@@ -591,6 +591,7 @@ impl State {
                 preset,
                 out: self.config.folders.out.clone(),
                 stem: self.output_stem(&work.closed),
+                stocks: self.config.folders.stocks.clone(),
             };
             let developer = Arc::clone(&self.developer);
             self.in_flight.spawn_blocking(move || {
