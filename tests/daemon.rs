@@ -76,12 +76,23 @@ impl Rig {
         developer: Arc<dyn Develop>,
         before: impl FnOnce(&Path),
     ) -> Rig {
+        Rig::start_with(overrides, "", developer, before)
+    }
+
+    /// As [`Rig::start`], with `tables` (e.g. camera presets) appended to the config.
+    fn start_with(
+        overrides: &[(&str, &str)],
+        tables: &str,
+        developer: Arc<dyn Develop>,
+        before: impl FnOnce(&Path),
+    ) -> Rig {
         let dir = tempfile::tempdir().unwrap();
         let root = dir.path().to_path_buf();
         std::fs::create_dir_all(root.join("ingest")).unwrap();
         before(&root);
-        let config = Config::from_str(&config_text(&root, overrides), Some(Path::new("test.toml")))
-            .expect("test config is valid");
+        let text = config_text(&root, overrides) + "\n" + tables;
+        let config =
+            Config::from_str(&text, Some(Path::new("test.toml"))).expect("test config is valid");
         let (control, rx) = tokio::sync::mpsc::channel(4);
         let thread = std::thread::spawn(move || {
             let rt = tokio::runtime::Builder::new_multi_thread()
@@ -799,6 +810,89 @@ fn good_fits_refine_the_camera_cache_and_later_brackets_receive_it() {
         String::from_utf8_lossy(&out.stderr)
     );
     assert!(cache.list().unwrap().is_empty());
+}
+
+/// The journal's response source of the bracket whose first input is `<stem>.jpg`.
+fn response_of(state: &Path, stem: &str) -> filmback::darkroom::Source {
+    journal::read(state)
+        .unwrap()
+        .into_iter()
+        .find_map(|e| match e {
+            Entry::Bracket {
+                inputs, response, ..
+            } if inputs[0].path.ends_with(format!("{stem}.jpg")) => Some(response),
+            _ => None,
+        })
+        .unwrap_or_else(|| panic!("no bracket {stem} in the journal"))
+}
+
+#[test]
+fn the_darkroom_fits_renders_each_cameras_looks_and_refines_the_cache() {
+    use filmback::darkroom::Source;
+    // Films at t = 1 stop on top of the request's own @1/2: velvia50 at t = 1. Body P's
+    // preset replaces the films and drops the tone map, and never recalibrates.
+    let mut rig = Rig::start_with(
+        &[
+            ("render", "films = [\"velvia50@1/2\"]"),
+            ("render", "t = 1.0"),
+        ],
+        "[camera.\"Body P\"]\nfilms = [\"provia100f\"]\ntonemaps = []\nrecalibrate = \"never\"\n",
+        Arc::new(Darkroom),
+        |_| {},
+    );
+    put(&rig.ingest(), &aeb("Body A", 10, "a"));
+    put(&rig.ingest(), &aeb("Body P", 10, "p"));
+    let expected: BTreeSet<String> = [
+        "a-1.exr",
+        "a-1.velvia50-t1.jpg",
+        "a-1.linear.jpg",
+        "p-1.exr",
+        "p-1.provia100f-t2.jpg",
+    ]
+    .map(String::from)
+    .into();
+    expect_outputs(&rig.out(), &expected, T);
+    put(&rig.ingest(), &aeb("Body A", 30, "b"));
+    let mut expected = expected;
+    expected.extend(["b-1.exr", "b-1.velvia50-t1.jpg", "b-1.linear.jpg"].map(String::from));
+    expect_outputs(&rig.out(), &expected, T);
+    let state = rig.state();
+    rig.stop();
+    // Body A: a noiseless sRGB bracket at ±2 EV fits confidently, twice, and each fit
+    // is folded into its cache; Body P never fits, has no cache, and takes sRGB.
+    assert_eq!(response_of(&state, "a-1"), Source::Fitted);
+    assert_eq!(response_of(&state, "b-1"), Source::Fitted);
+    assert_eq!(response_of(&state, "p-1"), Source::Standard);
+    let cache = filmback::cache::ResponseCache::new(&state);
+    let entry = cache.find("Body A").unwrap();
+    assert_eq!(entry.brackets, 2);
+    // The frames were rendered through sRGB: the cached curve is close to its inverse.
+    let srgb_mid = ((0.5f64 + 0.055) / 1.055).powf(2.4);
+    let g_mid = entry.response.eval(1, 0.5);
+    assert!(
+        (g_mid.log2() - srgb_mid.log2()).abs() < 0.15,
+        "g(0.5) = {g_mid}, sRGB {srgb_mid}"
+    );
+    assert!(cache.find("Body P").is_err(), "Body P never calibrates");
+    // The film rendering carries the camera's EXIF and is upright at the frame's size.
+    let jpeg = std::fs::read(rig_out_path(&state, "a-1.velvia50-t1.jpg")).unwrap();
+    let exif = exif::Reader::new()
+        .read_from_container(&mut std::io::Cursor::new(&jpeg))
+        .expect("EXIF carried into the rendering");
+    let model = exif
+        .get_field(exif::Tag::Model, exif::In::PRIMARY)
+        .map(|f| f.display_value().to_string());
+    assert!(model.is_some_and(|m| m.contains("Body A")), "model carried");
+    let decoded = image::load_from_memory(&jpeg).unwrap();
+    assert_eq!(
+        (decoded.width(), decoded.height()),
+        (u32::from(W), u32::from(H))
+    );
+}
+
+/// `out/<name>` of the rig whose state folder is `state` (they are siblings).
+fn rig_out_path(state: &Path, name: &str) -> PathBuf {
+    state.parent().unwrap().join("out").join(name)
 }
 
 #[test]
