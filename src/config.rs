@@ -395,7 +395,7 @@ impl Config {
             });
         let catalogue = catalogue.map_err(|e| ConfigError::Invalid {
             path: label.to_path_buf(),
-            line: line_of(text, "stocks"),
+            line: line_of_key(text, "stocks"),
             column: 1,
             key: "folders.stocks".into(),
             message: e.to_string(),
@@ -510,11 +510,27 @@ fn line_column(text: &str, offset: usize) -> (usize, usize) {
     (line, column)
 }
 
-/// The 1-based line of the first occurrence of `needle` in `text` (1 if absent: the
-/// value came from the defaults).
+/// The 1-based line of the first occurrence of `needle` in `text` outside a `#` comment
+/// (1 if absent: the value came from the defaults).
 fn line_of(text: &str, needle: &str) -> usize {
-    text.find(needle)
-        .map_or(1, |at| text[..at].matches('\n').count() + 1)
+    text.lines()
+        .position(|l| {
+            l.split('#')
+                .next()
+                .is_some_and(|code| code.contains(needle))
+        })
+        .map_or(1, |i| i + 1)
+}
+
+/// The 1-based line that assigns `key` (`key = …`), 1 if none does.
+fn line_of_key(text: &str, key: &str) -> usize {
+    text.lines()
+        .position(|l| {
+            l.trim_start()
+                .strip_prefix(key)
+                .is_some_and(|rest| rest.trim_start().starts_with('='))
+        })
+        .map_or(1, |i| i + 1)
 }
 
 /// User values over defaults. The defaults file sets every key, so each `expect` holds
@@ -831,5 +847,197 @@ t = -1
         assert!(glob_match("a*b*c", "aXXbYbc"));
         assert!(!glob_match("a*b*c", "aXXbY"));
         assert!(glob_match("*", ""));
+    }
+
+    // ---- films, tone maps and the stocks folder ----
+
+    fn load(text: &str) -> Result<Config, ConfigError> {
+        Config::from_str(text, Some(Path::new("studio.toml")))
+    }
+
+    /// A copy of the built-in Velvia 50 file under another id, in `dir/<file>`.
+    fn user_stock(dir: &Path, file: &str, id: &str) {
+        let velvia = include_str!("../curves/velvia50.toml");
+        assert!(velvia.contains("id = \"velvia50\"\n"));
+        let text = velvia
+            .replace("id = \"velvia50\"\n", &format!("id = \"{id}\"\n"))
+            .replace("name = \"Fujifilm", "name = \"Studio copy of Fujifilm");
+        std::fs::write(dir.join(file), text).unwrap();
+    }
+
+    fn toml_string(path: &Path) -> String {
+        format!("{:?}", path.to_str().unwrap())
+    }
+
+    #[test]
+    fn known_films_with_exposures_load() {
+        let text = "[render]\nfilms = [\"velvia50\", \"provia400@1/2\", \"p1600@-1ev\"]\n\
+                    tonemaps = [\"linear\", \"histogram\", \"histogram-naive\"]\n\
+                    [camera.\"X\"]\nfilms = [\"ektachrome100@2\"]\ntonemaps = []\n";
+        let c = load(text).unwrap();
+        assert_eq!(c.render.films, ["velvia50", "provia400@1/2", "p1600@-1ev"]);
+        assert_eq!(
+            c.render.tonemaps,
+            ["linear", "histogram", "histogram-naive"]
+        );
+        let x = c.preset_for(Some("X"), None);
+        assert_eq!(x.films, ["ektachrome100@2"]);
+        assert!(x.tonemaps.is_empty());
+    }
+
+    #[test]
+    fn unknown_stock_names_its_line_and_key() {
+        // `velvia5` is a prefix of a good name that comes first, and appears unquoted in a
+        // comment: the line reported is the one holding the bad name.
+        let text = "# velvia5 was a typo\n[render]\nfilms = [\"velvia50\"]\n\
+                    [camera.\"X\"]\nt = 1\nfilms = [\"velvia50\",\n  \"velvia5\"]\n";
+        let (line, _, key, message) = invalid(text);
+        assert_eq!((line, key.as_str()), (7, "camera.\"X\".films"));
+        assert!(
+            message.contains("unknown film stock \"velvia5\""),
+            "{message}"
+        );
+        assert!(
+            message.contains("velvia50"),
+            "lists the known stocks: {message}"
+        );
+
+        let (line, _, key, message) = invalid("\n\n[render]\nt = 0\nfilms = [\"velvia5\"]\n");
+        assert_eq!((line, key.as_str()), (5, "render.films"));
+        assert!(message.contains("\"velvia5\""), "{message}");
+        let err = load("[render]\nfilms = [\"velvia5@1/2\"]\n")
+            .unwrap_err()
+            .to_string();
+        assert!(
+            err.starts_with("studio.toml:2:1: render.films: ") && err.contains("\"velvia5\""),
+            "{err}"
+        );
+    }
+
+    #[test]
+    fn negative_stock_in_a_camera_preset_is_refused() {
+        let text = "[render]\nfilms = [\"velvia50\"]\n\n[camera.\"Canon EOS R5\"]\nt = 0.5\n\
+                    films = [\"velvia50\", \"portra400\"]\n";
+        let (line, _, key, message) = invalid(text);
+        assert_eq!(line, 6);
+        assert!(key.contains("camera") && key.contains("films"), "{key}");
+        assert_eq!(key, "camera.\"Canon EOS R5\".films");
+        assert!(
+            message.contains("portra400 is a colour negative"),
+            "{message}"
+        );
+        // With an exposure too, and for another negative.
+        let (_, _, key, message) = invalid("[render]\nfilms = [\"ektar100@1/2\"]\n");
+        assert_eq!(key, "render.films");
+        assert!(
+            message.contains("ektar100 is a colour negative"),
+            "{message}"
+        );
+    }
+
+    #[test]
+    fn unknown_tonemap_is_refused() {
+        let (line, _, key, message) = invalid("[render]\nfilms = []\ntonemaps = [\"sepia\"]\n");
+        assert_eq!((line, key.as_str()), (3, "render.tonemaps"));
+        assert!(
+            message.contains("\"sepia\"") && message.contains("unknown tone map"),
+            "{message}"
+        );
+        let (line, _, key, _) = invalid("[camera.x]\ntonemaps = [\"linear\", \"velvia50\"]\n");
+        assert_eq!((line, key.as_str()), (2, "camera.\"x\".tonemaps"));
+    }
+
+    #[test]
+    fn bad_film_exposure_fails_while_parsing() {
+        let (line, column, key, message) = invalid("[render]\nt = 1\nfilms = [\"velvia50@abc\"]\n");
+        assert_eq!((line, key.as_str()), (3, "films"));
+        assert!(column > 1, "points into the value: column {column}");
+        assert!(message.contains("velvia50@abc"), "{message}");
+        assert!(message.contains("abc"), "{message}");
+        for bad in ["velvia50@0", "velvia50@-1", "@1/2", "velvia50@1/0"] {
+            let (_, _, key, message) = invalid(&format!("[render]\nfilms = [\"{bad}\"]\n"));
+            assert_eq!(key, "films", "{bad}");
+            assert!(message.contains(bad), "{bad}: {message}");
+        }
+    }
+
+    #[test]
+    fn stocks_folder_adds_user_stocks() {
+        let stocks = tempfile::tempdir().unwrap();
+        user_stock(stocks.path(), "studio.toml", "studio-slide");
+        let text = format!(
+            "[folders]\nstocks = {}\n[render]\nfilms = [\"studio-slide\", \"studio-slide@1/2\", \"velvia50\"]\n",
+            toml_string(stocks.path())
+        );
+        let c = load(&text).unwrap();
+        assert_eq!(c.folders.stocks.as_deref(), Some(stocks.path()));
+        assert_eq!(
+            c.render.films,
+            ["studio-slide", "studio-slide@1/2", "velvia50"]
+        );
+        // Without the folder the same name is unknown.
+        let (line, _, key, message) =
+            invalid("[render]\nfilms = [\"studio-slide\", \"velvia50\"]\n");
+        assert_eq!((line, key.as_str()), (2, "render.films"));
+        assert!(message.contains("studio-slide"), "{message}");
+        // Another folder's stocks do not count.
+        let empty = tempfile::tempdir().unwrap();
+        let text = format!(
+            "[folders]\nstocks = {}\n[camera.x]\nfilms = [\"studio-slide\"]\n",
+            toml_string(empty.path())
+        );
+        let (line, _, key, _) = invalid(&text);
+        assert_eq!((line, key.as_str()), (4, "camera.\"x\".films"));
+    }
+
+    #[test]
+    fn bad_stocks_folder_is_refused_at_its_key() {
+        let dir = tempfile::tempdir().unwrap();
+        let missing = dir.path().join("missing");
+        let text = format!(
+            "[render]\nfilms = [\"velvia50\"]\n[folders]\nstocks = {}\n",
+            toml_string(&missing)
+        );
+        let (line, _, key, message) = invalid(&text);
+        assert_eq!((line, key.as_str()), (4, "folders.stocks"));
+        assert!(message.contains("missing"), "{message}");
+        // The line of the key, not of an earlier mention of the word.
+        let text = format!(
+            "# stocks: see below\n[folders]\nout = \"/srv/stocks-out\"\nstocks = {}\n",
+            toml_string(&missing)
+        );
+        let (line, _, key, _) = invalid(&text);
+        assert_eq!((line, key.as_str()), (4, "folders.stocks"));
+
+        // A user stock reusing a built-in id.
+        user_stock(dir.path(), "dup.toml", "velvia50");
+        let text = format!("[folders]\nstocks = {}\n", toml_string(dir.path()));
+        let (line, _, key, message) = invalid(&text);
+        assert_eq!((line, key.as_str()), (2, "folders.stocks"));
+        assert!(message.contains("already defined"), "{message}");
+    }
+
+    #[test]
+    fn errors_in_the_example_file_point_at_the_edited_line() {
+        // The shipped example, copied and edited: the stocks folder enabled (it does not
+        // exist) and a film replaced. Its comments mention both.
+        let dir = tempfile::tempdir().unwrap();
+        let missing = dir.path().join("no-such-stocks");
+        let line_holding = |text: &str, needle: &str| {
+            text.lines().position(|l| l.starts_with(needle)).unwrap() + 1
+        };
+        let text = DEFAULT_TOML.replace(
+            "# stocks = \"stocks\"",
+            &format!("stocks = {}", toml_string(&missing)),
+        );
+        let (line, _, key, _) = invalid(&text);
+        assert_eq!(key, "folders.stocks");
+        assert_eq!(line, line_holding(&text, "stocks = "));
+
+        let text = DEFAULT_TOML.replace("films = [\"velvia50\"]", "films = [\"provia100\"]");
+        let (line, _, key, message) = invalid(&text);
+        assert_eq!(key, "render.films");
+        assert_eq!(line, line_holding(&text, "films = [\"provia100\"]"));
+        assert!(message.contains("provia100"), "{message}");
     }
 }

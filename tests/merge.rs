@@ -592,3 +592,242 @@ fn cli_reads_exif_and_fills_the_header() {
         "{err}"
     );
 }
+
+// ---- renderings: --film, --tonemap, --format ----
+
+/// `filmback merge b.png a.png -o OUT --times 1/25,1/100 EXTRA...` (b is the bright frame
+/// and gives the outputs their stem).
+fn merge_pair(a: &Path, b: &Path, out: &Path, extra: &[&str]) -> std::process::Output {
+    filmback()
+        .arg("merge")
+        .args([b, a])
+        .arg("-o")
+        .arg(out)
+        .args(["--times", "1/25,1/100"])
+        .args(extra)
+        .output()
+        .unwrap()
+}
+
+/// Decodes `path`, checking that its content (not only its name) is `format`.
+fn decode(path: &Path, format: image::ImageFormat) -> image::DynamicImage {
+    let reader = image::ImageReader::open(path)
+        .unwrap()
+        .with_guessed_format()
+        .unwrap();
+    assert_eq!(reader.format(), Some(format), "{}", path.display());
+    reader.decode().unwrap()
+}
+
+fn mean_rgb8(image: &image::DynamicImage) -> f64 {
+    let rgb = image.to_rgb8();
+    let samples = rgb.as_raw();
+    samples.iter().map(|&v| f64::from(v)).sum::<f64>() / samples.len() as f64
+}
+
+fn files_in(dir: &Path) -> Vec<String> {
+    let mut names: Vec<String> = std::fs::read_dir(dir)
+        .map(|d| {
+            d.map(|e| e.unwrap().file_name().to_string_lossy().into_owned())
+                .collect()
+        })
+        .unwrap_or_default();
+    names.sort();
+    names
+}
+
+#[test]
+fn cli_renders_films_and_tonemaps_beside_the_exr() {
+    let dir = tempfile::tempdir().unwrap();
+    let (a, b) = pair(dir.path());
+    let out = dir.path().join("out");
+    let args = [
+        "--film",
+        "velvia50",
+        "--film",
+        "provia400@1/2",
+        "--tonemap",
+        "histogram",
+        "--json",
+    ];
+    let first = merge_pair(&a, &b, &out, &args);
+    assert!(
+        first.status.success(),
+        "{}",
+        String::from_utf8_lossy(&first.stderr)
+    );
+    let report: serde_json::Value = serde_json::from_slice(&first.stdout).unwrap();
+    let expected: Vec<PathBuf> = [
+        "b.exr",
+        "b.velvia50-t1.jpg",
+        "b.provia400-t0.5.jpg",
+        "b.histogram.jpg",
+    ]
+    .iter()
+    .map(|n| out.join(n))
+    .collect();
+    let listed: Vec<String> = report["outputs"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|v| v.as_str().unwrap().to_string())
+        .collect();
+    let wanted: Vec<String> = expected.iter().map(|p| p.display().to_string()).collect();
+    assert_eq!(listed, wanted);
+    assert!(
+        report["timings_ms"]["render"].as_f64().unwrap() >= 0.0,
+        "{}",
+        report["timings_ms"]
+    );
+    assert_eq!(
+        files_in(&out),
+        [
+            "b.exr",
+            "b.histogram.jpg",
+            "b.provia400-t0.5.jpg",
+            "b.velvia50-t1.jpg"
+        ],
+        "no temporary files left"
+    );
+    let mut means = Vec::new();
+    for path in &expected[1..] {
+        let image = decode(path, image::ImageFormat::Jpeg);
+        assert_eq!(
+            (image.width(), image.height()),
+            (96, 64),
+            "{}",
+            path.display()
+        );
+        means.push(mean_rgb8(&image));
+    }
+    // velvia50 at t = 1 against provia400 at t = 1/2 (about 122 and 112 today): the two
+    // film renderings really differ, the half-exposed one darker.
+    let (velvia, provia_half) = (means[0], means[1]);
+    assert!(
+        provia_half + 5.0 < velvia,
+        "t = 1/2 should print darker than t = 1: means {means:?}"
+    );
+    for m in &means {
+        assert!(
+            (5.0..250.0).contains(m),
+            "not a blank frame: means {means:?}"
+        );
+    }
+
+    // The same stock at t = 1 and t = 1/2 (about 138 and 112 today): one stop less light
+    // on a reversal film is a denser, darker slide.
+    let other = dir.path().join("provia");
+    let o = merge_pair(
+        &a,
+        &b,
+        &other,
+        &["--film", "provia400", "--film", "provia400@1/2"],
+    );
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let full = mean_rgb8(&decode(
+        &other.join("b.provia400-t1.jpg"),
+        image::ImageFormat::Jpeg,
+    ));
+    let half = mean_rgb8(&decode(
+        &other.join("b.provia400-t0.5.jpg"),
+        image::ImageFormat::Jpeg,
+    ));
+    assert!(half + 10.0 < full, "provia400: t=1 {full}, t=1/2 {half}");
+    assert!(
+        (half - provia_half).abs() < 1.0,
+        "the same look of the same bracket: {half} vs {provia_half}"
+    );
+
+    // The same again without --force: refused before decoding, naming an output, and
+    // nothing is touched.
+    let before: Vec<Vec<u8>> = expected.iter().map(|p| std::fs::read(p).unwrap()).collect();
+    let again = merge_pair(&a, &b, &out, &args);
+    let err = String::from_utf8_lossy(&again.stderr);
+    assert!(!again.status.success());
+    assert!(err.contains("already exists"), "{err}");
+    assert!(
+        expected
+            .iter()
+            .any(|p| err.contains(&p.display().to_string())),
+        "{err}"
+    );
+    for (path, bytes) in expected.iter().zip(&before) {
+        assert_eq!(&std::fs::read(path).unwrap(), bytes, "{}", path.display());
+    }
+
+    // One rendering present, the EXR gone: still refused, naming that rendering.
+    std::fs::remove_file(&expected[0]).unwrap();
+    let again = merge_pair(&a, &b, &out, &args);
+    let err = String::from_utf8_lossy(&again.stderr);
+    assert!(!again.status.success());
+    assert!(err.contains("b.velvia50-t1.jpg"), "{err}");
+    assert!(!expected[0].exists(), "refused before writing the EXR");
+
+    let forced = merge_pair(&a, &b, &out, &[&args[..], &["--force"]].concat());
+    assert!(
+        forced.status.success(),
+        "{}",
+        String::from_utf8_lossy(&forced.stderr)
+    );
+    let report: serde_json::Value = serde_json::from_slice(&forced.stdout).unwrap();
+    assert_eq!(report["outputs"].as_array().unwrap().len(), 4);
+    assert_eq!(files_in(&out).len(), 4);
+    for path in &expected {
+        assert!(path.exists(), "{}", path.display());
+    }
+}
+
+#[test]
+fn cli_refuses_unknown_or_negative_looks_before_writing() {
+    let dir = tempfile::tempdir().unwrap();
+    let (a, b) = pair(dir.path());
+    let out = dir.path().join("out");
+    let cases: [(&[&str], &[&str]); 3] = [
+        (
+            &["--film", "nosuchstock"],
+            &["nosuchstock", "unknown film stock"],
+        ),
+        (&["--film", "portra400"], &["portra400", "colour negative"]),
+        (&["--tonemap", "foo"], &["\"foo\"", "unknown tone map"]),
+    ];
+    for (extra, needles) in cases {
+        // A good look first: the bad one must still stop everything.
+        let args = [&["--tonemap", "linear", "--srgb"][..], extra].concat();
+        let o = merge_pair(&a, &b, &out, &args);
+        let err = String::from_utf8_lossy(&o.stderr);
+        assert!(!o.status.success(), "{extra:?} succeeded");
+        for needle in needles {
+            assert!(err.contains(needle), "{extra:?}: {err}");
+        }
+        assert!(
+            files_in(&out).is_empty(),
+            "{extra:?} wrote {:?}",
+            files_in(&out)
+        );
+    }
+}
+
+#[test]
+fn cli_png16_writes_sixteen_bit_renderings() {
+    let dir = tempfile::tempdir().unwrap();
+    let (a, b) = pair(dir.path());
+    let out = dir.path().join("out");
+    let o = merge_pair(
+        &a,
+        &b,
+        &out,
+        &["--format", "png16", "--tonemap", "linear", "--srgb"],
+    );
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let path = out.join("b.linear.png");
+    let image = decode(&path, image::ImageFormat::Png);
+    assert_eq!(image.color(), image::ColorType::Rgb16);
+    assert_eq!((image.width(), image.height()), (96, 64));
+    // Really 16 bits: more distinct values than an 8-bit image can hold per channel.
+    let rgb = image.to_rgb16();
+    let mut values: Vec<u16> = rgb.as_raw().iter().step_by(3).copied().collect();
+    values.sort_unstable();
+    values.dedup();
+    assert!(values.len() > 256, "{} distinct red values", values.len());
+    assert_eq!(files_in(&out), ["b.exr", "b.linear.png"]);
+}
