@@ -184,7 +184,38 @@ fn main() {
         t_image.as_secs_f64() / t_ours.as_secs_f64()
     );
 
+    tone_maps(&map);
     peer(&map, ours_q95);
+}
+
+/// The tone maps (no knob of their own beyond the operator): map → encoded JPEG q92, the
+/// daemon's default quality, split into the operator (to 16-bit display values) and the
+/// rest (8-bit conversion and encoding).
+fn tone_maps(map: &RadianceMap) {
+    println!("\ntone maps, 24 MP → JPEG q92 (best of {RUNS}):");
+    for name in ["linear", "histogram", "histogram-naive"] {
+        let op = filmback::tonemap::Operator::parse(name).expect("known operator");
+        let (t_apply, _) = best(|| op.apply(map));
+        let look = Look::Tonemap(op);
+        let (t_all, bytes) = best(|| {
+            let mut out = Vec::new();
+            rendering::encode_look(
+                map,
+                &look,
+                Format::Jpeg { quality: 92 },
+                &SourceExif::default(),
+                &mut out,
+            )
+            .expect("encodes");
+            out
+        });
+        println!(
+            "  {name:<16} operator {:>7.1} ms   total {:>7.1} ms   {:.2} MB",
+            ms(t_apply),
+            ms(t_all),
+            bytes.len() as f64 / 1e6
+        );
+    }
 }
 
 /// The peer's tone-map + JPEG stage on the same map: `cv2.createTonemapReinhard(2.2)` and a

@@ -190,17 +190,21 @@ impl HistogramAdjustment {
     /// 2.5 %, so the ceiling holds to a part in 10⁶. If the total falls below 2.5 % of
     /// the pixels, or the scene's range is within the display's, the curve is linear.
     pub fn fit(&self, luminances: &[f32]) -> ToneCurve {
-        let logs: Vec<f64> = luminances
-            .iter()
-            .filter(|l| l.is_finite() && **l > 0.0)
-            .map(|&l| f64::from(l).log10())
-            .collect();
+        // Two parallel passes over the luminances (range, then counts) instead of a
+        // buffer of their logarithms: 24 MP cost 190 MB and a serial pass that way.
+        let log = |l: &f32| (l.is_finite() && *l > 0.0).then(|| f64::from(*l).log10());
+        let (b_min, b_max, n) = luminances
+            .par_iter()
+            .filter_map(log)
+            .fold(
+                || (f64::INFINITY, f64::NEG_INFINITY, 0usize),
+                |(a, b, n), x| (a.min(x), b.max(x), n + 1),
+            )
+            .reduce(
+                || (f64::INFINITY, f64::NEG_INFINITY, 0usize),
+                |(a, b, n), (c, d, m)| (a.min(c), b.max(d), n + m),
+            );
         let display_log_range = self.display_range.log10();
-        let (b_min, b_max) = logs
-            .iter()
-            .fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), &x| {
-                (a.min(x), b.max(x))
-            });
         let bins = self.bins.max(1);
         let linear_curve = |b_min: f64, b_max: f64| ToneCurve {
             b_min,
@@ -209,20 +213,32 @@ impl HistogramAdjustment {
             display_log_range,
             linear: true,
         };
-        if logs.is_empty() {
+        if n == 0 {
             return linear_curve(0.0, 0.0);
         }
         if self.ceiling && b_max - b_min <= display_log_range {
             return linear_curve(b_min, b_max);
         }
         let width = ((b_max - b_min) / bins as f64).max(1e-12);
-        let mut counts = vec![0f64; bins];
-        for &x in &logs {
-            let i = (((x - b_min) / width) as usize).min(bins - 1);
-            counts[i] += 1.0;
-        }
+        let mut counts = luminances
+            .par_iter()
+            .filter_map(log)
+            .fold(
+                || vec![0f64; bins],
+                |mut counts, x| {
+                    counts[(((x - b_min) / width) as usize).min(bins - 1)] += 1.0;
+                    counts
+                },
+            )
+            .reduce(
+                || vec![0f64; bins],
+                |mut a, b| {
+                    a.iter_mut().zip(b).for_each(|(a, b)| *a += b);
+                    a
+                },
+            );
         if self.ceiling {
-            let pixels = logs.len() as f64;
+            let pixels = n as f64;
             let mut converged = false;
             for _ in 0..10_000 {
                 let total: f64 = counts.iter().sum();
@@ -279,9 +295,14 @@ impl ToneCurve {
     /// Display value `v = (L_d − L_d,min) / (L_d,max − L_d,min)` for world luminance `l`:
     /// the display's own black (`L_d,min`) is drive value 0.
     pub fn display_value(&self, l: f32) -> f32 {
-        let rel = 10f64.powf(self.display_log(f64::from(l).log10()));
-        let floor = 10f64.powf(-self.display_log_range);
+        let rel = (self.display_log(f64::from(l).log10()) * std::f64::consts::LN_10).exp();
+        let floor = self.display_floor();
         (((rel - floor) / (1.0 - floor)).clamp(0.0, 1.0)) as f32
+    }
+
+    /// `L_d,min / L_d,max`.
+    fn display_floor(&self) -> f64 {
+        (-self.display_log_range * std::f64::consts::LN_10).exp()
     }
 
     /// The world log10 luminance range the curve spans.

@@ -31,7 +31,7 @@ pub struct Args {
     #[arg(required = true, num_args = 2..)]
     frames: Vec<PathBuf>,
     /// Output folder (created if missing); the file is DIR/<stem of the first frame>.exr,
-    /// each rendering DIR/<stem>.<look>.jpg.
+    /// each rendering DIR/<stem>.<look>.<jpg, png or tif as --format says>.
     #[arg(short, long, value_name = "DIR")]
     output: PathBuf,
     #[command(flatten)]
