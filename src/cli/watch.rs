@@ -29,8 +29,8 @@ pub struct Args {
     #[arg(long, value_name = "DIR")]
     state: Option<PathBuf>,
     /// Demonstration: after start, drop a synthetic three-frame bracket with EXIF into the
-    /// ingest folder (as a tethering tool would), wait until it is developed, print the
-    /// outputs and stop.
+    /// ingest folder (as a tethering tool would) and print the outputs once it is
+    /// developed; the daemon goes on watching until Ctrl-C.
     #[arg(long)]
     demo: bool,
 }
@@ -87,23 +87,17 @@ pub fn run(args: Args) -> anyhow::Result<ExitCode> {
         .context("cannot start the async runtime")?;
     let result = runtime.block_on(async {
         let (tx, rx) = mpsc::channel(4);
-        let signals = forward_signals(tx.clone(), args.clone())?;
+        let signals = forward_signals(tx, args.clone())?;
         tokio::spawn(signals);
-        let demo = args.demo.then(|| {
-            tokio::spawn(demo_run(
-                config.folders.ingest.clone(),
-                config.folders.state.clone(),
-                tx,
-            ))
-        });
-        daemon::run(config, Arc::new(Darkroom), rx).await?;
-        // The demo stops the daemon once its bracket is settled; a signal may stop it
-        // first, and then the demo's wait is cut short.
-        if let Some(handle) = demo
-            && let Ok(Ok(outcome)) = tokio::time::timeout(Duration::from_secs(1), handle).await
-        {
-            outcome?;
+        if args.demo {
+            let (ingest, state) = (config.folders.ingest.clone(), config.folders.state.clone());
+            tokio::spawn(async move {
+                if let Err(e) = demo_bracket(&ingest, &state).await {
+                    error!(error = %format!("{e:#}"), "demo");
+                }
+            });
         }
+        daemon::run(config, Arc::new(Darkroom), rx).await?;
         Ok::<_, anyhow::Error>(())
     });
     // Brackets abandoned at stop keep their blocking threads; don't wait for them.
@@ -142,18 +136,8 @@ fn forward_signals(
 
 /// The demonstration: drops one synthetic bracket (three 1200×800 JPEGs with EXIF,
 /// −2/0/+2 EV) into the ingest folder the way a tethering tool does (written under a
-/// temporary name, then renamed), waits for the daemon's journal to settle it, prints
-/// what was written and stops the daemon.
-async fn demo_run(
-    ingest: PathBuf,
-    state: PathBuf,
-    control: mpsc::Sender<Control>,
-) -> anyhow::Result<()> {
-    let result = demo_bracket(&ingest, &state).await;
-    let _ = control.send(Control::Stop).await;
-    result
-}
-
+/// temporary name, then renamed), waits for the daemon's journal to settle it and prints
+/// what was written.
 async fn demo_bracket(ingest: &Path, state: &Path) -> anyhow::Result<()> {
     tokio::time::sleep(Duration::from_millis(500)).await;
     let stamp = filmback::journal::unix_now();
@@ -195,6 +179,7 @@ async fn demo_bracket(ingest: &Path, state: &Path) -> anyhow::Result<()> {
                 for o in outputs {
                     println!("  {}", o.display());
                 }
+                println!("still watching {} (Ctrl-C to stop)", ingest.display());
                 Ok(())
             }
             other => anyhow::bail!("the demo bracket was not developed: {other:?}"),
