@@ -305,6 +305,20 @@ impl ToneCurve {
         (-self.display_log_range * std::f64::consts::LN_10).exp()
     }
 
+    /// The steepest display/world slope `d log L_d / d log L_w` over the curve's range,
+    /// sampled at `samples` even steps: at most 1 when the contrast ceiling holds.
+    pub fn max_log_slope(&self, samples: usize) -> f64 {
+        let (a, b) = self.world_range();
+        let n = samples.max(1);
+        let step = (b - a) / n as f64;
+        (0..n)
+            .map(|i| {
+                let x = a + i as f64 * step;
+                (self.display_log(x + step) - self.display_log(x)) / step
+            })
+            .fold(0.0, f64::max)
+    }
+
     /// The world log10 luminance range the curve spans.
     pub fn world_range(&self) -> (f64, f64) {
         let bins = self.cumulative.len() - 1;
@@ -330,15 +344,7 @@ mod tests {
     }
 
     fn max_slope(curve: &ToneCurve) -> f64 {
-        let (a, b) = curve.world_range();
-        let n = 20_000;
-        let step = (b - a) / n as f64;
-        (0..n)
-            .map(|i| {
-                let x = a + i as f64 * step;
-                (curve.display_log(x + step) - curve.display_log(x)) / step
-            })
-            .fold(0.0, f64::max)
+        curve.max_log_slope(20_000)
     }
 
     #[test]
