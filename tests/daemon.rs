@@ -1019,3 +1019,73 @@ fn recursive_watch_takes_frames_in_sub_folders() {
     expect_outputs(&rig.out(), &bracket_outputs(&["i-1", "j-1"]), T);
     rig.stop();
 }
+
+/// The README's main command: `filmback watch --demo` with no configuration file, in a
+/// fresh folder, develops its synthetic bracket into `./out` with the embedded defaults'
+/// looks, says so on stdout, keeps watching, and stops cleanly on SIGTERM.
+#[test]
+fn watch_demo_on_embedded_defaults_develops_its_bracket_and_keeps_watching() {
+    use std::io::{BufRead, BufReader};
+    let dir = tempfile::tempdir().unwrap();
+    let mut child = Command::new(env!("CARGO_BIN_EXE_filmback"))
+        .args(["watch", "--demo"])
+        .current_dir(dir.path())
+        .stdout(Stdio::piped())
+        .stderr(Stdio::null())
+        .spawn()
+        .unwrap();
+    let (tx, rx) = std::sync::mpsc::channel();
+    let stdout = child.stdout.take().unwrap();
+    std::thread::spawn(move || {
+        for line in BufReader::new(stdout).lines().map_while(Result::ok) {
+            if tx.send(line).is_err() {
+                break;
+            }
+        }
+    });
+    let mut lines = Vec::new();
+    while !lines
+        .iter()
+        .any(|l: &String| l.starts_with("still watching"))
+    {
+        match rx.recv_timeout(Duration::from_secs(60)) {
+            Ok(line) => lines.push(line),
+            Err(e) => panic!("no demo report ({e}); stdout so far: {lines:?}"),
+        }
+    }
+    assert!(
+        lines[0].starts_with("demo bracket developed (response: fitted)"),
+        "{lines:?}"
+    );
+    let out: BTreeSet<String> = listing(&dir.path().join("out"));
+    let stem = out
+        .iter()
+        .find_map(|n| n.strip_suffix(".exr"))
+        .unwrap_or_else(|| panic!("no EXR in out: {out:?}"))
+        .to_string();
+    let expected: BTreeSet<String> = [
+        format!("{stem}.exr"),
+        format!("{stem}.velvia50-t1.jpg"),
+        format!("{stem}.linear.jpg"),
+    ]
+    .into();
+    assert_eq!(out, expected);
+    for name in &expected {
+        assert!(
+            lines.iter().any(|l| l.ends_with(name.as_str())),
+            "{lines:?}"
+        );
+    }
+    assert!(child.try_wait().unwrap().is_none(), "still running");
+    let took = terminate(&mut child);
+    assert!(took < Duration::from_secs(10), "stopped in {took:?}");
+    assert!(
+        dir.path().join(".filmback").is_dir(),
+        "state in ./.filmback"
+    );
+    assert_eq!(
+        listing(&dir.path().join("ingest")).len(),
+        3,
+        "inputs untouched"
+    );
+}
