@@ -25,7 +25,7 @@ use crate::darkroom::{self, DarkroomError, GivenResponse, Prints, ResponsePolicy
 use crate::film::{Catalogue, ColourMode, Key};
 use crate::frame::{self, Limits, LoadedFrame};
 use crate::hdr_output::ExrOptions;
-use crate::merge::{MergeError, MergeOptions};
+use crate::merge::MergeOptions;
 use crate::rendering::{self, Format, SourceExif};
 use crate::response::{InverseResponse, RatioSource};
 
@@ -221,10 +221,10 @@ impl Develop for Darkroom {
                 .iter()
                 .map(|c| {
                     c.exposure.ok_or_else(|| {
-                        DarkroomError::Merge(MergeError::BadExposure {
-                            path: c.input.path.clone(),
-                            exposure: f64::NAN,
-                        })
+                        DevelopError::Bracket(format!(
+                            "{}: exposure unknown (EXIF lacks the exposure time, f-number or ISO)",
+                            c.input.path.display()
+                        ))
                     })
                 })
                 .collect::<Result<_, _>>()?;
