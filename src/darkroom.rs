@@ -7,9 +7,10 @@
 //!
 //! # Which response
 //!
-//! [`ResponsePolicy::Fit`] calibrates from the bracket itself: the two adjacent frames in
-//! the middle of the exposure order (their histograms share the most tones), about three
-//! million pixels each (stride `⌊√(pixels/3·10⁶)⌋`), degree chosen by the data. The fit's
+//! [`ResponsePolicy::Fit`] calibrates from the bracket itself: the two adjacent frames of
+//! distinct exposure nearest the middle of the exposure order (their histograms share the
+//! most tones), about three million pixels each (stride `⌊√(pixels/3·10⁶)⌋`), degree
+//! chosen by the data. The fit's
 //! confidence is the smallest of its channels' (a channel that borrowed another's curve
 //! has confidence 0, so a bracket with one saturated channel never counts as good). When
 //! the fit fails or its confidence is below the policy's `min_confidence`, the fallback
@@ -196,8 +197,19 @@ pub fn choose_response(
     };
     let mut order: Vec<usize> = (0..bracket.len()).collect();
     order.sort_by(|&a, &b| bracket[a].exposure.total_cmp(&bracket[b].exposure));
+    // The adjacent pair nearest the middle whose exposures differ (duplicates, as in
+    // 1/60, 1/60, 1/15, tell the fit nothing); if none differ, the middle pair, and the
+    // fit says why it cannot work.
     let mid = (order.len() / 2).max(1);
-    let (dark, bright) = (&bracket[order[mid - 1]], &bracket[order[mid]]);
+    let distinct = |k: &usize| {
+        let (a, b) = (&bracket[order[k - 1]], &bracket[order[*k]]);
+        b.exposure > a.exposure * 1.01
+    };
+    let k = (1..order.len())
+        .filter(distinct)
+        .min_by_key(|k| k.abs_diff(mid))
+        .unwrap_or(mid);
+    let (dark, bright) = (&bracket[order[k - 1]], &bracket[order[k]]);
     let t = Instant::now();
     let stride = ((dark.frame.pixel_count() as f64 / CALIBRATION_PIXELS)
         .sqrt()
@@ -603,4 +615,91 @@ pub fn develop_single(
             .collect(),
         stages,
     })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::frame::BitDepth;
+    use crate::metadata::{Camera, Exposure, Metadata};
+    use crate::synthetic::{ResponseCurve, Sensor, expose, scene};
+
+    fn loaded(name: &str, frame: Frame) -> LoadedFrame {
+        LoadedFrame {
+            path: PathBuf::from(name),
+            frame,
+            metadata: Metadata {
+                camera: Camera::default(),
+                exposure: Exposure::default(),
+                captured_at: None,
+                orientation: 1,
+                warnings: Vec::new(),
+            },
+        }
+    }
+
+    /// 1/60, 1/60, 1/15: the middle pair is a duplicate; the fit must take the pair that
+    /// differs, not fail on a ratio of 1.
+    #[test]
+    fn duplicate_exposures_in_the_middle_do_not_stop_the_fit() {
+        let truth = scene(240, 160, 3);
+        let sensor = Sensor::noiseless(ResponseCurve::Srgb, BitDepth::Eight);
+        let exposures = [1.0 / 60.0, 1.0 / 60.0, 1.0 / 15.0];
+        let frames: Vec<LoadedFrame> = exposures
+            .iter()
+            .enumerate()
+            .map(|(i, &e)| loaded(&format!("f{i}.png"), expose(&truth, e * 15.0, &sensor)))
+            .collect();
+        let bracket: Vec<BracketFrame<'_>> = frames
+            .iter()
+            .zip(exposures)
+            .map(|(f, exposure)| BracketFrame {
+                source: &f.path,
+                frame: &f.frame,
+                exposure,
+                camera: &f.metadata.camera,
+            })
+            .collect();
+        let policy = ResponsePolicy::Fit {
+            fallback: None,
+            min_confidence: 0.0,
+        };
+        let chosen = choose_response(&bracket, RatioSource::Argument, policy, &mut Stages::new())
+            .expect("the distinct pair is fitted");
+        assert_eq!(chosen.source, Source::Fitted);
+        assert!((chosen.report["ratio"].as_f64().unwrap() - 4.0).abs() < 1e-9);
+        assert!(chosen.summary.contains("f2.png"), "{}", chosen.summary);
+    }
+
+    /// A weak fit below `min_confidence` gives way to the fallback, and says so; the fit
+    /// itself is still reported (the daemon decides whether the cache learns from it).
+    #[test]
+    fn a_fit_below_min_confidence_uses_the_fallback() {
+        let truth = scene(240, 160, 4);
+        let sensor = Sensor::noiseless(ResponseCurve::Srgb, BitDepth::Eight);
+        let frames = [
+            loaded("a.png", expose(&truth, 1.0, &sensor)),
+            loaded("b.png", expose(&truth, 4.0, &sensor)),
+        ];
+        let bracket: Vec<BracketFrame<'_>> = frames
+            .iter()
+            .zip([1.0, 4.0])
+            .map(|(f, exposure)| BracketFrame {
+                source: &f.path,
+                frame: &f.frame,
+                exposure,
+                camera: &f.metadata.camera,
+            })
+            .collect();
+        let policy = ResponsePolicy::Fit {
+            fallback: Some(GivenResponse::standard(3)),
+            min_confidence: 1.01,
+        };
+        let chosen =
+            choose_response(&bracket, RatioSource::Argument, policy, &mut Stages::new()).unwrap();
+        assert_eq!(chosen.source, Source::Standard);
+        assert!(chosen.fit.is_some());
+        assert!(chosen.notes[0].contains("confidence"), "{:?}", chosen.notes);
+        assert_eq!(chosen.report["rejected_fit"]["source"], "fitted");
+    }
 }
