@@ -393,6 +393,20 @@ enum Radiance<'a> {
     Buffered(merge::Merged),
 }
 
+/// The merge's view of decoded `frames` with relative `exposures` (same order).
+pub fn bracket<'a>(frames: &'a [LoadedFrame], exposures: &[f64]) -> Vec<BracketFrame<'a>> {
+    frames
+        .iter()
+        .zip(exposures)
+        .map(|(f, &exposure)| BracketFrame {
+            source: &f.path,
+            frame: &f.frame,
+            exposure,
+            camera: &f.metadata.camera,
+        })
+        .collect()
+}
+
 /// Develops a bracket of decoded `frames` with relative `exposures` (same order):
 /// response under `policy`, merge, then the EXR and renderings of `prints`.
 pub fn develop(
@@ -404,16 +418,7 @@ pub fn develop(
     prints: &Prints<'_>,
 ) -> Result<Developed, DarkroomError> {
     let mut stages = Stages::new();
-    let bracket: Vec<BracketFrame<'_>> = frames
-        .iter()
-        .zip(exposures)
-        .map(|(f, &exposure)| BracketFrame {
-            source: &f.path,
-            frame: &f.frame,
-            exposure,
-            camera: &f.metadata.camera,
-        })
-        .collect();
+    let bracket = bracket(frames, exposures);
     // Refuse a bad bracket before spending time on the fit.
     if bracket.len() < 2 {
         return Err(MergeError::TooFewFrames(bracket.len()).into());
@@ -650,16 +655,7 @@ mod tests {
             .enumerate()
             .map(|(i, &e)| loaded(&format!("f{i}.png"), expose(&truth, e * 15.0, &sensor)))
             .collect();
-        let bracket: Vec<BracketFrame<'_>> = frames
-            .iter()
-            .zip(exposures)
-            .map(|(f, exposure)| BracketFrame {
-                source: &f.path,
-                frame: &f.frame,
-                exposure,
-                camera: &f.metadata.camera,
-            })
-            .collect();
+        let bracket = bracket(&frames, &exposures);
         let policy = ResponsePolicy::Fit {
             fallback: None,
             min_confidence: 0.0,
@@ -681,16 +677,7 @@ mod tests {
             loaded("a.png", expose(&truth, 1.0, &sensor)),
             loaded("b.png", expose(&truth, 4.0, &sensor)),
         ];
-        let bracket: Vec<BracketFrame<'_>> = frames
-            .iter()
-            .zip([1.0, 4.0])
-            .map(|(f, exposure)| BracketFrame {
-                source: &f.path,
-                frame: &f.frame,
-                exposure,
-                camera: &f.metadata.camera,
-            })
-            .collect();
+        let bracket = bracket(&frames, &[1.0, 4.0]);
         let policy = ResponsePolicy::Fit {
             fallback: Some(GivenResponse::standard(3)),
             min_confidence: 1.01,
