@@ -450,8 +450,10 @@ impl State {
         let mut paths: Vec<&PathBuf> = self.candidates.keys().collect();
         paths.sort();
         let paths: Vec<PathBuf> = paths.into_iter().cloned().collect();
+        let mut full = false;
         for path in paths {
             if ready.len() >= room {
+                full = true;
                 break;
             }
             let cand = self.candidates.get_mut(&path).expect("listed above");
@@ -481,7 +483,21 @@ impl State {
                 ready.push(path);
             }
         }
-        for p in gone.iter().chain(&ready) {
+        for p in &gone {
+            self.candidates.remove(p);
+        }
+        // Complete frames wait while another is still settling (for at most
+        // WRITER_PATIENCE): it may be an earlier frame of the same bracket (a copy racing
+        // the start-up scan, a slow writer), and frames enter the grouper in capture-time
+        // order only within one batch. When the queue limits the batch, take what is ready.
+        let settling = self
+            .candidates
+            .iter()
+            .any(|(p, c)| !ready.contains(p) && c.first_seen.elapsed() < WRITER_PATIENCE);
+        if settling && !full {
+            return Vec::new();
+        }
+        for p in &ready {
             self.candidates.remove(p);
         }
         ready
