@@ -21,8 +21,8 @@
 //!
 //! Two 8-bit frames written only as EXR are merged while the file is encoded
 //! ([`PairMerge`]): no radiance buffer exists. With renderings (or a confidence layer, or
-//! more frames) the map is built once (`width × height × channels × 4` bytes), the frames
-//! are dropped, and the EXR and every rendering read that one map.
+//! more frames) the map is built once (`width × height × channels × 4` bytes) beside the
+//! decoded frames the caller holds, and the EXR and every rendering read that one map.
 
 use std::io::Cursor;
 use std::path::{Path, PathBuf};
@@ -419,7 +419,7 @@ pub fn develop(
 ) -> Result<Developed, DarkroomError> {
     let mut stages = Stages::new();
     let bracket = bracket(frames, exposures);
-    // Refuse a bad bracket before spending time on the fit.
+    // One frame is not a bracket (sizes, depths and cameras are checked by the merge).
     if bracket.len() < 2 {
         return Err(MergeError::TooFewFrames(bracket.len()).into());
     }
@@ -487,7 +487,6 @@ pub fn develop(
     }
     let fused = matches!(merged, Radiance::Fused(_));
     if let Radiance::Buffered(m) = merged {
-        drop(bracket);
         outputs.extend(print_looks(&m.radiance, prints, &mut stages)?);
     }
     Ok(Developed {
