@@ -29,7 +29,7 @@ use std::path::{Path, PathBuf};
 use std::time::{Duration, Instant};
 
 use crate::atomic::{self, Overwrite, PublishError};
-use crate::frame::{Frame, LoadedFrame, Samples};
+use crate::frame::{LoadedFrame, Samples};
 use crate::hdr_output::{
     self, ExrOptions, FrameRecord, OutputError, Provenance, RadianceSource, Written,
 };
@@ -348,14 +348,24 @@ pub struct Prints<'a> {
 }
 
 impl Prints<'_> {
+    /// `DIR/STEM.exr`.
+    pub fn exr_path(&self) -> PathBuf {
+        self.dir.join(format!("{}.exr", self.stem))
+    }
+
+    /// `DIR/STEM.hdr`.
+    pub fn hdr_path(&self) -> PathBuf {
+        self.dir.join(format!("{}.hdr", self.stem))
+    }
+
     /// Every path this will write, in order (EXR, HDR, renderings).
     pub fn paths(&self) -> Vec<PathBuf> {
         let mut paths = Vec::new();
         if self.exr.is_some() {
-            paths.push(self.dir.join(format!("{}.exr", self.stem)));
+            paths.push(self.exr_path());
         }
         if self.radiance_hdr {
-            paths.push(self.dir.join(format!("{}.hdr", self.stem)));
+            paths.push(self.hdr_path());
         }
         for look in self.looks {
             paths.push(rendering::look_path(self.dir, self.stem, look, self.format));
@@ -474,11 +484,11 @@ pub fn develop(
         let written = write_radiance(source, confidence, &provenance, exr, prints, &mut stages)?;
         exr_scale = written.scale;
         warnings.extend(written.warnings);
-        outputs.push(prints.dir.join(format!("{}.exr", prints.stem)));
+        outputs.push(prints.exr_path());
     }
     if prints.radiance_hdr {
         let t = Instant::now();
-        let path = prints.dir.join(format!("{}.hdr", prints.stem));
+        let path = prints.hdr_path();
         let mut hdr = Vec::new();
         hdr_output::encode_radiance_hdr(&mut hdr, source)?;
         atomic::publish(&path, &hdr, prints.overwrite)?;
@@ -517,7 +527,7 @@ fn write_radiance(
     let written = hdr_output::encode_exr(&mut exr, source, confidence, provenance, options)?;
     stages.push(("encode", t.elapsed()));
     let t = Instant::now();
-    let path = prints.dir.join(format!("{}.exr", prints.stem));
+    let path = prints.exr_path();
     atomic::publish(&path, exr.get_ref(), prints.overwrite)?;
     stages.push(("write", t.elapsed()));
     Ok(written)
@@ -551,11 +561,15 @@ fn print_looks(
 /// One frame's radiance estimate, `E = g(B)` per sample: the frame's own range, no
 /// extension (scale: a sample at the top code reads 1.0, as the longest frame of a
 /// bracket does).
-pub fn linearise(frame: &Frame, response: &InverseResponse) -> Result<RadianceMap, MergeError> {
+pub fn linearise(
+    loaded: &LoadedFrame,
+    response: &InverseResponse,
+) -> Result<RadianceMap, MergeError> {
+    let frame = &loaded.frame;
     let channels = frame.channels();
     if response.channels() != channels {
         return Err(MergeError::ChannelMismatch {
-            path: PathBuf::new(),
+            path: loaded.path.clone(),
             frame: channels,
             response: response.channels(),
         });
@@ -589,18 +603,7 @@ pub fn develop_single(
 ) -> Result<Developed, DarkroomError> {
     let mut stages = Stages::new();
     let t = Instant::now();
-    let map = linearise(&frame.frame, &response.response).map_err(|e| match e {
-        MergeError::ChannelMismatch {
-            frame: f,
-            response: r,
-            ..
-        } => MergeError::ChannelMismatch {
-            path: frame.path.clone(),
-            frame: f,
-            response: r,
-        },
-        other => other,
-    })?;
+    let map = linearise(frame, &response.response)?;
     stages.push(("linearise", t.elapsed()));
     let outputs = print_looks(&map, prints, &mut stages)?;
     Ok(Developed {
@@ -624,7 +627,7 @@ pub fn develop_single(
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::frame::BitDepth;
+    use crate::frame::{BitDepth, Frame};
     use crate::metadata::{Camera, Exposure, Metadata};
     use crate::synthetic::{ResponseCurve, Sensor, expose, scene};
 

@@ -17,7 +17,7 @@ use std::time::Duration;
 
 use rayon::prelude::*;
 
-use crate::atomic::{self, Overwrite};
+use crate::atomic::Overwrite;
 use crate::bracket::{CameraId, Capture};
 use crate::cache::CachedResponse;
 use crate::config::{Preset, Recalibrate};
@@ -96,20 +96,6 @@ pub enum DevelopError {
     /// sizes, …): recorded as failed, retried only if an input changes.
     #[error("{0}")]
     Bracket(String),
-}
-
-impl From<atomic::PublishError> for DevelopError {
-    fn from(e: atomic::PublishError) -> Self {
-        let path = match &e {
-            atomic::PublishError::Exists { path }
-            | atomic::PublishError::Io { path, .. }
-            | atomic::PublishError::Content { path, .. } => path.clone(),
-        };
-        DevelopError::Output {
-            path,
-            reason: e.to_string(),
-        }
-    }
 }
 
 /// Develops one job: reads the frames, publishes every output atomically under the job's
