@@ -10,6 +10,8 @@
 //! give `g(τ(b)) = γ·g(b)`, fitted per channel by [`mod@fit`]. [`save`] and [`load`] keep the
 //! result in a versioned TOML file (see [`mod@file`]).
 
+use rayon::prelude::*;
+
 use crate::histogram::{Histogram, TonePair, UsableTones, tone_pairs};
 
 pub mod file;
@@ -277,23 +279,27 @@ pub fn calibrate(
         Ratio::Estimate => 1.0,
     };
     let names = channel_names(dark.channels());
-    let mut fitted: Vec<(usize, Result<ChannelFit, FitError>, Vec<TonePair>)> = Vec::new();
-    for (c, &name) in names.iter().enumerate() {
-        let (a, b) = (dark.cumulative(c), bright.cumulative(c));
-        let pairs = tone_pairs(
-            &a,
-            &b,
-            UsableTones::detect(&a, dark.depth()),
-            UsableTones::detect(&b, bright.depth()),
-        );
-        let result = fit::fit(&pairs, log_ratio, degree);
+    // Channels are independent: fitted on all cores, errors reported in channel order.
+    let mut fitted: Vec<(usize, Result<ChannelFit, FitError>, Vec<TonePair>)> = (0..names.len())
+        .into_par_iter()
+        .map(|c| {
+            let (a, b) = (dark.cumulative(c), bright.cumulative(c));
+            let pairs = tone_pairs(
+                &a,
+                &b,
+                UsableTones::detect(&a, dark.depth()),
+                UsableTones::detect(&b, bright.depth()),
+            );
+            (c, fit::fit(&pairs, log_ratio, degree), pairs)
+        })
+        .collect();
+    for (c, result, _) in &fitted {
         if let Err(source @ FitError::Swapped | source @ FitError::Degree(_)) = result {
             return Err(CalibrationError::Channel {
-                channel: name,
-                source,
+                channel: names[*c],
+                source: source.clone(),
             });
         }
-        fitted.push((c, result, pairs));
     }
     let (ratio, ratio_source) = match ratio {
         Ratio::Known(r, source) => (r, source),

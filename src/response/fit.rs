@@ -212,14 +212,13 @@ fn positions(pairs: &[TonePair], log_floor: f64) -> Vec<(f64, f64)> {
         .collect()
 }
 
-/// Weighted design rows for degree `n`: `√w·(ramps(t_τ) − ramps(t_b))`.
-fn design(n: usize, at: &[(f64, f64)], sqrt_w: &[f64], rows: &[usize]) -> DMatrix<f64> {
-    let mut a = DMatrix::zeros(rows.len(), n);
-    for (r, &i) in rows.iter().enumerate() {
-        let (tb, tt) = at[i];
+/// Unweighted design for degree `n`: row `i` is `ramps(t_τ) − ramps(t_b)` of pair `i`.
+fn design(n: usize, at: &[(f64, f64)]) -> DMatrix<f64> {
+    let mut a = DMatrix::zeros(at.len(), n);
+    for (i, &(tb, tt)) in at.iter().enumerate() {
         let (lo, hi) = (ramps(n, tb), ramps(n, tt));
         for j in 0..n {
-            a[(r, j)] = sqrt_w[i] * (hi[j] - lo[j]);
+            a[(i, j)] = hi[j] - lo[j];
         }
     }
     a
@@ -279,10 +278,10 @@ fn nnls(a: &DMatrix<f64>, y: &DVector<f64>) -> DVector<f64> {
 /// Smoothness strengths `λ` tried, as multiples of the total data weight `Σ w`.
 pub const SMOOTHING_GRID: [f64; 7] = [1.0, 1e-1, 1e-2, 1e-3, 1e-4, 1e-5, 1e-6];
 
-/// The weighted equations of one channel.
+/// The weighted equations of one channel at one degree.
 struct Problem {
-    /// `(t_b, t_τ)` per equation.
-    at: Vec<(f64, f64)>,
+    /// Unweighted design, one row per equation (see [`design`]).
+    design: DMatrix<f64>,
     /// `1/σ` per equation.
     sqrt_w: Vec<f64>,
     /// `ln γ`.
@@ -290,13 +289,35 @@ struct Problem {
 }
 
 impl Problem {
+    fn equations(&self) -> usize {
+        self.design.nrows()
+    }
+
+    fn degree(&self) -> usize {
+        self.design.ncols()
+    }
+
     fn total_weight(&self) -> f64 {
         self.sqrt_w.iter().map(|w| w * w).sum()
     }
 
+    /// The weighted data rows `rows` and their right-hand sides `√w·ln γ`.
+    fn weighted(&self, rows: &[usize]) -> (DMatrix<f64>, DVector<f64>) {
+        let n = self.degree();
+        let a = DMatrix::from_fn(rows.len(), n, |r, j| {
+            self.sqrt_w[rows[r]] * self.design[(rows[r], j)]
+        });
+        let y = DVector::from_iterator(
+            rows.len(),
+            rows.iter().map(|&i| self.sqrt_w[i] * self.log_ratio),
+        );
+        (a, y)
+    }
+
     /// Data rows plus the smoothness rows `√λ·(d_{j+1} − d_j)`.
-    fn system(&self, n: usize, lambda: f64, rows: &[usize]) -> (DMatrix<f64>, DVector<f64>) {
-        let a = design(n, &self.at, &self.sqrt_w, rows);
+    fn system(&self, lambda: f64, rows: &[usize]) -> (DMatrix<f64>, DVector<f64>) {
+        let n = self.degree();
+        let (a, y) = self.weighted(rows);
         let extra = n.saturating_sub(1);
         let mut full = DMatrix::zeros(rows.len() + extra, n);
         full.rows_mut(0, rows.len()).copy_from(&a);
@@ -305,33 +326,27 @@ impl Problem {
             full[(rows.len() + j, j)] = -root;
             full[(rows.len() + j, j + 1)] = root;
         }
-        let mut y = DVector::zeros(rows.len() + extra);
-        for (r, &i) in rows.iter().enumerate() {
-            y[r] = self.sqrt_w[i] * self.log_ratio;
-        }
-        (full, y)
+        let mut full_y = DVector::zeros(rows.len() + extra);
+        full_y.rows_mut(0, rows.len()).copy_from(&y);
+        (full, full_y)
     }
 
-    fn solve(&self, n: usize, lambda: f64, rows: &[usize]) -> DVector<f64> {
-        let (a, y) = self.system(n, lambda, rows);
+    fn solve(&self, lambda: f64, rows: &[usize]) -> DVector<f64> {
+        let (a, y) = self.system(lambda, rows);
         nnls(&a, &y)
     }
 
     /// Sum of squared weighted data residuals of `d` on `rows`.
     fn misfit(&self, d: &DVector<f64>, rows: &[usize]) -> f64 {
-        let a = design(d.len(), &self.at, &self.sqrt_w, rows);
-        let y = DVector::from_iterator(
-            rows.len(),
-            rows.iter().map(|&i| self.sqrt_w[i] * self.log_ratio),
-        );
+        let (a, y) = self.weighted(rows);
         (a * d - y).norm_squared()
     }
 
     /// Chooses the smoothness `λ` by blocked 5-fold cross-validation, then the largest
     /// `λ` whose score is within one standard error of the best.
-    fn choose_smoothing(&self, n: usize) -> f64 {
+    fn choose_smoothing(&self) -> f64 {
         const FOLDS: usize = 5;
-        let m = self.at.len();
+        let (m, n) = (self.equations(), self.degree());
         let scale = self.total_weight();
         if m < 2 * FOLDS || n <= 1 {
             return scale * SMOOTHING_GRID[0];
@@ -344,7 +359,7 @@ impl Problem {
                     .map(|f| {
                         let train: Vec<usize> = (0..m).filter(|&i| fold_of(i) != f).collect();
                         let test: Vec<usize> = (0..m).filter(|&i| fold_of(i) == f).collect();
-                        let d = self.solve(n, scale * k, &train);
+                        let d = self.solve(scale * k, &train);
                         self.misfit(&d, &test) / test.len() as f64
                     })
                     .collect();
@@ -408,21 +423,21 @@ pub fn fit(pairs: &[TonePair], log_ratio: f64, degree: Degree) -> Result<Channel
         let v_t = p.sigma_bright.powi(2) + NOISE * NOISE;
         s_b * s_b * v_b / (p.dark * p.dark) + s_t * s_t * v_t / (p.bright * p.bright)
     };
+    let n = match degree {
+        Degree::Fixed(n) => n,
+        Degree::Auto => AUTO_DEGREE.min(m / 4).max(1),
+    };
     let mut problem = Problem {
-        at: positions(&pairs, log_floor),
+        design: design(n, &positions(&pairs, log_floor)),
         sqrt_w: pairs
             .iter()
             .map(|p| 1.0 / sigma2(p, 1.0, 1.0).sqrt())
             .collect(),
         log_ratio,
     };
-    let n = match degree {
-        Degree::Fixed(n) => n,
-        Degree::Auto => AUTO_DEGREE.min(m / 4).max(1),
-    };
     // Pilot at unit slopes; then the weights use its slopes.
-    let pilot_lambda = problem.choose_smoothing(n);
-    let pilot = finish(&problem, n, pilot_lambda, log_floor, (darkest, brightest));
+    let pilot_lambda = problem.choose_smoothing();
+    let pilot = finish(&problem, pilot_lambda, log_floor, (darkest, brightest));
     problem.sqrt_w = pairs
         .iter()
         .map(|p| {
@@ -431,8 +446,8 @@ pub fn fit(pairs: &[TonePair], log_ratio: f64, degree: Degree) -> Result<Channel
             1.0 / sigma2(p, s_b, s_t).sqrt()
         })
         .collect();
-    let lambda = problem.choose_smoothing(n);
-    Ok(finish(&problem, n, lambda, log_floor, (darkest, brightest)))
+    let lambda = problem.choose_smoothing();
+    Ok(finish(&problem, lambda, log_floor, (darkest, brightest)))
 }
 
 /// Degree used by `auto` (fewer with fewer than `4n` equations): high enough for S-shaped
@@ -440,16 +455,10 @@ pub fn fit(pairs: &[TonePair], log_ratio: f64, degree: Degree) -> Result<Channel
 pub const AUTO_DEGREE: usize = 12;
 
 /// Final solve at degree `n` and smoothness `λ`, and its report.
-fn finish(
-    problem: &Problem,
-    n: usize,
-    lambda: f64,
-    log_floor: f64,
-    covered: (f64, f64),
-) -> ChannelFit {
-    let m = problem.at.len();
+fn finish(problem: &Problem, lambda: f64, log_floor: f64, covered: (f64, f64)) -> ChannelFit {
+    let (m, n) = (problem.equations(), problem.degree());
     let rows: Vec<usize> = (0..m).collect();
-    let (a, y) = problem.system(n, lambda, &rows);
+    let (a, y) = problem.system(lambda, &rows);
     let d = nnls(&a, &y);
     let data_a = a.rows(0, m).into_owned();
     let resid = &data_a * &d - y.rows(0, m);
