@@ -52,28 +52,43 @@ fn merge_frames(frames: &[(&Frame, f64)], g: &InverseResponse, weighting: Weight
     merge::merge(&bracket, g, options).unwrap()
 }
 
-/// Median of `|E/e_ref − E_true| / E_true` over samples well exposed (code within 5–95 %
+/// Median of `|s·E/e_ref − E_true| / E_true` over samples well exposed (code within 5–95 %
 /// of the range) in at least one frame. The merge's scale is `e_ref = BRIGHT` times the
-/// scene's, since `g(B) = X = e·E`.
+/// scene's, since `g(B) = X = e·E`; `s` is one global factor for all channels (the median
+/// of `E_true·e_ref/E`), because a radiance map is relative: what matters is every
+/// sample against every other, colour balance included (one factor for all channels). The
+/// absolute level rests on the `g(1) = 1` anchor, which the calibration accuracy bench
+/// measures on its own ("own normalisation"); with the true response `s` is 1 to within
+/// noise.
 fn median_error(merged: &RadianceMap, truth: &RadianceMap, frames: &[&Frame]) -> f64 {
     let max = f64::from(frames[0].bit_depth().max_code());
     let code = |f: &Frame, i: usize| match f.samples() {
         Samples::Eight(v) => f64::from(v[i]),
         Samples::Sixteen(v) => f64::from(v[i]),
     };
-    let mut errors: Vec<f64> = (0..truth.pixels().len())
+    let region: Vec<usize> = (0..truth.pixels().len())
         .filter(|&i| {
             frames.iter().any(|f| {
                 let b = code(f, i) / max;
                 (0.05..=0.95).contains(&b)
             })
         })
-        .map(|i| {
+        .collect();
+    assert!(region.len() > truth.pixels().len() / 2, "region too small");
+    let value = |i: usize| f64::from(merged.pixels()[i]) / BRIGHT;
+    let mut ratios: Vec<f64> = region
+        .iter()
+        .map(|&i| f64::from(truth.pixels()[i]) / value(i))
+        .collect();
+    ratios.sort_by(f64::total_cmp);
+    let s = ratios[ratios.len() / 2];
+    let mut errors: Vec<f64> = region
+        .iter()
+        .map(|&i| {
             let t = f64::from(truth.pixels()[i]);
-            (f64::from(merged.pixels()[i]) / BRIGHT - t).abs() / t
+            (s * value(i) - t).abs() / t
         })
         .collect();
-    assert!(errors.len() > truth.pixels().len() / 2, "region too small");
     errors.sort_by(f64::total_cmp);
     errors[errors.len() / 2]
 }
@@ -152,7 +167,7 @@ fn accuracy_gamma() {
 }
 
 #[test]
-#[ignore = "fails today: with the FilmS response recovered by response::calibrate the error is 11.4 % (true-response floor 0.81 %)"]
+#[ignore = "fails today: with the FilmS response recovered by response::calibrate the error is 1.89 % (≤ 2 %) but 1.1 points above the true-response floor of 0.80 % (target: within 0.3)"]
 fn accuracy_film_s() {
     accuracy("film-s", ResponseCurve::FilmS);
 }
