@@ -1,7 +1,10 @@
 //! Accuracy of response recovery against ground truth, and against OpenCV's
 //! CalibrateDebevec on the same pairs.
 //!
-//! `cargo bench --bench response_accuracy [-- --quick]`
+//! `cargo bench --bench response_accuracy [-- --quick] [--ratio R] [--encoding lossless|jpeg|16] [--curve NAME] [--per-curve]`
+//!
+//! `--quick` takes every tenth DoRF curve; `--ratio` and `--encoding` restrict the sweep to
+//! one ratio or one encoding (for quick experiments; the README's table is the full run).
 //!
 //! The synthetic scene (`filmback::synthetic`, 1024×768) is exposed at `1/√γ` and `√γ` through a
 //! known curve `f` (gamma 2.2, sRGB, film S, strong toe, and the DoRF curves of
@@ -188,6 +191,23 @@ fn main() {
     if let Some(name) = &only {
         curves.retain(|(n, _)| n == name);
     }
+    let arg = |flag: &str| {
+        args.iter()
+            .position(|a| a == flag)
+            .and_then(|i| args.get(i + 1))
+            .cloned()
+    };
+    let ratios: Vec<f64> = match arg("--ratio") {
+        Some(r) => vec![r.parse().expect("--ratio takes a number")],
+        None => RATIOS.to_vec(),
+    };
+    let encodings: Vec<Encoding> = match arg("--encoding").as_deref() {
+        Some("lossless") => vec![Encoding::Lossless8],
+        Some("jpeg") => vec![Encoding::Jpeg95],
+        Some("16") => vec![Encoding::Sixteen],
+        Some(other) => panic!("--encoding takes lossless, jpeg or 16, not {other}"),
+        None => vec![Encoding::Lossless8, Encoding::Jpeg95, Encoding::Sixteen],
+    };
     let py = peer_python();
     if py.is_none() {
         eprintln!("(OpenCV peer unavailable: comparison skipped)");
@@ -196,11 +216,14 @@ fn main() {
     let radiance = synthetic::scene(WIDTH, HEIGHT, 7);
     let mut outcomes = Vec::new();
     let mut peer_cases = Vec::new();
-    let encodings = [Encoding::Lossless8, Encoding::Jpeg95, Encoding::Sixteen];
     let started = std::time::Instant::now();
     for (ci, (name, curve)) in curves.iter().enumerate() {
         for &enc in &encodings {
-            for (ri, &ratio) in RATIOS.iter().enumerate() {
+            for &ratio in &ratios {
+                let ri = RATIOS
+                    .iter()
+                    .position(|r| *r == ratio)
+                    .unwrap_or(RATIOS.len());
                 let seed = (ci * 100 + ri) as u64;
                 let (dark, dark_file) = expose(&radiance, ratio.sqrt().recip(), curve, enc, seed);
                 let (bright, bright_file) = expose(&radiance, ratio.sqrt(), curve, enc, seed + 50);
@@ -329,7 +352,7 @@ fn main() {
     println!("|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|");
     let use_dorf = outcomes.iter().any(|o| o.curve.starts_with("dorf-"));
     for &enc in &encodings {
-        for &ratio in &RATIOS {
+        for &ratio in &ratios {
             let set: Vec<&Outcome> = outcomes
                 .iter()
                 .filter(|o| {
@@ -380,6 +403,23 @@ fn main() {
                 quantile(&mut shape, 0.9),
                 quantile(&mut shape, 1.0),
                 quantile(&mut degree, 0.5),
+            );
+        }
+    }
+    if args.iter().any(|a| a == "--per-curve") {
+        println!();
+        println!("| curve | encoding | ratio | own | shape | confidence | OpenCV shape |");
+        println!("|---|---|---|---|---|---|---|");
+        for o in &outcomes {
+            println!(
+                "| {} | {} | {} | {:.4} | {:.4} | {:.2} | {} |",
+                o.curve,
+                o.enc.name(),
+                o.ratio,
+                o.own,
+                o.shape,
+                o.confidence,
+                peer_shape(o).map_or("-".into(), |p| format!("{p:.4}"))
             );
         }
     }
