@@ -316,11 +316,14 @@ pub fn calibrate(
                     "the ratio cannot be estimated: no channel has usable tones".into(),
                 ));
             };
-            for (_, f, _) in &mut fitted {
-                if let Ok(f) = f {
-                    *f = f.scaled(k);
+            // Refitted at the estimated ratio rather than scaled by `k`: the smoothness
+            // floor depends on the ratio (see `fit`), so a fit at ratio e is not a fit
+            // at e^k raised to the k-th power.
+            fitted.par_iter_mut().for_each(|(_, f, pairs)| {
+                if f.is_ok() {
+                    *f = fit::fit(pairs, k, degree);
                 }
-            }
+            });
             (k.exp(), RatioSource::Estimated)
         }
     };
