@@ -231,7 +231,7 @@ fn huffman_encode(words: &[u16], out: &mut Vec<u8>) -> Option<()> {
     // Counted in two interleaved tables so that runs of one word do not wait on
     // their own previous increment.
     let mut frequency = vec![0u64; SYMBOLS];
-    let mut odd = vec![0u32; SYMBOLS];
+    let mut odd = vec![0u64; SYMBOLS];
     let pairs = words.chunks_exact(2);
     if let [w] = pairs.remainder() {
         frequency[usize::from(*w)] += 1;
@@ -241,7 +241,7 @@ fn huffman_encode(words: &[u16], out: &mut Vec<u8>) -> Option<()> {
         odd[usize::from(pair[1])] += 1;
     }
     for (f, o) in frequency.iter_mut().zip(&odd) {
-        *f += u64::from(*o);
+        *f += o;
     }
     let first = frequency.iter().position(|&f| f > 0)?;
     let run_symbol = frequency.iter().rposition(|&f| f > 0)? + 1;
