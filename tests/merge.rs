@@ -58,9 +58,10 @@ fn merge_frames(frames: &[(&Frame, f64)], g: &InverseResponse, weighting: Weight
 /// of `E_true·e_ref/E`), because a radiance map is relative: what matters is every
 /// sample against every other, colour balance included (one factor for all channels). The
 /// absolute level rests on the `g(1) = 1` anchor, which the calibration accuracy bench
-/// measures on its own ("own normalisation"); with the true response `s` is 1 to within
-/// noise.
-fn median_error(merged: &RadianceMap, truth: &RadianceMap, frames: &[&Frame]) -> f64 {
+/// measures on its own ("own normalisation"). Returns the error and `s`; with the true
+/// response `s` must be 1 to within noise (checked by the callers: a merge that scaled
+/// everything wrongly would fail there).
+fn median_error(merged: &RadianceMap, truth: &RadianceMap, frames: &[&Frame]) -> (f64, f64) {
     let max = f64::from(frames[0].bit_depth().max_code());
     let code = |f: &Frame, i: usize| match f.samples() {
         Samples::Eight(v) => f64::from(v[i]),
@@ -90,7 +91,17 @@ fn median_error(merged: &RadianceMap, truth: &RadianceMap, frames: &[&Frame]) ->
         })
         .collect();
     errors.sort_by(f64::total_cmp);
-    errors[errors.len() / 2]
+    (errors[errors.len() / 2], s)
+}
+
+/// The error of a merge with the true response, checking that it needs no rescaling.
+fn true_response_error(merged: &RadianceMap, truth: &RadianceMap, frames: &[&Frame]) -> f64 {
+    let (e, s) = median_error(merged, truth, frames);
+    assert!(
+        (s - 1.0).abs() < 0.01,
+        "the true response's merge is off by {s}"
+    );
+    e
 }
 
 fn recovered(dark: &Frame, bright: &Frame) -> InverseResponse {
@@ -118,12 +129,12 @@ fn accuracy(name: &str, curve: ResponseCurve) {
     let g_true = true_response(&curve, 256);
     let g_fit = recovered(&dark, &bright);
     let err = |g: &InverseResponse, w: Weighting| {
-        median_error(&merge_frames(&frames, g, w).radiance, &truth, &codes)
+        median_error(&merge_frames(&frames, g, w).radiance, &truth, &codes).0
     };
-    let (true_hat, true_noise) = (
-        err(&g_true, Weighting::Hat),
-        err(&g_true, Weighting::NoiseAware),
-    );
+    let true_err = |w: Weighting| {
+        true_response_error(&merge_frames(&frames, &g_true, w).radiance, &truth, &codes)
+    };
+    let (true_hat, true_noise) = (true_err(Weighting::Hat), true_err(Weighting::NoiseAware));
     let (fit_hat, fit_noise) = (
         err(&g_fit, Weighting::Hat),
         err(&g_fit, Weighting::NoiseAware),
@@ -184,7 +195,7 @@ fn film_s_floor_with_true_response() {
         &true_response(&curve, 256),
         Weighting::Hat,
     );
-    let e = median_error(&merged.radiance, &truth, &[&dark, &bright]);
+    let e = true_response_error(&merged.radiance, &truth, &[&dark, &bright]);
     assert!(e <= 0.02, "film-s floor {e}");
 }
 
@@ -201,7 +212,7 @@ fn sixteen_bit_accuracy() {
         &true_response(&curve, 65536),
         Weighting::Hat,
     );
-    let e = median_error(&merged.radiance, &truth, &[&dark, &bright]);
+    let e = true_response_error(&merged.radiance, &truth, &[&dark, &bright]);
     assert!(e < 0.002, "16-bit median error {e}");
 }
 
@@ -330,8 +341,8 @@ fn equal_exposures_average_as_duplicates() {
         &g,
         Weighting::Hat,
     );
-    let e2 = median_error(&pair.radiance, &truth, &[&dark, &bright]);
-    let e3 = median_error(&three.radiance, &truth, &[&dark, &bright, &again]);
+    let e2 = true_response_error(&pair.radiance, &truth, &[&dark, &bright]);
+    let e3 = true_response_error(&three.radiance, &truth, &[&dark, &bright, &again]);
     assert!(e3 < e2, "duplicate did not help: {e3} vs {e2}");
 }
 
