@@ -15,7 +15,9 @@
 //! has confidence 0, so a bracket with one saturated channel never counts as good). When
 //! the fit fails or its confidence is below the policy's `min_confidence`, the fallback
 //! (the camera's cached curve, else the sRGB inverse) is used instead and a note says
-//! why. [`ResponsePolicy::Use`] takes a curve as given (a response file, the cache, sRGB).
+//! why — unless the bracket contradicts the fallback: if the fallback explains the tone
+//! pairs worse than the weak fit by more than 0.05 stop RMS (`log₂(g(τ)/(γ·g(b)))`), the
+//! fit is kept, with a note. [`ResponsePolicy::Use`] takes a curve as given (a response file, the cache, sRGB).
 //!
 //! # Memory
 //!
@@ -37,7 +39,9 @@ use crate::histogram::Histogram;
 use crate::merge::{self, BracketFrame, MergeError, MergeOptions, PairMerge};
 use crate::radiance::RadianceMap;
 use crate::rendering::{self, Format, Look, Outputs, RenderingError, SourceExif};
-use crate::response::{self, CalibrationError, Degree, InverseResponse, Ratio, RatioSource};
+use crate::response::{
+    self, Calibration, CalibrationError, Degree, InverseResponse, Ratio, RatioSource,
+};
 
 /// Pixels per frame the calibration histograms look at (a speed knob measured in
 /// `benches/calibrate_speed.rs`: beyond a few million pixels the histograms of a
@@ -274,23 +278,34 @@ pub fn choose_response(
             "borrowed_from": c.borrowed_from,
         })).collect::<Vec<_>>(),
     });
+    let mut notes = Vec::new();
     if confidence < min_confidence
         && let Some(given) = fallback
     {
-        let note = format!(
-            "the fit from {pair} has confidence {confidence:.2} < {min_confidence:.2}; used the {}",
+        // A fallback is only better than a weak fit if the bracket does not contradict it.
+        let fit_misfit = misfit(&calibration, &calibration.response, ratio);
+        let given_misfit = misfit(&calibration, &given.response, ratio);
+        if given_misfit <= fit_misfit + CONTRADICTION_STOPS {
+            let note = format!(
+                "the fit from {pair} has confidence {confidence:.2} < {min_confidence:.2}; used the {}",
+                given.label
+            );
+            let mut chosen = use_given(given, vec![note], fit);
+            chosen.report["rejected_fit"] = report;
+            return Ok(chosen);
+        }
+        notes.push(format!(
+            "the fit from {pair} has confidence {confidence:.2} < {min_confidence:.2}, but the {} \
+             contradicts this bracket ({given_misfit:.3} stops RMS against the fit's \
+             {fit_misfit:.3}); used the fit",
             given.label
-        );
-        let mut chosen = use_given(given, vec![note], fit);
-        chosen.report["rejected_fit"] = report;
-        return Ok(chosen);
+        ));
     }
     let degrees: Vec<String> = calibration
         .channels
         .iter()
         .map(|c| format!("{} degree {}", c.name, c.fit.degree))
         .collect();
-    let mut notes = Vec::new();
     if confidence < 0.5 {
         notes.push(format!(
             "low-confidence response fit ({confidence:.2}) from {pair}: check the result or give a response file"
@@ -309,6 +324,30 @@ pub fn choose_response(
         fit,
         notes,
     })
+}
+
+/// How much worse (RMS, stops) a fallback may explain the bracket's tone pairs than the
+/// bracket's own fit before it counts as contradicted. A ripple the two exposures cannot
+/// resolve costs a few hundredths of a stop; a wrong curve family (sRGB for a film
+/// shoulder) costs tenths.
+const CONTRADICTION_STOPS: f64 = 0.05;
+
+/// RMS over the calibration's tone pairs of `log₂(g(τ(b)) / (γ·g(b)))`, stops: how far `g`
+/// is from explaining the two frames' histograms at ratio `γ`. Pairs where `g` is 0 are
+/// skipped; no pairs gives 0.
+fn misfit(calibration: &Calibration, g: &InverseResponse, ratio: f64) -> f64 {
+    let (mut sum, mut n) = (0.0, 0usize);
+    for (c, channel) in calibration.channels.iter().enumerate() {
+        let c = c.min(g.channels().saturating_sub(1));
+        for p in &channel.pairs {
+            let (lo, hi) = (g.eval(c, p.dark), g.eval(c, p.bright));
+            if lo > 0.0 && hi > 0.0 {
+                sum += (hi / (ratio * lo)).log2().powi(2);
+                n += 1;
+            }
+        }
+    }
+    if n == 0 { 0.0 } else { (sum / n as f64).sqrt() }
 }
 
 fn use_given(
@@ -690,5 +729,30 @@ mod tests {
         assert!(chosen.fit.is_some());
         assert!(chosen.notes[0].contains("confidence"), "{:?}", chosen.notes);
         assert_eq!(chosen.report["rejected_fit"]["source"], "fitted");
+    }
+
+    /// A weak fit is kept when the fallback contradicts the bracket: frames through a film
+    /// S curve are not explained by sRGB.
+    #[test]
+    fn a_fallback_the_bracket_contradicts_is_not_used() {
+        let truth = scene(240, 160, 4);
+        let sensor = Sensor::noiseless(ResponseCurve::FilmS, BitDepth::Eight);
+        let frames = [
+            loaded("a.png", expose(&truth, 1.0, &sensor)),
+            loaded("b.png", expose(&truth, 4.0, &sensor)),
+        ];
+        let bracket = bracket(&frames, &[1.0, 4.0]);
+        let policy = ResponsePolicy::Fit {
+            fallback: Some(GivenResponse::standard(3)),
+            min_confidence: 1.01,
+        };
+        let chosen =
+            choose_response(&bracket, RatioSource::Argument, policy, &mut Stages::new()).unwrap();
+        assert_eq!(chosen.source, Source::Fitted, "{:?}", chosen.notes);
+        assert!(
+            chosen.notes[0].contains("contradicts"),
+            "{:?}",
+            chosen.notes
+        );
     }
 }
