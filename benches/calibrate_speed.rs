@@ -123,9 +123,9 @@ fn main() {
         let peer = peer(dir.path(), ratio);
         println!("\n## {w}×{h} JPEG q95 pair, {name} curve, ratio {ratio}\n");
         println!(
-            "| stride | degree | histograms (ms) | fit (ms) | total (ms) | own error | shape error | min confidence | vs OpenCV time | vs OpenCV shape error |"
+            "| stride | degree | eff. parameters | histograms (ms) | fit (ms) | total (ms) | own error | shape error | min confidence | vs OpenCV time | vs OpenCV shape error |"
         );
-        println!("|---|---|---|---|---|---|---|---|---|---|");
+        println!("|---|---|---|---|---|---|---|---|---|---|---|");
         for stride in [1, 2, 4, 8, 16] {
             let mut hists = Vec::new();
             let hist_ms = median_ms(|| {
@@ -155,6 +155,13 @@ fn main() {
                     .iter()
                     .map(|c| c.fit.confidence)
                     .fold(1.0, f64::min);
+                let mut parameters: Vec<f64> = cal
+                    .channels
+                    .iter()
+                    .map(|c| c.fit.effective_parameters)
+                    .collect();
+                parameters.sort_by(f64::total_cmp);
+                let parameters = parameters[parameters.len() / 2];
                 let (vt, ve) = match &peer {
                     Some((ms, pc)) => {
                         let (_, ps) = errors(&curve, |c, k| pc[k][c]);
@@ -166,7 +173,7 @@ fn main() {
                     None => ("-".into(), "-".into()),
                 };
                 println!(
-                    "| {stride} | {label} | {hist_ms:.1} | {fit_ms:.1} | {:.1} | {own:.4} | {shape:.4} | {conf:.2} | {vt} | {ve} |",
+                    "| {stride} | {label} | {parameters:.1} | {hist_ms:.1} | {fit_ms:.1} | {:.1} | {own:.4} | {shape:.4} | {conf:.2} | {vt} | {ve} |",
                     hist_ms + fit_ms
                 );
             }
@@ -175,7 +182,7 @@ fn main() {
             Some((ms, pc)) => {
                 let (_, ps) = errors(&curve, |c, k| pc[k][c]);
                 println!(
-                    "| OpenCV CalibrateDebevec | 70 samples, λ 10 | - | - | {ms:.1} | - | {ps:.4} | - | 1× | 1× |"
+                    "| OpenCV CalibrateDebevec | 70 samples, λ 10 | 256 | - | - | {ms:.1} | - | {ps:.4} | - | 1× | 1× |"
                 );
             }
             None => println!("(OpenCV peer unavailable: skipped)"),

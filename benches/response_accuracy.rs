@@ -146,7 +146,8 @@ struct Outcome {
     own: f64,
     shape: f64,
     confidence: f64,
-    degree: usize,
+    /// Effective number of parameters, median over channels.
+    parameters: f64,
     failed: Option<String>,
     peer_index: Option<usize>,
 }
@@ -240,7 +241,7 @@ fn main() {
                     own: f64::NAN,
                     shape: f64::NAN,
                     confidence: 0.0,
-                    degree: 0,
+                    parameters: f64::NAN,
                     failed: None,
                     peer_index: None,
                 };
@@ -249,9 +250,9 @@ fn main() {
                         if only.is_some() {
                             let ch = &cal.channels[1];
                             println!(
-                                "{} ratio {ratio}: degree {} covered {:.4}..{:.4} eq {} resid {:.4} cond {:.1e} pred {:.4} conf {:.2}",
+                                "{} ratio {ratio}: {} covered {:.4}..{:.4} eq {} resid {:.4} cond {:.1e} pred {:.4} conf {:.2}",
                                 enc.name(),
-                                ch.fit.degree,
+                                ch.fit.model(),
                                 ch.fit.covered.0,
                                 ch.fit.covered.1,
                                 ch.fit.equations,
@@ -282,8 +283,12 @@ fn main() {
                             .iter()
                             .map(|c| c.fit.confidence)
                             .fold(1.0, f64::min);
-                        outcome.degree =
-                            cal.channels.iter().map(|c| c.fit.degree).max().unwrap_or(0);
+                        let mut p: Vec<f64> = cal
+                            .channels
+                            .iter()
+                            .map(|c| c.fit.effective_parameters)
+                            .collect();
+                        outcome.parameters = quantile(&mut p, 0.5);
                     }
                     Err(e) => outcome.failed = Some(e.to_string()),
                 }
@@ -347,7 +352,7 @@ fn main() {
     );
     println!();
     println!(
-        "| encoding | ratio | n | fail | own median | own p90 | shape median | shape p90 | shape max | low conf. | confident wrong | degree median | OpenCV shape median | OpenCV p90 | ours better |"
+        "| encoding | ratio | n | fail | own median | own p90 | shape median | shape p90 | shape max | low conf. | confident wrong | eff. parameters median | OpenCV shape median | OpenCV p90 | ours better |"
     );
     println!("|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|");
     let use_dorf = outcomes.iter().any(|o| o.curve.starts_with("dorf-"));
@@ -362,7 +367,7 @@ fn main() {
             let ok: Vec<&&Outcome> = set.iter().filter(|o| o.failed.is_none()).collect();
             let mut own: Vec<f64> = ok.iter().map(|o| o.own).collect();
             let mut shape: Vec<f64> = ok.iter().map(|o| o.shape).collect();
-            let mut degree: Vec<f64> = ok.iter().map(|o| o.degree as f64).collect();
+            let mut parameters: Vec<f64> = ok.iter().map(|o| o.parameters).collect();
             let low = ok.iter().filter(|o| o.confidence < 0.5).count();
             let wrong = ok
                 .iter()
@@ -393,7 +398,7 @@ fn main() {
                 )
             };
             println!(
-                "| {} | {ratio} | {} | {} | {:.4} | {:.4} | {:.4} | {:.4} | {:.3} | {low} | {wrong} | {} | {pm} | {pp} | {better} |",
+                "| {} | {ratio} | {} | {} | {:.4} | {:.4} | {:.4} | {:.4} | {:.3} | {low} | {wrong} | {:.1} | {pm} | {pp} | {better} |",
                 enc.name(),
                 set.len(),
                 set.len() - ok.len(),
@@ -402,7 +407,7 @@ fn main() {
                 quantile(&mut shape, 0.5),
                 quantile(&mut shape, 0.9),
                 quantile(&mut shape, 1.0),
-                quantile(&mut degree, 0.5),
+                quantile(&mut parameters, 0.5),
             );
         }
     }
@@ -426,20 +431,20 @@ fn main() {
     println!();
     println!("## Named curves at ratio 4");
     println!();
-    println!("| curve | encoding | own | shape | confidence | degree | OpenCV shape |");
+    println!("| curve | encoding | own | shape | confidence | eff. parameters | OpenCV shape |");
     println!("|---|---|---|---|---|---|---|");
     for o in outcomes
         .iter()
         .filter(|o| o.ratio == 4.0 && !o.curve.starts_with("dorf-"))
     {
         println!(
-            "| {} | {} | {:.4} | {:.4} | {:.2} | {} | {} |",
+            "| {} | {} | {:.4} | {:.4} | {:.2} | {:.1} | {} |",
             o.curve,
             o.enc.name(),
             o.own,
             o.shape,
             o.confidence,
-            o.degree,
+            o.parameters,
             peer_shape(o).map_or("-".into(), |p| format!("{p:.4}"))
         );
     }
@@ -457,8 +462,8 @@ fn main() {
         worst
             .iter()
             .map(|o| format!(
-                "{} {:.3} (conf {:.2}, deg {})",
-                o.curve, o.shape, o.confidence, o.degree
+                "{} {:.3} (conf {:.2}, {:.1} eff. parameters)",
+                o.curve, o.shape, o.confidence, o.parameters
             ))
             .collect::<Vec<_>>()
             .join("; ")

@@ -264,14 +264,15 @@ pub fn choose_response(
     let fit = Some((calibration.response.clone(), confidence));
     let report = serde_json::json!({
         "source": "fitted",
-        "model": response::MODEL_NAME,
         "frames": [dark.source.display().to_string(), bright.source.display().to_string()],
         "ratio": ratio,
         "ratio_source": ratio_source.as_str(),
         "confidence": confidence,
         "channels": calibration.channels.iter().map(|c| serde_json::json!({
             "name": c.name,
+            "model": c.fit.model(),
             "degree": c.fit.degree,
+            "effective_parameters": c.fit.effective_parameters,
             "covered": [c.fit.covered.0, c.fit.covered.1],
             "residual_rms_stops": c.fit.residual_rms,
             "confidence": c.fit.confidence,
@@ -301,11 +302,16 @@ pub fn choose_response(
             given.label
         ));
     }
-    let degrees: Vec<String> = calibration
+    let sizes: Vec<String> = calibration
         .channels
         .iter()
-        .map(|c| format!("{} degree {}", c.name, c.fit.degree))
+        .map(|c| format!("{} {}", c.name, c.fit.size()))
         .collect();
+    let family = calibration
+        .channels
+        .iter()
+        .find(|c| c.borrowed_from.is_none())
+        .map_or_else(String::new, |c| c.fit.family());
     if confidence < 0.5 {
         notes.push(format!(
             "low-confidence response fit ({confidence:.2}) from {pair}: check the result or give a response file"
@@ -315,10 +321,9 @@ pub fn choose_response(
         response: calibration.response,
         source: Source::Fitted,
         summary: format!(
-            "calibrated from {pair} (ratio {ratio:.4}, {}): {}, {}, confidence {confidence:.2}",
+            "calibrated from {pair} (ratio {ratio:.4}, {}): {family}; {}; confidence {confidence:.2}",
             ratio_source.as_str(),
-            response::MODEL_NAME,
-            degrees.join(", ")
+            sizes.join("; ")
         ),
         report,
         fit,

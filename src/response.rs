@@ -16,6 +16,7 @@ use crate::histogram::{Histogram, TonePair, UsableTones, tone_pairs};
 
 pub mod file;
 pub mod fit;
+pub mod spline;
 
 pub use file::{ChannelSummary, ResponseFileError, ResponseRecord, load, save};
 pub use fit::{ChannelFit, Degree, FitError};
@@ -153,9 +154,6 @@ impl Preset {
 
 /// Number of samples per channel in a calibrated [`InverseResponse`] (`g(i/1023)`).
 pub const CALIBRATED_SAMPLES: usize = 1024;
-
-/// Name of the fitted model, as reported and saved.
-pub const MODEL_NAME: &str = "monotone Bernstein polynomial of ln g over ln b";
 
 /// `g(0.5)` of the sRGB curve: the prior used when the ratio must be estimated.
 pub const PRIOR_MID_GREY: f64 = 0.214_041_140_482_232_55;

@@ -8,9 +8,7 @@ use anyhow::{Context, bail};
 use filmback::atomic::Overwrite;
 use filmback::frame::{self, Limits, LoadedFrame};
 use filmback::histogram::Histogram;
-use filmback::response::{
-    self, Calibration, Degree, MODEL_NAME, PRIOR_MID_GREY, Ratio, RatioSource,
-};
+use filmback::response::{self, Calibration, Degree, PRIOR_MID_GREY, Ratio, RatioSource};
 use serde_json::{Value, json};
 
 pub(crate) mod plot;
@@ -25,7 +23,8 @@ pub struct Args {
     /// ratio is estimated (see `ratio_prior` in the output).
     #[arg(long)]
     ratio: Option<f64>,
-    /// Model size: `auto` (the data choose the smoothness) or a polynomial degree 1..=16.
+    /// Model: `auto` (a cubic spline whose smoothness the data choose) or one polynomial
+    /// of degree 1..=16 (the report's model was degree 6).
     #[arg(long, default_value = "auto", value_parser = parse_degree)]
     degree: Degree,
     /// Count every N-th pixel of every N-th row (a speed knob; 1 = all pixels).
@@ -172,8 +171,12 @@ fn report(cal: &Calibration, dark: &Path, bright: &Path) -> Value {
                 .collect();
             json!({
                 "name": ch.name,
-                "model": MODEL_NAME,
+                "model": f.model(),
+                "family": f.family(),
                 "degree": f.degree,
+                "pieces": f.knots.len() + 1,
+                "knots": f.knots.iter().map(|x| x.exp()).collect::<Vec<_>>(),
+                "effective_parameters": number(f.effective_parameters),
                 "smoothing": number(f.smoothing),
                 "coefficients": f.coefficients,
                 "inverse_response": g,
@@ -215,11 +218,19 @@ fn table(r: &Value) -> String {
             .as_str()
             .map_or(String::new(), |p| format!(", assuming {p}"))
     );
-    let _ = writeln!(out, "model: {MODEL_NAME}");
     let _ = writeln!(
         out,
-        "{:<3} {:>6} {:>9} {:>15} {:>9} {:>9} {:>10} {:>10}  g(0.25) g(0.5) g(0.75)",
-        "ch", "degree", "smoothing", "covered", "residual", "equations", "condition", "confidence"
+        "{:<3} {:>6} {:>6} {:>9} {:>9} {:>15} {:>9} {:>9} {:>10} {:>10}  g(0.25) g(0.5) g(0.75)",
+        "ch",
+        "degree",
+        "pieces",
+        "eff.par.",
+        "smoothing",
+        "covered",
+        "residual",
+        "equations",
+        "condition",
+        "confidence"
     );
     for ch in r["channels"].as_array().into_iter().flatten() {
         let g = |k: usize| ch["inverse_response"][k].as_f64().unwrap_or(f64::NAN);
@@ -232,20 +243,33 @@ fn table(r: &Value) -> String {
         }
         let _ = writeln!(
             out,
-            "{:<3} {:>6} {:>9.1e} {:>7.4}..{:<6.4} {:>8.4}s {:>9} {:>10.2e} {:>10.2}  {:.4} {:.4} {:.4}{note}",
+            "{:<3} {:>6} {:>6} {:>9.1} {:>9.1e} {:>7.4}..{:<6.4} {:>8.4}s {:>9} {:>10.2e} {:>10.2}  {:.4} {:.4} {:.4}{note}",
             ch["name"].as_str().unwrap_or("?"),
-            ch["degree"],
+            ch["degree"].as_u64().unwrap_or(0),
+            ch["pieces"].as_u64().unwrap_or(0),
+            f("effective_parameters"),
             f("smoothing"),
             ch["covered"][0].as_f64().unwrap_or(f64::NAN),
             ch["covered"][1].as_f64().unwrap_or(f64::NAN),
             f("residual_rms"),
-            ch["equations"],
+            ch["equations"].as_u64().unwrap_or(0),
             f("condition_number"),
             f("confidence"),
             g(64),
             g(128),
             g(191),
         );
+    }
+    let mut models: Vec<&str> = r["channels"]
+        .as_array()
+        .into_iter()
+        .flatten()
+        .filter(|ch| ch["borrowed_from"].is_null())
+        .filter_map(|ch| ch["family"].as_str())
+        .collect();
+    models.dedup();
+    for model in models {
+        let _ = writeln!(out, "model: {model}");
     }
     out.push_str("outside the covered tones the curve is extrapolated\n");
     out

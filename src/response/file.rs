@@ -9,8 +9,8 @@
 //!
 //! [[channel]]
 //! name = "R"
-//! model = "monotone Bernstein in ln g over ln b"
-//! degree = 3                  # optional
+//! model = "monotone cubic spline of ln g over ln b (10 pieces, 5.2 effective parameters)"
+//! degree = 3                  # optional: degree of the polynomial pieces
 //! covered = [0.01, 0.98]      # optional: tone range the data covered
 //! residual_rms = 0.004        # optional, stops
 //! confidence = 0.97           # optional, 0..1
@@ -64,7 +64,7 @@ pub struct ChannelSummary {
     pub name: String,
     /// How the curve was obtained.
     pub model: String,
-    /// Polynomial degree, when fitted.
+    /// Degree of the fitted polynomial (pieces), when fitted.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub degree: Option<usize>,
     /// Tone range the data covered.
@@ -128,7 +128,7 @@ impl Calibration {
             .map(|ch| ChannelSummary {
                 name: ch.name.to_string(),
                 model: match ch.borrowed_from {
-                    None => super::MODEL_NAME.to_string(),
+                    None => ch.fit.model(),
                     Some(donor) => format!("borrowed from {donor} (no usable tones)"),
                 },
                 degree: Some(ch.fit.degree),
