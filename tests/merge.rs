@@ -178,7 +178,6 @@ fn accuracy_gamma() {
 }
 
 #[test]
-#[ignore = "fails today: with the FilmS response recovered by response::calibrate the error is 1.89 % (≤ 2 %) but 1.1 points above the true-response floor of 0.80 % (target: within 0.3)"]
 fn accuracy_film_s() {
     accuracy("film-s", ResponseCurve::FilmS);
 }
