@@ -73,6 +73,7 @@
 //! with the weights and the penalty taken from the previous fit's slopes.
 
 use nalgebra::{DMatrix, DVector};
+use rayon::prelude::*;
 
 use super::spline::Basis;
 use crate::histogram::TonePair;
@@ -379,8 +380,30 @@ impl Problem {
         (full, full_y)
     }
 
-    fn solve(&self, lambda: f64, rows: &[usize]) -> DVector<f64> {
-        let (a, y) = self.system(lambda, rows);
+    /// The data rows `rows` reduced to their `n × n` QR triangle `R` and `z = Qᵀ√w·ln γ`:
+    /// `‖A d − y‖² = ‖R d − z‖² + const`, so every `λ` of a cross-validation fold solves the
+    /// small system `[R; √λ·P] d ≈ [z; 0]` instead of all the fold's rows again.
+    fn reduce(&self, rows: &[usize]) -> (DMatrix<f64>, DVector<f64>) {
+        let (a, y) = self.weighted(rows);
+        let n = self.unknowns();
+        if a.nrows() < n {
+            return (a, y);
+        }
+        let qr = a.qr();
+        let z = qr.q().transpose() * y;
+        (qr.r(), z)
+    }
+
+    /// The non-negative solution of the reduced data rows `(r, z)` (see
+    /// [`Problem::reduce`]) with the penalty rows times `√λ`.
+    fn solve_reduced(&self, lambda: f64, r: &DMatrix<f64>, z: &DVector<f64>) -> DVector<f64> {
+        let (k, extra, n) = (r.nrows(), self.penalty.nrows(), self.unknowns());
+        let mut a = DMatrix::zeros(k + extra, n);
+        a.rows_mut(0, k).copy_from(r);
+        a.rows_mut(k, extra)
+            .copy_from(&(&self.penalty * lambda.sqrt()));
+        let mut y = DVector::zeros(k + extra);
+        y.rows_mut(0, k).copy_from(z);
         nnls(&a, &y)
     }
 
@@ -411,17 +434,24 @@ impl Problem {
             .copied()
             .chain((floor < SMOOTHING_GRID[0]).then_some(floor))
             .collect();
+        let folds: Vec<(Vec<usize>, (DMatrix<f64>, DVector<f64>))> = (0..FOLDS)
+            .into_par_iter()
+            .map(|f| {
+                let train: Vec<usize> = (0..m).filter(|&i| fold_of(i) != f).collect();
+                let test: Vec<usize> = (0..m).filter(|&i| fold_of(i) == f).collect();
+                (test, self.reduce(&train))
+            })
+            .collect();
         // (λ, mean held-out misfit per equation, its standard error, allowed by the
         // floor); λ descending, except for the floor itself, appended last.
         let scores: Vec<(f64, f64, f64, bool)> = grid
-            .iter()
+            .par_iter()
             .map(|&k| {
-                let per_fold: Vec<f64> = (0..FOLDS)
-                    .map(|f| {
-                        let train: Vec<usize> = (0..m).filter(|&i| fold_of(i) != f).collect();
-                        let test: Vec<usize> = (0..m).filter(|&i| fold_of(i) == f).collect();
-                        let d = self.solve(scale * k, &train);
-                        self.misfit(&d, &test) / test.len() as f64
+                let per_fold: Vec<f64> = folds
+                    .iter()
+                    .map(|(test, (r, z))| {
+                        let d = self.solve_reduced(scale * k, r, z);
+                        self.misfit(&d, test) / test.len() as f64
                     })
                     .collect();
                 let mean = per_fold.iter().sum::<f64>() / FOLDS as f64;
