@@ -369,15 +369,24 @@ impl Problem {
 
     /// Data rows plus the penalty rows times `√λ`.
     fn system(&self, lambda: f64, rows: &[usize]) -> (DMatrix<f64>, DVector<f64>) {
-        let n = self.unknowns();
         let (a, y) = self.weighted(rows);
-        let extra = self.penalty.nrows();
-        let mut full = DMatrix::zeros(rows.len() + extra, n);
-        full.rows_mut(0, rows.len()).copy_from(&a);
-        full.rows_mut(rows.len(), extra)
+        self.with_penalty(lambda, &a, &y)
+    }
+
+    /// `[a; √λ·P]` and `[y; 0]`.
+    fn with_penalty(
+        &self,
+        lambda: f64,
+        a: &DMatrix<f64>,
+        y: &DVector<f64>,
+    ) -> (DMatrix<f64>, DVector<f64>) {
+        let (k, extra) = (a.nrows(), self.penalty.nrows());
+        let mut full = DMatrix::zeros(k + extra, self.unknowns());
+        full.rows_mut(0, k).copy_from(a);
+        full.rows_mut(k, extra)
             .copy_from(&(&self.penalty * lambda.sqrt()));
-        let mut full_y = DVector::zeros(rows.len() + extra);
-        full_y.rows_mut(0, rows.len()).copy_from(&y);
+        let mut full_y = DVector::zeros(k + extra);
+        full_y.rows_mut(0, k).copy_from(y);
         (full, full_y)
     }
 
@@ -398,13 +407,7 @@ impl Problem {
     /// The non-negative solution of the reduced data rows `(r, z)` (see
     /// [`Problem::reduce`]) with the penalty rows times `√λ`.
     fn solve_reduced(&self, lambda: f64, r: &DMatrix<f64>, z: &DVector<f64>) -> DVector<f64> {
-        let (k, extra, n) = (r.nrows(), self.penalty.nrows(), self.unknowns());
-        let mut a = DMatrix::zeros(k + extra, n);
-        a.rows_mut(0, k).copy_from(r);
-        a.rows_mut(k, extra)
-            .copy_from(&(&self.penalty * lambda.sqrt()));
-        let mut y = DVector::zeros(k + extra);
-        y.rows_mut(0, k).copy_from(z);
+        let (a, y) = self.with_penalty(lambda, r, z);
         nnls(&a, &y)
     }
 
