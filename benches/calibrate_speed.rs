@@ -182,7 +182,7 @@ fn main() {
             Some((ms, pc)) => {
                 let (_, ps) = errors(&curve, |c, k| pc[k][c]);
                 println!(
-                    "| OpenCV CalibrateDebevec | 70 samples, λ 10 | 256 | - | - | {ms:.1} | - | {ps:.4} | - | 1× | 1× |"
+                    "| OpenCV CalibrateDebevec | 70 samples, λ 10 | - | - | - | {ms:.1} | - | {ps:.4} | - | 1× | 1× |"
                 );
             }
             None => println!("(OpenCV peer unavailable: skipped)"),

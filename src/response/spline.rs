@@ -88,7 +88,6 @@ impl Basis {
         };
         let mut out: Vec<Vec<f64>> = Vec::with_capacity(self.degree + 1);
         out.push((0..last).map(|i| if i == s { 1.0 } else { 0.0 }).collect());
-        let ratio = |num: f64, den: f64| if den > 0.0 { num / den } else { 0.0 };
         for q in 1..=self.degree {
             let prev = &out[q - 1];
             let row = (0..last - q)
@@ -126,14 +125,7 @@ impl Basis {
         let below = &orders[p - 1];
         let t = &self.knots;
         (1..self.len())
-            .map(|j| {
-                let den = t[j + p] - t[j];
-                if den > 0.0 {
-                    p as f64 * below[j] / den
-                } else {
-                    0.0
-                }
-            })
+            .map(|j| ratio(p as f64 * below[j], t[j + p] - t[j]))
             .collect()
     }
 
@@ -147,7 +139,6 @@ impl Basis {
         let orders = self.orders(x);
         let two_below = &orders[p - 2];
         let t = &self.knots;
-        let ratio = |num: f64, den: f64| if den > 0.0 { num / den } else { 0.0 };
         (1..self.len())
             .map(|j| {
                 let inner = ratio(two_below[j], t[j + p - 1] - t[j])
@@ -199,6 +190,12 @@ impl Basis {
             })
             .collect()
     }
+}
+
+/// `num / den`, and 0 where a repeated knot makes `den` zero (the B-spline convention
+/// `0/0 = 0`: the term belongs to an empty piece).
+fn ratio(num: f64, den: f64) -> f64 {
+    if den > 0.0 { num / den } else { 0.0 }
 }
 
 /// Gauss–Legendre nodes and weights on `[−1, 1]` with `k ≥ 1` points (Newton's method on
