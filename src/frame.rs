@@ -45,6 +45,17 @@ impl BitDepth {
     }
 }
 
+/// How the file stored the samples, which decides how close to clipping a tone can be
+/// trusted ([`crate::histogram::UsableTones`]).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
+pub enum Compression {
+    /// Every sample as the camera wrote it (PNG, TIFF, or a frame built in memory).
+    Lossless,
+    /// Lossy JPEG: the 8×8 blocks that hold clipped highlights ring, spreading the codes
+    /// just below full scale over a few levels.
+    Lossy,
+}
+
 /// Interleaved samples at the frame's native depth.
 #[derive(Debug, Clone, PartialEq)]
 pub enum Samples {
@@ -61,6 +72,7 @@ pub struct Frame {
     height: u32,
     channels: usize,
     samples: Samples,
+    compression: Compression,
 }
 
 /// Why a frame could not be built or loaded. Every variant names the file when there is one.
@@ -192,7 +204,8 @@ pub struct LoadedFrame {
 }
 
 impl Frame {
-    /// Builds a frame from interleaved samples; `channels` is 1 (grey) or 3 (RGB).
+    /// Builds a frame from interleaved samples; `channels` is 1 (grey) or 3 (RGB). The
+    /// samples count as [`Compression::Lossless`] (see [`Frame::with_compression`]).
     pub fn new(
         width: u32,
         height: u32,
@@ -217,7 +230,21 @@ impl Frame {
             height,
             channels,
             samples,
+            compression: Compression::Lossless,
         })
+    }
+
+    /// The same frame, marked as stored with `compression`.
+    pub fn with_compression(self, compression: Compression) -> Frame {
+        Frame {
+            compression,
+            ..self
+        }
+    }
+
+    /// How the file stored the samples.
+    pub fn compression(&self) -> Compression {
+        self.compression
     }
 
     /// Width in pixels.
@@ -391,7 +418,12 @@ pub fn decode(path: &Path, bytes: &[u8], limits: Limits) -> Result<LoadedFrame, 
     if let Some(orientation) = image::metadata::Orientation::from_exif(metadata.orientation) {
         image.apply_orientation(orientation);
     }
-    let frame = Frame::from_dynamic(image, path)?;
+    let compression = if format == image::ImageFormat::Jpeg {
+        Compression::Lossy
+    } else {
+        Compression::Lossless
+    };
+    let frame = Frame::from_dynamic(image, path)?.with_compression(compression);
     Ok(LoadedFrame {
         path: path.to_path_buf(),
         frame,

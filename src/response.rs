@@ -285,8 +285,8 @@ pub fn calibrate(
             let pairs = tone_pairs(
                 &a,
                 &b,
-                UsableTones::detect(&a, dark.depth()),
-                UsableTones::detect(&b, bright.depth()),
+                UsableTones::detect(&a, dark.compression()),
+                UsableTones::detect(&b, bright.compression()),
             );
             (c, fit::fit(&pairs, log_ratio, degree), pairs)
         })

@@ -10,7 +10,7 @@ use std::process::Command;
 
 use exif::experimental::Writer;
 use exif::{Field, In, Rational, Tag, Value};
-use filmback::frame::{self, BitDepth, FrameError, Limits, Samples};
+use filmback::frame::{self, BitDepth, Compression, FrameError, Limits, Samples};
 use image::codecs::jpeg::JpegEncoder;
 use image::codecs::png::PngEncoder;
 use image::{ExtendedColorType, ImageEncoder};
@@ -432,6 +432,7 @@ fn png_and_tiff_keep_8_and_16_bit_grey_and_rgb_exactly() {
             assert_eq!(f.channels(), layout.channels, "{layout:?} {ext}");
             assert_eq!(f.bit_depth(), layout.depth, "{layout:?} {ext}");
             assert_eq!(f.samples(), &samples, "{layout:?} {ext}");
+            assert_eq!(f.compression(), Compression::Lossless, "{layout:?} {ext}");
             let run = inspect_json(&[&path]);
             assert_eq!(run.json[0]["bit_depth"], layout.depth.bits());
             assert_eq!(run.json[0]["channels"], layout.channels);
@@ -456,6 +457,7 @@ fn jpeg_keeps_8_bit_grey_and_rgb() {
         assert_eq!(f.channels(), layout.channels);
         assert_eq!(f.bit_depth(), BitDepth::Eight);
         assert_eq!((f.width(), f.height()), (32, 16));
+        assert_eq!(f.compression(), Compression::Lossy);
     }
 }
 
