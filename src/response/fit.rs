@@ -135,9 +135,8 @@ pub struct ChannelFit {
     pub effective_parameters: f64,
     /// Condition number of the weighted design matrix (ratio of extreme singular values).
     pub condition: f64,
-    /// Predicted error of `log₂ g` over codes 16..239 (stops): the fit's standard error
-    /// (covariance scaled by the residual misfit) and, where the misfit exceeds the noise,
-    /// the systematic error it implies (see `systematic_error`).
+    /// Predicted standard error of `log₂ g` over codes 16..239 (stops), from the fit's
+    /// covariance scaled by the residual misfit.
     pub predicted_error: f64,
     /// Fraction of the tones 16/255..239/255 inside [`ChannelFit::covered`].
     pub coverage: f64,
@@ -660,7 +659,6 @@ fn finish(problem: &Problem, lambda: f64, log_floor: f64, covered: (f64, f64)) -
     // SVD of the free columns of the full (data + smoothness) system, with
     // s² = 2·max(1, χ²/(m − p)): the misfit inflates it, and each pixel bin feeds two
     // neighbouring equations, so the equations are not independent.
-    let coefficients = problem.basis.coefficients(d.as_slice());
     let free: Vec<usize> = (0..n).filter(|&j| d[j] > 0.0).collect();
     let p = free.len().max(1);
     let scale2 = 2.0 * (chi2 / (m.saturating_sub(p).max(1)) as f64).max(1.0);
@@ -696,9 +694,10 @@ fn finish(problem: &Problem, lambda: f64, log_floor: f64, covered: (f64, f64)) -
             // see either: it adds nothing to the trace.
             column *= if *s > 0.0 { 1.0 / s } else { 0.0 };
         }
-        let variance = scale2 * var_sum / count / std::f64::consts::LN_2.powi(2);
-        let bias = systematic_error(problem, &coefficients, log_floor, chi2, m.saturating_sub(p));
-        (variance.sqrt().hypot(bias), projected.norm_squared())
+        (
+            (scale2 * var_sum / count).sqrt() / std::f64::consts::LN_2,
+            projected.norm_squared(),
+        )
     };
     let (lo, hi) = (covered.0, covered.1.min(1.0));
     let coverage =
@@ -707,7 +706,7 @@ fn finish(problem: &Problem, lambda: f64, log_floor: f64, covered: (f64, f64)) -
         degree: problem.basis.degree(),
         knots: problem.basis.interior().to_vec(),
         smoothing: lambda / problem.total_weight().max(f64::MIN_POSITIVE),
-        coefficients,
+        coefficients: problem.basis.coefficients(d.as_slice()),
         log_floor,
         covered: (lo, hi),
         residual_rms,
@@ -718,45 +717,6 @@ fn finish(problem: &Problem, lambda: f64, log_floor: f64, covered: (f64, f64)) -
         coverage,
         confidence: confidence(coverage, predicted_error),
     }
-}
-
-/// The part of the predicted error (stops) that no noise explains: misfit beyond the noise
-/// model is a systematic error of the curve (a bend the smoothness would not allow), and it
-/// accumulates along the chain of equations that ties a tone to white.
-///
-/// The misfit beyond noise is `r = √(max(0, χ² − ν) / Σw)` (natural-log units per equation;
-/// `χ²` the weighted residual sum, `ν = m − p` its expectation under the noise model). A
-/// tone `b` hangs from `g(1) = 1` by about `n(b) = −ln g(b) / ln γ` equations, and a misfit
-/// that keeps its sign along them adds up linearly, so the error is `r · n̄ / ln 2` with
-/// `n̄` the mean of `n(b)` over codes 16..239. Zero for a fit within its noise. Measured
-/// (`benches/response_accuracy.rs`, DoRF): confident wrong curves (shape error > 0.1 stop
-/// at confidence ≥ 0.5) at ratio 1.25 fall from 3 to 0 (8-bit lossless), 3 to 0 (JPEG)
-/// and 6 to 0 (16-bit); curves flagged low at ratio 4 although their own error is below
-/// 0.03 stop stay at 3 of 101.
-fn systematic_error(
-    problem: &Problem,
-    coefficients: &[f64],
-    log_floor: f64,
-    chi2: f64,
-    dof: usize,
-) -> f64 {
-    let excess = (chi2 - dof as f64).max(0.0);
-    if excess == 0.0 {
-        return 0.0;
-    }
-    let per_equation = (excess / problem.total_weight().max(f64::MIN_POSITIVE)).sqrt();
-    let codes = 16..=239;
-    let count = codes.clone().count() as f64;
-    let steps = codes
-        .map(|k| {
-            -problem
-                .basis
-                .eval(coefficients, (f64::from(k) / 255.0).ln().max(log_floor))
-        })
-        .sum::<f64>()
-        / count
-        / problem.log_ratio;
-    per_equation * steps / std::f64::consts::LN_2
 }
 
 /// `coverage / (1 + (predicted_error / 0.05 stop)²)`; 0 for an undetermined curve.
@@ -871,44 +831,6 @@ mod tests {
             auto.effective_parameters > 1.0 && auto.effective_parameters < 2.5,
             "{}",
             auto.effective_parameters
-        );
-    }
-
-    #[test]
-    fn systematic_error_is_the_misfit_beyond_noise_times_the_chain_to_white() {
-        // g = b² at γ = 1.25: the basis is one cubic on [ln(3/255), 0] with coefficients
-        // on the line u = 2x, so a tone b hangs from white by n(b) = −2 ln b / ln γ links.
-        let pairs = power_pairs(2.0, 1.25);
-        let log_floor = (3.0f64 / 255.0).ln();
-        let basis = Basis::new(3, log_floor, 0.0, &[]);
-        let coefficients: Vec<f64> = (0..=3)
-            .map(|i| 2.0 * log_floor * (1.0 - f64::from(i) / 3.0))
-            .collect();
-        let m = pairs.len();
-        let problem = Problem {
-            design: design(&basis, &pairs),
-            penalty: curvature(&basis, None),
-            basis,
-            sqrt_w: vec![2.0; m],
-            log_ratio: 1.25f64.ln(),
-        };
-        let dof = m - 4;
-        let within_noise =
-            systematic_error(&problem, &coefficients, log_floor, 0.9 * dof as f64, dof);
-        assert_eq!(within_noise, 0.0);
-        // A misfit of 0.01 (ln units) on every equation beyond the noise.
-        let r: f64 = 0.01;
-        let chi2 = dof as f64 + problem.total_weight() * r * r;
-        let links = (16..=239)
-            .map(|k| -2.0 * (f64::from(k) / 255.0).ln())
-            .sum::<f64>()
-            / 224.0
-            / 1.25f64.ln();
-        let expected = r * links / std::f64::consts::LN_2;
-        let got = systematic_error(&problem, &coefficients, log_floor, chi2, dof);
-        assert!(
-            (got - expected).abs() < 1e-9 * expected,
-            "{got} vs {expected}"
         );
     }
 
