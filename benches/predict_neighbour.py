@@ -25,7 +25,7 @@ FILMBACK = os.path.join(HERE, '..', 'target', 'release', 'filmback')
 BRACKETS = os.path.join(HERE, '..', '..', 'shared', 'testdata', 'brackets')
 
 # (bracket, curve pair (darker first), exposure times of the pair, source, target,
-# source and target exposure times); a ratio None means filmback reads EXIF.
+# source and target exposure times); pair times None: filmback takes the ratio from EXIF.
 CASES = [
     ('frobisher', ('IMG_2600.jpg', 'IMG_2601.jpg'), None, 'IMG_2601.jpg', 'IMG_2602.jpg', 1.0, 8.0),
     ('frobisher', ('IMG_2601.jpg', 'IMG_2602.jpg'), None, 'IMG_2601.jpg', 'IMG_2600.jpg', 1.0, 1 / 8),
@@ -90,9 +90,9 @@ def main():
         for bracket, pair, times, source, target, t_source, t_target in CASES:
             base = os.path.join(BRACKETS, bracket)
             paths = [os.path.join(base, p) for p in pair]
+            ratio = None if times is None else times[1] / times[0]
             if times is None:
                 times = [exif_time(p) for p in paths]
-            ratio = None if bracket == 'frobisher' else times[1] / times[0]
             src = read(os.path.join(base, source))
             truth = read(os.path.join(base, target))
             gamma = t_target / t_source

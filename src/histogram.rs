@@ -270,7 +270,7 @@ impl UsableTones {
     /// hold clipped areas ring and move their unclipped neighbours by a few codes.
     /// Measured on the DoRF curves at ratio 4 (`benches/response_accuracy.rs`, 8-bit
     /// lossless, own-normalisation median): 2.5 → 0.022 stops, 1.5 → 0.021, 0.5 → 0.020
-    /// (shape error unchanged); JPEG q95 with 0.5 at ratio 16: shape p90 0.19 → 0.49.
+    /// (shape error unchanged); JPEG q95 with 0.5 at ratio 16: shape p90 0.19 → 0.47.
     ///
     /// A spike — an end bin (or the last bin holding pixels) with more than 0.2 % of the
     /// pixels and more than four times its neighbours' mean — marks clipping below full
