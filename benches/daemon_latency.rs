@@ -2,7 +2,7 @@
 //!
 //! `cargo bench --bench daemon_latency [-- --mp 24 --stream 6]`
 //!
-//! 1. **Direct**: the developer alone (decode, merge, EXR, two JPEG renderings, Velvia 50 and linear) on a pair,
+//! 1. **Direct**: the lab alone (decode, merge, EXR, two JPEG renderings, Velvia 50 and linear) on a pair,
 //!    called as a function: the work the daemon wraps.
 //! 2. **Latency**: the daemon running; the pair is renamed into the ingest folder the way a
 //!    tethering tool does; time from the rename of the last frame to all outputs (EXR +
@@ -10,17 +10,18 @@
 //! 3. **Stream**: `--stream N` pairs renamed in at once; brackets per minute and CPU use
 //!    (user + system time over wall time, in cores; the machine's core count for scale).
 //!
-//! The developer is the one `filmback watch` runs ([`Darkroom`]: response fit, merge, EXR
+//! The lab is the one `filmback watch` runs ([`DarkroomLab`]: response fit, merge, EXR
 //! and the configured renderings).
 
 use std::path::{Path, PathBuf};
 use std::sync::Arc;
 use std::time::{Duration, Instant};
 
-use filmback::bracket::{CameraId, Capture, Input};
-use filmback::config::Config;
-use filmback::daemon::{self, Control, Darkroom, Develop, Job, demo};
+use filmback::daemon::bracket::{CameraId, Capture, Input};
+use filmback::daemon::config::Config;
+use filmback::daemon::{self, Control, DarkroomLab, Job, Lab};
 use filmback::metadata;
+use filmback::synthetic::demo;
 
 fn arg(name: &str, default: u32) -> u32 {
     let args: Vec<String> = std::env::args().collect();
@@ -149,13 +150,13 @@ fn main() {
     let mut direct = Vec::new();
     for _ in 0..3 {
         let t = Instant::now();
-        let dev = Darkroom.develop(&job).expect("direct develop");
+        let dev = DarkroomLab.process(&job).expect("direct develop");
         direct.push(t.elapsed());
         assert_eq!(dev.outputs.len(), 3);
     }
     direct.sort();
     let direct_median = direct[1];
-    let stages = Darkroom.develop(&job).unwrap().stages;
+    let stages = DarkroomLab.process(&job).unwrap().stages;
     println!(
         "direct develop (median of 3): {:.2} s  [{}]",
         direct_median.as_secs_f64(),
@@ -174,7 +175,7 @@ fn main() {
             .enable_all()
             .build()
             .unwrap();
-        rt.block_on(daemon::run(daemon_config, Arc::new(Darkroom), rx))
+        rt.block_on(daemon::run(daemon_config, Arc::new(DarkroomLab), rx))
     });
     let ingest = root.join("ingest");
     let out = root.join("out");

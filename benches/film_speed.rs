@@ -10,9 +10,10 @@ use std::hint::black_box;
 use std::path::Path;
 use std::time::{Duration, Instant};
 
+use filmback::display::Depth;
 use filmback::film::{self, Catalogue, ColourMode, Key};
 use filmback::radiance::RadianceMap;
-use filmback::rendering::{self, Depth, Format, Look, SourceExif};
+use filmback::rendering::{self, Format, Look, SourceExif};
 use filmback::synthetic;
 
 const RUNS: usize = 3;
@@ -85,8 +86,8 @@ fn main() {
     ] {
         for quality in [85u8, 92, 95] {
             let (t_key, key) = best(|| film::scene_key(&map, Key::LogAverage));
-            let development = film::Development::new(stock, 1.0, key, mode).expect("reversal");
-            let (t_film, image) = best(|| development.render(&map, Depth::Eight));
+            let emulsion = film::Emulsion::new(stock, 1.0, key, mode).expect("reversal");
+            let (t_film, image) = best(|| emulsion.render(&map, Depth::Eight));
             let rgb = image.to_u8().into_owned();
             let (t_jpeg, jpeg) = best(|| {
                 let mut out = Vec::with_capacity(8 << 20);

@@ -1,27 +1,40 @@
-//! filmback: a tethered camera as an extended-sensitivity sensor with the look of slide film.
+//! filmback: a tethered camera as an extended-sensitivity sensor with the look of film.
 //!
-//! The pipeline, one module per stage (see `DESIGN.md` of the project):
-//! [`frame`] and [`metadata`] read a capture; [`histogram`] and [`response`] recover the
-//! camera's inverse response from two frames' histograms; [`merge`] builds a
-//! [`radiance::RadianceMap`]; [`hdr_output`] writes it as OpenEXR; [`tonemap`] and
-//! [`film`] render it for display. [`synthetic`] renders ground-truth brackets for tests
-//! and demos; [`atomic`] publishes every output file without ever exposing a partial one.
+//! The pipeline, one module per stage, bottom to top (a module uses only those above it
+//! in this list; `tests/layers.rs` checks it):
+//!
+//! | stage | module |
+//! |---|---|
+//! | publishing files (temporary name, fsync, rename) | [`atomic`] |
+//! | a capture's EXIF | [`metadata`] |
+//! | decoding a frame at its native depth | [`frame`] |
+//! | the relative radiance map | [`radiance`] |
+//! | histograms and the intensity mapping `τ` | [`histogram`] |
+//! | the camera's inverse response `g` from two or more frames | [`response`] |
+//! | frames and `g` into radiance | [`merge`] |
+//! | OpenEXR and Radiance `.hdr` | [`hdr_output`] |
+//! | the display image, sRGB and luminance | [`display`] |
+//! | film stocks through their dye layers | [`film`] |
+//! | tone-mapping operators | [`tonemap`] |
+//! | looks and their encoders | [`rendering`] |
+//! | one bracket end to end | [`darkroom`] |
+//!
+//! Above the pipeline: [`synthetic`] renders ground-truth brackets (and the demo feed) for
+//! tests and demos; [`daemon`] is the service `filmback watch` runs (configuration, bracket
+//! grouping, journal, response cache, queue, status).
 
 pub mod atomic;
-pub mod bracket;
-pub mod cache;
-pub mod config;
-pub mod daemon;
-pub mod darkroom;
-pub mod film;
-pub mod frame;
-pub mod hdr_output;
-pub mod histogram;
-pub mod journal;
-pub mod merge;
 pub mod metadata;
+pub mod frame;
 pub mod radiance;
-pub mod rendering;
+pub mod histogram;
 pub mod response;
-pub mod synthetic;
+pub mod merge;
+pub mod hdr_output;
+pub mod display;
+pub mod film;
 pub mod tonemap;
+pub mod rendering;
+pub mod darkroom;
+pub mod synthetic;
+pub mod daemon;

@@ -7,9 +7,8 @@
 
 use rayon::prelude::*;
 
-use crate::film::luminance;
+use crate::display::{DisplayImage, luminance, srgb_encode_u16};
 use crate::radiance::RadianceMap;
-use crate::rendering::{DisplayImage, srgb_encode_u16};
 
 /// A tone-mapping operator and its parameters.
 #[derive(Debug, Clone, Copy, PartialEq)]

@@ -5,8 +5,8 @@
 use std::path::Path;
 use std::process::{Command, Output};
 
-use filmback::bracket::CameraId;
-use filmback::cache::{CachedResponse, ResponseCache};
+use filmback::daemon::bracket::CameraId;
+use filmback::daemon::cache::{CachedResponse, ResponseCache};
 use filmback::response::InverseResponse;
 use image::RgbImage;
 

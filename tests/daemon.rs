@@ -3,7 +3,7 @@
 //! Each test drives the daemon (in-process, or the real binary where a process must be
 //! killed or run as another user) through a temporary folder and asserts the exact set
 //! of outputs: nothing missing, nothing twice, no temporary file left, every EXR readable.
-//! Frames are small JPEGs with EXIF from `filmback::daemon::demo`; settle times are short.
+//! Frames are small JPEGs with EXIF from `filmback::synthetic::demo`; settle times are short.
 
 use std::collections::BTreeSet;
 use std::io::Write;
@@ -14,10 +14,11 @@ use std::sync::atomic::{AtomicUsize, Ordering};
 use std::time::{Duration, Instant};
 
 use filmback::atomic::{self, Overwrite};
-use filmback::config::Config;
-use filmback::daemon::{self, Control, Darkroom, Develop, DevelopError, Developed, Job, demo};
+use filmback::daemon::config::Config;
+use filmback::daemon::journal::{self, Entry};
+use filmback::daemon::{self, Control, DarkroomLab, Job, JobError, Lab, Processed};
 use filmback::frame::BitDepth;
-use filmback::journal::{self, Entry};
+use filmback::synthetic::demo;
 use filmback::synthetic::{self, Encoding, ResponseCurve, Sensor};
 
 const W: u16 = 96;
@@ -71,19 +72,15 @@ struct Rig {
 
 impl Rig {
     /// Starts the daemon in-process (its own runtime on a thread).
-    fn start(
-        overrides: &[(&str, &str)],
-        developer: Arc<dyn Develop>,
-        before: impl FnOnce(&Path),
-    ) -> Rig {
-        Rig::start_with(overrides, "", developer, before)
+    fn start(overrides: &[(&str, &str)], lab: Arc<dyn Lab>, before: impl FnOnce(&Path)) -> Rig {
+        Rig::start_with(overrides, "", lab, before)
     }
 
     /// As [`Rig::start`], with `tables` (e.g. camera presets) appended to the config.
     fn start_with(
         overrides: &[(&str, &str)],
         tables: &str,
-        developer: Arc<dyn Develop>,
+        lab: Arc<dyn Lab>,
         before: impl FnOnce(&Path),
     ) -> Rig {
         let dir = tempfile::tempdir().unwrap();
@@ -100,7 +97,7 @@ impl Rig {
                 .enable_all()
                 .build()
                 .unwrap();
-            rt.block_on(daemon::run(config, developer, rx))
+            rt.block_on(daemon::run(config, lab, rx))
                 .expect("daemon ran")
         });
         Rig {
@@ -250,7 +247,7 @@ const T: Duration = Duration::from_secs(30);
 
 #[test]
 fn files_present_before_start_are_developed() {
-    let mut rig = Rig::start(&[], Arc::new(Darkroom), |root| {
+    let mut rig = Rig::start(&[], Arc::new(DarkroomLab), |root| {
         put(&root.join("ingest"), &aeb("Body A", 10, "a"));
         put(&root.join("ingest"), &aeb("Body A", 20, "b"));
     });
@@ -263,7 +260,11 @@ fn files_present_before_start_are_developed() {
 
 #[test]
 fn slow_writer_is_taken_only_when_complete() {
-    let mut rig = Rig::start(&[("watch", "settle_ms = 400")], Arc::new(Darkroom), |_| {});
+    let mut rig = Rig::start(
+        &[("watch", "settle_ms = 400")],
+        Arc::new(DarkroomLab),
+        |_| {},
+    );
     let frames = aeb("Body A", 10, "s");
     put(&rig.ingest(), &frames[..2]);
     // The third frame trickles in over 3 s through one open handle.
@@ -287,7 +288,7 @@ fn slow_writer_is_taken_only_when_complete() {
 
 #[test]
 fn temporary_names_wait_for_the_rename() {
-    let mut rig = Rig::start(&[], Arc::new(Darkroom), |_| {});
+    let mut rig = Rig::start(&[], Arc::new(DarkroomLab), |_| {});
     let frames = aeb("Body A", 10, "r");
     // Written under temporary names first; nothing may happen yet.
     for (i, (name, bytes)) in frames.iter().enumerate() {
@@ -321,7 +322,7 @@ fn temporary_names_wait_for_the_rename() {
 
 #[test]
 fn corrupt_frames_are_set_aside_and_the_rest_developed() {
-    let mut rig = Rig::start(&[], Arc::new(Darkroom), |_| {});
+    let mut rig = Rig::start(&[], Arc::new(DarkroomLab), |_| {});
     let frames = aeb("Body A", 10, "c");
     let good = aeb("Body A", 30, "d");
     // c-2 is garbage with a JPEG name: rejected at the header; c-1 and c-3 still merge.
@@ -374,7 +375,7 @@ fn corrupt_frames_are_set_aside_and_the_rest_developed() {
 
 #[test]
 fn interleaved_cameras_and_repeated_exposure() {
-    let mut rig = Rig::start(&[], Arc::new(Darkroom), |_| {});
+    let mut rig = Rig::start(&[], Arc::new(DarkroomLab), |_| {});
     let a = aeb("Body A", 10, "a");
     let b = aeb("Body B", 10, "b");
     for i in 0..3 {
@@ -401,11 +402,11 @@ fn interleaved_cameras_and_repeated_exposure() {
 fn output_write_error_is_retried_and_the_daemon_stays_alive() {
     let calls = Arc::new(AtomicUsize::new(0));
     let counted = Arc::clone(&calls);
-    let developer = move |job: &Job| -> Result<Developed, DevelopError> {
+    let lab = move |job: &Job| -> Result<Processed, JobError> {
         counted.fetch_add(1, Ordering::SeqCst);
-        Darkroom.develop(job)
+        DarkroomLab.process(job)
     };
-    let mut rig = Rig::start(&[], Arc::new(developer), |root| {
+    let mut rig = Rig::start(&[], Arc::new(lab), |root| {
         // The EXR's name is occupied by a folder: publishing fails with a real I/O error
         // (as on a full or read-only file system) until the folder goes away.
         std::fs::create_dir_all(root.join("out/e-1.exr")).unwrap();
@@ -433,7 +434,7 @@ fn output_write_error_is_retried_and_the_daemon_stays_alive() {
 
 #[test]
 fn ingest_folder_deleted_and_recreated() {
-    let mut rig = Rig::start(&[], Arc::new(Darkroom), |_| {});
+    let mut rig = Rig::start(&[], Arc::new(DarkroomLab), |_| {});
     put(&rig.ingest(), &aeb("Body A", 10, "g"));
     expect_outputs(&rig.out(), &bracket_outputs(&["g-1"]), T);
     std::fs::remove_dir_all(rig.ingest()).unwrap();
@@ -449,7 +450,7 @@ fn ingest_folder_deleted_and_recreated() {
 
 #[test]
 fn single_frames_are_rendered_or_reported() {
-    let mut rig = Rig::start(&[], Arc::new(Darkroom), |_| {});
+    let mut rig = Rig::start(&[], Arc::new(DarkroomLab), |_| {});
     let a = aeb("Body A", 10, "solo");
     put(&rig.ingest(), &a[..1]);
     // A single has no extended range: renderings only, no EXR.
@@ -462,7 +463,7 @@ fn single_frames_are_rendered_or_reported() {
 
     let mut rig = Rig::start(
         &[("bracket", "singles = \"report\"")],
-        Arc::new(Darkroom),
+        Arc::new(DarkroomLab),
         |_| {},
     );
     put(&rig.ingest(), &a[..1]);
@@ -539,7 +540,7 @@ fn kill_9_mid_merge_then_restart_loses_and_repeats_nothing() {
     // The frames are copied in while the daemon starts: some are found by its start-up
     // scan, some arrive as events; each bracket must still be grouped whole.
     put(&root.join("ingest"), &frames);
-    // Killed as soon as a bracket is in flight (the developer is fast enough at
+    // Killed as soon as a bracket is in flight (the lab is fast enough at
     // opt-level 1 that a pause here lets both brackets finish first).
     wait_for_status(&root.join("state"), |s| s.in_flight > 0);
     child.kill().unwrap(); // SIGKILL
@@ -725,21 +726,21 @@ fn sighup_with_a_bad_config_keeps_the_running_one() {
 
 #[test]
 fn frame_failing_in_development_is_rejected_and_the_rest_regrouped() {
-    // The developer finds frame 2 unusable only when decoding it (as a real decoder may).
-    let developer = |job: &Job| -> Result<Developed, DevelopError> {
+    // The lab finds frame 2 unusable only when decoding it (as a real decoder may).
+    let lab = |job: &Job| -> Result<Processed, JobError> {
         if let Some(bad) = job
             .frames
             .iter()
             .find(|c| c.input.path.ends_with("p-2.jpg"))
         {
-            return Err(DevelopError::Frame {
+            return Err(JobError::Frame {
                 path: bad.input.path.clone(),
                 reason: "decoder: corrupt entropy data".into(),
             });
         }
-        Darkroom.develop(job)
+        DarkroomLab.process(job)
     };
-    let mut rig = Rig::start(&[], Arc::new(developer), |_| {});
+    let mut rig = Rig::start(&[], Arc::new(lab), |_| {});
     put(&rig.ingest(), &aeb("Body A", 10, "p"));
     expect_outputs(&rig.out(), &bracket_outputs(&["p-1"]), T);
     let state = rig.state();
@@ -765,17 +766,17 @@ fn good_fits_refine_the_camera_cache_and_later_brackets_receive_it() {
     use filmback::response::InverseResponse;
     let seen_cached = Arc::new(AtomicUsize::new(0));
     let seen = Arc::clone(&seen_cached);
-    // A developer that "fits" a gamma-2.2 curve with confidence 0.9.
-    let developer = move |job: &Job| -> Result<Developed, DevelopError> {
+    // A lab that "fits" a gamma-2.2 curve with confidence 0.9.
+    let lab = move |job: &Job| -> Result<Processed, JobError> {
         if job.cached.is_some() {
             seen.fetch_add(1, Ordering::SeqCst);
         }
-        let mut dev = Darkroom.develop(job)?;
+        let mut dev = DarkroomLab.process(job)?;
         let g: Vec<f64> = (0..65).map(|i| (f64::from(i) / 64.0).powf(2.2)).collect();
         dev.fit = Some((InverseResponse::from_samples(vec![g; 3]).unwrap(), 0.9));
         Ok(dev)
     };
-    let mut rig = Rig::start(&[], Arc::new(developer), |_| {});
+    let mut rig = Rig::start(&[], Arc::new(lab), |_| {});
     put(&rig.ingest(), &aeb("Body F", 10, "q"));
     expect_outputs(&rig.out(), &bracket_outputs(&["q-1"]), T);
     put(&rig.ingest(), &aeb("Body F", 30, "s"));
@@ -787,7 +788,7 @@ fn good_fits_refine_the_camera_cache_and_later_brackets_receive_it() {
         1,
         "the second bracket got the cache"
     );
-    let cache = filmback::cache::ResponseCache::new(&state);
+    let cache = filmback::daemon::cache::ResponseCache::new(&state);
     let entry = cache.find("Body F").unwrap();
     assert_eq!(entry.brackets, 2);
     assert!((entry.weight - 1.8).abs() < 1e-12);
@@ -840,7 +841,7 @@ fn the_darkroom_fits_renders_each_cameras_looks_and_refines_the_cache() {
             ("render", "t = 1.0"),
         ],
         "[camera.\"Body P\"]\nfilms = [\"provia100f\"]\ntonemaps = []\nrecalibrate = \"never\"\n",
-        Arc::new(Darkroom),
+        Arc::new(DarkroomLab),
         |_| {},
     );
     put(&rig.ingest(), &aeb("Body A", 10, "a"));
@@ -866,7 +867,7 @@ fn the_darkroom_fits_renders_each_cameras_looks_and_refines_the_cache() {
     assert_eq!(response_of(&state, "a-1"), Source::Fitted);
     assert_eq!(response_of(&state, "b-1"), Source::Fitted);
     assert_eq!(response_of(&state, "p-1"), Source::Standard);
-    let cache = filmback::cache::ResponseCache::new(&state);
+    let cache = filmback::daemon::cache::ResponseCache::new(&state);
     let entry = cache.find("Body A").unwrap();
     assert_eq!(entry.brackets, 2);
     // The frames were rendered through sRGB: the cached curve is close to its inverse.
@@ -933,7 +934,7 @@ fn check_config_names_file_line_and_key() {
 
 #[test]
 fn reused_file_names_never_replace_finished_outputs() {
-    let mut rig = Rig::start(&[], Arc::new(Darkroom), |_| {});
+    let mut rig = Rig::start(&[], Arc::new(DarkroomLab), |_| {});
     put(&rig.ingest(), &aeb("Body A", 10, "n"));
     expect_outputs(&rig.out(), &bracket_outputs(&["n-1"]), T);
     let first_exr = std::fs::read(rig.out().join("n-1.exr")).unwrap();
@@ -968,7 +969,7 @@ fn polling_mode_and_archive_folder() {
             ("watch", "poll_ms = 100"),
             ("folders", &archive_line),
         ],
-        Arc::new(Darkroom),
+        Arc::new(DarkroomLab),
         |_| {},
     );
     put(&rig.ingest(), &aeb("Body P", 10, "w"));
@@ -981,7 +982,7 @@ fn polling_mode_and_archive_folder() {
 
 #[test]
 fn reload_applies_new_rules_but_keeps_folders() {
-    let mut rig = Rig::start(&[], Arc::new(Darkroom), |_| {});
+    let mut rig = Rig::start(&[], Arc::new(DarkroomLab), |_| {});
     let mut text = config_text(&rig.root, &[("bracket", "size = 2")]);
     text = text.replace(
         &format!("out = \"{}\"", rig.out().display()),
@@ -1006,7 +1007,7 @@ fn reload_applies_new_rules_but_keeps_folders() {
 fn recursive_watch_takes_frames_in_sub_folders() {
     let mut rig = Rig::start(
         &[("watch", "recursive = true")],
-        Arc::new(Darkroom),
+        Arc::new(DarkroomLab),
         |root| {
             // Present before start, one level down.
             let early = root.join("ingest/session-1");

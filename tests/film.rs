@@ -5,12 +5,14 @@
 use std::path::Path;
 
 use filmback::atomic::Overwrite;
+use filmback::display::{luminance, srgb_encode};
 use filmback::film::{
-    Catalogue, ColourMode, Development, FilmError, Key, Kind, Stock, TABLE_MAX_ERROR_D, luminance,
-    render, scene_key,
+    Catalogue, ColourMode, Emulsion, FilmError, Key, Kind, Stock, TABLE_MAX_ERROR_D, render,
+    scene_key,
 };
+use filmback::hdr_output;
 use filmback::radiance::RadianceMap;
-use filmback::rendering::{self, Format, Look, Outputs, SourceExif, srgb_encode};
+use filmback::rendering::{self, Format, Look, Outputs, SourceExif};
 use filmback::synthetic;
 use filmback::tonemap::{HistogramAdjustment, Operator};
 
@@ -127,8 +129,8 @@ fn grey_ramp_reproduces_each_stock_curve_and_is_monotone() {
 fn half_exposure_is_exactly_one_stop_less_exposure() {
     let cat = catalogue();
     let stock = cat.get("provia400").unwrap();
-    let full = Development::new(stock, 1.0, 0.18, ColourMode::PerLayer).unwrap();
-    let half = Development::new(stock, 0.5, 0.18, ColourMode::PerLayer).unwrap();
+    let full = Emulsion::new(stock, 1.0, 0.18, ColourMode::PerLayer).unwrap();
+    let half = Emulsion::new(stock, 0.5, 0.18, ColourMode::PerLayer).unwrap();
     for c in 0..3 {
         assert_eq!(half.scale[c], full.scale[c] / 2.0);
     }
@@ -396,10 +398,10 @@ fn exr_round_trip_through_the_reader() {
         (x as f32 * 0.5, y as f32 * 0.25, 1e-3 * (x + y) as f32)
     })
     .unwrap();
-    let map = rendering::read_exr(&path).unwrap();
+    let map = hdr_output::read_exr(&path).unwrap();
     assert_eq!((map.width(), map.height(), map.channels()), (24, 16, 3));
     let i = (5 * w + 7) * 3;
     assert_eq!(&map.pixels()[i..i + 3], &[3.5, 1.25, 0.012]);
-    let err = rendering::read_exr(&dir.path().join("missing.exr")).unwrap_err();
+    let err = hdr_output::read_exr(&dir.path().join("missing.exr")).unwrap_err();
     assert!(err.to_string().contains("missing.exr"));
 }

@@ -4,7 +4,7 @@
 use std::path::PathBuf;
 use std::process::ExitCode;
 
-use filmback::cache::{CachedResponse, ResponseCache};
+use filmback::daemon::cache::{CachedResponse, ResponseCache};
 
 use super::calibrate::plot;
 

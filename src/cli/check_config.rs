@@ -3,7 +3,7 @@
 use std::path::PathBuf;
 use std::process::ExitCode;
 
-use filmback::config::Config;
+use filmback::daemon::config::Config;
 
 /// Arguments of `filmback check-config`.
 #[derive(Debug, clap::Args)]
@@ -39,7 +39,7 @@ pub fn run(args: Args) -> anyhow::Result<ExitCode> {
         config.bracket.min_step_ev,
         config.daemon.jobs
     );
-    let describe = |p: &filmback::config::Preset| {
+    let describe = |p: &filmback::daemon::config::Preset| {
         format!(
             "exr {}, films {:?}, tonemaps {:?}, t {:+} EV, response {:?}",
             p.exr, p.films, p.tonemaps, p.t, p.recalibrate

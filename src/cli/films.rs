@@ -418,7 +418,7 @@ fn contact_sheet(catalogue: &Catalogue) -> Result<RgbImage> {
         Rgb([24, 24, 24]),
     );
     for (i, (look, label)) in looks.iter().enumerate() {
-        let display = look.render(&map, filmback::rendering::Depth::Eight)?;
+        let display = look.render(&map, filmback::display::Depth::Eight)?;
         let rgb = display.to_u8();
         let (col, row) = (i as u32 % cols, i as u32 / cols);
         let (x0, y0) = (gap + col * (tw + gap), gap + row * (th + label_h + gap));

@@ -14,7 +14,7 @@ use clap::ValueEnum;
 use filmback::atomic::Overwrite;
 use filmback::darkroom::{self, GivenResponse, Prints, ResponsePolicy, Source};
 use filmback::frame::{self, Limits, LoadedFrame, Samples};
-use filmback::hdr_output::{Compression, ExrOptions, Overflow, SampleFormat};
+use filmback::hdr_output::{ExrCompression, ExrOptions, Overflow, SampleFormat};
 use filmback::merge::{MergeOptions, Weighting};
 use filmback::metadata::Exposure;
 use filmback::rendering::SourceExif;
@@ -55,8 +55,8 @@ pub struct Args {
     #[arg(long, value_enum, default_value_t = ExrSample::Half)]
     exr: ExrSample,
     /// OpenEXR compression (b44 is lossy; pxr24 is lossy for float).
-    #[arg(long, value_enum, default_value_t = ExrCompression::Piz)]
-    compression: ExrCompression,
+    #[arg(long, value_enum, default_value_t = CompressionArg::Piz)]
+    compression: CompressionArg,
     /// Values above half's 65504: scale the image by a power of two, or clamp.
     #[arg(long, value_enum, default_value_t = HalfOverflow::Scale)]
     overflow: HalfOverflow,
@@ -84,7 +84,7 @@ enum ExrSample {
 }
 
 #[derive(Debug, Clone, Copy, ValueEnum)]
-enum ExrCompression {
+enum CompressionArg {
     Piz,
     Zip,
     Rle,
@@ -127,12 +127,12 @@ pub fn run(args: Args) -> anyhow::Result<ExitCode> {
                 ExrSample::Float => SampleFormat::Float,
             },
             compression: match args.compression {
-                ExrCompression::Piz => Compression::Piz,
-                ExrCompression::Zip => Compression::Zip,
-                ExrCompression::Rle => Compression::Rle,
-                ExrCompression::None => Compression::None,
-                ExrCompression::Pxr24 => Compression::Pxr24,
-                ExrCompression::B44 => Compression::B44,
+                CompressionArg::Piz => ExrCompression::Piz,
+                CompressionArg::Zip => ExrCompression::Zip,
+                CompressionArg::Rle => ExrCompression::Rle,
+                CompressionArg::None => ExrCompression::None,
+                CompressionArg::Pxr24 => ExrCompression::Pxr24,
+                CompressionArg::B44 => ExrCompression::B44,
             },
             overflow: match args.overflow {
                 HalfOverflow::Scale => Overflow::Scale,

@@ -41,7 +41,7 @@ pub fn run(args: Args) -> Result<ExitCode> {
         ),
         None => SourceExif::default(),
     };
-    let map = rendering::read_exr(&args.exr)?;
+    let map = filmback::hdr_output::read_exr(&args.exr)?;
     let stem = args
         .exr
         .file_stem()

@@ -4,9 +4,9 @@ use std::collections::HashMap;
 use std::path::{Path, PathBuf};
 use std::process::ExitCode;
 
-use filmback::cache::ResponseCache;
+use filmback::daemon::cache::ResponseCache;
+use filmback::daemon::journal::{self, Entry};
 use filmback::daemon::{self, Snapshot};
-use filmback::journal::{self, Entry};
 use serde_json::{Value, json};
 
 /// Arguments of `filmback status`.

@@ -6,9 +6,10 @@ use std::sync::Arc;
 use std::time::Duration;
 
 use anyhow::Context;
-use filmback::config::Config;
-use filmback::daemon::{self, Control, Darkroom, demo};
-use filmback::journal::Entry;
+use filmback::daemon::config::Config;
+use filmback::daemon::journal::Entry;
+use filmback::daemon::{self, Control, DarkroomLab};
+use filmback::synthetic::demo;
 use tokio::signal::unix::{SignalKind, signal};
 use tokio::sync::mpsc;
 use tracing::{error, info};
@@ -97,7 +98,7 @@ pub fn run(args: Args) -> anyhow::Result<ExitCode> {
                 }
             });
         }
-        daemon::run(config, Arc::new(Darkroom), rx).await?;
+        daemon::run(config, Arc::new(DarkroomLab), rx).await?;
         Ok::<_, anyhow::Error>(())
     });
     // Brackets abandoned at stop keep their blocking threads; don't wait for them.
@@ -140,7 +141,7 @@ fn forward_signals(
 /// what was written.
 async fn demo_bracket(ingest: &Path, state: &Path) -> anyhow::Result<()> {
     tokio::time::sleep(Duration::from_millis(500)).await;
-    let stamp = filmback::journal::unix_now();
+    let stamp = filmback::daemon::journal::unix_now();
     let shots = demo::aeb("Demo Camera", Some("0001"), (stamp % 3600) as u32);
     let jpegs = tokio::task::spawn_blocking(move || demo::jpegs(1200, 800, &shots, stamp))
         .await
@@ -155,7 +156,7 @@ async fn demo_bracket(ingest: &Path, state: &Path) -> anyhow::Result<()> {
         names.push(name);
         tokio::time::sleep(Duration::from_millis(300)).await;
     }
-    let ours = |inputs: Vec<&filmback::bracket::Input>| {
+    let ours = |inputs: Vec<&filmback::daemon::bracket::Input>| {
         inputs.iter().any(|i| {
             i.path
                 .file_name()
@@ -165,7 +166,7 @@ async fn demo_bracket(ingest: &Path, state: &Path) -> anyhow::Result<()> {
     let deadline = tokio::time::Instant::now() + Duration::from_secs(120);
     while tokio::time::Instant::now() < deadline {
         tokio::time::sleep(Duration::from_millis(250)).await;
-        let Ok(entries) = filmback::journal::read(state) else {
+        let Ok(entries) = filmback::daemon::journal::read(state) else {
             continue;
         };
         let Some(entry) = entries.iter().rev().find(|e| ours(e.inputs())) else {

@@ -9,8 +9,8 @@ use notify::event::{AccessKind, AccessMode, ModifyKind, RenameMode};
 use notify::{EventKind, RecursiveMode, Watcher};
 use tokio::sync::mpsc::UnboundedSender;
 
-use crate::bracket::{CameraId, Capture, Input};
-use crate::config::{Watch, WatchMode};
+use crate::daemon::bracket::{CameraId, Capture, Input};
+use crate::daemon::config::{Watch, WatchMode};
 use crate::metadata;
 
 /// What the watcher reports to the daemon loop.
@@ -228,7 +228,7 @@ pub(crate) fn probe(path: &Path) -> Probe {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::daemon::demo;
+    use crate::synthetic::demo;
 
     #[test]
     fn truncated_jpeg_is_incomplete() {

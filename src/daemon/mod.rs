@@ -3,11 +3,11 @@
 //! ```text
 //! notify / poll ─► candidates ─settle─► probe (EXIF, header) ─► Grouper ─► queue
 //!                                                                          │ ≤ jobs
-//!             journal ◄─ cache update ◄─ outputs ◄─ Develop (blocking thread) ◄┘
+//!             journal ◄─ cache update ◄─ outputs ◄─ Lab (blocking thread) ◄┘
 //! ```
 //!
 //! One async task owns all state (candidates, grouper, queue, journal, cache); pixel
-//! work runs on blocking threads through the [`Develop`] boundary, at most `jobs` at a
+//! work runs on blocking threads through the [`Lab`] boundary, at most `jobs` at a
 //! time. A file is taken once its writer closed it or its size and mtime were stable for
 //! `settle_ms`. When the queue is full, files simply stay on disk as candidates: memory
 //! is bounded by `jobs` developing brackets, and nothing is dropped.
@@ -16,9 +16,13 @@
 //! the journal cannot be written); a bad frame, a failed output or a bad reload is
 //! reported and the loop goes on.
 
-pub mod demo;
-mod develop;
+pub mod bracket;
+pub mod cache;
+pub mod config;
+pub mod journal;
+
 mod intake;
+mod lab;
 
 use std::collections::{HashMap, HashSet, VecDeque};
 use std::path::{Path, PathBuf};
@@ -30,14 +34,14 @@ use tokio::sync::mpsc;
 use tokio::task::JoinSet;
 use tracing::{error, info, warn};
 
-pub use develop::{Darkroom, Develop, DevelopError, Developed, Job};
+pub use lab::{DarkroomLab, Job, JobError, Lab, Processed};
 
 use crate::atomic::{self, Overwrite};
-use crate::bracket::{Alone, Bracket, Closed, Grouper, Input};
-use crate::cache::ResponseCache;
-use crate::config::{Config, Recalibrate, Singles};
-use crate::journal::{self, Entry, Journal, JournalError};
+use bracket::{Alone, Bracket, Closed, Grouper, Input};
+use cache::ResponseCache;
+use config::{Config, Recalibrate, Singles};
 use intake::{Notice, Probe};
+use journal::{Entry, Journal, JournalError};
 
 /// File name of the status snapshot in the state folder.
 pub const STATUS_FILE: &str = "status.json";
@@ -143,11 +147,11 @@ struct Candidate {
     closed: bool,
 }
 
-type Outcome = (Work, Result<Developed, DevelopError>, Duration);
+type Outcome = (Work, Result<Processed, JobError>, Duration);
 
 struct State {
     config: Config,
-    developer: Arc<dyn Develop>,
+    lab: Arc<dyn Lab>,
     journal: Journal,
     cache: ResponseCache,
     grouper: Grouper,
@@ -176,7 +180,7 @@ struct State {
 /// Runs the daemon until [`Control::Stop`] (or the control sender is dropped).
 pub async fn run(
     config: Config,
-    developer: Arc<dyn Develop>,
+    lab: Arc<dyn Lab>,
     mut control: mpsc::Receiver<Control>,
 ) -> Result<Summary, DaemonError> {
     let folders = &config.folders;
@@ -200,7 +204,7 @@ pub async fn run(
         cache: ResponseCache::new(&folders.state),
         grouper: Grouper::new(config.bracket),
         config,
-        developer,
+        lab,
         journal,
         started: now,
         notices,
@@ -609,20 +613,19 @@ impl State {
                 stem: self.output_stem(&work.closed),
                 stocks: self.config.folders.stocks.clone(),
             };
-            let developer = Arc::clone(&self.developer);
+            let lab = Arc::clone(&self.lab);
             self.in_flight.spawn_blocking(move || {
                 let t = Instant::now();
-                let result = std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| {
-                    developer.develop(&job)
-                }))
-                .unwrap_or_else(|panic| {
-                    let what = panic
-                        .downcast_ref::<&str>()
-                        .map(|s| (*s).to_string())
-                        .or_else(|| panic.downcast_ref::<String>().cloned())
-                        .unwrap_or_default();
-                    Err(DevelopError::Bracket(format!("developer panicked: {what}")))
-                });
+                let result =
+                    std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| lab.process(&job)))
+                        .unwrap_or_else(|panic| {
+                            let what = panic
+                                .downcast_ref::<&str>()
+                                .map(|s| (*s).to_string())
+                                .or_else(|| panic.downcast_ref::<String>().cloned())
+                                .unwrap_or_default();
+                            Err(JobError::Bracket(format!("lab panicked: {what}")))
+                        });
                 (work, result, t.elapsed())
             });
         }
@@ -735,15 +738,12 @@ impl State {
                 self.archive(closed);
                 self.release(closed);
             }
-            Err(DevelopError::Frame { path, reason }) => {
+            Err(JobError::Frame { path, reason }) => {
                 let frames: Vec<_> = closed.frames().into_iter().cloned().collect();
                 let Some(bad) = frames.iter().find(|c| c.input.path == path) else {
                     return self.failed(
                         &work,
-                        format!(
-                            "developer named a foreign frame {}: {reason}",
-                            path.display()
-                        ),
+                        format!("lab named a foreign frame {}: {reason}", path.display()),
                     );
                 };
                 self.reject(bad.input.clone(), reason)?;
@@ -764,7 +764,7 @@ impl State {
                     attempts: 0,
                 });
             }
-            Err(e @ DevelopError::Output { .. }) => {
+            Err(e @ JobError::Output { .. }) => {
                 let delay = (self.config.daemon.retry * 2u32.saturating_pow(work.attempts.min(16)))
                     .min(MAX_RETRY);
                 error!(
@@ -781,7 +781,7 @@ impl State {
                     },
                 ));
             }
-            Err(DevelopError::Bracket(reason)) => self.failed(&work, reason)?,
+            Err(JobError::Bracket(reason)) => self.failed(&work, reason)?,
         }
         Ok(())
     }

@@ -16,6 +16,8 @@
 //! assert_eq!((frame.width(), frame.height(), frame.channels()), (64, 48, 3));
 //! ```
 
+pub mod demo;
+
 mod curve;
 mod encode;
 mod scene;

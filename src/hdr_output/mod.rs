@@ -18,7 +18,7 @@
 //! so they are either scaled (the whole image by a power of two, exact in binary
 //! floating point, recorded in `filmbackRadianceScale`) or clamped, with a warning.
 //!
-//! Compression (see [`Compression`]): PIZ by default, a lossless wavelet coder that does
+//! Compression (see [`ExrCompression`]): PIZ by default, a lossless wavelet coder that does
 //! best on noisy photographic data; lossy coders only when asked for by name. Half PIZ
 //! blocks are compressed by filmback's own encoder (`piz`, 1.5× faster than exr's on a
 //! 24 MP map, same format and size); everything else by the exr crate.
@@ -33,12 +33,8 @@ use exr::block::chunk::{Chunk, CompressedBlock, CompressedScanLineBlock};
 use exr::block::writer::ChunksWriter;
 use exr::block::{BlockIndex, UncompressedBlock};
 use exr::meta::BlockDescription;
-use exr::meta::attribute::Chromaticities;
 use exr::meta::header::Header;
-use exr::prelude::{
-    self as x, ChannelDescription, ImageAttributes, IntegerBounds, LayerAttributes, LineOrder,
-    SampleType, SmallVec, Text, Vec2, f16,
-};
+use exr::prelude::{self as x, ChannelDescription, LineOrder, SampleType, SmallVec, Vec2, f16};
 use half::slice::{HalfBitsSliceExt, HalfFloatSliceExt};
 use rayon::prelude::*;
 
@@ -47,7 +43,10 @@ use crate::merge::PairMerge;
 use crate::metadata::{Camera, CaptureTime, Exposure};
 use crate::radiance::RadianceMap;
 
+mod header;
 mod piz;
+
+use header::{image_attributes, layer_attributes, text};
 
 /// Anything the writers can pull radiance from, sample by sample: a [`RadianceMap`], or
 /// a [`PairMerge`] evaluated while the file is encoded (no radiance buffer at all).
@@ -129,7 +128,7 @@ pub enum SampleFormat {
 
 /// OpenEXR compression. Lossless unless the name says otherwise.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
-pub enum Compression {
+pub enum ExrCompression {
     /// None: largest files, fastest to write and read.
     None,
     /// Run-length: fast, small gains on photographs (helps on flat areas).
@@ -146,15 +145,15 @@ pub enum Compression {
     B44,
 }
 
-impl Compression {
+impl ExrCompression {
     fn exr(self) -> x::Compression {
         match self {
-            Compression::None => x::Compression::Uncompressed,
-            Compression::Rle => x::Compression::RLE,
-            Compression::Zip => x::Compression::ZIP16,
-            Compression::Piz => x::Compression::PIZ,
-            Compression::Pxr24 => x::Compression::PXR24,
-            Compression::B44 => x::Compression::B44,
+            ExrCompression::None => x::Compression::Uncompressed,
+            ExrCompression::Rle => x::Compression::RLE,
+            ExrCompression::Zip => x::Compression::ZIP16,
+            ExrCompression::Piz => x::Compression::PIZ,
+            ExrCompression::Pxr24 => x::Compression::PXR24,
+            ExrCompression::B44 => x::Compression::B44,
         }
     }
 }
@@ -175,8 +174,8 @@ pub enum Overflow {
 pub struct ExrOptions {
     /// Half (default) or float.
     pub sample: SampleFormat,
-    /// Compression (default PIZ).
-    pub compression: Compression,
+    /// ExrCompression (default PIZ).
+    pub compression: ExrCompression,
     /// Half overflow handling (default: scale).
     pub overflow: Overflow,
 }
@@ -231,6 +230,14 @@ pub enum OutputError {
     /// The Radiance HDR encoder failed.
     #[error("cannot encode Radiance HDR: {0}")]
     Hdr(String),
+    /// An OpenEXR file could not be read.
+    #[error("{path}: cannot read OpenEXR: {reason}")]
+    Read {
+        /// The EXR file.
+        path: std::path::PathBuf,
+        /// The reader's message.
+        reason: String,
+    },
     /// The confidence layer does not have one value per pixel.
     #[error("confidence layer has {got} values for {expected} pixels")]
     ConfidenceShape {
@@ -324,7 +331,7 @@ pub fn encode_exr<W: Write + Seek, S: RadianceSource + ?Sized>(
             line.copy_from_slice(&conf[start..start + line.len()]);
         }
     };
-    let piz_half = options.compression == Compression::Piz && sample == SampleType::F16;
+    let piz_half = options.compression == ExrCompression::Piz && sample == SampleType::F16;
     exr::block::write(writer, smallvec_of(header), true, |meta, chunks| {
         let indices: Vec<(usize, BlockIndex)> =
             meta.enumerate_ordered_header_block_indices().collect();
@@ -479,96 +486,28 @@ fn overflow<S: RadianceSource + ?Sized>(map: &S, options: ExrOptions) -> (f32, f
     }
 }
 
-/// Text attribute from UTF-8 (OpenEXR strings are byte strings; readers take them as UTF-8).
-fn text(s: &str) -> Text {
-    Text::from_slice_unchecked(s.as_bytes())
-}
-
-fn image_attributes(size: Vec2<usize>) -> ImageAttributes {
-    let mut attributes = ImageAttributes::new(IntegerBounds::from_dimensions(size));
-    // ITU-R BT.709 / sRGB primaries, D65 white.
-    attributes.chromaticities = Some(Chromaticities {
-        red: Vec2(0.64, 0.33),
-        green: Vec2(0.30, 0.60),
-        blue: Vec2(0.15, 0.06),
-        white: Vec2(0.3127, 0.3290),
-    });
-    attributes
-}
-
-fn layer_attributes(p: &Provenance, scale: f32) -> LayerAttributes {
-    use x::AttributeValue as V;
-    let mut a = LayerAttributes {
-        software_name: Some(text(&format!("filmback {}", env!("CARGO_PKG_VERSION")))),
-        ..LayerAttributes::default()
-    };
-    if let Some(t) = p.captured_at {
-        // OpenEXR's capDate is "YYYY:MM:DD hh:mm:ss" local time; utcOffset is the
-        // seconds to add to it to get UTC.
-        a.capture_date = Some(text(&format!(
-            "{:04}:{:02}:{:02} {:02}:{:02}:{:02}",
-            t.year, t.month, t.day, t.hour, t.minute, t.second
-        )));
-        a.utc_offset = t.offset_minutes.map(|m| -f32::from(m) * 60.0);
-    }
-    if let Some(longest) = p.frames.last() {
-        a.exposure = longest.exposure.time_s.map(|v| v as f32);
-        a.aperture = longest.exposure.f_number.map(|v| v as f32);
-        a.iso_speed = longest.exposure.iso.map(|v| v as f32);
-    }
-    a.comments = Some(text(
-        "linear relative radiance; 1.0 = brightness g^-1(1) in the longest exposure",
-    ));
-    let mut put = |name: &str, value: V| {
-        a.other.insert(text(name), value);
-    };
-    for (name, value) in [
-        ("cameraMake", &p.camera.make),
-        ("cameraModel", &p.camera.model),
-        ("cameraSerialNumber", &p.camera.serial),
-        ("lensModel", &p.camera.lens),
-    ] {
-        if let Some(v) = value {
-            put(name, V::Text(text(v)));
+/// Reads the first RGB(A) layer of an OpenEXR file as a radiance map (alpha dropped).
+pub fn read_exr(path: &Path) -> Result<RadianceMap, OutputError> {
+    let image = exr::prelude::read_first_rgba_layer_from_file(
+        path,
+        |size, _| (size.width(), vec![0f32; size.width() * size.height() * 3]),
+        |(width, pixels): &mut (usize, Vec<f32>), pos, (r, g, b, _a): (f32, f32, f32, f32)| {
+            let i = (pos.y() * *width + pos.x()) * 3;
+            pixels[i..i + 3].copy_from_slice(&[r, g, b]);
+        },
+    )
+    .map_err(|e| OutputError::Read {
+        path: path.to_path_buf(),
+        reason: e.to_string(),
+    })?;
+    let size = image.layer_data.size;
+    let (_, pixels) = image.layer_data.channel_data.pixels;
+    RadianceMap::new(size.width() as u32, size.height() as u32, 3, pixels).map_err(|e| {
+        OutputError::Read {
+            path: path.to_path_buf(),
+            reason: e.to_string(),
         }
-    }
-    let known = |v: Option<f64>| v.map_or("?".to_string(), |v| format!("{v}"));
-    for (k, f) in p.frames.iter().enumerate() {
-        put(
-            &format!("filmbackFrame{k}"),
-            V::Text(text(&format!(
-                "{}: time {} s, f/{}, ISO {}, relative exposure {}",
-                f.name,
-                known(f.exposure.time_s),
-                known(f.exposure.f_number),
-                known(f.exposure.iso),
-                f.relative
-            ))),
-        );
-    }
-    if let (Some(first), Some(last)) = (p.frames.first(), p.frames.last()) {
-        put(
-            "filmbackExposureRatio",
-            V::F64(last.relative / first.relative),
-        );
-    }
-    put("filmbackResponse", V::Text(text(&p.response)));
-    put("filmbackWeighting", V::Text(text(&p.weighting)));
-    put(
-        "filmbackClipped",
-        V::Text(text(&format!(
-            "{} samples clipped high in every frame (lower bounds), {} clipped low (upper bounds)",
-            p.clipped.0, p.clipped.1
-        ))),
-    );
-    put(
-        "filmbackScale",
-        V::Text(text(
-            "value = g(B_k) * e_longest / e_k, weighted over frames; 1.0 = B=1 in the longest exposure",
-        )),
-    );
-    put("filmbackRadianceScale", V::F32(scale));
-    a
+    })
 }
 
 /// Writes `map` as a Radiance RGBE `.hdr` file at `path`, atomically (grey maps are
@@ -603,386 +542,4 @@ pub fn encode_radiance_hdr<W: Write, S: RadianceSource + ?Sized>(
 }
 
 #[cfg(test)]
-mod tests {
-    use super::*;
-    use exr::prelude::traits::*;
-    use std::io::Cursor;
-
-    fn ramp(width: u32, height: u32, top: f32) -> RadianceMap {
-        let n = (width * height * 3) as usize;
-        let pixels = (0..n).map(|i| top * i as f32 / (n - 1) as f32).collect();
-        RadianceMap::new(width, height, 3, pixels).unwrap()
-    }
-
-    fn read_back(bytes: Vec<u8>) -> x::Image<x::Layer<x::AnyChannels<x::FlatSamples>>> {
-        x::read()
-            .no_deep_data()
-            .largest_resolution_level()
-            .all_channels()
-            .first_valid_layer()
-            .all_attributes()
-            .from_buffered(Cursor::new(bytes))
-            .unwrap()
-    }
-
-    fn channel(image: &x::Image<x::Layer<x::AnyChannels<x::FlatSamples>>>, name: &str) -> Vec<f32> {
-        let c = image
-            .layer_data
-            .channel_data
-            .list
-            .iter()
-            .find(|c| c.name == text(name))
-            .unwrap();
-        c.sample_data.values_as_f32().collect()
-    }
-
-    #[test]
-    fn half_round_trip_keeps_values_and_header() {
-        let map = ramp(16, 8, 100.0);
-        let provenance = Provenance {
-            camera: Camera {
-                make: Some("Canon".into()),
-                model: Some("EOS 5D Mark II".into()),
-                serial: Some("0123".into()),
-                lens: None,
-            },
-            frames: vec![
-                FrameRecord {
-                    name: "a.jpg".into(),
-                    exposure: Exposure {
-                        time_s: Some(0.125),
-                        f_number: Some(8.0),
-                        iso: Some(100.0),
-                    },
-                    relative: 0.125 * 100.0 / 64.0,
-                },
-                FrameRecord {
-                    name: "b.jpg".into(),
-                    exposure: Exposure {
-                        time_s: Some(1.0),
-                        f_number: Some(8.0),
-                        iso: Some(100.0),
-                    },
-                    relative: 100.0 / 64.0,
-                },
-            ],
-            response: "sRGB".into(),
-            weighting: "hat".into(),
-            ..Provenance::default()
-        };
-        let conf = vec![0.5f32; 16 * 8];
-        let mut bytes = Cursor::new(Vec::new());
-        let w = encode_exr(
-            &mut bytes,
-            &map,
-            Some(&conf),
-            &provenance,
-            ExrOptions::default(),
-        )
-        .unwrap();
-        assert_eq!(w.scale, 1.0);
-        assert!(w.warnings.is_empty());
-        let image = read_back(bytes.into_inner());
-        let r = channel(&image, "R");
-        let c = channel(&image, "confidence.Y");
-        assert_eq!(c, conf);
-        for (i, v) in r.iter().enumerate() {
-            let want = map.pixels()[i * 3];
-            assert!((v - want).abs() <= want * 1e-3, "{v} vs {want}");
-        }
-        let attrs = &image.layer_data.attributes;
-        assert_eq!(attrs.exposure, Some(1.0));
-        assert_eq!(
-            attrs.other.get(&text("cameraModel")),
-            Some(&x::AttributeValue::Text(text("EOS 5D Mark II")))
-        );
-        assert_eq!(
-            attrs.other.get(&text("filmbackExposureRatio")),
-            Some(&x::AttributeValue::F64(8.0))
-        );
-        assert!(image.attributes.chromaticities.is_some());
-    }
-
-    /// Writes `map` (and `confidence`) as half PIZ through filmback's encoder, reads it
-    /// back with the exr crate's decoder and checks every sample bit for bit.
-    fn piz_round_trip(map: &RadianceMap, confidence: Option<&[f32]>) {
-        let mut bytes = Cursor::new(Vec::new());
-        encode_exr(
-            &mut bytes,
-            map,
-            confidence,
-            &Provenance::default(),
-            ExrOptions::default(),
-        )
-        .unwrap();
-        let image = read_back(bytes.into_inner());
-        let names: &[&str] = if map.channels() == 3 {
-            &["R", "G", "B"]
-        } else {
-            &["Y"]
-        };
-        for (c, name) in names.iter().enumerate() {
-            let got = channel(&image, name);
-            assert_eq!(got.len(), map.pixels().len() / map.channels());
-            for (p, v) in got.iter().enumerate() {
-                let want = f16::from_f32(map.pixels()[p * map.channels() + c]).to_f32();
-                assert_eq!(
-                    v.to_bits(),
-                    want.to_bits(),
-                    "{name} pixel {p}: {v} vs {want}"
-                );
-            }
-        }
-        if let Some(conf) = confidence {
-            let got = channel(&image, "confidence.Y");
-            let want: Vec<f32> = conf.iter().map(|v| f16::from_f32(*v).to_f32()).collect();
-            assert_eq!(got, want);
-        }
-    }
-
-    /// A deterministic pseudo-random sequence in `[0, 1)` (xorshift).
-    fn noise(n: usize, mut state: u64) -> Vec<f32> {
-        (0..n)
-            .map(|_| {
-                state ^= state << 13;
-                state ^= state >> 7;
-                state ^= state << 17;
-                (state >> 40) as f32 / (1u64 << 24) as f32
-            })
-            .collect()
-    }
-
-    #[test]
-    fn piz_blocks_decode_bit_for_bit() {
-        // A photographic-like map: smooth gradient plus noise, several blocks, a last
-        // block of 5 lines, an odd width.
-        let (w, h) = (123, 69);
-        let n = noise(w * h * 3, 7);
-        let pixels = (0..w * h * 3)
-            .map(|i| (i / 3 % w) as f32 / w as f32 * 4.0 + 0.01 * n[i])
-            .collect();
-        let map = RadianceMap::new(w as u32, h as u32, 3, pixels).unwrap();
-        let conf = noise(w * h, 11);
-        piz_round_trip(&map, Some(&conf));
-
-        // Over 2^15 distinct words in one block (the modulo-2^16 wavelet, including pairs
-        // it offsets onto each other): values of either sign (the encoder takes any word),
-        // magnitudes log-uniform over 2^-14..2^15.
-        let (w, h) = (1500, 40);
-        let pixels: Vec<f32> = noise(w * h * 3, 3)
-            .iter()
-            .enumerate()
-            .map(|(i, u)| if i % 2 == 0 { 1.0 } else { -1.0 } * (u * 29.0 - 14.0).exp2())
-            .collect();
-        let first_block: std::collections::HashSet<u16> = pixels[..w * 32 * 3]
-            .iter()
-            .map(|v| f16::from_f32(*v).to_bits())
-            .collect();
-        assert!(first_block.len() > 1 << 15, "{}", first_block.len());
-        piz_round_trip(
-            &RadianceMap::new(w as u32, h as u32, 3, pixels).unwrap(),
-            None,
-        );
-    }
-
-    #[test]
-    fn piz_handles_flat_tiny_and_odd_shaped_maps() {
-        // All zeros (nothing in the bitmap), one value everywhere (runs longer than 255),
-        // 1×1 (stored raw: PIZ cannot shrink 6 bytes), one column, one line, grey.
-        for (w, h, c, value) in [
-            (300, 40, 3, 0.0),
-            (300, 40, 3, 0.75),
-            (1, 1, 3, 2.5),
-            (1, 70, 3, 1.0),
-            (517, 1, 3, 3.0),
-            (33, 65, 1, 0.5),
-        ] {
-            let n = w * h * c;
-            let ramp = noise(n, 5);
-            // Flat, or flat with a sparse ramp so blocks mix runs and changes.
-            let pixels = (0..n)
-                .map(|i| {
-                    if value == 0.0 || i % 97 != 0 {
-                        value
-                    } else {
-                        ramp[i]
-                    }
-                })
-                .collect();
-            let map = RadianceMap::new(w as u32, h as u32, c, pixels).unwrap();
-            piz_round_trip(&map, None);
-        }
-    }
-
-    #[test]
-    fn half_overflow_is_scaled_or_clamped_with_a_warning() {
-        let map = ramp(8, 4, 200_000.0);
-        let mut bytes = Cursor::new(Vec::new());
-        let w = encode_exr(
-            &mut bytes,
-            &map,
-            None,
-            &Provenance::default(),
-            ExrOptions::default(),
-        )
-        .unwrap();
-        assert_eq!(w.scale, 0.25);
-        assert_eq!(w.warnings.len(), 1);
-        let g = channel(&read_back(bytes.into_inner()), "G");
-        assert!(g.iter().all(|v| v.is_finite()));
-        let top = g.iter().copied().fold(0.0, f32::max);
-        assert!(top > 40_000.0 && top <= HALF_MAX, "{top}");
-
-        let clamp = ExrOptions {
-            overflow: Overflow::Clamp,
-            ..ExrOptions::default()
-        };
-        let mut bytes = Cursor::new(Vec::new());
-        let w = encode_exr(&mut bytes, &map, None, &Provenance::default(), clamp).unwrap();
-        assert_eq!(w.scale, 1.0);
-        assert!(w.warnings[0].contains("clamped"), "{:?}", w.warnings);
-        let b = channel(&read_back(bytes.into_inner()), "B");
-        assert!(b.iter().all(|v| v.is_finite()));
-        assert_eq!(b.iter().copied().fold(0.0, f32::max), HALF_MAX);
-
-        let float = ExrOptions {
-            sample: SampleFormat::Float,
-            compression: Compression::Zip,
-            ..ExrOptions::default()
-        };
-        let mut bytes = Cursor::new(Vec::new());
-        let w = encode_exr(&mut bytes, &map, None, &Provenance::default(), float).unwrap();
-        assert!(w.warnings.is_empty());
-        let b = channel(&read_back(bytes.into_inner()), "B");
-        assert_eq!(b[b.len() - 1], 200_000.0);
-    }
-
-    #[test]
-    fn grey_maps_write_one_channel_and_hdr_encodes() {
-        let map =
-            RadianceMap::new(4, 2, 1, vec![0.0, 0.5, 1.0, 2.0, 4.0, 8.0, 16.0, 32.0]).unwrap();
-        let mut bytes = Cursor::new(Vec::new());
-        encode_exr(
-            &mut bytes,
-            &map,
-            None,
-            &Provenance::default(),
-            ExrOptions::default(),
-        )
-        .unwrap();
-        assert_eq!(channel(&read_back(bytes.into_inner()), "Y"), map.pixels());
-        let mut hdr = Vec::new();
-        encode_radiance_hdr(&mut hdr, &map).unwrap();
-        assert!(hdr.starts_with(b"#?RADIANCE"));
-    }
-
-    /// A disk that fills up after `capacity` bytes.
-    struct FullDisk {
-        bytes: Vec<u8>,
-        position: usize,
-        capacity: usize,
-    }
-
-    impl Write for FullDisk {
-        fn write(&mut self, buf: &[u8]) -> std::io::Result<usize> {
-            if self.position + buf.len() > self.capacity {
-                return Err(std::io::Error::new(
-                    std::io::ErrorKind::StorageFull,
-                    "No space left on device",
-                ));
-            }
-            let end = self.position + buf.len();
-            if self.bytes.len() < end {
-                self.bytes.resize(end, 0);
-            }
-            self.bytes[self.position..end].copy_from_slice(buf);
-            self.position = end;
-            Ok(buf.len())
-        }
-        fn flush(&mut self) -> std::io::Result<()> {
-            Ok(())
-        }
-    }
-
-    impl Seek for FullDisk {
-        fn seek(&mut self, to: std::io::SeekFrom) -> std::io::Result<u64> {
-            let mut cursor = Cursor::new(&self.bytes);
-            cursor.set_position(self.position as u64);
-            self.position = cursor.seek(to)? as usize;
-            Ok(self.position as u64)
-        }
-    }
-
-    #[test]
-    fn a_full_disk_is_an_error_not_a_panic() {
-        let map = ramp(64, 64, 10.0);
-        let disk = FullDisk {
-            bytes: Vec::new(),
-            position: 0,
-            capacity: 4096,
-        };
-        let err = encode_exr(
-            disk,
-            &map,
-            None,
-            &Provenance::default(),
-            ExrOptions::default(),
-        )
-        .unwrap_err();
-        assert!(err.to_string().contains("No space left"), "{err}");
-    }
-
-    #[test]
-    fn failures_leave_no_file_behind() {
-        let dir = tempfile::tempdir().unwrap();
-        let map = ramp(8, 8, 1.0);
-        let missing = dir.path().join("no-such-folder").join("x.exr");
-        let err = write_exr(
-            &missing,
-            Overwrite::Refuse,
-            &map,
-            None,
-            &Provenance::default(),
-            ExrOptions::default(),
-        )
-        .unwrap_err();
-        assert!(err.to_string().contains("x.exr"), "{err}");
-        // An encoder failure inside the atomic publish (confidence of the wrong size).
-        let path = dir.path().join("y.exr");
-        let err = write_exr(
-            &path,
-            Overwrite::Refuse,
-            &map,
-            Some(&[1.0]),
-            &Provenance::default(),
-            ExrOptions::default(),
-        )
-        .unwrap_err();
-        assert!(err.to_string().contains("y.exr"), "{err}");
-        assert_eq!(std::fs::read_dir(dir.path()).unwrap().count(), 0);
-        write_exr(
-            &path,
-            Overwrite::Refuse,
-            &map,
-            None,
-            &Provenance::default(),
-            ExrOptions::default(),
-        )
-        .unwrap();
-        let again = write_exr(
-            &path,
-            Overwrite::Refuse,
-            &map,
-            None,
-            &Provenance::default(),
-            ExrOptions::default(),
-        );
-        assert!(matches!(
-            again,
-            Err(OutputError::Publish(PublishError::Exists { .. }))
-        ));
-        let hdr = dir.path().join("y.hdr");
-        write_radiance_hdr(&hdr, Overwrite::Refuse, &map).unwrap();
-        assert_eq!(std::fs::read_dir(dir.path()).unwrap().count(), 2);
-    }
-}
+mod tests;

@@ -17,7 +17,7 @@ use std::path::{Path, PathBuf};
 
 use serde::{Deserialize, Serialize};
 
-use crate::bracket::{Alone, CameraId, Input};
+use crate::daemon::bracket::{Alone, CameraId, Input};
 use crate::darkroom::Source;
 
 /// File name of the journal inside the state folder.
@@ -53,7 +53,7 @@ pub enum JournalError {
 pub enum Entry {
     /// A bracket merged and all its outputs published.
     Bracket {
-        /// [`crate::bracket::fingerprint`] of the inputs.
+        /// [`crate::daemon::bracket::fingerprint`] of the inputs.
         id: String,
         /// The body.
         camera: CameraId,

@@ -12,7 +12,7 @@ use std::time::Duration;
 use serde::Deserialize;
 
 /// The commented example configuration, which is also the source of every default.
-pub const DEFAULT_TOML: &str = include_str!("../config/filmback.toml");
+pub const DEFAULT_TOML: &str = include_str!("../../config/filmback.toml");
 
 /// Why a configuration cannot be used. Each variant names the file.
 #[derive(Debug, thiserror::Error)]
@@ -857,7 +857,7 @@ t = -1
 
     /// A copy of the built-in Velvia 50 file under another id, in `dir/<file>`.
     fn user_stock(dir: &Path, file: &str, id: &str) {
-        let velvia = include_str!("../curves/velvia50.toml");
+        let velvia = include_str!("../../curves/velvia50.toml");
         assert!(velvia.contains("id = \"velvia50\"\n"));
         let text = velvia
             .replace("id = \"velvia50\"\n", &format!("id = \"{id}\"\n"))

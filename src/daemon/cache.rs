@@ -20,7 +20,7 @@ use std::path::{Path, PathBuf};
 use serde::{Deserialize, Serialize};
 
 use crate::atomic::{self, Overwrite};
-use crate::bracket::CameraId;
+use crate::daemon::bracket::CameraId;
 use crate::response::InverseResponse;
 
 /// Version written into each cache file; files of another version are refused.

@@ -1,11 +1,11 @@
-//! The one boundary between the daemon and the pixel pipeline: [`Develop`].
+//! The one boundary between the daemon and the pixel pipeline: [`Lab`].
 //!
-//! The daemon hands a developer a [`Job`] (the frames of one bracket or one single frame,
+//! The daemon hands a lab a [`Job`] (the frames of one bracket or one single frame,
 //! the camera's preset, its cached response, where to write) and gets back the published
 //! outputs and the response it used. Everything about files appearing, queues, retries
 //! and restarts stays on the daemon's side; everything about pixels on this side.
 //!
-//! [`Darkroom`] is the developer `filmback watch` runs: the pipeline of
+//! [`DarkroomLab`] is the lab `filmback watch` runs: the pipeline of
 //! [`crate::darkroom`] under the camera's preset. The response follows the preset's
 //! `recalibrate`: `auto` fits the bracket and falls back to the cached curve (else sRGB)
 //! when the fit is weaker than `min_confidence`; `always` uses the bracket's own fit (sRGB
@@ -18,9 +18,9 @@ use std::time::Duration;
 use rayon::prelude::*;
 
 use crate::atomic::Overwrite;
-use crate::bracket::{CameraId, Capture};
-use crate::cache::CachedResponse;
-use crate::config::{Preset, Recalibrate};
+use crate::daemon::bracket::{CameraId, Capture};
+use crate::daemon::cache::CachedResponse;
+use crate::daemon::config::{Preset, Recalibrate};
 use crate::darkroom::{self, DarkroomError, GivenResponse, Prints, ResponsePolicy, Source};
 use crate::film::{Catalogue, ColourMode, Key};
 use crate::frame::{self, Limits, LoadedFrame};
@@ -32,7 +32,7 @@ use crate::response::{InverseResponse, RatioSource};
 /// One unit of work: a bracket (two or more frames) or a single frame.
 #[derive(Debug, Clone)]
 pub struct Job {
-    /// Deterministic id ([`crate::bracket::fingerprint`] of the inputs).
+    /// Deterministic id ([`crate::daemon::bracket::fingerprint`] of the inputs).
     pub id: String,
     /// The body.
     pub camera: CameraId,
@@ -57,9 +57,9 @@ impl Job {
     }
 }
 
-/// What a developer did.
+/// What a lab did.
 #[derive(Debug, Clone)]
-pub struct Developed {
+pub struct Processed {
     /// Every file published, in a stable order.
     pub outputs: Vec<PathBuf>,
     /// Where the response came from.
@@ -68,13 +68,13 @@ pub struct Developed {
     pub fit: Option<(InverseResponse, f64)>,
     /// Wall time per stage, in order (`decode`, `merge`, `exr`, …).
     pub stages: Vec<(&'static str, Duration)>,
-    /// Things worth a warning (e.g. a requested look this developer does not render).
+    /// Things worth a warning (e.g. a requested look this lab does not render).
     pub notes: Vec<String>,
 }
 
 /// Why a job failed; the variant decides what the daemon does next.
 #[derive(Debug, thiserror::Error)]
-pub enum DevelopError {
+pub enum JobError {
     /// One input is not a usable frame: it is set aside as rejected and the rest of the
     /// bracket is developed without it.
     #[error("{path}: {reason}")]
@@ -100,37 +100,37 @@ pub enum DevelopError {
 
 /// Develops one job: reads the frames, publishes every output atomically under the job's
 /// names (replacing a complete file left by an interrupted earlier attempt).
-pub trait Develop: Send + Sync + 'static {
+pub trait Lab: Send + Sync + 'static {
     /// Runs on a blocking thread; may take seconds.
-    fn develop(&self, job: &Job) -> Result<Developed, DevelopError>;
+    fn process(&self, job: &Job) -> Result<Processed, JobError>;
 }
 
-impl<F> Develop for F
+impl<F> Lab for F
 where
-    F: Fn(&Job) -> Result<Developed, DevelopError> + Send + Sync + 'static,
+    F: Fn(&Job) -> Result<Processed, JobError> + Send + Sync + 'static,
 {
-    fn develop(&self, job: &Job) -> Result<Developed, DevelopError> {
+    fn process(&self, job: &Job) -> Result<Processed, JobError> {
         self(job)
     }
 }
 
-/// The real developer (see the module docs).
+/// The real lab (see the module docs).
 #[derive(Debug, Clone, Copy, Default)]
-pub struct Darkroom;
+pub struct DarkroomLab;
 
-impl From<DarkroomError> for DevelopError {
+impl From<DarkroomError> for JobError {
     fn from(e: DarkroomError) -> Self {
         if let Some(path) = e.output_path() {
-            return DevelopError::Output {
+            return JobError::Output {
                 path: path.to_path_buf(),
                 reason: e.to_string(),
             };
         }
-        DevelopError::Bracket(e.to_string())
+        JobError::Bracket(e.to_string())
     }
 }
 
-impl Darkroom {
+impl DarkroomLab {
     /// The cached curve if it fits the frames, else the sRGB inverse.
     fn fallback(job: &Job, channels: usize) -> GivenResponse {
         match &job.cached {
@@ -144,14 +144,14 @@ impl Darkroom {
     }
 }
 
-impl Develop for Darkroom {
-    fn develop(&self, job: &Job) -> Result<Developed, DevelopError> {
+impl Lab for DarkroomLab {
+    fn process(&self, job: &Job) -> Result<Processed, JobError> {
         let start = std::time::Instant::now();
         let frames: Vec<LoadedFrame> = job
             .frames
             .par_iter()
             .map(|c| {
-                frame::load(&c.input.path, Limits::default()).map_err(|e| DevelopError::Frame {
+                frame::load(&c.input.path, Limits::default()).map_err(|e| JobError::Frame {
                     path: c.input.path.clone(),
                     reason: e.to_string(),
                 })
@@ -159,12 +159,11 @@ impl Develop for Darkroom {
             .collect::<Result<_, _>>()?;
         let decode = start.elapsed();
         let preset = &job.preset;
-        let mut catalogue =
-            Catalogue::builtin().map_err(|e| DevelopError::Bracket(e.to_string()))?;
+        let mut catalogue = Catalogue::builtin().map_err(|e| JobError::Bracket(e.to_string()))?;
         if let Some(dir) = &job.stocks {
             catalogue = catalogue
                 .with_folder(dir)
-                .map_err(|e| DevelopError::Bracket(e.to_string()))?;
+                .map_err(|e| JobError::Bracket(e.to_string()))?;
         }
         let looks = rendering::looks(
             &catalogue,
@@ -174,13 +173,13 @@ impl Develop for Darkroom {
             ColourMode::PerLayer,
             Key::LogAverage,
         )
-        .map_err(|e| DevelopError::Bracket(format!("preset: {e}")))?;
+        .map_err(|e| JobError::Bracket(format!("preset: {e}")))?;
         // The renderings carry the first frame's EXIF (camera, lens, exposure, date,
         // artist, copyright); a frame whose file vanished since decoding carries none.
         let exif = std::fs::read(&job.frames[0].input.path)
             .map(|bytes| SourceExif::from_frame_bytes(&bytes))
             .unwrap_or_default();
-        std::fs::create_dir_all(&job.out).map_err(|e| DevelopError::Output {
+        std::fs::create_dir_all(&job.out).map_err(|e| JobError::Output {
             path: job.out.clone(),
             reason: e.to_string(),
         })?;
@@ -207,7 +206,7 @@ impl Develop for Darkroom {
                 .iter()
                 .map(|c| {
                     c.exposure.ok_or_else(|| {
-                        DevelopError::Bracket(format!(
+                        JobError::Bracket(format!(
                             "{}: exposure unknown (EXIF lacks the exposure time, f-number or ISO)",
                             c.input.path.display()
                         ))
@@ -237,7 +236,7 @@ impl Develop for Darkroom {
         };
         let mut stages = vec![("decode", decode)];
         stages.extend(developed.stages);
-        Ok(Developed {
+        Ok(Processed {
             outputs: developed.outputs,
             source: developed.response.source,
             fit: developed.response.fit,

@@ -14,7 +14,7 @@ use std::path::PathBuf;
 
 use serde::{Deserialize, Serialize};
 
-use crate::config::BracketRules;
+use crate::daemon::config::BracketRules;
 
 /// The camera body a frame came from; brackets never mix bodies.
 #[derive(Debug, Clone, Default, PartialEq, Eq, PartialOrd, Ord, Hash, Serialize, Deserialize)]
@@ -303,7 +303,7 @@ fn close(camera: CameraId, mut frames: Vec<Capture>) -> Closed {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::config::Singles;
+    use crate::daemon::config::Singles;
 
     fn rules(size: usize) -> BracketRules {
         BracketRules {

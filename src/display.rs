@@ -1,0 +1,244 @@
+//! The display end of the pipeline: an sRGB-encoded RGB image at 8 or 16 bits, the sRGB
+//! transfer function and ICC profile, and Rec. 709 luminance. Film stocks and tone maps
+//! produce a [`DisplayImage`]; the rendering encoders write it.
+
+use std::borrow::Cow;
+use std::sync::OnceLock;
+
+use rayon::prelude::*;
+
+/// Rec. 709 / sRGB luminance of linear RGB: `L = 0.2126 R + 0.7152 G + 0.0722 B`.
+pub fn luminance(r: f32, g: f32, b: f32) -> f32 {
+    0.2126 * r + 0.7152 * g + 0.0722 * b
+}
+
+/// Bits per sample of a display image.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Depth {
+    /// 8 bits (JPEG, PNG 8).
+    Eight,
+    /// 16 bits (PNG 16, TIFF 16).
+    Sixteen,
+}
+
+/// A display image: RGB, sRGB-encoded, 8 or 16 bits per sample.
+#[derive(Debug, Clone, PartialEq)]
+pub struct DisplayImage {
+    width: u32,
+    height: u32,
+    samples: Samples,
+}
+
+#[derive(Debug, Clone, PartialEq)]
+enum Samples {
+    Eight(Vec<u8>),
+    Sixteen(Vec<u16>),
+}
+
+/// `round(v · 255 / 65535)`: a 16-bit sample at 8 bits.
+#[inline]
+pub fn to_8bit(v: u16) -> u8 {
+    ((u32::from(v) * 255 + 32767) / 65535) as u8
+}
+
+impl DisplayImage {
+    /// Wraps interleaved 16-bit RGB samples (`width·height·3` of them).
+    ///
+    /// # Panics
+    /// If the length does not match: callers build the buffer from the same dimensions.
+    pub fn new(width: u32, height: u32, samples: Vec<u16>) -> DisplayImage {
+        assert_eq!(samples.len(), width as usize * height as usize * 3);
+        DisplayImage {
+            width,
+            height,
+            samples: Samples::Sixteen(samples),
+        }
+    }
+
+    /// Wraps interleaved 8-bit RGB samples.
+    ///
+    /// # Panics
+    /// If the length does not match.
+    pub fn new_8bit(width: u32, height: u32, samples: Vec<u8>) -> DisplayImage {
+        assert_eq!(samples.len(), width as usize * height as usize * 3);
+        DisplayImage {
+            width,
+            height,
+            samples: Samples::Eight(samples),
+        }
+    }
+
+    /// Width in pixels.
+    pub fn width(&self) -> u32 {
+        self.width
+    }
+
+    /// Height in pixels.
+    pub fn height(&self) -> u32 {
+        self.height
+    }
+
+    /// Bits per sample.
+    pub fn depth(&self) -> Depth {
+        match self.samples {
+            Samples::Eight(_) => Depth::Eight,
+            Samples::Sixteen(_) => Depth::Sixteen,
+        }
+    }
+
+    /// Interleaved sRGB-encoded RGB at 16 bits (8-bit images scaled by 257).
+    pub fn samples(&self) -> Cow<'_, [u16]> {
+        match &self.samples {
+            Samples::Sixteen(s) => Cow::Borrowed(s),
+            Samples::Eight(s) => Cow::Owned(s.iter().map(|&v| u16::from(v) * 257).collect()),
+        }
+    }
+
+    /// Interleaved sRGB-encoded RGB at 8 bits ([`to_8bit`] of 16-bit images).
+    pub fn to_u8(&self) -> Cow<'_, [u8]> {
+        match &self.samples {
+            Samples::Eight(s) => Cow::Borrowed(s),
+            Samples::Sixteen(s) => {
+                let mut out = vec![0u8; s.len()];
+                out.par_chunks_mut(1 << 16)
+                    .zip(s.par_chunks(1 << 16))
+                    .for_each(|(o, s)| {
+                        for (o, &s) in o.iter_mut().zip(s) {
+                            *o = to_8bit(s);
+                        }
+                    });
+                Cow::Owned(out)
+            }
+        }
+    }
+
+    /// The image at `depth` (a copy only when it differs).
+    pub fn at_depth(self, depth: Depth) -> DisplayImage {
+        match (depth, &self.samples) {
+            (Depth::Eight, Samples::Sixteen(_)) => {
+                let s = self.to_u8().into_owned();
+                DisplayImage::new_8bit(self.width, self.height, s)
+            }
+            (Depth::Sixteen, Samples::Eight(_)) => {
+                let s = self.samples().into_owned();
+                DisplayImage::new(self.width, self.height, s)
+            }
+            _ => self,
+        }
+    }
+}
+
+/// The sRGB transfer function (IEC 61966-2.1): linear `x ∈ [0,1]` to encoded value;
+/// `12.92·x` below 0.0031308, `1.055·x^(1/2.4) − 0.055` above. Out-of-range and NaN
+/// inputs clamp to `[0, 1]` (NaN to 0).
+pub fn srgb_encode(x: f32) -> f32 {
+    if x.is_nan() || x <= 0.0 {
+        0.0
+    } else if x >= 1.0 {
+        1.0
+    } else if x <= 0.003_130_8 {
+        12.92 * x
+    } else {
+        1.055 * x.powf(1.0 / 2.4) - 0.055
+    }
+}
+
+/// `round(65535 · srgb_encode(x))` through a table: below 2⁻¹² (on the linear segment) it
+/// is computed, above it looked up by the float's exponent and 11 mantissa bits at the
+/// bucket centre — at most 1.1·10⁻⁴ relative error, under 7 of 65535 (0.03 of an 8-bit
+/// step). Any `f32` is valid: NaN and negatives give 0, 1 and above 65535.
+#[inline]
+pub fn srgb_encode_u16(x: f32) -> u16 {
+    const SHIFT: u32 = 12;
+    static TABLE: OnceLock<(u32, Vec<u16>)> = OnceLock::new();
+    let low = 2f32.powi(-12);
+    if x.is_nan() || x <= 0.0 {
+        return 0;
+    }
+    if x >= 1.0 {
+        return 65535;
+    }
+    if x < low {
+        return (12.92 * x * 65535.0).round() as u16;
+    }
+    let (base, table) = TABLE.get_or_init(|| {
+        let base = low.to_bits() >> SHIFT;
+        let top = 1f32.to_bits() >> SHIFT;
+        let table = (base..top)
+            .map(|i| {
+                let centre = f32::from_bits((i << SHIFT) | (1 << (SHIFT - 1)));
+                (srgb_encode(centre) * 65535.0).round() as u16
+            })
+            .collect();
+        (base, table)
+    });
+    table[((x.to_bits() >> SHIFT) - base) as usize]
+}
+
+/// The sRGB ICC profile embedded in every output: built by the `moxcms` crate (already in
+/// the build through `image`) from the IEC 61966-2.1 colorants (primaries x,y = 0.64,0.33 /
+/// 0.30,0.60 / 0.15,0.06, D65 white, adapted to the D50 PCS) and the sRGB parametric
+/// tone curve (γ 2.4, linear toe below 0.04045). About 0.5 kB.
+pub fn srgb_icc_profile() -> &'static [u8] {
+    static PROFILE: OnceLock<Vec<u8>> = OnceLock::new();
+    PROFILE.get_or_init(|| {
+        moxcms::ColorProfile::new_srgb()
+            .encode()
+            .unwrap_or_else(|e| panic!("moxcms cannot encode its own sRGB profile: {e:?}"))
+    })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn icc_profile_is_a_valid_srgb_profile() {
+        let p = srgb_icc_profile();
+        let size = u32::from_be_bytes([p[0], p[1], p[2], p[3]]) as usize;
+        assert_eq!(size, p.len());
+        assert_eq!(&p[36..40], b"acsp");
+        assert_eq!(&p[12..16], b"mntr");
+        assert_eq!(&p[16..20], b"RGB ");
+        assert_eq!(&p[20..24], b"XYZ ");
+        let profile = moxcms::ColorProfile::new_from_slice(p).expect("parses back");
+        // Published D50-adapted colorants of IEC 61966-2.1 (red X,Y,Z).
+        let r = profile.red_colorant;
+        assert!(
+            (r.x - 0.4361).abs() < 1e-3 && (r.y - 0.2225).abs() < 1e-3,
+            "{r:?}"
+        );
+    }
+
+    #[test]
+    fn srgb_encode_is_clamped_and_continuous() {
+        assert_eq!(srgb_encode(f32::NAN), 0.0);
+        assert_eq!(srgb_encode(-1.0), 0.0);
+        assert_eq!(srgb_encode(f32::INFINITY), 1.0);
+        let a = srgb_encode(0.003_130_8);
+        let b = srgb_encode(0.003_130_9);
+        assert!((a - b).abs() < 1e-4);
+        assert!((srgb_encode(0.18) - 0.4613).abs() < 1e-3);
+    }
+
+    #[test]
+    fn srgb_table_matches_the_formula() {
+        let mut worst = 0i32;
+        for i in 0..=200_000 {
+            let x = 10f32.powf(-6.0 + 6.0 * i as f32 / 200_000.0);
+            let exact = (srgb_encode(x) * 65535.0).round() as i32;
+            worst = worst.max((i32::from(srgb_encode_u16(x)) - exact).abs());
+        }
+        assert!(worst <= 7, "worst {worst} of 65535");
+        let mut prev = 0;
+        for i in 0..=2_000_000 {
+            let x = i as f32 / 2_000_000.0;
+            let v = srgb_encode_u16(x);
+            assert!(v >= prev, "not monotone at {x}: {v} < {prev}");
+            prev = v;
+        }
+        assert_eq!(srgb_encode_u16(f32::NAN), 0);
+        assert_eq!(srgb_encode_u16(f32::INFINITY), 65535);
+        assert_eq!(srgb_encode_u16(-0.0), 0);
+    }
+}

@@ -1,0 +1,346 @@
+//! Film stocks: characteristic curves as data, and rendering a radiance map through them.
+//!
+//! A stock is three characteristic curves, one per dye layer (red-, green- and
+//! blue-forming), each a list of points (log10 H, D): exposure `H` in lux·s against
+//! diffuse density `D` (Status A for reversal film, Status M for negatives), read off the
+//! manufacturer's data sheet. The built-in stocks live in `curves/*.toml`; users add
+//! their own by dropping a file of the same form into a folder ([`Catalogue::with_folder`]).
+//!
+//! Rendering a reversal (slide) stock, per pixel and layer `c`:
+//! 1. `H_c = t · k · E_c` (lux·s): `E` is the relative radiance, `t` the relative exposure
+//!    (1, 1/2, 8, …) and `k` the calibration that puts the scene's key (log-average
+//!    luminance, or a given grey) at the stock's metered mid-tone `H = 8/S` for ISO `S`.
+//! 2. `D_c = curve_c(log10 H_c)`, interpolated monotonically (Fritsch–Carlson / PCHIP)
+//!    and clamped to the end points outside the data (D-max below, D-min above).
+//! 3. `T_c = 10^−(D_c − D_min,c)`: the transmittance of the slide, normalised so that the
+//!    film base (D-min) is display white.
+//! 4. `T` is a linear sRGB value; it is encoded with the sRGB transfer function.
+//!
+//! The curve is evaluated through a table indexed by the bits of the `f32` exposure
+//! ([`ExposureTable`]); its error is at most [`TABLE_MAX_ERROR_D`] in density.
+//!
+//! Negative stocks are loaded, validated, listed and plotted, but not rendered: a negative
+//! is viewed through a print, and filmback carries no print-paper curves to model one;
+//! [`render`] refuses them with [`FilmError::Negative`].
+
+mod emulsion;
+mod stock;
+
+use std::fmt;
+use std::path::PathBuf;
+use std::str::FromStr;
+
+use serde::Deserialize;
+
+pub use emulsion::{
+    ColourMode, Emulsion, ExposureTable, Key, TABLE_MAX_ERROR_D, render, scene_key,
+};
+pub use stock::{Catalogue, Curve, Speed, Stock};
+
+/// Why a stock could not be loaded or a rendering could not be made.
+#[derive(Debug, thiserror::Error)]
+pub enum FilmError {
+    /// The stock file could not be read.
+    #[error("{path}: cannot read: {io}")]
+    Read {
+        /// The stock file.
+        path: PathBuf,
+        /// What the operating system said.
+        io: std::io::Error,
+    },
+    /// The file is not TOML of the expected form (missing or unknown key, wrong type).
+    #[error("{path}: {reason}")]
+    Syntax {
+        /// The stock file.
+        path: PathBuf,
+        /// The parser's message, with line and column.
+        reason: String,
+    },
+    /// A field outside its sane range.
+    #[error("{path}: {field}: {reason}")]
+    Field {
+        /// The stock file.
+        path: PathBuf,
+        /// The key.
+        field: &'static str,
+        /// What is wrong with it.
+        reason: String,
+    },
+    /// A curve point that breaks the physics (range, order, monotone density).
+    #[error("{path}: layer {layer}, point {point} (log H {log_h}, D {density}): {reason}")]
+    Point {
+        /// The stock file.
+        path: PathBuf,
+        /// `red`, `green` or `blue`.
+        layer: &'static str,
+        /// 1-based index of the point in its layer.
+        point: usize,
+        /// The point's log10 H.
+        log_h: f64,
+        /// The point's density.
+        density: f64,
+        /// What is wrong with it.
+        reason: String,
+    },
+    /// A layer too short to be a curve.
+    #[error("{path}: layer {layer}: {reason}")]
+    Layer {
+        /// The stock file.
+        path: PathBuf,
+        /// `red`, `green` or `blue`.
+        layer: &'static str,
+        /// What is wrong with it.
+        reason: String,
+    },
+    /// Two stock files share an id.
+    #[error("{path}: stock id {id:?} is already defined by {other}")]
+    Duplicate {
+        /// The later file.
+        path: PathBuf,
+        /// The id.
+        id: String,
+        /// The file that defined it first.
+        other: String,
+    },
+    /// The stock folder could not be listed.
+    #[error("{path}: cannot list stock folder: {io}")]
+    Folder {
+        /// The folder.
+        path: PathBuf,
+        /// What the operating system said.
+        io: std::io::Error,
+    },
+    /// No stock has that id.
+    #[error("unknown film stock {id:?} (known: {known})")]
+    UnknownStock {
+        /// The id asked for.
+        id: String,
+        /// The ids available.
+        known: String,
+    },
+    /// A negative stock was asked to render.
+    #[error(
+        "{id} is a colour negative: it is viewed through a print, and filmback has no print-paper curves to model one; choose a reversal stock"
+    )]
+    Negative {
+        /// The stock's id.
+        id: String,
+    },
+    /// A rendering request such as `velvia50@1/2` that does not parse.
+    #[error("film request {text:?}: {reason}")]
+    Request {
+        /// The request as typed.
+        text: String,
+        /// What is wrong with it.
+        reason: String,
+    },
+}
+
+/// Reversal (slide, viewed by transmission) or negative (viewed through a print).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Deserialize, serde::Serialize)]
+#[serde(rename_all = "lowercase")]
+pub enum Kind {
+    /// Slide film: density falls as exposure rises.
+    Reversal,
+    /// Colour negative: density rises with exposure.
+    Negative,
+}
+
+impl fmt::Display for Kind {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        f.write_str(match self {
+            Kind::Reversal => "reversal",
+            Kind::Negative => "negative",
+        })
+    }
+}
+
+/// The three dye layers, named by the light they record.
+pub const LAYERS: [&str; 3] = ["red", "green", "blue"];
+
+/// A rendering request as typed: `velvia50`, `provia400@0.5`, `p1600@1/8`, `velvia50@+1ev`.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Request {
+    /// Stock id.
+    pub stock: String,
+    /// Relative exposure `t` (1 = metered; 1/2 = one stop less).
+    pub exposure: f64,
+}
+
+impl FromStr for Request {
+    type Err = FilmError;
+
+    fn from_str(text: &str) -> Result<Request, FilmError> {
+        let (stock, exposure) = match text.split_once('@') {
+            None => (text, 1.0),
+            Some((stock, t)) => (
+                stock,
+                parse_exposure(t).map_err(|reason| FilmError::Request {
+                    text: text.to_string(),
+                    reason,
+                })?,
+            ),
+        };
+        if stock.is_empty() {
+            return Err(FilmError::Request {
+                text: text.to_string(),
+                reason: "no stock id before '@'".into(),
+            });
+        }
+        Ok(Request {
+            stock: stock.to_string(),
+            exposure,
+        })
+    }
+}
+
+/// Parses a relative exposure: `0.5`, `1/2`, `8`, `-1ev`, `+2EV` (`t = 2^ev`).
+pub fn parse_exposure(text: &str) -> Result<f64, String> {
+    let lower = text.trim().to_ascii_lowercase();
+    let t = if let Some(ev) = lower.strip_suffix("ev") {
+        let ev: f64 = ev
+            .trim()
+            .parse()
+            .map_err(|_| format!("{text:?} is not a number of stops such as -1ev"))?;
+        2f64.powf(ev)
+    } else if let Some((n, d)) = lower.split_once('/') {
+        let n: f64 = n
+            .trim()
+            .parse()
+            .map_err(|_| format!("{text:?}: bad numerator"))?;
+        let d: f64 = d
+            .trim()
+            .parse()
+            .map_err(|_| format!("{text:?}: bad denominator"))?;
+        n / d
+    } else {
+        lower
+            .parse()
+            .map_err(|_| format!("{text:?} is not an exposure such as 0.5, 1/2 or -1ev"))?
+    };
+    if t.is_finite() && t > 0.0 && (1e-6..=1e6).contains(&t) {
+        Ok(t)
+    } else {
+        Err(format!(
+            "exposure {text:?} must be a positive factor between 1e-6 and 1e6"
+        ))
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use std::path::Path;
+
+    use super::*;
+
+    fn catalogue() -> Catalogue {
+        Catalogue::builtin().expect("built-in stocks load")
+    }
+
+    #[test]
+    fn pchip_passes_through_points_and_is_monotone() {
+        for stock in catalogue().stocks() {
+            for c in 0..3 {
+                let curve = stock.layer(c);
+                for (x, d) in curve.points() {
+                    assert!((curve.density(x) - d).abs() < 1e-12);
+                }
+                let (a, b) = curve.log_h_range();
+                let falling = stock.kind == Kind::Reversal;
+                let mut prev = curve.density(a);
+                for i in 1..=2000 {
+                    let d = curve.density(a + (b - a) * i as f64 / 2000.0);
+                    assert!(
+                        if falling {
+                            d <= prev + 1e-12
+                        } else {
+                            d >= prev - 1e-12
+                        },
+                        "{} layer {c} not monotone",
+                        stock.id
+                    );
+                    prev = d;
+                }
+            }
+        }
+    }
+
+    #[test]
+    fn pchip_does_not_overshoot_a_step() {
+        let curve = Curve::new(&[(0.0, 3.0), (1.0, 3.0), (2.0, 0.2), (3.0, 0.2)]);
+        for i in 0..=300 {
+            let d = curve.density(i as f64 / 100.0);
+            assert!((0.2 - 1e-12..=3.0 + 1e-12).contains(&d), "{d} at {i}");
+        }
+        // Linear interpolation would give 1.6 at the midpoint; the cubic is symmetric too.
+        assert!((curve.density(1.5) - 1.6).abs() < 1e-12);
+    }
+
+    #[test]
+    fn table_error_is_within_the_stated_bound() {
+        for stock in catalogue().stocks() {
+            for (c, layer) in LAYERS.iter().enumerate() {
+                let curve = stock.layer(c);
+                let table = ExposureTable::new(curve, |d| d);
+                let (a, b) = curve.log_h_range();
+                let mut worst = 0.0f64;
+                for i in 0..20_000 {
+                    let x = a - 0.2 + (b - a + 0.4) * i as f64 / 20_000.0;
+                    let h = 10f64.powf(x) as f32;
+                    let exact = curve.density(f64::from(h).log10());
+                    worst = worst.max((table.get(h) - exact).abs());
+                }
+                let bound = curve.max_gradient() * (1.0 + 2f64.powi(-11)).log10() / 2.0;
+                println!(
+                    "{} {layer}: worst {worst:.2e} D, bound {bound:.2e} D",
+                    stock.id
+                );
+                assert!(bound <= TABLE_MAX_ERROR_D, "{} bound {bound}", stock.id);
+                assert!(
+                    worst <= bound * 1.05 + 1e-12,
+                    "{} worst {worst} > {bound}",
+                    stock.id
+                );
+            }
+        }
+    }
+
+    #[test]
+    fn requests_parse_fractions_decimals_and_stops() {
+        let r: Request = "provia400@1/2".parse().unwrap();
+        assert_eq!((r.stock.as_str(), r.exposure), ("provia400", 0.5));
+        assert_eq!("velvia50@0.5".parse::<Request>().unwrap().exposure, 0.5);
+        assert_eq!("velvia50@-1ev".parse::<Request>().unwrap().exposure, 0.5);
+        assert_eq!("velvia50@+3EV".parse::<Request>().unwrap().exposure, 8.0);
+        assert_eq!("velvia50".parse::<Request>().unwrap().exposure, 1.0);
+        for bad in [
+            "velvia50@0",
+            "velvia50@-1",
+            "velvia50@x",
+            "@1",
+            "velvia50@1/0",
+        ] {
+            assert!(bad.parse::<Request>().is_err(), "{bad}");
+        }
+    }
+
+    #[test]
+    fn a_rising_reversal_point_is_named() {
+        let text =
+            include_str!("../../curves/velvia50.toml").replace("[-1.0, 1.58]", "[-1.0, 2.90]");
+        let err = Stock::from_toml(&text, Path::new("bad.toml")).unwrap_err();
+        let msg = err.to_string();
+        assert!(
+            msg.starts_with("bad.toml: layer red, point 19 (log H -1, D 2.9): density rises"),
+            "{msg}"
+        );
+    }
+
+    #[test]
+    fn negatives_are_refused_with_a_reason() {
+        let cat = catalogue();
+        let portra = cat.get("portra400").unwrap();
+        let err = Emulsion::new(portra, 1.0, 0.18, ColourMode::PerLayer).unwrap_err();
+        assert!(err.to_string().contains("print"));
+    }
+}

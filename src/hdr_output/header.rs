@@ -1,0 +1,100 @@
+//! The OpenEXR header filmback writes: chromaticities, capture date, camera and exposure
+//! of the longest frame (standard attributes), and filmback's own provenance attributes
+//! (see the parent module for the list).
+
+use exr::meta::attribute::Chromaticities;
+use exr::prelude::{self as x, ImageAttributes, IntegerBounds, LayerAttributes, Text, Vec2};
+
+use super::Provenance;
+
+/// Text attribute from UTF-8 (OpenEXR strings are byte strings; readers take them as UTF-8).
+pub(super) fn text(s: &str) -> Text {
+    Text::from_slice_unchecked(s.as_bytes())
+}
+
+pub(super) fn image_attributes(size: Vec2<usize>) -> ImageAttributes {
+    let mut attributes = ImageAttributes::new(IntegerBounds::from_dimensions(size));
+    // ITU-R BT.709 / sRGB primaries, D65 white.
+    attributes.chromaticities = Some(Chromaticities {
+        red: Vec2(0.64, 0.33),
+        green: Vec2(0.30, 0.60),
+        blue: Vec2(0.15, 0.06),
+        white: Vec2(0.3127, 0.3290),
+    });
+    attributes
+}
+
+pub(super) fn layer_attributes(p: &Provenance, scale: f32) -> LayerAttributes {
+    use x::AttributeValue as V;
+    let mut a = LayerAttributes {
+        software_name: Some(text(&format!("filmback {}", env!("CARGO_PKG_VERSION")))),
+        ..LayerAttributes::default()
+    };
+    if let Some(t) = p.captured_at {
+        // OpenEXR's capDate is "YYYY:MM:DD hh:mm:ss" local time; utcOffset is the
+        // seconds to add to it to get UTC.
+        a.capture_date = Some(text(&format!(
+            "{:04}:{:02}:{:02} {:02}:{:02}:{:02}",
+            t.year, t.month, t.day, t.hour, t.minute, t.second
+        )));
+        a.utc_offset = t.offset_minutes.map(|m| -f32::from(m) * 60.0);
+    }
+    if let Some(longest) = p.frames.last() {
+        a.exposure = longest.exposure.time_s.map(|v| v as f32);
+        a.aperture = longest.exposure.f_number.map(|v| v as f32);
+        a.iso_speed = longest.exposure.iso.map(|v| v as f32);
+    }
+    a.comments = Some(text(
+        "linear relative radiance; 1.0 = brightness g^-1(1) in the longest exposure",
+    ));
+    let mut put = |name: &str, value: V| {
+        a.other.insert(text(name), value);
+    };
+    for (name, value) in [
+        ("cameraMake", &p.camera.make),
+        ("cameraModel", &p.camera.model),
+        ("cameraSerialNumber", &p.camera.serial),
+        ("lensModel", &p.camera.lens),
+    ] {
+        if let Some(v) = value {
+            put(name, V::Text(text(v)));
+        }
+    }
+    let known = |v: Option<f64>| v.map_or("?".to_string(), |v| format!("{v}"));
+    for (k, f) in p.frames.iter().enumerate() {
+        put(
+            &format!("filmbackFrame{k}"),
+            V::Text(text(&format!(
+                "{}: time {} s, f/{}, ISO {}, relative exposure {}",
+                f.name,
+                known(f.exposure.time_s),
+                known(f.exposure.f_number),
+                known(f.exposure.iso),
+                f.relative
+            ))),
+        );
+    }
+    if let (Some(first), Some(last)) = (p.frames.first(), p.frames.last()) {
+        put(
+            "filmbackExposureRatio",
+            V::F64(last.relative / first.relative),
+        );
+    }
+    put("filmbackResponse", V::Text(text(&p.response)));
+    put("filmbackWeighting", V::Text(text(&p.weighting)));
+    put(
+        "filmbackClipped",
+        V::Text(text(&format!(
+            "{} samples clipped high in every frame (lower bounds), {} clipped low (upper bounds)",
+            p.clipped.0, p.clipped.1
+        ))),
+    );
+    put(
+        "filmbackScale",
+        V::Text(text(
+            "value = g(B_k) * e_longest / e_k, weighted over frames; 1.0 = B=1 in the longest exposure",
+        )),
+    );
+    put("filmbackRadianceScale", V::F32(scale));
+    a
+}

@@ -1,0 +1,147 @@
+//! The source frame's EXIF carried into every rendering, with `Software = filmback`.
+
+use std::io::Cursor;
+
+use exif::{Field, In, Tag, Value};
+
+use crate::metadata::Metadata;
+
+/// The EXIF fields carried from the source frame into every rendering.
+#[derive(Debug, Clone, Default)]
+pub struct SourceExif {
+    fields: Vec<Field>,
+}
+
+/// Primary-image tags carried over: who and what made the shot, and how it was exposed.
+/// Not `Orientation`: frames are turned upright when loaded, so renderings are upright.
+const CARRIED: [Tag; 19] = [
+    Tag::Make,
+    Tag::Model,
+    Tag::BodySerialNumber,
+    Tag::LensMake,
+    Tag::LensModel,
+    Tag::LensSpecification,
+    Tag::ExposureTime,
+    Tag::FNumber,
+    Tag::PhotographicSensitivity,
+    Tag::ExposureProgram,
+    Tag::ExposureBiasValue,
+    Tag::FocalLength,
+    Tag::FocalLengthIn35mmFilm,
+    Tag::DateTimeOriginal,
+    Tag::OffsetTimeOriginal,
+    Tag::SubSecTimeOriginal,
+    Tag::DateTime,
+    Tag::Artist,
+    Tag::Copyright,
+];
+
+fn ascii(tag: Tag, s: &str) -> Field {
+    Field {
+        tag,
+        ifd_num: In::PRIMARY,
+        value: Value::Ascii(vec![s.as_bytes().to_vec()]),
+    }
+}
+
+fn rational(tag: Tag, x: f64) -> Field {
+    // Exposure times as 1/n when shorter than a second, otherwise to 1/1000.
+    let r = if x > 0.0 && x < 1.0 && ((1.0 / x) - (1.0 / x).round()).abs() < 1e-6 {
+        exif::Rational::from((1, (1.0 / x).round() as u32))
+    } else {
+        exif::Rational::from(((x * 1000.0).round() as u32, 1000))
+    };
+    Field {
+        tag,
+        ifd_num: In::PRIMARY,
+        value: Value::Rational(vec![r]),
+    }
+}
+
+impl SourceExif {
+    /// The carried fields of a source frame's file bytes (JPEG, TIFF, PNG, HEIF…);
+    /// nothing when it has no readable EXIF.
+    pub fn from_frame_bytes(bytes: &[u8]) -> SourceExif {
+        let Ok(exif) = exif::Reader::new().read_from_container(&mut Cursor::new(bytes)) else {
+            return SourceExif::default();
+        };
+        let fields = exif
+            .fields()
+            .filter(|f| f.ifd_num == In::PRIMARY && CARRIED.contains(&f.tag))
+            .cloned()
+            .collect();
+        SourceExif { fields }
+    }
+
+    /// Fields rebuilt from parsed metadata (camera, lens, exposure, capture time) when the
+    /// source bytes are not at hand, e.g. rendering from an EXR.
+    pub fn from_metadata(metadata: &Metadata) -> SourceExif {
+        let mut fields = Vec::new();
+        let cam = &metadata.camera;
+        for (tag, value) in [
+            (Tag::Make, &cam.make),
+            (Tag::Model, &cam.model),
+            (Tag::BodySerialNumber, &cam.serial),
+            (Tag::LensModel, &cam.lens),
+        ] {
+            if let Some(v) = value {
+                fields.push(ascii(tag, v));
+            }
+        }
+        let exposure = &metadata.exposure;
+        if let Some(t) = exposure.time_s {
+            fields.push(rational(Tag::ExposureTime, t));
+        }
+        if let Some(n) = exposure.f_number {
+            fields.push(rational(Tag::FNumber, n));
+        }
+        if let Some(iso) = exposure.iso {
+            fields.push(Field {
+                tag: Tag::PhotographicSensitivity,
+                ifd_num: In::PRIMARY,
+                value: Value::Short(vec![iso.round().clamp(0.0, 65535.0) as u16]),
+            });
+        }
+        if let Some(at) = &metadata.captured_at {
+            let stamp = format!(
+                "{:04}:{:02}:{:02} {:02}:{:02}:{:02}",
+                at.year, at.month, at.day, at.hour, at.minute, at.second
+            );
+            fields.push(ascii(Tag::DateTimeOriginal, &stamp));
+        }
+        SourceExif { fields }
+    }
+
+    /// The carried fields.
+    pub fn fields(&self) -> &[Field] {
+        &self.fields
+    }
+
+    /// Carried fields plus `Software = filmback <version>`.
+    pub(super) fn with_software(&self) -> Vec<Field> {
+        let mut fields: Vec<Field> = self
+            .fields
+            .iter()
+            .filter(|f| f.tag != Tag::Software)
+            .cloned()
+            .collect();
+        fields.push(ascii(
+            Tag::Software,
+            concat!("filmback ", env!("CARGO_PKG_VERSION")),
+        ));
+        fields
+    }
+
+    /// A TIFF-structured EXIF block (as embedded in JPEG APP1 after `Exif\0\0`, or in a
+    /// PNG `eXIf` chunk).
+    pub fn tiff_block(&self) -> Result<Vec<u8>, String> {
+        let fields = self.with_software();
+        let mut writer = exif::experimental::Writer::new();
+        for f in &fields {
+            writer.push_field(f);
+        }
+        let mut out = Cursor::new(Vec::new());
+        writer.write(&mut out, false).map_err(|e| e.to_string())?;
+        Ok(out.into_inner())
+    }
+}

@@ -1,0 +1,152 @@
+//! Encoders carry the profile and EXIF; the streamed JPEG matches the direct rendering.
+
+use std::io::Cursor;
+
+use exif::{In, Tag};
+
+use super::*;
+use crate::metadata::Metadata;
+
+fn ramp() -> DisplayImage {
+    let (w, h) = (32u32, 8u32);
+    let samples = (0..w * h * 3).map(|i| (i * 97 % 65536) as u16).collect();
+    DisplayImage::new(w, h, samples)
+}
+
+fn exif() -> SourceExif {
+    let m = Metadata {
+        camera: crate::metadata::Camera {
+            make: Some("Testmaker".into()),
+            model: Some("T-1".into()),
+            ..Default::default()
+        },
+        exposure: crate::metadata::Exposure {
+            time_s: Some(1.0 / 125.0),
+            f_number: Some(8.0),
+            iso: Some(100.0),
+        },
+        captured_at: None,
+        orientation: 1,
+        warnings: Vec::new(),
+    };
+    SourceExif::from_metadata(&m)
+}
+
+fn read_back(bytes: &[u8]) -> exif::Exif {
+    exif::Reader::new()
+        .read_from_container(&mut Cursor::new(bytes))
+        .expect("EXIF readable")
+}
+
+#[test]
+fn every_format_carries_profile_and_exif() {
+    let img = ramp();
+    for format in [
+        Format::Jpeg { quality: 90 },
+        Format::Png8,
+        Format::Png16,
+        Format::Tiff16,
+    ] {
+        let mut bytes = Vec::new();
+        encode(&img, format, &exif(), &mut bytes).unwrap();
+        let decoded = image::load_from_memory(&bytes).unwrap_or_else(|e| panic!("{format:?}: {e}"));
+        assert_eq!((decoded.width(), decoded.height()), (32, 8));
+        if format == Format::Png16 || format == Format::Tiff16 {
+            let rgb = decoded.to_rgb16();
+            assert_eq!(rgb.as_raw().as_slice(), &*img.samples(), "{format:?}");
+        }
+        let e = read_back(&bytes);
+        let get = |t: Tag| {
+            e.get_field(t, In::PRIMARY)
+                .map(|f| f.display_value().to_string())
+        };
+        assert_eq!(
+            get(Tag::Make).as_deref(),
+            Some("\"Testmaker\""),
+            "{format:?}"
+        );
+        assert!(
+            get(Tag::Software).unwrap().contains("filmback"),
+            "{format:?}"
+        );
+        assert_eq!(
+            get(Tag::ExposureTime).as_deref(),
+            Some("1/125"),
+            "{format:?}"
+        );
+        let icc_tag = b"ICC_PROFILE";
+        let has_icc = match format {
+            Format::Jpeg { .. } => bytes.windows(icc_tag.len()).any(|w| w == icc_tag),
+            Format::Png8 | Format::Png16 => bytes.windows(4).any(|w| w == b"iCCP"),
+            Format::Tiff16 => e
+                .get_field(Tag(exif::Context::Tiff, 34675), In::PRIMARY)
+                .is_some(),
+        };
+        assert!(has_icc, "{format:?} lacks the ICC profile");
+    }
+}
+
+#[test]
+fn streaming_jpeg_decodes_to_the_developed_image() {
+    let catalogue = film::Catalogue::builtin().unwrap();
+    let stock = catalogue.get("velvia50").unwrap();
+    let map = crate::synthetic::scene(200, 150, 3);
+    let emulsion = film::Emulsion::new(
+        stock,
+        1.0,
+        film::scene_key(&map, Key::LogAverage),
+        ColourMode::PerLayer,
+    )
+    .unwrap();
+    let reference = emulsion.render(&map, Depth::Eight);
+    let mut streamed = Vec::new();
+    encode_film_jpeg(&map, &emulsion, 95, &exif(), &mut streamed).unwrap();
+    let mut whole = Vec::new();
+    encode(
+        &reference,
+        Format::Jpeg { quality: 95 },
+        &exif(),
+        &mut whole,
+    )
+    .unwrap();
+    let a = image::load_from_memory(&streamed).unwrap().to_rgb8();
+    let b = image::load_from_memory(&whole).unwrap().to_rgb8();
+    let mean_diff = a
+        .as_raw()
+        .iter()
+        .zip(b.as_raw())
+        .map(|(&x, &y)| f64::from(x.abs_diff(y)))
+        .sum::<f64>()
+        / a.as_raw().len() as f64;
+    assert!(mean_diff < 0.5, "mean difference {mean_diff}");
+    assert!(
+        read_back(&streamed)
+            .get_field(Tag::Software, In::PRIMARY)
+            .is_some()
+    );
+}
+
+#[test]
+fn exif_is_carried_from_frame_bytes() {
+    let mut bytes = Vec::new();
+    encode(&ramp(), Format::Jpeg { quality: 80 }, &exif(), &mut bytes).unwrap();
+    let carried = SourceExif::from_frame_bytes(&bytes);
+    assert!(carried.fields().iter().any(|f| f.tag == Tag::Model));
+    assert!(carried.fields().iter().all(|f| f.tag != Tag::Software));
+    assert!(
+        SourceExif::from_frame_bytes(b"not an image")
+            .fields()
+            .is_empty()
+    );
+}
+
+#[test]
+fn formats_parse() {
+    assert_eq!(
+        "jpeg:95".parse::<Format>().unwrap(),
+        Format::Jpeg { quality: 95 }
+    );
+    assert_eq!("png16".parse::<Format>().unwrap(), Format::Png16);
+    assert!("jpeg:0".parse::<Format>().is_err());
+    assert!("gif".parse::<Format>().is_err());
+}
