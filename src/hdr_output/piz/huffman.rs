@@ -1,26 +1,14 @@
-//! OpenEXR's PIZ compression, encoder side, for scan-line blocks of half samples.
+//! OpenEXR's Huffman coder for PIZ: a canonical Huffman code over the 2¹⁶ word values
+//! plus one run symbol, written MSB first through a 64-bit bit accumulator.
 //!
-//! PIZ is filmback's default compression, and most of an EXR write used to go to the exr
-//! crate's PIZ encoder, whose Huffman stage writes one byte at a time through `io::Write`
-//! (≈ 570 of the 860 ms that a 24 MP merge took). This encoder writes the same format
-//! with a 64-bit bit accumulator; any conforming reader decodes it (the tests decode with
-//! the exr crate, `tests/openexr_check.py` with the OpenEXR library). Other compressions
-//! and float samples still go through exr's encoders.
-//!
-//! One block, all integers little-endian:
-//! 1. The samples as 16-bit words, channel by channel (each channel's lines contiguous).
-//! 2. The set of words used, as a 65 536-bit bitmap (word 0 is implied, its bit not set),
-//!    stored as the `u16` indices of the first and last non-zero byte and those bytes
-//!    (first > last when the bitmap is empty).
-//! 3. Each word replaced by its rank in that set, so the values are `0..=max` with no gaps.
-//! 4. Per channel, a two-dimensional Haar wavelet in place: pairs `(a, b)` become
-//!    `(⌊(a + b)/2⌋, a − b)`, in 16-bit two's complement when `max < 2¹⁴`, else modulo
-//!    2¹⁶ with offsets (so it stays invertible for any 16-bit word).
-//! 5. An `i32` byte count, then a canonical Huffman code of the words plus one run symbol:
-//!    five `u32` (first symbol, run symbol, bytes of the code table, bits of code, 0), the
-//!    code lengths packed 6 bits each (codes 59–63 stand for runs of absent symbols), then
-//!    the codes MSB first. A run of `n + 1` equal words is sent as the word's code, the run
-//!    symbol's code and `n` in 8 bits whenever that is shorter than `n + 1` codes.
+//! Output, all integers little-endian: five `u32` (first symbol = smallest word present,
+//! run symbol = largest word present + 1, bytes of the code table, bits of code, 0); the
+//! code table, one 6-bit length per symbol from the first to the run symbol, with 59–62
+//! standing for `2..=5` absent symbols (59 + n − 2) and 63 followed by `n − 6` in 8 bits
+//! for `6..=261`; then the codes, the last byte padded with zero bits. A run of `n + 1`
+//! equal words (`1 ≤ n ≤ 255`) whose code has `l_w` bits is sent as the word's code, the
+//! run symbol's code (`l_run` bits) and `n` in 8 bits when `l_w + l_run + 8 < n·l_w`
+//! (OpenEXR's rule), otherwise as `n + 1` copies of the word's code.
 
 /// Symbols of the Huffman code: the 65 536 words and the run symbol after the last used word.
 const SYMBOLS: usize = (1 << 16) + 1;
@@ -32,139 +20,6 @@ const SHORT_ZERO_RUN: u64 = 59;
 const LONG_ZERO_RUN: u64 = 63;
 const SHORTEST_LONG_RUN: usize = 2 + (LONG_ZERO_RUN - SHORT_ZERO_RUN) as usize;
 const LONGEST_LONG_RUN: usize = 255 + SHORTEST_LONG_RUN;
-/// Bytes of the bitmap of used words.
-const BITMAP_BYTES: usize = (1 << 16) / 8;
-
-/// PIZ-compresses one block. `words` holds the block's half samples as bits, channel by
-/// channel, each channel `lines × width` in line order; it is overwritten (ranked and
-/// wavelet-transformed). Returns `None` when no Huffman code fits the format's 58-bit
-/// limit (it cannot happen below ~10¹² samples per block); the caller then stores the
-/// block uncompressed, as it must also do when the result is not smaller than the input.
-pub(super) fn compress(words: &mut [u16], width: usize, lines: usize) -> Option<Vec<u8>> {
-    let plane = width * lines;
-    debug_assert!(plane > 0 && words.len().is_multiple_of(plane));
-
-    // Marking words in a byte per word stores without reading back (no dependency
-    // between equal neighbours), then the bitmap is packed from the marks.
-    let mut used = vec![false; 1 << 16];
-    for &w in words.iter() {
-        used[usize::from(w)] = true;
-    }
-    used[0] = false;
-    let mut bitmap = vec![0u8; BITMAP_BYTES];
-    for (byte, marks) in bitmap.iter_mut().zip(used.chunks_exact(8)) {
-        *byte = marks
-            .iter()
-            .enumerate()
-            .fold(0, |b, (k, &m)| b | (u8::from(m) << k));
-    }
-    let first = bitmap.iter().position(|&b| b != 0);
-    let last = bitmap.iter().rposition(|&b| b != 0);
-
-    // Rank of each used word (0 always has rank 0).
-    let mut rank = vec![0u16; 1 << 16];
-    let mut max = 0u16;
-    for (r, &u) in rank.iter_mut().zip(&used) {
-        if u {
-            max += 1;
-            *r = max;
-        }
-    }
-    for w in words.iter_mut() {
-        *w = rank[usize::from(*w)];
-    }
-    for channel in words.chunks_exact_mut(plane) {
-        wavelet_encode(channel, width, lines, max);
-    }
-
-    let mut out = Vec::with_capacity(words.len());
-    match (first, last) {
-        (Some(first), Some(last)) => {
-            out.extend_from_slice(&(first as u16).to_le_bytes());
-            out.extend_from_slice(&(last as u16).to_le_bytes());
-            out.extend_from_slice(&bitmap[first..=last]);
-        }
-        _ => {
-            out.extend_from_slice(&((BITMAP_BYTES - 1) as u16).to_le_bytes());
-            out.extend_from_slice(&0u16.to_le_bytes());
-        }
-    }
-    let length_at = out.len();
-    out.extend_from_slice(&[0; 4]);
-    huffman_encode(words, &mut out)?;
-    let length = (out.len() - length_at - 4) as i32;
-    out[length_at..length_at + 4].copy_from_slice(&length.to_le_bytes());
-    Some(out)
-}
-
-/// `(a, b) → (⌊(a + b)/2⌋, a − b)` in 16-bit two's complement (words below 2¹⁴).
-#[inline(always)]
-fn lift14(a: u16, b: u16) -> (u16, u16) {
-    let (a, b) = (i32::from(a as i16), i32::from(b as i16));
-    (((a + b) >> 1) as u16, (a - b) as u16)
-}
-
-/// The same step modulo 2¹⁶, invertible for any pair of 16-bit words.
-#[inline(always)]
-fn lift16(a: u16, b: u16) -> (u16, u16) {
-    const OFFSET: i32 = 1 << 15;
-    const MASK: i32 = 0xffff;
-    let ao = (i32::from(a) + OFFSET) & MASK;
-    let mut m = (ao + i32::from(b)) >> 1;
-    let d = ao - i32::from(b);
-    if d < 0 {
-        m = (m + OFFSET) & MASK;
-    }
-    (m as u16, (d & MASK) as u16)
-}
-
-/// OpenEXR's two-dimensional wavelet on one `nx × ny` channel (row-major), in place.
-fn wavelet_encode(data: &mut [u16], nx: usize, ny: usize, max: u16) {
-    if max < 1 << 14 {
-        wavelet_levels(data, nx, ny, lift14);
-    } else {
-        wavelet_levels(data, nx, ny, lift16);
-    }
-}
-
-/// Level `p = 1, 2, 4, …` while `2p ≤ min(nx, ny)`: each `2p × 2p` cell's corners
-/// `(x, y), (x+p, y), (x, y+p), (x+p, y+p)` are lifted along x then y; an odd column or
-/// line left over at a level is lifted in one dimension.
-#[inline(always)]
-fn wavelet_levels(data: &mut [u16], nx: usize, ny: usize, lift: impl Fn(u16, u16) -> (u16, u16)) {
-    let n = nx.min(ny);
-    let mut p = 1;
-    while 2 * p <= n {
-        let p2 = 2 * p;
-        let mut y = 0;
-        while y + p2 <= ny {
-            let (top, bottom) = data.split_at_mut((y + p) * nx);
-            let top = &mut top[y * nx..y * nx + nx];
-            let bottom = &mut bottom[..nx];
-            let mut x = 0;
-            while x + p2 <= nx {
-                let (i00, i01) = lift(top[x], top[x + p]);
-                let (i10, i11) = lift(bottom[x], bottom[x + p]);
-                (top[x], bottom[x]) = lift(i00, i10);
-                (top[x + p], bottom[x + p]) = lift(i01, i11);
-                x += p2;
-            }
-            if nx & p != 0 {
-                (top[x], bottom[x]) = lift(top[x], bottom[x]);
-            }
-            y += p2;
-        }
-        if ny & p != 0 {
-            let row = &mut data[y * nx..y * nx + nx];
-            let mut x = 0;
-            while x + p2 <= nx {
-                (row[x], row[x + p]) = lift(row[x], row[x + p]);
-                x += p2;
-            }
-        }
-        p = p2;
-    }
-}
 
 /// MSB-first bit writer over a byte vector.
 struct Bits<'a> {
@@ -227,7 +82,7 @@ impl<'a> Bits<'a> {
 }
 
 /// Appends OpenEXR's Huffman encoding of `words` (non-empty) to `out`.
-fn huffman_encode(words: &[u16], out: &mut Vec<u8>) -> Option<()> {
+pub(super) fn huffman_encode(words: &[u16], out: &mut Vec<u8>) -> Option<()> {
     // Counted in two interleaved tables so that runs of one word do not wait on
     // their own previous increment.
     let mut frequency = vec![0u64; SYMBOLS];
@@ -445,35 +300,6 @@ mod tests {
             for b in &used {
                 if a != b && a.1 <= b.1 {
                     assert_ne!(b.0 >> (b.1 - a.1), a.0, "{a:?} is a prefix of {b:?}");
-                }
-            }
-        }
-    }
-
-    #[test]
-    fn lifts_are_undone_by_the_readers_inverse() {
-        // OpenEXR's inverse steps (ImfWav.cpp, wdec14/wdec16), written independently.
-        let unlift14 = |l: u16, h: u16| {
-            let (ls, hs) = (i32::from(l as i16), i32::from(h as i16));
-            let hi = hs;
-            let ai = ls + (hi & 1) + (hi >> 1);
-            (ai as u16, (ai - hi) as u16)
-        };
-        let unlift16 = |l: u16, h: u16| {
-            let (m, d) = (i32::from(l), i32::from(h));
-            let b = (m - (d >> 1)) & 0xffff;
-            let a = (d + b - (1 << 15)) & 0xffff;
-            (a as u16, b as u16)
-        };
-        for a in (0..=u16::MAX).step_by(13) {
-            // Every 211th b, and the b that makes the offset difference zero.
-            let partners = (0..=u16::MAX).step_by(211).chain([a.wrapping_add(1 << 15)]);
-            for b in partners {
-                let (l, h) = lift16(a, b);
-                assert_eq!(unlift16(l, h), (a, b), "16-bit ({a}, {b})");
-                if a < 1 << 14 && b < 1 << 14 {
-                    let (l, h) = lift14(a, b);
-                    assert_eq!(unlift14(l, h), (a, b), "14-bit ({a}, {b})");
                 }
             }
         }
