@@ -1,0 +1,297 @@
+//! The queue: closed brackets become jobs for the lab (at most `jobs` at a time), and a
+//! job's outcome becomes a journal entry, a cache update, a rejection or a retry.
+
+use std::path::Path;
+use std::sync::Arc;
+use std::time::{Duration, Instant};
+
+use tracing::{error, info, warn};
+
+use super::bracket::{Alone, Bracket, Closed};
+use super::config::{Recalibrate, Singles};
+use super::journal::{self, Entry};
+use super::{DaemonError, Job, JobError, MAX_RETRY, Outcome, Processed, State, Work, file_stem};
+
+impl State {
+    pub(super) fn dispatch(&mut self) -> Result<(), DaemonError> {
+        while !self.stopping && self.in_flight.len() < self.config.daemon.jobs {
+            let Some(work) = self.queue.pop_front() else {
+                break;
+            };
+            if let Closed::Single(capture, alone) = &work.closed
+                && self.config.bracket.singles == Singles::Report
+            {
+                info!(file = %capture.input.path.display(), camera = %capture.camera, reason = %alone, "single frame reported, not rendered");
+                self.journal.record(Entry::Single {
+                    id: work.closed.id(),
+                    camera: capture.camera.clone(),
+                    input: capture.input.clone(),
+                    alone: *alone,
+                    outputs: Vec::new(),
+                    at: journal::unix_now(),
+                })?;
+                self.summary.finished += 1;
+                self.release(&work.closed);
+                continue;
+            }
+            let camera = work.closed.camera().clone();
+            let preset = self
+                .config
+                .preset_for(camera.model.as_deref(), camera.serial.as_deref())
+                .clone();
+            let cached = match self.cache.get(&camera) {
+                Ok(c) => c,
+                Err(e) => {
+                    warn!(error = %e, "response cache entry unusable; developing without it");
+                    None
+                }
+            };
+            let job = Job {
+                id: work.closed.id(),
+                camera,
+                frames: work.closed.frames().into_iter().cloned().collect(),
+                cached: if preset.recalibrate == Recalibrate::Always {
+                    None
+                } else {
+                    cached
+                },
+                preset,
+                out: self.config.folders.out.clone(),
+                stem: self.output_stem(&work.closed),
+                stocks: self.config.folders.stocks.clone(),
+            };
+            let lab = Arc::clone(&self.lab);
+            self.in_flight.spawn_blocking(move || {
+                let t = Instant::now();
+                let result =
+                    std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| lab.process(&job)))
+                        .unwrap_or_else(|panic| {
+                            let what = panic
+                                .downcast_ref::<&str>()
+                                .map(|s| (*s).to_string())
+                                .or_else(|| panic.downcast_ref::<String>().cloned())
+                                .unwrap_or_default();
+                            Err(JobError::Bracket(format!("lab panicked: {what}")))
+                        });
+                (work, result, t.elapsed())
+            });
+        }
+        Ok(())
+    }
+
+    /// The first frame's stem, unless an earlier, different bracket already published
+    /// under it (a camera's file counter wrapped, or inputs were replaced): then
+    /// `<stem>-<first 8 hex digits of the id>`, so no finished output is ever replaced.
+    pub(super) fn output_stem(&self, closed: &Closed) -> String {
+        let (stem, id) = (closed.stem(), closed.id());
+        let taken = self.journal.entries().iter().any(|e| match e {
+            Entry::Bracket {
+                id: other, inputs, ..
+            } => *other != id && inputs.first().is_some_and(|i| file_stem(&i.path) == stem),
+            Entry::Single {
+                id: other,
+                input,
+                outputs,
+                ..
+            } => *other != id && !outputs.is_empty() && file_stem(&input.path) == stem,
+            _ => false,
+        });
+        if taken {
+            format!("{stem}-{}", &id[..8])
+        } else {
+            stem
+        }
+    }
+
+    pub(super) fn release(&mut self, closed: &Closed) {
+        for f in closed.frames() {
+            self.taken.remove(&f.input.path);
+        }
+    }
+
+    /// Takes a job's outcome: journal and cache on success; on a bad frame, reject it and
+    /// requeue the rest; retry output failures with back-off; record other failures.
+    pub(super) fn finish(&mut self, (work, result, took): Outcome) -> Result<(), DaemonError> {
+        match result {
+            Ok(processed) => self.developed(&work.closed, &processed, took)?,
+            Err(JobError::Frame { path, reason }) => self.frame_failed(&work, &path, reason)?,
+            Err(e @ JobError::Output { .. }) => self.retry_later(work, &e),
+            Err(JobError::Bracket(reason)) => self.failed(&work, reason)?,
+        }
+        Ok(())
+    }
+
+    /// A job that published its outputs: refine the cache, journal it, log it, archive.
+    pub(super) fn developed(
+        &mut self,
+        closed: &Closed,
+        dev: &Processed,
+        took: Duration,
+    ) -> Result<(), DaemonError> {
+        let camera = closed.camera().clone();
+        let preset = self
+            .config
+            .preset_for(camera.model.as_deref(), camera.serial.as_deref());
+        if let Some((fit, confidence)) = &dev.fit
+            && *confidence >= preset.min_confidence
+            && preset.recalibrate != Recalibrate::Never
+            && let Err(e) = self
+                .cache
+                .update(&camera, fit, *confidence, journal::unix_now())
+        {
+            warn!(error = %e, "cannot update the response cache");
+        }
+        for note in &dev.notes {
+            warn!(bracket = %closed.stem(), "{note}");
+        }
+        let at = journal::unix_now();
+        let entry = match closed {
+            Closed::Bracket(b) => Entry::Bracket {
+                id: closed.id(),
+                camera: camera.clone(),
+                inputs: b.frames.iter().map(|c| c.input.clone()).collect(),
+                outputs: dev.outputs.clone(),
+                ratio: b.ratio(),
+                response: dev.source,
+                at,
+            },
+            Closed::Single(c, alone) => Entry::Single {
+                id: closed.id(),
+                camera: camera.clone(),
+                input: c.input.clone(),
+                alone: *alone,
+                outputs: dev.outputs.clone(),
+                at,
+            },
+        };
+        self.journal.record(entry)?;
+        self.summary.finished += 1;
+        let stages: Vec<String> = dev
+            .stages
+            .iter()
+            .map(|(s, d)| format!("{s}={:.0}ms", d.as_secs_f64() * 1e3))
+            .collect();
+        let outputs: Vec<String> = dev
+            .outputs
+            .iter()
+            .map(|p| p.display().to_string())
+            .collect();
+        match closed {
+            Closed::Bracket(b) => info!(
+                camera = %camera,
+                frames = b.frames.len(),
+                ratio = format!("{:.2}", b.ratio()),
+                response = %dev.source,
+                stages = stages.join(" "),
+                total_ms = took.as_millis() as u64,
+                outputs = outputs.join(" "),
+                "bracket developed"
+            ),
+            Closed::Single(c, alone) => info!(
+                camera = %camera,
+                file = %c.input.path.display(),
+                reason = %alone,
+                response = %dev.source,
+                total_ms = took.as_millis() as u64,
+                outputs = outputs.join(" "),
+                "single frame rendered"
+            ),
+        }
+        self.archive(closed);
+        self.release(closed);
+        Ok(())
+    }
+
+    /// A frame of the job could not be decoded: reject it, requeue the rest (a single if
+    /// one frame is left).
+    pub(super) fn frame_failed(
+        &mut self,
+        work: &Work,
+        path: &Path,
+        reason: String,
+    ) -> Result<(), DaemonError> {
+        let closed = &work.closed;
+        let camera = closed.camera().clone();
+        let frames: Vec<_> = closed.frames().into_iter().cloned().collect();
+        let Some(bad) = frames.iter().find(|c| c.input.path == *path) else {
+            return self.failed(
+                work,
+                format!("lab named a foreign frame {}: {reason}", path.display()),
+            );
+        };
+        self.reject(bad.input.clone(), reason)?;
+        let rest: Vec<_> = frames
+            .into_iter()
+            .filter(|c| c.input.path != *path)
+            .collect();
+        let closed = match rest.len() {
+            0 => return Ok(()),
+            1 => Closed::Single(rest.into_iter().next().expect("one"), Alone::NoPartner),
+            _ => Closed::Bracket(Bracket {
+                camera,
+                frames: rest,
+            }),
+        };
+        self.queue.push_front(Work {
+            closed,
+            attempts: 0,
+        });
+        Ok(())
+    }
+
+    /// Outputs could not be written: try again after `retry · 2^attempts` (at most
+    /// [`MAX_RETRY`]).
+    pub(super) fn retry_later(&mut self, work: Work, e: &JobError) {
+        let delay =
+            (self.config.daemon.retry * 2u32.saturating_pow(work.attempts.min(16))).min(MAX_RETRY);
+        error!(
+            bracket = %work.closed.stem(),
+            error = %e,
+            retry_in_s = delay.as_secs_f64(),
+            "outputs not written; will retry"
+        );
+        self.retries.push((
+            Instant::now() + delay,
+            Work {
+                closed: work.closed,
+                attempts: work.attempts + 1,
+            },
+        ));
+    }
+
+    pub(super) fn failed(&mut self, work: &Work, reason: String) -> Result<(), DaemonError> {
+        warn!(bracket = %work.closed.stem(), reason = %reason, "bracket cannot be developed");
+        self.journal.record(Entry::Failed {
+            id: work.closed.id(),
+            inputs: work
+                .closed
+                .frames()
+                .iter()
+                .map(|c| c.input.clone())
+                .collect(),
+            reason,
+            at: journal::unix_now(),
+        })?;
+        self.release(&work.closed);
+        Ok(())
+    }
+
+    /// Moves finished inputs to the archive folder, when configured.
+    pub(super) fn archive(&self, closed: &Closed) {
+        let Some(dir) = &self.config.folders.archive else {
+            return;
+        };
+        if let Err(e) = std::fs::create_dir_all(dir) {
+            warn!(archive = %dir.display(), error = %e, "cannot create archive folder");
+            return;
+        }
+        for c in closed.frames() {
+            let Some(name) = c.input.path.file_name() else {
+                continue;
+            };
+            if let Err(e) = std::fs::rename(&c.input.path, dir.join(name)) {
+                warn!(file = %c.input.path.display(), error = %e, "cannot archive input");
+            }
+        }
+    }
+}

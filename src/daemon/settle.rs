@@ -1,0 +1,251 @@
+//! Watching and settling: files noticed in the ingest folder become candidates, settled
+//! candidates are probed (EXIF, header) and fed to the grouper in capture-time order.
+
+use std::path::PathBuf;
+use std::time::{Duration, Instant};
+
+use tracing::{error, info, warn};
+
+use super::bracket::Input;
+use super::intake::{self, Notice, Probe};
+use super::journal::{self, Entry};
+use super::{Candidate, DaemonError, State, WRITER_PATIENCE, Work, folder_id, wall_seconds};
+
+impl State {
+    /// Notices the ingest folder appearing, disappearing or being replaced, and
+    /// (re)starts the watcher with a full scan when it (re)appears.
+    pub(super) fn check_folder(&mut self) {
+        let dir = self.config.folders.ingest.clone();
+        let id = folder_id(&dir);
+        if id == self.watched && (id.is_none() || self.watcher.is_some()) {
+            return;
+        }
+        if id == self.watched && Instant::now() < self.watch_retry_at {
+            return;
+        }
+        self.watcher = None;
+        self.watched = id;
+        if id.is_none() {
+            warn!(ingest = %dir.display(), "ingest folder is missing; waiting for it to reappear");
+            return;
+        }
+        match intake::watch(&self.config.watch, &dir, self.notices.clone()) {
+            Ok(w) => {
+                self.watcher = Some(w);
+                info!(ingest = %dir.display(), "watching ingest folder");
+            }
+            // Keep going on scans alone (every `poll`); try again in 10 s.
+            Err(e) => {
+                error!(error = %e, "cannot watch; falling back to periodic scans");
+                self.watch_retry_at = Instant::now() + Duration::from_secs(10);
+            }
+        }
+        self.rescan();
+    }
+
+    pub(super) fn rescan(&mut self) {
+        self.last_rescan = Instant::now();
+        for path in intake::scan(&self.config.watch, &self.config.folders.ingest) {
+            self.consider(path, false);
+        }
+    }
+
+    pub(super) fn consider(&mut self, path: PathBuf, closed: bool) {
+        if self.taken.contains(&path) {
+            return;
+        }
+        let cand = self.candidates.entry(path).or_insert(Candidate {
+            first_seen: Instant::now(),
+            seen: None,
+            stable_since: Instant::now(),
+            closed: false,
+        });
+        cand.closed |= closed;
+    }
+
+    pub(super) fn notice(&mut self, notice: Notice) {
+        match notice {
+            Notice::File { path, closed } => self.consider(path, closed),
+            Notice::Rescan => {
+                warn!("file events may have been lost; rescanning the ingest folder");
+                self.rescan();
+            }
+        }
+    }
+
+    pub(super) async fn tick(&mut self) -> Result<(), DaemonError> {
+        self.check_folder();
+        let rescan_due = match self.config.watch.rescan {
+            Some(every) => self.last_rescan.elapsed() >= every,
+            // Without a watcher, scans are all there is.
+            None => false,
+        } || (self.watcher.is_none()
+            && self.last_rescan.elapsed() >= self.config.watch.poll);
+        if rescan_due {
+            self.rescan();
+        }
+        if !self.stopping {
+            let ready = self.settle();
+            if !ready.is_empty() {
+                self.take(ready).await?;
+            }
+        }
+        let now = self.now_s();
+        // A frame still being written (or waiting on disk behind a full queue) may belong
+        // to an open bracket: its gap clock starts when intake has caught up. A writer
+        // stuck for over a minute no longer holds brackets open.
+        let writing = self
+            .candidates
+            .values()
+            .any(|c| c.first_seen.elapsed() < WRITER_PATIENCE);
+        if writing || self.queue.len() >= self.config.daemon.queue {
+            self.grouper.postpone(now);
+        }
+        for closed in self.grouper.expire(now) {
+            self.queue.push_back(Work {
+                closed,
+                attempts: 0,
+            });
+        }
+        let due = Instant::now();
+        let (ready, later): (Vec<_>, Vec<_>) =
+            self.retries.drain(..).partition(|(at, _)| *at <= due);
+        self.retries = later;
+        for (_, work) in ready {
+            self.queue.push_back(work);
+        }
+        if let Some(interval) = self.watchdog
+            && self.last_watchdog.elapsed() >= interval / 2
+        {
+            let _ = sd_notify::notify(&[sd_notify::NotifyState::Watchdog]);
+            self.last_watchdog = Instant::now();
+        }
+        Ok(())
+    }
+
+    /// Candidates whose writer closed them or whose size and mtime were stable for
+    /// `settle`. Nothing is taken while the queue is full (back-pressure).
+    pub(super) fn settle(&mut self) -> Vec<PathBuf> {
+        let room = self.config.daemon.queue.saturating_sub(self.queue.len());
+        if room == 0 {
+            return Vec::new();
+        }
+        let settle = self.config.watch.settle;
+        let wall_ns = (wall_seconds() * 1e9) as i64;
+        let mut ready = Vec::new();
+        let mut gone = Vec::new();
+        let mut paths: Vec<&PathBuf> = self.candidates.keys().collect();
+        paths.sort();
+        let paths: Vec<PathBuf> = paths.into_iter().cloned().collect();
+        let mut full = false;
+        for path in paths {
+            if ready.len() >= room {
+                full = true;
+                break;
+            }
+            let cand = self.candidates.get_mut(&path).expect("listed above");
+            let id = match intake::identify(&path) {
+                Ok(id) => id,
+                Err(e) if e.kind() == std::io::ErrorKind::NotFound => {
+                    gone.push(path);
+                    continue;
+                }
+                // The probe reports it (e.g. permission denied) as a rejection.
+                Err(_) => {
+                    ready.push(path);
+                    continue;
+                }
+            };
+            if self.journal.is_settled(&id) {
+                gone.push(path);
+                continue;
+            }
+            if cand.seen.as_ref() != Some(&id) {
+                cand.seen = Some(id.clone());
+                cand.stable_since = Instant::now();
+            }
+            let untouched_for =
+                Duration::from_nanos(wall_ns.saturating_sub(id.modified_ns).max(0) as u64);
+            if cand.closed || cand.stable_since.elapsed() >= settle || untouched_for >= settle {
+                ready.push(path);
+            }
+        }
+        for p in &gone {
+            self.candidates.remove(p);
+        }
+        // Complete frames wait while another is still settling (for at most
+        // WRITER_PATIENCE): it may be an earlier frame of the same bracket (a copy racing
+        // the start-up scan, a slow writer), and frames enter the grouper in capture-time
+        // order only within one batch. When the queue limits the batch, take what is ready.
+        let settling = self
+            .candidates
+            .iter()
+            .any(|(p, c)| !ready.contains(p) && c.first_seen.elapsed() < WRITER_PATIENCE);
+        if settling && !full {
+            return Vec::new();
+        }
+        for p in &ready {
+            self.candidates.remove(p);
+        }
+        ready
+    }
+
+    /// Probes settled files (off the async threads) and feeds the grouper.
+    pub(super) async fn take(&mut self, ready: Vec<PathBuf>) -> Result<(), DaemonError> {
+        let probed = tokio::task::spawn_blocking(move || {
+            ready
+                .into_iter()
+                .map(|p| {
+                    let r = intake::probe(&p);
+                    (p, r)
+                })
+                .collect::<Vec<_>>()
+        })
+        .await
+        .expect("probing does not panic");
+        let mut frames = Vec::new();
+        for (path, probe) in probed {
+            match probe {
+                Probe::Frame(c) if self.journal.is_settled(&c.input) => {}
+                Probe::Frame(c) => frames.push(c),
+                Probe::Rejected(input, reason) => {
+                    if !self.journal.is_settled(&input) {
+                        self.reject(input, reason)?;
+                    }
+                }
+                Probe::Changed => self.consider(path, false),
+                Probe::Gone => {}
+            }
+        }
+        // A batch (start-up scan, burst) enters in capture-time order.
+        frames.sort_by(|a, b| {
+            a.time_s
+                .total_cmp(&b.time_s)
+                .then_with(|| a.input.path.cmp(&b.input.path))
+        });
+        let now = self.now_s();
+        for c in frames {
+            tracing::debug!(file = %c.input.path.display(), time_s = c.time_s, "frame taken");
+            self.taken.insert(c.input.path.clone());
+            for closed in self.grouper.push(c, now) {
+                self.queue.push_back(Work {
+                    closed,
+                    attempts: 0,
+                });
+            }
+        }
+        Ok(())
+    }
+
+    pub(super) fn reject(&mut self, input: Input, reason: String) -> Result<(), DaemonError> {
+        warn!(file = %input.path.display(), reason = %reason, "rejected");
+        self.taken.remove(&input.path);
+        self.summary.rejected += 1;
+        self.journal.record(Entry::Rejected {
+            input,
+            reason,
+            at: journal::unix_now(),
+        })?;
+        Ok(())
+    }
+}

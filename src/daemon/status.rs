@@ -1,0 +1,108 @@
+//! What `filmback status` reads: a snapshot of the daemon's counts in
+//! `state/status.json`, rewritten atomically when a count changes, and the systemd
+//! `STATUS=` line.
+
+use std::path::{Path, PathBuf};
+use std::time::{Duration, Instant};
+
+use serde::{Deserialize, Serialize};
+use tracing::warn;
+
+use super::State;
+use super::journal;
+use crate::atomic::{self, Overwrite};
+
+/// File name of the status snapshot in the state folder.
+pub const STATUS_FILE: &str = "status.json";
+
+/// The daemon's state as `filmback status` shows it: `state/status.json`, rewritten
+/// (atomically) whenever a count changes.
+#[derive(Debug, Clone, PartialEq, Eq, Serialize, Deserialize)]
+pub struct Snapshot {
+    /// Process id.
+    pub pid: u32,
+    /// False once the daemon has stopped.
+    pub running: bool,
+    /// Unix seconds of this snapshot.
+    pub updated: u64,
+    /// Watched folder.
+    pub ingest: PathBuf,
+    /// Output folder.
+    pub out: PathBuf,
+    /// True while the ingest folder exists and is watched.
+    pub watching: bool,
+    /// Files seen, not yet complete.
+    pub settling: usize,
+    /// Frames in open (not yet closed) brackets.
+    pub grouping: usize,
+    /// Closed brackets waiting for a job.
+    pub queued: usize,
+    /// Brackets developing now.
+    pub in_flight: usize,
+    /// Brackets waiting to retry after an output failure.
+    pub retrying: usize,
+    /// Finished in this run.
+    pub finished: usize,
+    /// Rejected in this run.
+    pub rejected: usize,
+}
+
+/// Reads `state/status.json`, if the daemon ever wrote one.
+pub fn read_snapshot(state: &Path) -> Option<Snapshot> {
+    let text = std::fs::read_to_string(state.join(STATUS_FILE)).ok()?;
+    serde_json::from_str(&text).ok()
+}
+
+impl State {
+    pub(super) fn snapshot(&self, running: bool) -> Snapshot {
+        Snapshot {
+            pid: std::process::id(),
+            running,
+            updated: journal::unix_now(),
+            ingest: self.config.folders.ingest.clone(),
+            out: self.config.folders.out.clone(),
+            watching: self.watcher.is_some(),
+            settling: self.candidates.len(),
+            grouping: self.grouper.waiting(),
+            queued: self.queue.len(),
+            in_flight: self.in_flight.len(),
+            retrying: self.retries.len(),
+            finished: self.summary.finished,
+            rejected: self.summary.rejected,
+        }
+    }
+
+    /// Publishes the status snapshot and the systemd STATUS line when a count changed
+    /// (at most every 200 ms), or unconditionally when `last`.
+    pub(super) fn report(&mut self, last: bool) {
+        if !last && self.last_report.elapsed() < Duration::from_millis(200) {
+            return;
+        }
+        let snap = self.snapshot(!last);
+        let same = self.last_snapshot.as_ref().is_some_and(|s| {
+            Snapshot {
+                updated: snap.updated,
+                ..s.clone()
+            } == snap
+        });
+        if same && !last {
+            return;
+        }
+        self.last_report = Instant::now();
+        let status = format!(
+            "{} finished, {} rejected, {} developing, {} queued, {} waiting",
+            snap.finished,
+            snap.rejected,
+            snap.in_flight,
+            snap.queued,
+            snap.settling + snap.grouping
+        );
+        let _ = sd_notify::notify(&[sd_notify::NotifyState::Status(&status)]);
+        let path = self.config.folders.state.join(STATUS_FILE);
+        let json = serde_json::to_vec_pretty(&snap).expect("snapshot serialises");
+        if let Err(e) = atomic::publish(&path, &json, Overwrite::Replace) {
+            warn!(error = %e, "cannot write status snapshot");
+        }
+        self.last_snapshot = Some(snap);
+    }
+}
