@@ -5,12 +5,14 @@ use std::io::Write;
 use std::path::PathBuf;
 
 use anyhow::{Context, Result, bail};
-use image::{Rgb, RgbImage};
+use image::Rgb;
 
-use filmback::atomic::{self, Overwrite};
+use filmback::atomic::Overwrite;
 use filmback::film::{Catalogue, ColourMode, Key, Stock};
 use filmback::rendering::Look;
 use filmback::tonemap::Operator;
+
+use super::canvas::Canvas;
 
 /// Arguments of `filmback films`.
 #[derive(Debug, clap::Args)]
@@ -53,7 +55,9 @@ pub fn run(args: Args) -> Result<std::process::ExitCode> {
                 .collect::<Result<Vec<_>, _>>()?;
             plot(&stocks)
         };
-        publish_png(output, &image)?;
+        image
+            .publish_png(output, Overwrite::Replace)
+            .with_context(|| format!("writing {}", output.display()))?;
         println!("{}", output.display());
         return Ok(std::process::ExitCode::SUCCESS);
     }
@@ -120,155 +124,17 @@ pub fn run(args: Args) -> Result<std::process::ExitCode> {
     Ok(std::process::ExitCode::SUCCESS)
 }
 
-fn publish_png(path: &std::path::Path, image: &RgbImage) -> Result<()> {
-    atomic::publish_with(path, Overwrite::Replace, |w| {
-        image::codecs::png::PngEncoder::new(w)
-            .write_image(
-                image.as_raw(),
-                image.width(),
-                image.height(),
-                image::ExtendedColorType::Rgb8,
-            )
-            .map_err(|e| e.to_string())
-    })
-    .with_context(|| format!("writing {}", path.display()))
-}
-
-use image::ImageEncoder;
-
-/// 5×7 glyphs, one byte per row, bit 4 = leftmost column.
-fn glyph(c: char) -> [u8; 7] {
-    match c.to_ascii_uppercase() {
-        '0' => [0x0E, 0x11, 0x13, 0x15, 0x19, 0x11, 0x0E],
-        '1' => [0x04, 0x0C, 0x04, 0x04, 0x04, 0x04, 0x0E],
-        '2' => [0x0E, 0x11, 0x01, 0x02, 0x04, 0x08, 0x1F],
-        '3' => [0x1F, 0x02, 0x04, 0x02, 0x01, 0x11, 0x0E],
-        '4' => [0x02, 0x06, 0x0A, 0x12, 0x1F, 0x02, 0x02],
-        '5' => [0x1F, 0x10, 0x1E, 0x01, 0x01, 0x11, 0x0E],
-        '6' => [0x06, 0x08, 0x10, 0x1E, 0x11, 0x11, 0x0E],
-        '7' => [0x1F, 0x01, 0x02, 0x04, 0x08, 0x08, 0x08],
-        '8' => [0x0E, 0x11, 0x11, 0x0E, 0x11, 0x11, 0x0E],
-        '9' => [0x0E, 0x11, 0x11, 0x0F, 0x01, 0x02, 0x0C],
-        'A' => [0x0E, 0x11, 0x11, 0x11, 0x1F, 0x11, 0x11],
-        'B' => [0x1E, 0x11, 0x11, 0x1E, 0x11, 0x11, 0x1E],
-        'C' => [0x0E, 0x11, 0x10, 0x10, 0x10, 0x11, 0x0E],
-        'D' => [0x1C, 0x12, 0x11, 0x11, 0x11, 0x12, 0x1C],
-        'E' => [0x1F, 0x10, 0x10, 0x1E, 0x10, 0x10, 0x1F],
-        'F' => [0x1F, 0x10, 0x10, 0x1E, 0x10, 0x10, 0x10],
-        'G' => [0x0E, 0x11, 0x10, 0x17, 0x11, 0x11, 0x0F],
-        'H' => [0x11, 0x11, 0x11, 0x1F, 0x11, 0x11, 0x11],
-        'I' => [0x0E, 0x04, 0x04, 0x04, 0x04, 0x04, 0x0E],
-        'J' => [0x07, 0x02, 0x02, 0x02, 0x02, 0x12, 0x0C],
-        'K' => [0x11, 0x12, 0x14, 0x18, 0x14, 0x12, 0x11],
-        'L' => [0x10, 0x10, 0x10, 0x10, 0x10, 0x10, 0x1F],
-        'M' => [0x11, 0x1B, 0x15, 0x15, 0x11, 0x11, 0x11],
-        'N' => [0x11, 0x11, 0x19, 0x15, 0x13, 0x11, 0x11],
-        'O' => [0x0E, 0x11, 0x11, 0x11, 0x11, 0x11, 0x0E],
-        'P' => [0x1E, 0x11, 0x11, 0x1E, 0x10, 0x10, 0x10],
-        'Q' => [0x0E, 0x11, 0x11, 0x11, 0x15, 0x12, 0x0D],
-        'R' => [0x1E, 0x11, 0x11, 0x1E, 0x14, 0x12, 0x11],
-        'S' => [0x0F, 0x10, 0x10, 0x0E, 0x01, 0x01, 0x1E],
-        'T' => [0x1F, 0x04, 0x04, 0x04, 0x04, 0x04, 0x04],
-        'U' => [0x11, 0x11, 0x11, 0x11, 0x11, 0x11, 0x0E],
-        'V' => [0x11, 0x11, 0x11, 0x11, 0x11, 0x0A, 0x04],
-        'W' => [0x11, 0x11, 0x11, 0x15, 0x15, 0x15, 0x0A],
-        'X' => [0x11, 0x11, 0x0A, 0x04, 0x0A, 0x11, 0x11],
-        'Y' => [0x11, 0x11, 0x11, 0x0A, 0x04, 0x04, 0x04],
-        'Z' => [0x1F, 0x01, 0x02, 0x04, 0x08, 0x10, 0x1F],
-        '-' => [0x00, 0x00, 0x00, 0x1F, 0x00, 0x00, 0x00],
-        '+' => [0x00, 0x04, 0x04, 0x1F, 0x04, 0x04, 0x00],
-        '.' => [0x00, 0x00, 0x00, 0x00, 0x00, 0x0C, 0x0C],
-        ',' => [0x00, 0x00, 0x00, 0x00, 0x0C, 0x04, 0x08],
-        ':' => [0x00, 0x0C, 0x0C, 0x00, 0x0C, 0x0C, 0x00],
-        '/' => [0x00, 0x01, 0x02, 0x04, 0x08, 0x10, 0x00],
-        '(' => [0x02, 0x04, 0x08, 0x08, 0x08, 0x04, 0x02],
-        ')' => [0x08, 0x04, 0x02, 0x02, 0x02, 0x04, 0x08],
-        '=' => [0x00, 0x00, 0x1F, 0x00, 0x1F, 0x00, 0x00],
-        '@' => [0x0E, 0x11, 0x01, 0x0D, 0x15, 0x15, 0x0E],
-        '·' => [0x00, 0x00, 0x00, 0x0C, 0x0C, 0x00, 0x00],
-        _ => [0; 7],
-    }
-}
-
-/// Draws `text` with its top-left corner at (x, y), each glyph pixel `scale`×`scale`.
-pub fn draw_text(img: &mut RgbImage, x: i64, y: i64, scale: i64, colour: Rgb<u8>, text: &str) {
-    for (i, c) in text.chars().enumerate() {
-        let rows = glyph(c);
-        let gx = x + i as i64 * 6 * scale;
-        for (r, bits) in rows.iter().enumerate() {
-            for col in 0..5 {
-                if bits & (0x10 >> col) != 0 {
-                    fill(
-                        img,
-                        gx + col * scale,
-                        y + r as i64 * scale,
-                        scale,
-                        scale,
-                        colour,
-                    );
-                }
-            }
-        }
-    }
-}
-
-/// Width in pixels of `text` drawn at `scale`.
-pub fn text_width(text: &str, scale: i64) -> i64 {
-    text.chars().count() as i64 * 6 * scale - scale
-}
-
-fn fill(img: &mut RgbImage, x: i64, y: i64, w: i64, h: i64, colour: Rgb<u8>) {
-    for yy in y.max(0)..(y + h).min(img.height() as i64) {
-        for xx in x.max(0)..(x + w).min(img.width() as i64) {
-            img.put_pixel(xx as u32, yy as u32, colour);
-        }
-    }
-}
-
 /// Dash patterns (on, off) in pixels of path length, one per overlaid stock.
 const DASHES: [(f64, f64); 4] = [(1.0, 0.0), (14.0, 7.0), (3.0, 5.0), (22.0, 6.0)];
-
-/// Draws a polyline `width` pixels thick with a dash pattern.
-fn polyline(
-    img: &mut RgbImage,
-    points: &[(f64, f64)],
-    width: i64,
-    dash: (f64, f64),
-    colour: Rgb<u8>,
-) {
-    let mut travelled = 0.0;
-    for w in points.windows(2) {
-        let ((x0, y0), (x1, y1)) = (w[0], w[1]);
-        let len = ((x1 - x0).powi(2) + (y1 - y0).powi(2)).sqrt();
-        let steps = (len * 2.0).ceil().max(1.0) as usize;
-        for s in 0..steps {
-            let f = s as f64 / steps as f64;
-            let along = travelled + f * len;
-            if dash.1 > 0.0 && along % (dash.0 + dash.1) >= dash.0 {
-                continue;
-            }
-            let (x, y) = (x0 + f * (x1 - x0), y0 + f * (y1 - y0));
-            fill(
-                img,
-                x.round() as i64 - width / 2,
-                y.round() as i64 - width / 2,
-                width,
-                width,
-                colour,
-            );
-        }
-        travelled += len;
-    }
-}
 
 const LAYER_COLOURS: [Rgb<u8>; 3] = [Rgb([205, 30, 30]), Rgb([20, 140, 40]), Rgb([30, 60, 210])];
 
 /// The report's Figure 5: density against log10 H for each layer of each stock, stocks
 /// told apart by dash pattern.
-fn plot(stocks: &[&Stock]) -> RgbImage {
+fn plot(stocks: &[&Stock]) -> Canvas {
     let (w, h) = (1400i64, 900i64);
     let (left, right, top, bottom) = (110i64, 40i64, 70i64, 110 + 26 * stocks.len() as i64);
-    let mut img = RgbImage::from_pixel(
+    let mut img = Canvas::new(
         w as u32,
         h as u32 + 26 * stocks.len() as u32,
         Rgb([255, 255, 255]),
@@ -294,12 +160,11 @@ fn plot(stocks: &[&Stock]) -> RgbImage {
     let mut x = x_min;
     while x <= x_max + 1e-9 {
         let xp = px(x).round() as i64;
-        fill(&mut img, xp, top, 1, h - bottom - top, grid);
-        fill(&mut img, xp, h - bottom, 1, 8, ink);
+        img.fill(xp, top, 1, h - bottom - top, grid);
+        img.fill(xp, h - bottom, 1, 8, ink);
         let label = format!("{x:.1}");
-        draw_text(
-            &mut img,
-            xp - text_width(&label, 2) / 2,
+        img.text(
+            xp - Canvas::text_width(&label, 2) / 2,
             h - bottom + 14,
             2,
             ink,
@@ -310,12 +175,11 @@ fn plot(stocks: &[&Stock]) -> RgbImage {
     let mut d = 0.0;
     while d <= d_top + 1e-9 {
         let yp = py(d).round() as i64;
-        fill(&mut img, left, yp, w - left - right, 1, grid);
-        fill(&mut img, left - 8, yp, 8, 1, ink);
+        img.fill(left, yp, w - left - right, 1, grid);
+        img.fill(left - 8, yp, 8, 1, ink);
         let label = format!("{d:.1}");
-        draw_text(
-            &mut img,
-            left - 14 - text_width(&label, 2),
+        img.text(
+            left - 14 - Canvas::text_width(&label, 2),
             yp - 7,
             2,
             ink,
@@ -324,22 +188,20 @@ fn plot(stocks: &[&Stock]) -> RgbImage {
         d += 0.5;
     }
     // Axes.
-    fill(&mut img, left, top, 2, h - bottom - top + 1, ink);
-    fill(&mut img, left, h - bottom, w - left - right, 2, ink);
+    img.fill(left, top, 2, h - bottom - top + 1, ink);
+    img.fill(left, h - bottom, w - left - right, 2, ink);
     let x_title = "LOG10 H (LUX·S)";
-    draw_text(
-        &mut img,
-        left + (w - left - right - text_width(x_title, 2)) / 2,
+    img.text(
+        left + (w - left - right - Canvas::text_width(x_title, 2)) / 2,
         h - bottom + 44,
         2,
         ink,
         x_title,
     );
-    draw_text(&mut img, 12, top - 40, 2, ink, "DENSITY D");
+    img.text(12, top - 40, 2, ink, "DENSITY D");
     let title = "CHARACTERISTIC CURVES (RED, GREEN, BLUE LAYERS)";
-    draw_text(
-        &mut img,
-        left + (w - left - right - text_width(title, 3)) / 2,
+    img.text(
+        left + (w - left - right - Canvas::text_width(title, 3)) / 2,
         16,
         3,
         ink,
@@ -356,12 +218,11 @@ fn plot(stocks: &[&Stock]) -> RgbImage {
                     (px(x), py(curve.density(x)))
                 })
                 .collect();
-            polyline(&mut img, &points, 3, dash, *colour);
+            img.stroke(&points, 3, dash, *colour);
         }
         // Legend row under the axis title.
         let y = h - bottom + 80 + 26 * i as i64;
-        polyline(
-            &mut img,
+        img.stroke(
             &[
                 (left as f64, y as f64 + 7.0),
                 (left as f64 + 90.0, y as f64 + 7.0),
@@ -381,14 +242,14 @@ fn plot(stocks: &[&Stock]) -> RgbImage {
                 ""
             }
         );
-        draw_text(&mut img, left + 110, y, 2, ink, &label);
+        img.text(left + 110, y, 2, ink, &label);
     }
     img
 }
 
 /// The report's Figure 8 made from the synthetic scene: eight renderings of one map,
 /// each labelled, in a 4 × 2 grid.
-fn contact_sheet(catalogue: &Catalogue) -> Result<RgbImage> {
+fn contact_sheet(catalogue: &Catalogue) -> Result<Canvas> {
     let (tw, th, label_h, gap) = (480u32, 320u32, 30u32, 10u32);
     let map = filmback::synthetic::scene(tw, th, 1);
     let mut looks = Vec::new();
@@ -412,7 +273,7 @@ fn contact_sheet(catalogue: &Catalogue) -> Result<RgbImage> {
     ));
     let cols = 4u32;
     let rows = (looks.len() as u32).div_ceil(cols);
-    let mut sheet = RgbImage::from_pixel(
+    let mut sheet = Canvas::new(
         cols * (tw + gap) + gap,
         rows * (th + label_h + gap) + gap,
         Rgb([24, 24, 24]),
@@ -422,14 +283,8 @@ fn contact_sheet(catalogue: &Catalogue) -> Result<RgbImage> {
         let rgb = display.to_u8();
         let (col, row) = (i as u32 % cols, i as u32 / cols);
         let (x0, y0) = (gap + col * (tw + gap), gap + row * (th + label_h + gap));
-        for y in 0..th {
-            for x in 0..tw {
-                let p = ((y * tw + x) * 3) as usize;
-                sheet.put_pixel(x0 + x, y0 + y, Rgb([rgb[p], rgb[p + 1], rgb[p + 2]]));
-            }
-        }
-        draw_text(
-            &mut sheet,
+        sheet.paste(x0, y0, tw, th, &rgb);
+        sheet.text(
             x0 as i64 + 4,
             (y0 + th + 8) as i64,
             2,

@@ -7,6 +7,7 @@ use clap::{Parser, Subcommand};
 
 mod cache;
 mod calibrate;
+mod canvas;
 mod check_config;
 mod films;
 mod inspect;

@@ -1,6 +1,6 @@
 //! `--plot`: the report's Figure 3 per channel (one row each): the two histograms, the
-//! cumulative histograms, the intensity mapping τ, and the recovered g. Drawn by hand with
-//! the `image` crate and a 3×5 bitmap font (scaled 2×), written atomically as PNG.
+//! cumulative histograms, the intensity mapping τ, and the recovered g. Drawn on the CLI's
+//! [`Canvas`] (its 5×7 bitmap font at 1×), written atomically as PNG.
 //!
 //! [`write_response`] draws the g panel alone, per channel, for any [`InverseResponse`]
 //! (`filmback cache show --plot`); both figures share [`draw_response`] and [`publish_png`],
@@ -8,11 +8,12 @@
 
 use std::path::Path;
 
-use anyhow::Context;
-use filmback::atomic::{self, Overwrite};
+use filmback::atomic::Overwrite;
 use filmback::histogram::Histogram;
 use filmback::response::{Calibration, InverseResponse};
-use image::{Rgb, RgbImage};
+use image::Rgb;
+
+use crate::cli::canvas::Canvas;
 
 const PANEL_W: u32 = 300;
 const PANEL_H: u32 = 230;
@@ -34,103 +35,6 @@ const HEADER: u32 = 26;
 /// Whether a plot may replace an existing file: yes, like `-o` (a plot is a view of data
 /// kept elsewhere, so regenerating it in place is the normal use).
 const PLOT_OVERWRITE: Overwrite = Overwrite::Replace;
-
-/// 3×5 glyphs, five rows of three bits (top row first, leftmost bit first).
-fn glyph(c: char) -> Option<[u8; 5]> {
-    let rows = match c.to_ascii_uppercase() {
-        '0' => "111101101101111",
-        '1' => "010110010010111",
-        '2' => "111001111100111",
-        '3' => "111001111001111",
-        '4' => "101101111001001",
-        '5' => "111100111001111",
-        '6' => "111100111101111",
-        '7' => "111001001001001",
-        '8' => "111101111101111",
-        '9' => "111101111001111",
-        '.' => "000000000000010",
-        '-' => "000000111000000",
-        ':' => "000010000010000",
-        ',' => "000000000010100",
-        '(' => "010100100100010",
-        ')' => "010001001001010",
-        '/' => "001001010100100",
-        '=' => "000111000111000",
-        '#' => "101111101111101",
-        '+' => "000010111010000",
-        '_' => "000000000000111",
-        'A' => "010101111101101",
-        'B' => "110101110101110",
-        'C' => "011100100100011",
-        'D' => "110101101101110",
-        'E' => "111100110100111",
-        'F' => "111100110100100",
-        'G' => "011100101101011",
-        'H' => "101101111101101",
-        'I' => "111010010010111",
-        'J' => "001001001101010",
-        'K' => "101101110101101",
-        'L' => "100100100100111",
-        'M' => "101111111101101",
-        'N' => "110101101101101",
-        'O' => "010101101101010",
-        'P' => "110101110100100",
-        'Q' => "010101101110011",
-        'R' => "110101110101101",
-        'S' => "011100010001110",
-        'T' => "111010010010010",
-        'U' => "101101101101111",
-        'V' => "101101101101010",
-        'W' => "101101111111101",
-        'X' => "101101010101101",
-        'Y' => "101101010010010",
-        'Z' => "111001010100111",
-        _ => return None,
-    };
-    let b = rows.as_bytes();
-    let mut out = [0u8; 5];
-    for (r, row) in out.iter_mut().enumerate() {
-        *row = (0..3).fold(0, |acc, k| (acc << 1) | u8::from(b[r * 3 + k] == b'1'));
-    }
-    Some(out)
-}
-
-struct Canvas {
-    image: RgbImage,
-}
-
-impl Canvas {
-    fn put(&mut self, x: i64, y: i64, colour: Rgb<u8>) {
-        if x >= 0 && y >= 0 && (x as u32) < self.image.width() && (y as u32) < self.image.height() {
-            self.image.put_pixel(x as u32, y as u32, colour);
-        }
-    }
-
-    fn line(&mut self, (x0, y0): (f64, f64), (x1, y1): (f64, f64), colour: Rgb<u8>) {
-        let steps = (x1 - x0).abs().max((y1 - y0).abs()).ceil().max(1.0) as i64;
-        for i in 0..=steps {
-            let t = i as f64 / steps as f64;
-            let (x, y) = (x0 + t * (x1 - x0), y0 + t * (y1 - y0));
-            self.put(x.round() as i64, y.round() as i64, colour);
-        }
-    }
-
-    /// Text at 2× scale, top-left at `(x, y)`.
-    fn text(&mut self, x: i64, y: i64, s: &str, colour: Rgb<u8>) {
-        for (i, c) in s.chars().enumerate() {
-            let Some(rows) = glyph(c) else { continue };
-            for (r, bits) in rows.iter().enumerate() {
-                for k in 0..3 {
-                    if bits & (4 >> k) != 0 {
-                        for (dx, dy) in [(0, 0), (1, 0), (0, 1), (1, 1)] {
-                            self.put(x + i as i64 * 8 + k * 2 + dx, y + r as i64 * 2 + dy, colour);
-                        }
-                    }
-                }
-            }
-        }
-    }
-}
 
 /// One panel's plotting area: maps `[0,1]²` to pixels.
 struct Panel {
@@ -168,16 +72,12 @@ impl Panel {
         canvas.line(self.at(0.0, 0.0), self.at(0.0, 1.0), INK);
         for (t, label) in [(0.0, "0"), (0.5, "0.5"), (1.0, "1")] {
             let (x, y) = self.at(t, 0.0);
-            canvas.text(x as i64 - 4 * label.len() as i64, y as i64 + 5, label, INK);
+            let w = Canvas::text_width(label, 1);
+            canvas.text(x as i64 - w / 2, y as i64 + 5, 1, INK, label);
             let (x, y) = self.at(0.0, t);
-            canvas.text(
-                x as i64 - 8 * label.len() as i64 - 4,
-                y as i64 - 5,
-                label,
-                INK,
-            );
+            canvas.text(x as i64 - w - 4, y as i64 - 3, 1, INK, label);
         }
-        canvas.text(self.x0 as i64, self.y0 as i64 - 18, title, INK);
+        canvas.text(self.x0 as i64, self.y0 as i64 - 18, 1, INK, title);
     }
 
     fn polyline(&self, canvas: &mut Canvas, points: &[(f64, f64)], colour: Rgb<u8>) {
@@ -202,9 +102,8 @@ fn draw_response(
     if let Some((lo, hi)) = covered {
         let (xa, _) = p.at(lo, 0.0);
         let (xb, _) = p.at(hi, 0.0);
-        for x in xa as i64..=xb as i64 {
-            canvas.line((x as f64, p.y0), (x as f64, p.y0 + p.h - 1.0), COVERED);
-        }
+        let (x, y) = (xa as i64, p.y0 as i64);
+        canvas.fill(x, y, xb as i64 - x + 1, p.h as i64, COVERED);
     }
     p.frame(canvas, title);
     let pts: Vec<(f64, f64)> = (0..=400)
@@ -216,15 +115,12 @@ fn draw_response(
     p.polyline(canvas, &pts, colour);
 }
 
-/// Encodes `image` as PNG and publishes it atomically at `path` (replacing a file there).
-fn publish_png(path: &Path, image: &RgbImage) -> anyhow::Result<()> {
-    let mut bytes = std::io::Cursor::new(Vec::new());
-    image
-        .write_to(&mut bytes, image::ImageFormat::Png)
-        .with_context(|| format!("{}: encoding the plot", path.display()))?;
-    // The error's own text already carries the OS reason; as a message it is printed once
-    // (as a source it would be repeated by `{:#}`).
-    atomic::publish(path, &bytes.into_inner(), PLOT_OVERWRITE)
+/// Publishes `canvas` as PNG atomically at `path` (replacing a file there).
+fn publish_png(path: &Path, canvas: &Canvas) -> anyhow::Result<()> {
+    // The error's own text already carries the path and the OS reason; as a message it is
+    // printed once (as a source it would be repeated by `{:#}`).
+    canvas
+        .publish_png(path, PLOT_OVERWRITE)
         .map_err(|e| anyhow::anyhow!("writing the plot: {e}"))
 }
 
@@ -236,9 +132,7 @@ pub fn write(
     cal: &Calibration,
 ) -> anyhow::Result<()> {
     let rows = cal.channels.len() as u32;
-    let mut canvas = Canvas {
-        image: RgbImage::from_pixel(4 * PANEL_W, rows * PANEL_H, Rgb([255, 255, 255])),
-    };
+    let mut canvas = Canvas::new(4 * PANEL_W, rows * PANEL_H, Rgb([255, 255, 255]));
     for (c, ch) in cal.channels.iter().enumerate() {
         let panel = |i: u32| Panel::cell(i, c as u32, 0);
         let (ca, cb) = (dark.cumulative(c), bright.cumulative(c));
@@ -246,8 +140,8 @@ pub fn write(
         //    without flattening the rest.
         let p = panel(0);
         p.frame(&mut canvas, &format!("{} HISTOGRAMS", ch.name));
-        canvas.text(p.x0 as i64 + 150, p.y0 as i64 + 4, "DARK", DARK);
-        canvas.text(p.x0 as i64 + 150, p.y0 as i64 + 16, "BRIGHT", BRIGHT);
+        canvas.text(p.x0 as i64 + 150, p.y0 as i64 + 4, 1, DARK, "DARK");
+        canvas.text(p.x0 as i64 + 150, p.y0 as i64 + 16, 1, BRIGHT, "BRIGHT");
         let mut all: Vec<u64> = ca.counts().iter().chain(cb.counts()).copied().collect();
         all.sort_unstable();
         let top = all[(all.len() - 1) * 99 / 100].max(1) as f64;
@@ -279,9 +173,7 @@ pub fn write(
         p.polyline(&mut canvas, &[(0.0, 0.0), (1.0, 1.0)], GRID);
         for pair in &ch.pairs {
             let (x, y) = p.at(pair.dark, pair.bright);
-            for (dx, dy) in [(0, 0), (1, 0), (0, 1), (1, 1)] {
-                canvas.put(x as i64 + dx, y as i64 + dy, INK);
-            }
+            canvas.fill(x as i64, y as i64, 2, 2, INK);
         }
         // 4. g, with the covered tone range shaded (outside it: extrapolated).
         let title = match ch.borrowed_from {
@@ -299,7 +191,7 @@ pub fn write(
             covered,
         );
     }
-    publish_png(path, &canvas.image)
+    publish_png(path, &canvas)
 }
 
 /// Draws `response` as g panels, one per channel side by side (R, G and B curves in their
@@ -314,12 +206,10 @@ pub fn write_response(path: &Path, response: &InverseResponse, title: &str) -> a
     } else {
         &["R", "G", "B"]
     };
-    let title_w = LEFT + 8 * title.chars().count() as u32 + RIGHT;
+    let title_w = LEFT + Canvas::text_width(title, 1).max(0) as u32 + RIGHT;
     let width = (channels as u32 * PANEL_W).max(title_w);
-    let mut canvas = Canvas {
-        image: RgbImage::from_pixel(width, HEADER + PANEL_H, Rgb([255, 255, 255])),
-    };
-    canvas.text(i64::from(LEFT), 8, title, INK);
+    let mut canvas = Canvas::new(width, HEADER + PANEL_H, Rgb([255, 255, 255]));
+    canvas.text(i64::from(LEFT), 8, 1, INK, title);
     for c in 0..channels {
         let colour = if channels == 1 { GREY } else { CHANNEL[c % 3] };
         let name = names.get(c).copied().unwrap_or("?");
@@ -333,5 +223,5 @@ pub fn write_response(path: &Path, response: &InverseResponse, title: &str) -> a
             None,
         );
     }
-    publish_png(path, &canvas.image)
+    publish_png(path, &canvas)
 }
