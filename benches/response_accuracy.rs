@@ -3,14 +3,16 @@
 //!
 //! `cargo bench --bench response_accuracy [-- --quick] [--ratio R] [--encoding lossless|jpeg|16]
 //! [--scene KIND[,KIND]] [--curves all|tune|report] [--every N] [--size WxH] [--curve NAME]
-//! [--per-curve]`
+//! [--frames N] [--per-curve]`
 //!
 //! `--quick` takes every tenth DoRF curve (`--every N`: every N-th); `--ratio` and
 //! `--encoding` restrict the sweep to one ratio or one encoding; `--scene` to some scene
 //! kinds (`procedural`, `studio`, `studio-falloff`, `flat-patches`; default all);
 //! `--curves tune` keeps the DoRF records whose index is a multiple of 4 and `report` the
 //! others (index ≡ 2 mod 4), the split between curves a change is tuned on and curves its
-//! accuracy is reported on; `--size` renders smaller scenes for quick runs.
+//! accuracy is reported on; `--size` renders smaller scenes for quick runs. `--frames N`
+//! (N ≥ 3) renders a bracket of N frames `γ` apart (exposures `γ^(k − (N−1)/2)`), fits it
+//! jointly (`calibrate_bracket`) and compares with each adjacent pair fitted alone.
 //!
 //! Each scene kind (`filmback::synthetic::SceneKind`, default 1024×768) is exposed at `1/√γ` and `√γ` through a
 //! known curve `f` (gamma 2.2, sRGB, film S, strong toe, and the DoRF curves of
@@ -35,7 +37,9 @@ use filmback::histogram::Histogram;
 use filmback::merge::{self, BracketFrame, MergeOptions};
 use filmback::metadata::{Camera, CaptureTime, Exposure};
 use filmback::radiance::RadianceMap;
-use filmback::response::{Degree, InverseResponse, Ratio, RatioSource, calibrate};
+use filmback::response::{
+    Calibration, Degree, InverseResponse, Ratio, RatioSource, calibrate, calibrate_bracket,
+};
 use filmback::synthetic::{
     self, Encoding as FileEncoding, ResponseCurve as Curve, SceneKind, Sensor, Shot, measure,
 };
@@ -185,6 +189,10 @@ struct Outcome {
     merge_true: f64,
     /// Merged radiance error with the fitted response minus `merge_true`, fraction.
     gap: f64,
+    /// N-frame brackets: the adjacent pairs fitted alone, (largest |scale error|, lowest
+    /// channel confidence) of the pair with the smallest scale error, and of the middle pair.
+    best_pair: Option<(f64, f64)>,
+    middle_pair: Option<(f64, f64)>,
     confidence: f64,
     /// Effective number of parameters, median over channels.
     parameters: f64,
@@ -245,6 +253,10 @@ fn main() {
             .collect(),
         None => SceneKind::ALL.to_vec(),
     };
+    let frame_count: usize = arg("--frames")
+        .map(|n| n.parse().expect("--frames takes a whole number"))
+        .unwrap_or(2)
+        .max(2);
     let (width, height) = match arg("--size") {
         Some(size) => {
             let (w, h) = size.split_once('x').expect("--size takes WxH");
@@ -291,18 +303,62 @@ fn main() {
                         .position(|r| *r == ratio)
                         .unwrap_or(RATIOS.len());
                     let seed = (si * 100_000 + ci * 100 + ri) as u64;
-                    let (dark, dark_file) =
-                        expose(&radiance, ratio.sqrt().recip(), curve, enc, seed);
-                    let (bright, bright_file) =
-                        expose(&radiance, ratio.sqrt(), curve, enc, seed + 50);
-                    let result = calibrate(
-                        &Histogram::of_frame(&dark, 1),
-                        &Histogram::of_frame(&bright, 1),
-                        Ratio::Known(ratio, RatioSource::Argument),
-                        Degree::Auto,
-                    );
-                    let exposures = (ratio.sqrt().recip(), ratio.sqrt());
-                    let frames = [(&dark, exposures.0), (&bright, exposures.1)];
+                    let exposures: Vec<f64> = (0..frame_count)
+                        .map(|k| ratio.powf(k as f64 - (frame_count - 1) as f64 / 2.0))
+                        .collect();
+                    let rendered: Vec<(Frame, Option<Vec<u8>>)> = exposures
+                        .iter()
+                        .enumerate()
+                        .map(|(k, &e)| expose(&radiance, e, curve, enc, seed + 50 * k as u64))
+                        .collect();
+                    let histograms: Vec<Histogram> = rendered
+                        .iter()
+                        .map(|(f, _)| Histogram::of_frame(f, 1))
+                        .collect();
+                    let pair_fit = |i: usize| {
+                        calibrate(
+                            &histograms[i],
+                            &histograms[i + 1],
+                            Ratio::Known(ratio, RatioSource::Argument),
+                            Degree::Auto,
+                        )
+                    };
+                    let result = if frame_count > 2 {
+                        let frames: Vec<(&Histogram, f64)> =
+                            histograms.iter().zip(exposures.iter().copied()).collect();
+                        calibrate_bracket(&frames, RatioSource::Argument, Degree::Auto)
+                    } else {
+                        pair_fit(0)
+                    };
+                    let summary = |cal: &Calibration| -> (f64, f64) {
+                        (
+                            measure::scale_errors(&cal.response, curve)
+                                .into_iter()
+                                .fold(0.0, |a: f64, s| a.max(s.abs())),
+                            cal.channels
+                                .iter()
+                                .map(|c| c.fit.confidence)
+                                .fold(1.0, f64::min),
+                        )
+                    };
+                    let pairs: Vec<Option<(f64, f64)>> = if frame_count > 2 {
+                        (0..frame_count - 1)
+                            .map(|i| pair_fit(i).ok().map(|c| summary(&c)))
+                            .collect()
+                    } else {
+                        Vec::new()
+                    };
+                    let best_pair = pairs
+                        .iter()
+                        .flatten()
+                        .copied()
+                        .min_by(|a, b| a.0.total_cmp(&b.0));
+                    let middle_pair = pairs.get(frame_count / 2 - 1).copied().flatten();
+                    let frames: Vec<(&Frame, f64)> = rendered
+                        .iter()
+                        .map(|r| &r.0)
+                        .zip(exposures.iter().copied())
+                        .collect();
                     let merge_true = merged_error(&radiance, &frames, &g_true).unwrap_or(f64::NAN);
                     let mut outcome = Outcome {
                         curve: name.clone(),
@@ -314,6 +370,8 @@ fn main() {
                         scale: f64::NAN,
                         merge_true,
                         gap: f64::NAN,
+                        best_pair,
+                        middle_pair,
                         confidence: 0.0,
                         parameters: f64::NAN,
                         failed: None,
@@ -372,7 +430,7 @@ fn main() {
                         }
                         Err(e) => outcome.failed = Some(e.to_string()),
                     }
-                    if py.is_some() && enc != Encoding::Sixteen {
+                    if py.is_some() && enc != Encoding::Sixteen && frame_count == 2 {
                         let ext = if enc == Encoding::Jpeg95 {
                             "jpg"
                         } else {
@@ -384,8 +442,8 @@ fn main() {
                             stem.with_extension(format!("d.{ext}")),
                             stem.with_extension(format!("b.{ext}")),
                         );
-                        std::fs::write(&d, dark_file.unwrap()).unwrap();
-                        std::fs::write(&b, bright_file.unwrap()).unwrap();
+                        std::fs::write(&d, rendered[0].1.as_ref().unwrap()).unwrap();
+                        std::fs::write(&b, rendered[1].1.as_ref().unwrap()).unwrap();
                         outcome.peer_index = Some(peer_cases.len());
                         peer_cases.push(serde_json::json!({"dark": d, "bright": b, "t_dark": 1.0, "t_bright": ratio}));
                     }
@@ -515,6 +573,66 @@ fn main() {
                     100.0 * quantile(&mut gap, 0.9),
                     quantile(&mut parameters, 0.5),
                 );
+            }
+        }
+    }
+    if frame_count > 2 {
+        println!();
+        println!(
+            "## {frame_count}-frame brackets ({ratio_list} apart): the joint fit against adjacent pairs fitted alone",
+            ratio_list = ratios
+                .iter()
+                .map(|r| r.to_string())
+                .collect::<Vec<_>>()
+                .join(", ")
+        );
+        println!();
+        println!(
+            "Scale = largest |scale error| over channels (stops); confidence = lowest over channels. 'best pair' = the adjacent pair with the smallest scale error (an oracle choice); 'middle pair' = the pair a two-frame darkroom would use."
+        );
+        println!();
+        println!(
+            "| encoding | scene | ratio | n | joint scale median | joint scale p90 | joint confidence median | joint low conf. | best pair scale median | best pair scale p90 | best pair confidence median | middle pair scale median | middle pair confidence median | middle pair low conf. |"
+        );
+        println!("|---|---|---|---|---|---|---|---|---|---|---|---|---|---|");
+        for &enc in &encodings {
+            for &kind in &scenes {
+                for &ratio in &ratios {
+                    let ok: Vec<&Outcome> = outcomes
+                        .iter()
+                        .filter(|o| {
+                            o.enc == enc
+                                && o.scene == kind
+                                && o.ratio == ratio
+                                && o.failed.is_none()
+                                && (!use_dorf || o.curve.starts_with("dorf-"))
+                        })
+                        .collect();
+                    let mut scale: Vec<f64> = ok.iter().map(|o| o.scale).collect();
+                    let mut confidence: Vec<f64> = ok.iter().map(|o| o.confidence).collect();
+                    let best: Vec<(f64, f64)> = ok.iter().filter_map(|o| o.best_pair).collect();
+                    let middle: Vec<(f64, f64)> = ok.iter().filter_map(|o| o.middle_pair).collect();
+                    let mut best_scale: Vec<f64> = best.iter().map(|b| b.0).collect();
+                    let mut best_conf: Vec<f64> = best.iter().map(|b| b.1).collect();
+                    let mut middle_scale: Vec<f64> = middle.iter().map(|b| b.0).collect();
+                    let mut middle_conf: Vec<f64> = middle.iter().map(|b| b.1).collect();
+                    println!(
+                        "| {} | {} | {ratio} | {} | {:.4} | {:.4} | {:.2} | {} | {:.4} | {:.4} | {:.2} | {:.4} | {:.2} | {} |",
+                        enc.name(),
+                        kind.name(),
+                        ok.len(),
+                        quantile(&mut scale, 0.5),
+                        quantile(&mut scale, 0.9),
+                        quantile(&mut confidence, 0.5),
+                        ok.iter().filter(|o| o.confidence < 0.5).count(),
+                        quantile(&mut best_scale, 0.5),
+                        quantile(&mut best_scale, 0.9),
+                        quantile(&mut best_conf, 0.5),
+                        quantile(&mut middle_scale, 0.5),
+                        quantile(&mut middle_conf, 0.5),
+                        middle.iter().filter(|m| m.1 < 0.5).count(),
+                    );
+                }
             }
         }
     }

@@ -220,9 +220,11 @@ const PATCH_AREA: f64 = 0.03;
 
 /// Flat patches on a smooth background: `width × height` RGB radiance.
 ///
-/// The background is a smooth field over about 8 stops,
-/// `E_c = MID_GREY·2^(−1.5 + 3.5·s(u, v) + 0.4·t_c(u, v))` with `s, t_c` sums of two
-/// seeded sinusoids each in `[−1, 1]` (a slow per-channel tint). Four squares of 3 % of
+/// The background is a smooth field over about 7 stops,
+/// `E_c = MID_GREY·2^(−1.5 + 3.5·s(u, v) + 0.4·t_c(u, v))`: `s = (sin(2πu + φ₀) +
+/// sin(2πv + φ₁))/2` runs one whole period across the width and the height, so it spans
+/// `[−1, 1]` in every frame whatever the seeded phases; `t_c`, a sum of two slower seeded
+/// sinusoids in `[−1, 1]`, is a per-channel tint. Four squares of 3 % of
 /// the frame each are uniform in **one** channel — R, G, B and R again — at a seeded level
 /// from 2 stops below to 1 stop above mid-grey; their other channels keep the background.
 /// Each channel's histogram thus holds one or two narrow peaks of about 3 % of the pixels.
@@ -240,8 +242,8 @@ pub fn flat_patches(width: u32, height: u32, seed: u64) -> RadianceMap {
         .map(|k| MID_GREY * (-2.0 + 3.0 * unit(0x70 + k)).exp2())
         .collect();
     render(width, height, |u, v| {
-        let s = 0.5 * (2.3 * u + 0.7 * v + phases[0]).sin()
-            + 0.5 * (1.1 * u - 2.9 * v + phases[1]).sin();
+        let tau = std::f64::consts::TAU;
+        let s = 0.5 * (tau * u + phases[0]).sin() + 0.5 * (tau * v + phases[1]).sin();
         let mut rgb = [0usize, 1, 2].map(|c| {
             let t = 0.5 * (1.7 * u + phases[2 + 2 * c]).sin()
                 + 0.5 * (2.1 * v + phases[3 + 2 * c]).sin();
@@ -372,5 +374,11 @@ mod tests {
                 (a.min(s), b.max(s))
             });
         assert!(hi - lo > 6.0 && hi - lo < 10.0, "{lo}..{hi}");
+        // Every seed spans the range: a frame exposed at 1 reaches 2 stops over mid-grey.
+        for seed in 0..8 {
+            let map = flat_patches(64, 48, seed);
+            let top = map.pixels().iter().fold(0.0f32, |a, &b| a.max(b));
+            assert!(f64::from(top) > 3.5 * MID_GREY, "seed {seed}: {top}");
+        }
     }
 }
