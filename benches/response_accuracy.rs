@@ -3,14 +3,15 @@
 //!
 //! `cargo bench --bench response_accuracy [-- --quick] [--ratio R] [--encoding lossless|jpeg|16]
 //! [--scene KIND[,KIND]] [--curves all|tune|report] [--every N] [--size WxH] [--curve NAME]
-//! [--frames N] [--per-curve]`
+//! [--frames N] [--seed N] [--per-curve]`
 //!
 //! `--quick` takes every tenth DoRF curve (`--every N`: every N-th); `--ratio` and
 //! `--encoding` restrict the sweep to one ratio or one encoding; `--scene` to some scene
 //! kinds (`procedural`, `studio`, `studio-falloff`, `flat-patches`; default all);
 //! `--curves tune` keeps the DoRF records whose index is a multiple of 4 and `report` the
 //! others (index ≡ 2 mod 4), the split between curves a change is tuned on and curves its
-//! accuracy is reported on; `--size` renders smaller scenes for quick runs. `--frames N`
+//! accuracy is reported on; `--seed` renders another realisation of each scene kind
+//! (default 7; colours, positions, textures); `--size` renders smaller scenes for quick runs. `--frames N`
 //! (N ≥ 3) renders a bracket of N frames `γ` apart (exposures `γ^(k − (N−1)/2)`), fits it
 //! jointly (`calibrate_bracket`) and compares with each adjacent pair fitted alone.
 //!
@@ -253,6 +254,9 @@ fn main() {
             .collect(),
         None => SceneKind::ALL.to_vec(),
     };
+    let scene_seed: u64 = arg("--seed")
+        .map(|n| n.parse().expect("--seed takes a whole number"))
+        .unwrap_or(7);
     let frame_count: usize = arg("--frames")
         .map(|n| n.parse().expect("--frames takes a whole number"))
         .unwrap_or(2)
@@ -293,7 +297,7 @@ fn main() {
     let mut peer_cases = Vec::new();
     let started = std::time::Instant::now();
     for (si, &kind) in scenes.iter().enumerate() {
-        let radiance = kind.render(width, height, 7);
+        let radiance = kind.render(width, height, scene_seed);
         for (ci, (name, curve)) in curves.iter().enumerate() {
             let g_true = measure::true_response(curve, 4096);
             for &enc in &encodings {
