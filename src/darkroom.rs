@@ -8,8 +8,9 @@
 //! # Which response
 //!
 //! [`ResponsePolicy::Fit`] calibrates from the bracket itself: with more than two
-//! distinct exposures from every frame jointly ([`response::calibrate_bracket`]: every
-//! pair's tone pairs, one curve per channel), with two from that pair; about three million
+//! distinct exposures from every frame jointly ([`response::calibrate_bracket`]: the tone
+//! pairs of every two frames adjacent in exposure, one curve per channel), with two from
+//! that pair; about three million
 //! pixels a frame (stride `⌊√(pixels/3·10⁶)⌋`), degree chosen by the data. The fit's
 //! confidence is the smallest of its channels' (a channel that borrowed another's curve
 //! has confidence 0, so a bracket with one saturated channel never counts as good). When
@@ -736,6 +737,41 @@ mod tests {
         assert_eq!(chosen.source, Source::Fitted);
         assert!((chosen.report["ratio"].as_f64().unwrap() - 4.0).abs() < 1e-9);
         assert!(chosen.summary.contains("f2.png"), "{}", chosen.summary);
+    }
+
+    /// Three distinct exposures are calibrated jointly from all frames, and the
+    /// contradiction check weighs each tone pair at its own ratio: frames through a film
+    /// S curve still contradict sRGB.
+    #[test]
+    fn three_exposures_are_fitted_from_every_frame() {
+        let truth = scene(240, 160, 5);
+        let sensor = Sensor::noiseless(ResponseCurve::FilmS, BitDepth::Eight);
+        let exposures = [0.25, 1.0, 4.0];
+        let frames: Vec<LoadedFrame> = exposures
+            .iter()
+            .enumerate()
+            .map(|(i, &e)| loaded(&format!("f{i}.png"), expose(&truth, e, &sensor)))
+            .collect();
+        let bracket = bracket(&frames, &exposures);
+        let policy = ResponsePolicy::Fit {
+            fallback: Some(GivenResponse::standard(3)),
+            min_confidence: 1.01,
+        };
+        let chosen =
+            choose_response(&bracket, RatioSource::Argument, policy, &mut Stages::new()).unwrap();
+        assert_eq!(chosen.source, Source::Fitted, "{:?}", chosen.notes);
+        assert!(
+            chosen.summary.contains("all 3 frames"),
+            "{}",
+            chosen.summary
+        );
+        assert_eq!(chosen.report["frames"].as_array().unwrap().len(), 3);
+        assert!((chosen.report["ratio"].as_f64().unwrap() - 16.0).abs() < 1e-9);
+        assert!(
+            chosen.notes[0].contains("contradicts"),
+            "{:?}",
+            chosen.notes
+        );
     }
 
     /// A weak fit below `min_confidence` gives way to the fallback, and says so; the fit

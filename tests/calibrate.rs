@@ -300,7 +300,7 @@ fn two_frames_through_the_bracket_calibration_are_the_pair_calibration() {
 }
 
 #[test]
-fn five_frame_bracket_fits_jointly_and_is_surer_than_its_middle_pair() {
+fn five_frame_bracket_fits_its_adjacent_pairs_jointly_and_is_surer_than_the_middle_one() {
     let scene = scene();
     for curve in [ResponseCurve::Srgb, ResponseCurve::FilmS] {
         let s = sensor(curve.clone(), BitDepth::Eight);
@@ -313,17 +313,10 @@ fn five_frame_bracket_fits_jointly_and_is_surer_than_its_middle_pair() {
         let joint = calibrate_bracket(&input, RatioSource::Exif, Degree::Auto).unwrap();
         assert_sane(&joint);
         assert!((joint.ratio - 256.0).abs() < 1e-9, "{}", joint.ratio);
-        // Pairs one and two steps apart feed every channel (wider ones where the frames
-        // still share tones), and every ratio is a whole number of steps.
+        // The four adjacent pairs feed every channel, each at its own ratio of one step.
         for ch in &joint.channels {
-            let steps: Vec<f64> = ch.log_ratios.iter().map(|r| r / 4f64.ln()).collect();
-            assert!(
-                steps
-                    .iter()
-                    .all(|k| (k - k.round()).abs() < 1e-9 && *k >= 1.0)
-            );
-            assert!(steps.iter().any(|k| k.round() == 1.0));
-            assert!(steps.iter().any(|k| k.round() == 2.0), "{}", ch.name);
+            assert!(ch.log_ratios.iter().all(|r| (r - 4f64.ln()).abs() < 1e-9));
+            assert!(ch.pairs.len() > 4 * 100, "{}: {}", ch.name, ch.pairs.len());
         }
         let (own, shape) = stops_error(&joint, &curve);
         assert!(

@@ -544,12 +544,14 @@ pub fn fit(pairs: &[TonePair], log_ratio: f64, degree: Degree) -> Result<Channel
 /// Fits one `ln g` to the tone pairs of several frame pairs of one bracket of `frames`
 /// frames at once, each set with its own `ln γ > 0`: every equation
 /// `u(ln τ) − u(ln b) = ln γ_pair` constrains the same curve, so the frames' tonal
-/// ranges add up and the chain ambiguity of one ratio is broken by the others.
+/// ranges add up. Ratios that are not whole multiples of one another also break the
+/// chain ambiguity of each; an exposure bracket's (powers of one step) keep the ripples
+/// of period `ln γ_step`, which the smoothness floor holds down.
 ///
-/// The sets rest on only `frames` histograms: the `k` sets of all pairs of `N` frames
-/// carry about the information of the `N − 1` independent (adjacent) pairs, so the
-/// covariance behind the predicted error is scaled by `k/(N − 1)` (1 for one pair). The
-/// smoothness floor follows the smallest ratio, whose ripples are the shortest.
+/// The sets rest on only `frames` histograms: `k` sets from `N` frames carry at most the
+/// information of `N − 1` independent (adjacent) pairs, so the covariance behind the
+/// predicted error is scaled by `k/(N − 1)` when `k` is larger (1 for adjacent pairs).
+/// The smoothness floor follows the smallest ratio, whose ripples are the shortest.
 pub fn fit_joint(
     sets: &[(&[TonePair], f64)],
     frames: usize,

@@ -393,11 +393,15 @@ const SAME_EXPOSURE: f64 = 1.01;
 
 /// Recovers one inverse response per channel from **every** frame of a bracket at once:
 /// `frames` are the histograms with their relative exposures `e = t·S/N²` (any order,
-/// all known). Every pair of frames `i, j` with `e_j > 1.01·e_i` gives its tone pairs
-/// `g(τ_ij(b)) = (e_j/e_i)·g(b)`, and all of them are fitted as one curve per channel
-/// ([`fit::fit_joint`]): the frames' tonal ranges add up, a tone seen in several pairs is
-/// constrained several times, and the chain ambiguity of one ratio is broken by the
-/// others. Two frames give exactly [`calibrate`] at the known ratio.
+/// all known). Every two frames adjacent in exposure (`e_j > 1.01·e_i`, no distinct
+/// exposure between them) give their tone pairs `g(τ_ij(b)) = (e_j/e_i)·g(b)`, and all of
+/// them are fitted as one curve per channel ([`fit::fit_joint`]): the frames' tonal
+/// ranges add up and a tone seen in several pairs is constrained several times. Wider
+/// pairs are left out: their mapping is the composition of the adjacent ones
+/// (`τ_02 = τ_12 ∘ τ_01`), so they repeat the same histograms' evidence through fewer
+/// shared tones, with the codec's errors magnified by the larger ratio (on the 3-frame
+/// JPEG demo bracket, ±2 EV, they took the green channel's confidence from 0.80 to 0.39).
+/// Two frames give exactly [`calibrate`] at the known ratio.
 ///
 /// The result's `ratio` is the bracket's span, brightest over darkest exposure; each
 /// channel's [`ChannelCalibration::log_ratios`] gives the ratio of each tone pair. A
@@ -433,6 +437,12 @@ pub fn calibrate_bracket(
         .enumerate()
         .flat_map(|(k, &i)| order[k + 1..].iter().map(move |&j| (i, j)))
         .filter(|&(i, j)| frames[j].1 > SAME_EXPOSURE * frames[i].1)
+        .filter(|&(i, j)| {
+            // Adjacent distinct exposures only: no frame strictly between them.
+            !frames
+                .iter()
+                .any(|(_, e)| *e > SAME_EXPOSURE * frames[i].1 && *e * SAME_EXPOSURE < frames[j].1)
+        })
         .collect();
     let (darkest, brightest) = (frames[order[0]].1, frames[order[order.len() - 1]].1);
     if pairs_of_frames.is_empty() {
