@@ -7,6 +7,10 @@
 //! 8-bit with 1 DN read noise, ratio 4, JPEG q95 (decoded once; decode time is not part
 //! of either side's figure). Times are the median of 5 runs; error as in
 //! `response_accuracy` (stops over codes 16..239; shape = after the best scale).
+//!
+//! Then a 5-frame bracket (sRGB, exposures 1/4 … 4, one stop apart, 8-bit with 1 DN
+//! read noise, not JPEG-encoded): histograms at the balanced stride and the joint fit of
+//! all ten pairs (`calibrate_bracket`), as the darkroom runs it.
 
 use std::path::Path;
 use std::process::Command;
@@ -15,7 +19,7 @@ use std::time::Instant;
 use filmback::frame::{self, BitDepth, Frame, Limits};
 use filmback::histogram::Histogram;
 use filmback::metadata::{Camera, CaptureTime, Exposure};
-use filmback::response::{Degree, Preset, Ratio, RatioSource, calibrate};
+use filmback::response::{Degree, Preset, Ratio, RatioSource, calibrate, calibrate_bracket};
 use filmback::synthetic::{self, Encoding, ResponseCurve, Sensor, Shot};
 
 fn median_ms(mut f: impl FnMut()) -> f64 {
@@ -188,6 +192,52 @@ fn main() {
             None => println!("(OpenCV peer unavailable: skipped)"),
         }
     }
+    let sensor = Sensor {
+        curve: ResponseCurve::Srgb,
+        bit_depth: BitDepth::Eight,
+        read_noise_dn: 1.0,
+        full_well_electrons: None,
+        seed: 11,
+    };
+    let exposures = [0.25, 0.5, 1.0, 2.0, 4.0];
+    let frames: Vec<Frame> = exposures
+        .iter()
+        .map(|&e| synthetic::expose(&scene, e, &sensor))
+        .collect();
+    let stride = Preset::Balanced.stride();
+    let mut hists = Vec::new();
+    let hist_ms = median_ms(|| {
+        hists = frames
+            .iter()
+            .map(|f| Histogram::of_frame(f, stride))
+            .collect();
+    });
+    let mut result = None;
+    let fit_ms = median_ms(|| {
+        let input: Vec<(&Histogram, f64)> = hists.iter().zip(exposures).collect();
+        result = Some(calibrate_bracket(
+            &input,
+            RatioSource::Argument,
+            Preset::Balanced.degree(),
+        ));
+    });
+    let cal = result.unwrap().unwrap();
+    let (own, shape) = errors(&ResponseCurve::Srgb, |c, k| {
+        cal.response.eval(c, k as f64 / 255.0)
+    });
+    println!("\n## {w}×{h} 5-frame bracket (sRGB, one stop apart), balanced preset\n");
+    println!(
+        "| histograms (ms) | joint fit (ms) | total (ms) | own error | shape error | min confidence |"
+    );
+    println!("|---|---|---|---|---|---|");
+    println!(
+        "| {hist_ms:.1} | {fit_ms:.1} | {:.1} | {own:.4} | {shape:.4} | {:.2} |",
+        hist_ms + fit_ms,
+        cal.channels
+            .iter()
+            .map(|c| c.fit.confidence)
+            .fold(1.0, f64::min)
+    );
     println!(
         "\nPresets: {}",
         [Preset::Fast, Preset::Balanced, Preset::Accurate]

@@ -7,10 +7,11 @@
 //!
 //! # Which response
 //!
-//! [`ResponsePolicy::Fit`] calibrates from the bracket itself: the two adjacent frames of
-//! distinct exposure nearest the middle of the exposure order (their histograms share the
-//! most tones), about three million pixels each (stride `⌊√(pixels/3·10⁶)⌋`), degree
-//! chosen by the data. The fit's
+//! [`ResponsePolicy::Fit`] calibrates from the bracket itself: with more than two
+//! distinct exposures from every frame jointly ([`response::calibrate_bracket`]: the tone
+//! pairs of every two frames adjacent in exposure, one curve per channel), with two from
+//! that pair; about three million
+//! pixels a frame (stride `⌊√(pixels/3·10⁶)⌋`), degree chosen by the data. The fit's
 //! confidence is the smallest of its channels' (a channel that borrowed another's curve
 //! has confidence 0, so a bracket with one saturated channel never counts as good). When
 //! the fit fails or its confidence is below the policy's `min_confidence`, the fallback
@@ -219,25 +220,50 @@ pub fn choose_response(
         .sqrt()
         .floor() as usize)
         .max(1);
-    let (h_dark, h_bright) = rayon::join(
-        || Histogram::of_frame(dark.frame, stride),
-        || Histogram::of_frame(bright.frame, stride),
-    );
-    stages.push(("histogram", t.elapsed()));
-    let t = Instant::now();
-    let ratio = bright.exposure / dark.exposure;
-    let fitted = response::calibrate(
-        &h_dark,
-        &h_bright,
-        Ratio::Known(ratio, ratio_source),
-        Degree::Auto,
-    );
-    stages.push(("fit", t.elapsed()));
-    let pair = format!(
-        "{} and {}",
-        file_name(dark.source),
-        file_name(bright.source)
-    );
+    // More than two distinct exposures: every frame, every pair, one curve per channel.
+    let distinct = (1..order.len()).filter(distinct).count() + 1;
+    let joint = distinct > 2;
+    let (fitted, ratio, pair, sources) = if joint {
+        use rayon::prelude::*;
+        let histograms: Vec<Histogram> = bracket
+            .par_iter()
+            .map(|f| Histogram::of_frame(f.frame, stride))
+            .collect();
+        stages.push(("histogram", t.elapsed()));
+        let t = Instant::now();
+        let frames: Vec<(&Histogram, f64)> = histograms
+            .iter()
+            .zip(bracket)
+            .map(|(h, f)| (h, f.exposure))
+            .collect();
+        let fitted = response::calibrate_bracket(&frames, ratio_source, Degree::Auto);
+        stages.push(("fit", t.elapsed()));
+        let ratio = bracket[order[order.len() - 1]].exposure / bracket[order[0]].exposure;
+        let sources: Vec<&Path> = order.iter().map(|&i| bracket[i].source).collect();
+        let pair = format!("all {} frames", bracket.len());
+        (fitted, ratio, pair, sources)
+    } else {
+        let (h_dark, h_bright) = rayon::join(
+            || Histogram::of_frame(dark.frame, stride),
+            || Histogram::of_frame(bright.frame, stride),
+        );
+        stages.push(("histogram", t.elapsed()));
+        let t = Instant::now();
+        let ratio = bright.exposure / dark.exposure;
+        let fitted = response::calibrate(
+            &h_dark,
+            &h_bright,
+            Ratio::Known(ratio, ratio_source),
+            Degree::Auto,
+        );
+        stages.push(("fit", t.elapsed()));
+        let pair = format!(
+            "{} and {}",
+            file_name(dark.source),
+            file_name(bright.source)
+        );
+        (fitted, ratio, pair, vec![dark.source, bright.source])
+    };
     let (calibration, fallback) = match (fitted, fallback) {
         (Ok(c), fallback) => (c, fallback),
         (Err(source), None) => {
@@ -264,7 +290,7 @@ pub fn choose_response(
     let fit = Some((calibration.response.clone(), confidence));
     let report = serde_json::json!({
         "source": "fitted",
-        "frames": [dark.source.display().to_string(), bright.source.display().to_string()],
+        "frames": sources.iter().map(|p| p.display().to_string()).collect::<Vec<_>>(),
         "ratio": ratio,
         "ratio_source": ratio_source.as_str(),
         "confidence": confidence,
@@ -284,8 +310,8 @@ pub fn choose_response(
         && let Some(given) = fallback
     {
         // A fallback is only better than a weak fit if the bracket does not contradict it.
-        let fit_misfit = misfit(&calibration, &calibration.response, ratio);
-        let given_misfit = misfit(&calibration, &given.response, ratio);
+        let fit_misfit = misfit(&calibration, &calibration.response);
+        let given_misfit = misfit(&calibration, &given.response);
         if given_misfit <= fit_misfit + CONTRADICTION_STOPS {
             let note = format!(
                 "the fit from {pair} has confidence {confidence:.2} < {min_confidence:.2}; used the {}",
@@ -337,17 +363,17 @@ pub fn choose_response(
 /// shoulder) costs tenths.
 const CONTRADICTION_STOPS: f64 = 0.05;
 
-/// RMS over the calibration's tone pairs of `log₂(g(τ(b)) / (γ·g(b)))`, stops: how far `g`
-/// is from explaining the two frames' histograms at ratio `γ`. Pairs where `g` is 0 are
-/// skipped; no pairs gives 0.
-fn misfit(calibration: &Calibration, g: &InverseResponse, ratio: f64) -> f64 {
+/// RMS over the calibration's tone pairs of `log₂(g(τ(b)) / (γ·g(b)))`, stops, each pair
+/// at its own ratio `γ`: how far `g` is from explaining the frames' histograms. Pairs
+/// where `g` is 0 are skipped; no pairs gives 0.
+fn misfit(calibration: &Calibration, g: &InverseResponse) -> f64 {
     let (mut sum, mut n) = (0.0, 0usize);
     for (c, channel) in calibration.channels.iter().enumerate() {
         let c = c.min(g.channels().saturating_sub(1));
-        for p in &channel.pairs {
+        for (p, log_ratio) in channel.pairs.iter().zip(&channel.log_ratios) {
             let (lo, hi) = (g.eval(c, p.dark), g.eval(c, p.bright));
             if lo > 0.0 && hi > 0.0 {
-                sum += (hi / (ratio * lo)).log2().powi(2);
+                sum += ((hi / lo).ln() - log_ratio).powi(2) / std::f64::consts::LN_2.powi(2);
                 n += 1;
             }
         }
@@ -711,6 +737,41 @@ mod tests {
         assert_eq!(chosen.source, Source::Fitted);
         assert!((chosen.report["ratio"].as_f64().unwrap() - 4.0).abs() < 1e-9);
         assert!(chosen.summary.contains("f2.png"), "{}", chosen.summary);
+    }
+
+    /// Three distinct exposures are calibrated jointly from all frames, and the
+    /// contradiction check weighs each tone pair at its own ratio: frames through a film
+    /// S curve still contradict sRGB.
+    #[test]
+    fn three_exposures_are_fitted_from_every_frame() {
+        let truth = scene(240, 160, 5);
+        let sensor = Sensor::noiseless(ResponseCurve::FilmS, BitDepth::Eight);
+        let exposures = [0.25, 1.0, 4.0];
+        let frames: Vec<LoadedFrame> = exposures
+            .iter()
+            .enumerate()
+            .map(|(i, &e)| loaded(&format!("f{i}.png"), expose(&truth, e, &sensor)))
+            .collect();
+        let bracket = bracket(&frames, &exposures);
+        let policy = ResponsePolicy::Fit {
+            fallback: Some(GivenResponse::standard(3)),
+            min_confidence: 1.01,
+        };
+        let chosen =
+            choose_response(&bracket, RatioSource::Argument, policy, &mut Stages::new()).unwrap();
+        assert_eq!(chosen.source, Source::Fitted, "{:?}", chosen.notes);
+        assert!(
+            chosen.summary.contains("all 3 frames"),
+            "{}",
+            chosen.summary
+        );
+        assert_eq!(chosen.report["frames"].as_array().unwrap().len(), 3);
+        assert!((chosen.report["ratio"].as_f64().unwrap() - 16.0).abs() < 1e-9);
+        assert!(
+            chosen.notes[0].contains("contradicts"),
+            "{:?}",
+            chosen.notes
+        );
     }
 
     /// A weak fit below `min_confidence` gives way to the fallback, and says so; the fit

@@ -9,9 +9,9 @@ use filmback::histogram::Histogram;
 use filmback::metadata::{Camera, CaptureTime, Exposure};
 use filmback::radiance::RadianceMap;
 use filmback::response::{
-    self, Calibration, CalibrationError, Degree, Ratio, RatioSource, calibrate,
+    self, Calibration, CalibrationError, Degree, Ratio, RatioSource, calibrate, calibrate_bracket,
 };
-use filmback::synthetic::{self, Encoding, ResponseCurve, Sensor, Shot};
+use filmback::synthetic::{self, Encoding, ResponseCurve, Sensor, Shot, measure};
 
 const W: u32 = 384;
 const H: u32 = 256;
@@ -105,7 +105,14 @@ fn gamma_and_srgb_at_ratio_4_within_bounds() {
             own < 0.03 && shape < 0.015,
             "{curve:?}: own {own:.4} shape {shape:.4}"
         );
-        assert!(min_confidence(&cal) > 0.5, "{curve:?}");
+        assert!(
+            min_confidence(&cal) > 0.5,
+            "{curve:?}: {:?}",
+            cal.channels
+                .iter()
+                .map(|c| c.fit.confidence)
+                .collect::<Vec<_>>()
+        );
     }
 }
 
@@ -251,6 +258,113 @@ fn sixteen_bit_frames_using_every_level() {
     let (own, shape) = stops_error(&cal, &ResponseCurve::Gamma(2.2));
     assert!(own < 0.01 && shape < 0.01, "own {own:.4} shape {shape:.4}");
     assert!(min_confidence(&cal) > 0.8);
+}
+
+/// A bracket of `n` frames `step` apart, exposures `step^(k − (n−1)/2)`.
+fn bracket_of(scene: &RadianceMap, s: &Sensor, n: usize, step: f64) -> Vec<(Frame, f64)> {
+    (0..n)
+        .map(|k| {
+            let e = step.powf(k as f64 - (n - 1) as f64 / 2.0);
+            (synthetic::expose(scene, e, s), e)
+        })
+        .collect()
+}
+
+#[test]
+fn two_frames_through_the_bracket_calibration_are_the_pair_calibration() {
+    let s = sensor(ResponseCurve::Srgb, BitDepth::Eight);
+    let frames = bracket_of(&scene(), &s, 2, 4.0);
+    let h: Vec<Histogram> = frames
+        .iter()
+        .map(|(f, _)| Histogram::of_frame(f, 1))
+        .collect();
+    let joint = calibrate_bracket(
+        &[(&h[1], frames[1].1), (&h[0], frames[0].1)],
+        RatioSource::Exif,
+        Degree::Auto,
+    )
+    .unwrap();
+    let pair = calibrate(
+        &h[0],
+        &h[1],
+        Ratio::Known(4.0, RatioSource::Exif),
+        Degree::Auto,
+    )
+    .unwrap();
+    assert_eq!(joint.response, pair.response);
+    assert!((joint.ratio - 4.0).abs() < 1e-12);
+    for ch in &joint.channels {
+        assert_eq!(ch.pairs.len(), ch.log_ratios.len());
+        assert!(ch.log_ratios.iter().all(|r| (r - 4f64.ln()).abs() < 1e-12));
+    }
+}
+
+#[test]
+fn five_frame_bracket_fits_its_adjacent_pairs_jointly_and_is_surer_than_the_middle_one() {
+    let scene = scene();
+    for curve in [ResponseCurve::Srgb, ResponseCurve::FilmS] {
+        let s = sensor(curve.clone(), BitDepth::Eight);
+        let frames = bracket_of(&scene, &s, 5, 4.0);
+        let h: Vec<Histogram> = frames
+            .iter()
+            .map(|(f, _)| Histogram::of_frame(f, 1))
+            .collect();
+        let input: Vec<(&Histogram, f64)> = h.iter().zip(frames.iter().map(|f| f.1)).collect();
+        let joint = calibrate_bracket(&input, RatioSource::Exif, Degree::Auto).unwrap();
+        assert_sane(&joint);
+        assert!((joint.ratio - 256.0).abs() < 1e-9, "{}", joint.ratio);
+        // The four adjacent pairs feed every channel, each at its own ratio of one step.
+        for ch in &joint.channels {
+            assert!(ch.log_ratios.iter().all(|r| (r - 4f64.ln()).abs() < 1e-9));
+            assert!(ch.pairs.len() > 4 * 100, "{}: {}", ch.name, ch.pairs.len());
+        }
+        let (own, shape) = stops_error(&joint, &curve);
+        assert!(
+            own < 0.03 && shape < 0.015,
+            "{curve:?}: own {own:.4} shape {shape:.4}"
+        );
+        let middle = calibrate(
+            &h[1],
+            &h[2],
+            Ratio::Known(4.0, RatioSource::Exif),
+            Degree::Auto,
+        )
+        .unwrap();
+        println!(
+            "{curve:?}: joint confidence {:.2}, middle pair {:.2}; joint own {own:.4}",
+            min_confidence(&joint),
+            min_confidence(&middle)
+        );
+        assert!(min_confidence(&joint) >= 0.5, "{curve:?}");
+        assert!(
+            min_confidence(&joint) >= min_confidence(&middle),
+            "{curve:?}"
+        );
+    }
+}
+
+#[test]
+fn a_narrow_peak_in_one_channel_under_noise_casts_no_colour() {
+    // A uniform patch of 2.7 % of the frame in G only (one code noise-free, spread by
+    // 1 DN of read noise in both frames): G's scale must match R's and B's.
+    let mut radiance = scene();
+    let pixels = (W * H) as usize;
+    for (i, px) in radiance.pixels_mut().chunks_exact_mut(3).enumerate() {
+        if (i * 7919) % pixels < pixels * 27 / 1000 {
+            px[1] = 0.1;
+        }
+    }
+    for curve in [ResponseCurve::Srgb, ResponseCurve::Gamma(2.2)] {
+        let (dark, bright) = pair(&radiance, &sensor(curve.clone(), BitDepth::Eight), 4.0);
+        let cal = run(&dark, &bright, 4.0, Degree::Auto).unwrap();
+        assert_sane(&cal);
+        let scale = measure::scale_errors(&cal.response, &curve);
+        let spread = scale.iter().fold(f64::NEG_INFINITY, |a, &b| a.max(b))
+            - scale.iter().fold(f64::INFINITY, |a, &b| a.min(b));
+        println!("{curve:?}: scale errors {scale:.4?}");
+        assert!(spread < 0.01, "{curve:?}: channel scales {scale:?}");
+        assert!(cal.channels[1].fit.confidence > 0.5, "{curve:?}");
+    }
 }
 
 #[test]

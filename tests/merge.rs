@@ -10,7 +10,7 @@ use filmback::merge::{self, BracketFrame, MergeOptions, Merged, Weighting};
 use filmback::metadata::Camera;
 use filmback::radiance::RadianceMap;
 use filmback::response::{self, Degree, InverseResponse, Ratio, RatioSource};
-use filmback::synthetic::{ResponseCurve, Sensor, expose, scene};
+use filmback::synthetic::{ResponseCurve, SceneKind, Sensor, expose, measure, scene};
 
 const WIDTH: u32 = 256;
 const HEIGHT: u32 = 192;
@@ -165,6 +165,62 @@ fn accuracy(name: &str, curve: ResponseCurve) {
         fit_hat - true_hat <= 0.003,
         "{name}: recovered {fit_hat} vs floor {true_hat}: more than 0.3 pp apart"
     );
+}
+
+/// The user's metric on the scenes a studio shoots (a seamless backdrop over most of the
+/// frame, a grey card, a product with speculars; and flat patches, one channel each):
+/// 8-bit, 1 DN read noise, ratio 4. On the studio sets the merge with the recovered
+/// response may be at most 0.3 percentage points worse than the same merge given the true
+/// response (the target of issue 15); on flat patches at most 0.5 (a regression guard: the
+/// film S curve there is 0.40 short of the target, see docs/accuracy.md). No channel's
+/// level may be off by more than 0.06 stop (a visible colour cast).
+#[test]
+fn studio_and_flat_patch_merges_stay_near_the_true_response() {
+    for kind in [
+        SceneKind::Studio,
+        SceneKind::StudioFalloff,
+        SceneKind::FlatPatches,
+    ] {
+        let truth = kind.render(WIDTH, HEIGHT, 3);
+        for curve in [ResponseCurve::Srgb, ResponseCurve::FilmS] {
+            let s = sensor(curve.clone(), BitDepth::Eight, 9);
+            let dark = expose(&truth, DARK, &s);
+            let bright = expose(&truth, BRIGHT, &s);
+            let frames = [(&dark, DARK), (&bright, BRIGHT)];
+            let codes = [&dark, &bright];
+            let error = |g: &InverseResponse| {
+                let merged = merge_frames(&frames, g, Weighting::Hat);
+                measure::radiance_error(&merged.radiance, &truth, BRIGHT, &codes).unwrap()
+            };
+            let g_fit = recovered(&dark, &bright);
+            let floor = error(&measure::true_response(&curve, 256));
+            let fitted = error(&g_fit);
+            let scale = measure::scale_errors(&g_fit, &curve);
+            eprintln!(
+                "{} {curve:?}: true g {:.2} %, recovered {:.2} % (gap {:+.2} pp); channel scale {scale:+.4?} stops",
+                kind.name(),
+                100.0 * floor,
+                100.0 * fitted,
+                100.0 * (fitted - floor)
+            );
+            let bound = if kind == SceneKind::FlatPatches {
+                0.005
+            } else {
+                0.003
+            };
+            assert!(
+                fitted - floor <= bound,
+                "{} {curve:?}: gap {:.2} pp",
+                kind.name(),
+                100.0 * (fitted - floor)
+            );
+            assert!(
+                scale.iter().all(|s| s.abs() <= 0.06),
+                "{} {curve:?}: channel scale {scale:?}",
+                kind.name()
+            );
+        }
+    }
 }
 
 #[test]

@@ -336,8 +336,14 @@ struct Problem {
     penalty: DMatrix<f64>,
     /// `1/σ` per equation.
     sqrt_w: Vec<f64>,
-    /// `ln γ`.
-    log_ratio: f64,
+    /// `ln γ` per equation (one value for a pair of frames; a bracket's pairs differ).
+    log_ratios: Vec<f64>,
+    /// The `ln γ` whose ripples the smoothness floor must hold down: the smallest of the
+    /// equations' (see [`ripple_floor`]).
+    ripple_log_ratio: f64,
+    /// Factor on the covariance for equations that share histograms beyond one pair
+    /// (see [`fit_joint`]); 1 for one pair.
+    dependence: f64,
 }
 
 impl Problem {
@@ -362,7 +368,7 @@ impl Problem {
         });
         let y = DVector::from_iterator(
             rows.len(),
-            rows.iter().map(|&i| self.sqrt_w[i] * self.log_ratio),
+            rows.iter().map(|&i| self.sqrt_w[i] * self.log_ratios[i]),
         );
         (a, y)
     }
@@ -432,7 +438,7 @@ impl Problem {
             };
         }
         let fold_of = |i: usize| i * FOLDS / m;
-        let floor = ripple_floor(self.log_ratio);
+        let floor = ripple_floor(self.ripple_log_ratio);
         let grid: Vec<f64> = SMOOTHING_GRID
             .iter()
             .copied()
@@ -532,20 +538,55 @@ const NOISE: f64 = 1.0 / 255.0;
 
 /// Fits `ln g` to the tone pairs of one channel for a known `ln γ > 0` (see module docs).
 pub fn fit(pairs: &[TonePair], log_ratio: f64, degree: Degree) -> Result<ChannelFit, FitError> {
+    fit_joint(&[(pairs, log_ratio)], 2, degree)
+}
+
+/// Fits one `ln g` to the tone pairs of several frame pairs of one bracket of `frames`
+/// frames at once, each set with its own `ln γ > 0`: every equation
+/// `u(ln τ) − u(ln b) = ln γ_pair` constrains the same curve, so the frames' tonal
+/// ranges add up. Ratios that are not whole multiples of one another also break the
+/// chain ambiguity of each; an exposure bracket's (powers of one step) keep the ripples
+/// of period `ln γ_step`, which the smoothness floor holds down.
+///
+/// The sets rest on only `frames` histograms: `k` sets from `N` frames carry at most the
+/// information of `N − 1` independent (adjacent) pairs, so the covariance behind the
+/// predicted error is scaled by `k/(N − 1)` when `k` is larger (1 for adjacent pairs).
+/// The smoothness floor follows the smallest ratio, whose ripples are the shortest.
+pub fn fit_joint(
+    sets: &[(&[TonePair], f64)],
+    frames: usize,
+    degree: Degree,
+) -> Result<ChannelFit, FitError> {
     if let Degree::Fixed(n) = degree
         && !(1..=MAX_DEGREE).contains(&n)
     {
         return Err(FitError::Degree(n));
     }
-    let backwards = pairs.iter().filter(|p| p.bright < p.dark).count();
-    if backwards * 2 > pairs.len() {
+    let total: usize = sets.iter().map(|(p, _)| p.len()).sum();
+    let backwards: usize = sets
+        .iter()
+        .map(|(p, _)| p.iter().filter(|p| p.bright < p.dark).count())
+        .sum();
+    if backwards * 2 > total {
         return Err(FitError::Swapped);
     }
-    let pairs: Vec<TonePair> = pairs
+    let mut equations: Vec<(TonePair, f64)> = sets
         .iter()
-        .filter(|p| p.dark > 0.0 && p.bright > p.dark && p.bright.is_finite())
-        .copied()
+        .flat_map(|(pairs, log_ratio)| {
+            pairs
+                .iter()
+                .filter(|p| p.dark > 0.0 && p.bright > p.dark && p.bright.is_finite())
+                .map(move |p| (*p, *log_ratio))
+        })
         .collect();
+    if sets.len() > 1 {
+        // Cross-validation blocks are contiguous in tone: order all sets' equations by
+        // their dark tone (one set is already in tone order).
+        equations.sort_by(|a, b| a.0.dark.total_cmp(&b.0.dark));
+    }
+    let (pairs, log_ratios): (Vec<TonePair>, Vec<f64>) = equations.into_iter().unzip();
+    let ripple_log_ratio = log_ratios.iter().copied().fold(f64::INFINITY, f64::min);
+    let dependence = sets.len() as f64 / frames.saturating_sub(1).max(1) as f64;
     let m = pairs.len();
     if m < 2 {
         return Err(FitError::TooFewTones(m));
@@ -582,7 +623,9 @@ pub fn fit(pairs: &[TonePair], log_ratio: f64, degree: Degree) -> Result<Channel
         penalty: curvature(&basis, None),
         basis,
         sqrt_w: weights(&|_| 1.0),
-        log_ratio,
+        log_ratios,
+        ripple_log_ratio,
+        dependence: dependence.max(1.0),
     };
     let mut smoothing = problem.choose_smoothing();
     for _ in 0..2 {
@@ -661,7 +704,7 @@ fn finish(problem: &Problem, lambda: f64, log_floor: f64, covered: (f64, f64)) -
     // neighbouring equations, so the equations are not independent.
     let free: Vec<usize> = (0..n).filter(|&j| d[j] > 0.0).collect();
     let p = free.len().max(1);
-    let scale2 = 2.0 * (chi2 / (m.saturating_sub(p).max(1)) as f64).max(1.0);
+    let scale2 = 2.0 * problem.dependence * (chi2 / (m.saturating_sub(p).max(1)) as f64).max(1.0);
     let (predicted_error, effective_parameters) = if free.is_empty() {
         (f64::INFINITY, 0.0)
     } else {

@@ -228,6 +228,9 @@ pub struct ChannelCalibration {
     pub borrowed_from: Option<&'static str>,
     /// The tone pairs the fit used (empty when borrowed).
     pub pairs: Vec<TonePair>,
+    /// `ln γ` of each entry of [`ChannelCalibration::pairs`]: one value for a pair of
+    /// frames, the ratio of each frame pair for a bracket ([`calibrate_bracket`]).
+    pub log_ratios: Vec<f64>,
 }
 
 /// The result of [`calibrate`].
@@ -336,6 +339,7 @@ pub fn calibrate(
             .collect();
         return Err(CalibrationError::NoChannel(reasons.join("; ")));
     };
+    let log_ratio = ratio.ln();
     let channels: Vec<ChannelCalibration> = fitted
         .into_iter()
         .map(|(c, f, pairs)| match f {
@@ -343,6 +347,7 @@ pub fn calibrate(
                 name: names[c],
                 fit,
                 borrowed_from: None,
+                log_ratios: vec![log_ratio; pairs.len()],
                 pairs,
             },
             Err(_) => ChannelCalibration {
@@ -355,9 +360,19 @@ pub fn calibrate(
                 },
                 borrowed_from: Some(names[donor_c]),
                 pairs: Vec::new(),
+                log_ratios: Vec::new(),
             },
         })
         .collect();
+    finish(ratio, ratio_source, channels)
+}
+
+/// The sampled curves of `channels`, checked.
+fn finish(
+    ratio: f64,
+    ratio_source: RatioSource,
+    channels: Vec<ChannelCalibration>,
+) -> Result<Calibration, CalibrationError> {
     let samples = channels
         .iter()
         .map(|ch| sample_curve(|b| ch.fit.eval(b), CALIBRATED_SAMPLES))
@@ -371,6 +386,146 @@ pub fn calibrate(
         channels,
         response,
     })
+}
+
+/// Exposures closer than this factor are one exposure: their pair tells the fit nothing.
+const SAME_EXPOSURE: f64 = 1.01;
+
+/// Recovers one inverse response per channel from **every** frame of a bracket at once:
+/// `frames` are the histograms with their relative exposures `e = t·S/N²` (any order,
+/// all known). Every two frames adjacent in exposure (`e_j > 1.01·e_i`, no distinct
+/// exposure between them) give their tone pairs `g(τ_ij(b)) = (e_j/e_i)·g(b)`, and all of
+/// them are fitted as one curve per channel ([`fit::fit_joint`]): the frames' tonal
+/// ranges add up and a tone seen in several pairs is constrained several times. Wider
+/// pairs are left out: their mapping is the composition of the adjacent ones
+/// (`τ_02 = τ_12 ∘ τ_01`), so they repeat the same histograms' evidence through fewer
+/// shared tones, with the codec's errors magnified by the larger ratio (on the 3-frame
+/// JPEG demo bracket, ±2 EV, they took the green channel's confidence from 0.80 to 0.39).
+/// Two frames give exactly [`calibrate`] at the known ratio.
+///
+/// The result's `ratio` is the bracket's span, brightest over darkest exposure; each
+/// channel's [`ChannelCalibration::log_ratios`] gives the ratio of each tone pair. A
+/// channel without usable tones borrows the most confident other channel's curve with
+/// confidence 0, as in [`calibrate`].
+pub fn calibrate_bracket(
+    frames: &[(&Histogram, f64)],
+    ratio_source: RatioSource,
+    degree: Degree,
+) -> Result<Calibration, CalibrationError> {
+    let Some(&(first, _)) = frames.first() else {
+        return Err(CalibrationError::Mismatch("no frames".into()));
+    };
+    if let Some((h, _)) = frames
+        .iter()
+        .find(|(h, _)| h.channels() != first.channels() || h.depth() != first.depth())
+    {
+        return Err(CalibrationError::Mismatch(format!(
+            "{} channels at {} bits against {} channels at {} bits",
+            first.channels(),
+            first.depth().bits(),
+            h.channels(),
+            h.depth().bits()
+        )));
+    }
+    if let Some(&(_, e)) = frames.iter().find(|(_, e)| !(e.is_finite() && *e > 0.0)) {
+        return Err(CalibrationError::Ratio(e));
+    }
+    let mut order: Vec<usize> = (0..frames.len()).collect();
+    order.sort_by(|&a, &b| frames[a].1.total_cmp(&frames[b].1));
+    let pairs_of_frames: Vec<(usize, usize)> = order
+        .iter()
+        .enumerate()
+        .flat_map(|(k, &i)| order[k + 1..].iter().map(move |&j| (i, j)))
+        .filter(|&(i, j)| frames[j].1 > SAME_EXPOSURE * frames[i].1)
+        .filter(|&(i, j)| {
+            // Adjacent distinct exposures only: no frame strictly between them.
+            !frames
+                .iter()
+                .any(|(_, e)| *e > SAME_EXPOSURE * frames[i].1 && *e * SAME_EXPOSURE < frames[j].1)
+        })
+        .collect();
+    let (darkest, brightest) = (frames[order[0]].1, frames[order[order.len() - 1]].1);
+    if pairs_of_frames.is_empty() {
+        return Err(CalibrationError::Ratio(brightest / darkest));
+    }
+    let distinct = 1 + order
+        .windows(2)
+        .filter(|w| frames[w[1]].1 > SAME_EXPOSURE * frames[w[0]].1)
+        .count();
+    let names = channel_names(first.channels());
+    type Fitted = (usize, Result<ChannelFit, FitError>, Vec<TonePair>, Vec<f64>);
+    let fitted: Vec<Fitted> = (0..names.len())
+        .into_par_iter()
+        .map(|c| {
+            let cumulative: Vec<_> = frames.iter().map(|(h, _)| h.cumulative(c)).collect();
+            let usable: Vec<_> = frames
+                .iter()
+                .zip(&cumulative)
+                .map(|((h, _), cum)| UsableTones::detect(cum, h.compression()))
+                .collect();
+            let sets: Vec<(Vec<TonePair>, f64)> = pairs_of_frames
+                .iter()
+                .map(|&(i, j)| {
+                    (
+                        tone_pairs(&cumulative[i], &cumulative[j], usable[i], usable[j]),
+                        (frames[j].1 / frames[i].1).ln(),
+                    )
+                })
+                .collect();
+            let borrowed: Vec<(&[TonePair], f64)> =
+                sets.iter().map(|(p, r)| (p.as_slice(), *r)).collect();
+            let result = fit::fit_joint(&borrowed, distinct, degree);
+            let (pairs, log_ratios) = sets
+                .iter()
+                .flat_map(|(p, r)| p.iter().map(move |p| (*p, *r)))
+                .unzip();
+            (c, result, pairs, log_ratios)
+        })
+        .collect();
+    for (c, result, _, _) in &fitted {
+        if let Err(source @ FitError::Swapped | source @ FitError::Degree(_)) = result {
+            return Err(CalibrationError::Channel {
+                channel: names[*c],
+                source: source.clone(),
+            });
+        }
+    }
+    let donor = fitted
+        .iter()
+        .filter_map(|(c, f, _, _)| f.as_ref().ok().map(|f| (*c, f.clone())))
+        .max_by(|a, b| a.1.confidence.total_cmp(&b.1.confidence));
+    let Some((donor_c, donor_fit)) = donor else {
+        let reasons: Vec<String> = fitted
+            .iter()
+            .filter_map(|(c, f, _, _)| f.as_ref().err().map(|e| format!("{}: {e}", names[*c])))
+            .collect();
+        return Err(CalibrationError::NoChannel(reasons.join("; ")));
+    };
+    let channels = fitted
+        .into_iter()
+        .map(|(c, f, pairs, log_ratios)| match f {
+            Ok(fit) => ChannelCalibration {
+                name: names[c],
+                fit,
+                borrowed_from: None,
+                pairs,
+                log_ratios,
+            },
+            Err(_) => ChannelCalibration {
+                name: names[c],
+                fit: ChannelFit {
+                    equations: 0,
+                    coverage: 0.0,
+                    confidence: 0.0,
+                    ..donor_fit.clone()
+                },
+                borrowed_from: Some(names[donor_c]),
+                pairs: Vec::new(),
+                log_ratios: Vec::new(),
+            },
+        })
+        .collect();
+    finish(brightest / darkest, ratio_source, channels)
 }
 
 /// Samples `g` at `i/(n−1)`, pinning `g(0) = 0`, `g(1) = 1` and non-decreasing order.

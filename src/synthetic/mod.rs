@@ -1,4 +1,5 @@
-//! Synthetic ground truth: a procedural HDR scene, exposed through a known camera response
+//! Synthetic ground truth: HDR scenes (a procedural landscape, a studio set, flat patches:
+//! [`SceneKind`]), exposed through a known camera response
 //! with noise and quantisation, written as JPEG, PNG or TIFF with EXIF exposure tags.
 //!
 //! Every stage downstream (histograms, response recovery, merge, film rendering, the
@@ -17,9 +18,11 @@
 //! ```
 
 pub mod demo;
+pub mod measure;
 
 mod curve;
 mod encode;
+mod kinds;
 mod scene;
 mod sensor;
 
@@ -30,6 +33,7 @@ use crate::metadata::{Camera, CaptureTime, Exposure};
 
 pub use curve::{ResponseCurve, dorf_curves};
 pub use encode::{Encoding, encode, write};
+pub use kinds::{SceneKind, flat_patches, studio};
 pub use scene::{MID_GREY, scene};
 pub use sensor::{Sensor, bracket, expose};
 
