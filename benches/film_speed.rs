@@ -101,6 +101,7 @@ fn main() {
                 exposure: 1.0,
                 colour: mode,
                 key: Key::LogAverage,
+                options: Box::default(),
             };
             // End to end as `render_all` does it: key, then developing streamed into the
             // encoder (developing on one core while the encoder runs on the other) …

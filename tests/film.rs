@@ -365,6 +365,13 @@ fn render_all_writes_each_look_atomically_and_refuses_to_clobber() {
     let map = synthetic::scene(96, 64, 7);
     let looks = vec![
         Look::film(&cat, "velvia50@1/2", ColourMode::PerLayer, Key::LogAverage).unwrap(),
+        Look::film(
+            &cat,
+            "portra400+cc=05y",
+            ColourMode::PerLayer,
+            Key::LogAverage,
+        )
+        .unwrap(),
         Look::Tonemap(Operator::parse("histogram").unwrap()),
     ];
     let dir = tempfile::tempdir().unwrap();
@@ -381,11 +388,27 @@ fn render_all_writes_each_look_atomically_and_refuses_to_clobber() {
         .iter()
         .map(|p| p.file_name().unwrap().to_string_lossy().into_owned())
         .collect();
-    assert_eq!(names, ["scene.velvia50-t0.5.png", "scene.histogram.png"]);
+    assert_eq!(
+        names,
+        [
+            "scene.velvia50-t0.5.png",
+            "scene.portra400-t1+cc=05y.png",
+            "scene.histogram.png"
+        ]
+    );
     assert!(rendering::render_all(&map, &looks, &outputs).is_err());
     let leftovers = std::fs::read_dir(dir.path()).unwrap().count();
-    assert_eq!(leftovers, 2, "no temporary files remain");
-    assert!(Look::film(&cat, "portra400", ColourMode::PerLayer, Key::LogAverage).is_err());
+    assert_eq!(leftovers, 3, "no temporary files remain");
+    // Kodak gives no RMS granularity for its negatives.
+    assert!(
+        Look::film(
+            &cat,
+            "portra400+grain",
+            ColourMode::PerLayer,
+            Key::LogAverage
+        )
+        .is_err()
+    );
     assert!(Look::film(&cat, "nosuchfilm@1", ColourMode::PerLayer, Key::LogAverage).is_err());
 }
 
@@ -404,4 +427,95 @@ fn exr_round_trip_through_the_reader() {
     assert_eq!(&map.pixels()[i..i + 3], &[3.5, 1.25, 0.012]);
     let err = hdr_output::read_exr(&dir.path().join("missing.exr")).unwrap_err();
     assert!(err.to_string().contains("missing.exr"));
+}
+
+/// CIELAB (D65 white) of an sRGB-encoded 16-bit pixel: IEC 61966-2.1 decoding, the sRGB
+/// primaries' RGB → XYZ matrix, then CIE 1976 L*a*b*.
+fn lab(px: &[u16]) -> [f64; 3] {
+    let [r, g, b] = [0, 1, 2].map(|c| srgb_decode(px[c]));
+    let x = 0.4124564 * r + 0.3575761 * g + 0.1804375 * b;
+    let y = 0.2126729 * r + 0.7151522 * g + 0.0721750 * b;
+    let z = 0.0193339 * r + 0.1191920 * g + 0.9503041 * b;
+    let f = |t: f64| {
+        if t > (6.0f64 / 29.0).powi(3) {
+            t.cbrt()
+        } else {
+            t / (3.0 * (6.0f64 / 29.0).powi(2)) + 4.0 / 29.0
+        }
+    };
+    let (fx, fy, fz) = (f(x / 0.95047), f(y), f(z / 1.08883));
+    [116.0 * fy - 16.0, 500.0 * (fx - fy), 200.0 * (fy - fz)]
+}
+
+#[test]
+fn negative_through_print_is_neutral_at_mid_grey_and_monotone() {
+    let cat = catalogue();
+    // A grey scale from 8 stops under to 8 stops over the metered grey (E = 1), 16 steps
+    // per stop; the ramp's pixel 16·40 is E = 1 exactly.
+    let map = ramp(16 * 48);
+    let key_pixel = 16 * 40;
+    for request in ["portra400", "ektar100", "portra400+paper=portra-endura"] {
+        let look = Look::film(&cat, request, ColourMode::PerLayer, Key::Grey(1.0)).unwrap();
+        let img = look
+            .render(&map, filmback::display::Depth::Sixteen)
+            .unwrap();
+        let s = img.samples();
+        let grey = lab(&s[key_pixel * 3..key_pixel * 3 + 3]);
+        println!(
+            "{request}: mid grey L* {:.2} a* {:+.2} b* {:+.2}",
+            grey[0], grey[1], grey[2]
+        );
+        for stops in [-2i32, -1, 1, 2] {
+            let i = (key_pixel as i32 + 16 * stops) as usize;
+            let p = lab(&s[i * 3..i * 3 + 3]);
+            println!(
+                "  {stops:+} stops: L* {:.1} a* {:+.2} b* {:+.2}",
+                p[0], p[1], p[2]
+            );
+        }
+        assert!(
+            grey[1].abs() <= 3.0 && grey[2].abs() <= 3.0,
+            "{request}: {grey:?}"
+        );
+        // Printed at the paper's mid grey: 18 % reflectance is L* 49.5.
+        assert!((grey[0] - 49.5).abs() < 1.0, "{request}: L* {}", grey[0]);
+        let mut prev = f64::NEG_INFINITY;
+        let mut prev_px = [0u16; 3];
+        for (i, px) in s.chunks(3).enumerate() {
+            let l = lab(px)[0];
+            assert!(l >= prev - 1e-9, "{request}: L* falls at {i}: {prev} → {l}");
+            for c in 0..3 {
+                assert!(px[c] >= prev_px[c], "{request}: layer {c} falls at {i}");
+            }
+            prev = l;
+            prev_px = [px[0], px[1], px[2]];
+        }
+        // Shadow to highlight: near black eight stops under, near paper white over.
+        let first = lab(&s[..3])[0];
+        assert!(
+            first < 15.0 && prev > 90.0,
+            "{request}: L* {first} … {prev}"
+        );
+    }
+}
+
+#[test]
+fn print_exposure_and_filter_pack_move_the_print_as_in_the_darkroom() {
+    let cat = catalogue();
+    let map = ramp(16 * 48);
+    let key_pixel = 16 * 40;
+    let grey = |request: &str| {
+        let look = Look::film(&cat, request, ColourMode::PerLayer, Key::Grey(1.0)).unwrap();
+        let img = look
+            .render(&map, filmback::display::Depth::Sixteen)
+            .unwrap();
+        lab(&img.samples()[key_pixel * 3..key_pixel * 3 + 3])
+    };
+    let neutral = grey("portra400");
+    let darker = grey("portra400+print=+1/2");
+    let yellow = grey("portra400+cc=20y");
+    println!("neutral {neutral:?}, print +1/2 {darker:?}, cc=20y {yellow:?}");
+    assert!(darker[0] < neutral[0] - 5.0, "more print exposure darkens");
+    // Adding yellow filtration takes blue light: less yellow dye, a bluer print.
+    assert!(yellow[2] < neutral[2] - 5.0, "cc=20y makes the print bluer");
 }
