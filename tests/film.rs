@@ -519,3 +519,129 @@ fn print_exposure_and_filter_pack_move_the_print_as_in_the_darkroom() {
     // Adding yellow filtration takes blue light: less yellow dye, a bluer print.
     assert!(yellow[2] < neutral[2] - 5.0, "cc=20y makes the print bluer");
 }
+
+/// A uniform `n`×`n` map of radiance 1.
+fn uniform(n: u32) -> RadianceMap {
+    RadianceMap::new(n, n, 3, vec![1.0; (n * n * 3) as usize]).unwrap()
+}
+
+/// RMS granularity as a data sheet measures it: the standard deviation of the mean
+/// density over a 48 µm circular aperture (radius `24/pitch` pixels), at centres spaced
+/// by the aperture's width so the readings are independent; layer `c`, ×1000.
+fn granularity(img: &filmback::display::DisplayImage, c: usize, d_min: f64, pitch_um: f64) -> f64 {
+    let s = img.samples();
+    let (w, h) = (img.width() as usize, img.height() as usize);
+    let density: Vec<f64> = s
+        .chunks(3)
+        .map(|p| d_min - srgb_decode(p[c]).log10())
+        .collect();
+    let r = 24.0 / pitch_um;
+    let ri = r.ceil() as usize;
+    let disc: Vec<(usize, usize)> = (0..=2 * ri)
+        .flat_map(|dy| (0..=2 * ri).map(move |dx| (dx, dy)))
+        .filter(|&(dx, dy)| {
+            let (x, y) = (dx as f64 - ri as f64, dy as f64 - ri as f64);
+            x * x + y * y <= r * r
+        })
+        .collect();
+    let mut means = Vec::new();
+    for y0 in (0..h - 2 * ri).step_by(2 * ri + 1) {
+        for x0 in (0..w - 2 * ri).step_by(2 * ri + 1) {
+            let sum: f64 = disc
+                .iter()
+                .map(|&(dx, dy)| density[(y0 + dy) * w + x0 + dx])
+                .sum();
+            means.push(sum / disc.len() as f64);
+        }
+    }
+    let mean = means.iter().sum::<f64>() / means.len() as f64;
+    let var = means.iter().map(|m| (m - mean).powi(2)).sum::<f64>() / (means.len() - 1) as f64;
+    1000.0 * var.sqrt()
+}
+
+#[test]
+fn grain_measured_through_the_sheets_aperture_matches_the_sheet() {
+    let cat = catalogue();
+    // 1024 px over 6.144 mm: 6 µm per pixel, a 24 MP 35 mm frame's pixel.
+    let n = 1024;
+    let pitch_um = 6.0;
+    let mut checked = 0;
+    for stock in cat.stocks().iter().filter(|s| s.granularity.is_some()) {
+        let g = stock.granularity.as_ref().unwrap();
+        let green = stock.layer(1);
+        // Expose the patch so the green layer sits at the sheet's density.
+        let target = green.d_min() + g.net_density(green.d_min());
+        let h = 10f64.powf(green.log_h_at(target).expect("the curve reaches it"));
+        let key = Key::Grey(stock.metered_exposure() / h);
+        let request = format!("{}+grain+format=6.144mm", stock.id);
+        let look = Look::film(&cat, &request, ColourMode::PerLayer, key).unwrap();
+        let img = look
+            .render(&uniform(n), filmback::display::Depth::Sixteen)
+            .unwrap();
+        let measured = granularity(&img, 1, green.d_min(), pitch_um);
+        println!(
+            "{:<14} sheet {:>4} measured {measured:.2} ({:+.1} %)",
+            stock.id,
+            g.rms,
+            100.0 * (measured / g.rms - 1.0)
+        );
+        assert!(
+            (measured / g.rms - 1.0).abs() <= 0.15,
+            "{}: {measured:.2} against the sheet's {}",
+            stock.id,
+            g.rms
+        );
+        checked += 1;
+    }
+    assert_eq!(
+        checked, 5,
+        "the five stocks whose sheets give RMS granularity"
+    );
+}
+
+#[test]
+fn grain_is_reproducible_grows_with_density_and_with_pixel_size() {
+    let cat = catalogue();
+    let stock = cat.get("velvia50").unwrap();
+    let green = stock.layer(1);
+    let render = |request: &str, net: f64, n: u32| {
+        let h = 10f64.powf(green.log_h_at(green.d_min() + net).unwrap());
+        let key = Key::Grey(stock.metered_exposure() / h);
+        let look = Look::film(&cat, request, ColourMode::PerLayer, key).unwrap();
+        look.render(&uniform(n), filmback::display::Depth::Sixteen)
+            .unwrap()
+    };
+    let a = render("velvia50+grain+format=3.072mm", 1.0, 512);
+    let b = render("velvia50+grain+format=3.072mm", 1.0, 512);
+    let c = render("velvia50+grain+format=3.072mm+seed=2", 1.0, 512);
+    assert_eq!(a.samples(), b.samples(), "same seed, same grain");
+    assert_ne!(a.samples(), c.samples(), "another seed, other grain");
+    // Nutting–Selwyn: σ ∝ √(D − D_min); a quarter of the density, half the granularity.
+    let dense = granularity(&a, 1, green.d_min(), 6.0);
+    let thin = granularity(
+        &render("velvia50+grain+format=3.072mm", 0.25, 512),
+        1,
+        green.d_min(),
+        6.0,
+    );
+    println!("velvia50 at D-min+1: {dense:.2}; at D-min+0.25: {thin:.2}");
+    assert!((thin / dense - 0.5).abs() < 0.1, "{thin} / {dense}");
+    // The same 48 µm reading on a frame of half the pixels across (12 µm pixels) is
+    // the same granularity: grain scales with the film, not with the pixel.
+    let coarse = granularity(
+        &render("velvia50+grain+format=6.144mm", 1.0, 512),
+        1,
+        green.d_min(),
+        12.0,
+    );
+    println!("velvia50 on 12 µm pixels: {coarse:.2}");
+    assert!((coarse / 9.0 - 1.0).abs() < 0.2, "{coarse}");
+    // Without +grain a uniform patch is uniform.
+    let clean = render("velvia50", 1.0, 64);
+    assert!(
+        clean
+            .samples()
+            .chunks(3)
+            .all(|p| p == &clean.samples()[..3])
+    );
+}
