@@ -645,3 +645,155 @@ fn grain_is_reproducible_grows_with_density_and_with_pixel_size() {
             .all(|p| p == &clean.samples()[..3])
     );
 }
+
+/// Modulation at `cycles_per_mm` of a slanted edge rendered through `request`, measured
+/// as an ISO 12233 slanted-edge reading on the effective exposure: each output value of
+/// layer `c` is taken back through the display (sRGB), the print (for a negative: paper
+/// curve, printer light) and the stock's curve to log H; the edge's profile is binned at
+/// ¼ pixel along its normal, differentiated (line spread), and Fourier transformed.
+fn slanted_edge_mtf(cat: &Catalogue, stock: &Stock, c: usize, frequencies: &[f64]) -> Vec<f64> {
+    let (w, h) = (512usize, 128usize);
+    let pitch_mm = 0.002; // 512 px over 1.024 mm
+    let angle = 5f64.to_radians();
+    let (low, high) = (1.0f32, 1.5f32);
+    let mut pixels = Vec::with_capacity(w * h * 3);
+    let edge_x = |y: usize| w as f64 / 2.0 + (y as f64 - h as f64 / 2.0) * angle.tan();
+    for y in 0..h {
+        for x in 0..w {
+            let e = if x as f64 >= edge_x(y) { high } else { low };
+            pixels.extend_from_slice(&[e, e, e]);
+        }
+    }
+    let map = RadianceMap::new(w as u32, h as u32, 3, pixels).unwrap();
+    let request = format!("{}+mtf+format=1.024mm", stock.id);
+    let look = Look::film(cat, &request, ColourMode::PerLayer, Key::Grey(1.22)).unwrap();
+    let img = look
+        .render(&map, filmback::display::Depth::Sixteen)
+        .unwrap();
+    let emulsion = look.emulsion(&map).unwrap();
+    let paper = filmback::film::Paper::get("endura-premier").unwrap();
+    let curve = stock.layer(c);
+    let log_h = |v: u16| -> f64 {
+        let linear = srgb_decode(v).max(1e-9);
+        let d = match emulsion.printer_light() {
+            None => curve.d_min() - linear.log10(),
+            Some(light) => {
+                let pc = paper.layer(c);
+                let x = pc.log_h_at(pc.d_min() - linear.log10()).unwrap();
+                light[c] - x
+            }
+        };
+        curve.log_h_at(d).unwrap()
+    };
+    let s = img.samples();
+    let bins = 4.0;
+    let reach = 240.0;
+    let nbins = (2.0 * reach * bins) as usize;
+    let mut sum = vec![0.0; nbins];
+    let mut count = vec![0usize; nbins];
+    for y in 0..h {
+        for x in 0..w {
+            let d = (x as f64 - edge_x(y)) * angle.cos();
+            let b = ((d + reach) * bins).floor();
+            if b >= 0.0 && (b as usize) < nbins {
+                sum[b as usize] += 10f64.powf(log_h(s[(y * w + x) * 3 + c]));
+                count[b as usize] += 1;
+            }
+        }
+    }
+    let esf: Vec<f64> = sum
+        .iter()
+        .zip(&count)
+        .map(|(s, &n)| s / n.max(1) as f64)
+        .collect();
+    assert!(count.iter().all(|&n| n > 0), "every bin sampled");
+    let lsf: Vec<f64> = esf.windows(2).map(|p| p[1] - p[0]).collect();
+    let total: f64 = lsf.iter().sum();
+    frequencies
+        .iter()
+        .map(|f| {
+            let (mut re, mut im) = (0.0, 0.0);
+            for (k, v) in lsf.iter().enumerate() {
+                let x_mm = k as f64 / bins * pitch_mm;
+                let phase = 2.0 * std::f64::consts::PI * f * x_mm;
+                re += v * phase.cos();
+                im += v * phase.sin();
+            }
+            (re * re + im * im).sqrt() / total
+        })
+        .collect()
+}
+
+#[test]
+fn slanted_edge_mtf_matches_the_sheet_at_10_20_40_cycles_per_mm() {
+    let cat = catalogue();
+    let frequencies = [10.0, 20.0, 40.0];
+    let mut checked = 0;
+    for stock in cat.stocks().iter().filter(|s| s.mtf.is_some()) {
+        let mtf = stock.mtf.as_ref().unwrap();
+        for c in 0..3 {
+            let measured = slanted_edge_mtf(&cat, stock, c, &frequencies);
+            let fit = filmback::film::optics::MtfFit::new(mtf, c);
+            for (f, m) in frequencies.iter().zip(&measured) {
+                let sheet = mtf.response(c, *f);
+                println!(
+                    "{:<14} layer {c} {f:>4} c/mm: sheet {:>5.1} % measured {:>5.1} % ({:+.1} %), fit's worst {:.1} pt",
+                    stock.id,
+                    100.0 * sheet,
+                    100.0 * m,
+                    100.0 * (m / sheet - 1.0),
+                    100.0 * fit.worst_error
+                );
+                assert!(
+                    (m / sheet - 1.0).abs() <= 0.10,
+                    "{} layer {c} at {f} c/mm: {m:.3} against {sheet:.3}",
+                    stock.id
+                );
+            }
+            checked += 1;
+        }
+    }
+    assert_eq!(
+        checked, 21,
+        "seven stocks with an MTF sheet, three layers each"
+    );
+}
+
+#[test]
+fn halation_is_a_red_glow_around_highlights_only_when_asked() {
+    let cat = catalogue();
+    // A dark frame (E = 0.05) with a small sun (E = 1e4) in the middle; 35 mm at 2 µm
+    // per pixel would be enormous, so the frame is 2.56 mm wide: 10 µm pixels.
+    let n = 256usize;
+    let mut pixels = vec![0.05f32; n * n * 3];
+    for y in 126..130 {
+        for x in 126..130 {
+            pixels[(y * n + x) * 3..(y * n + x) * 3 + 3].copy_from_slice(&[1e4; 3]);
+        }
+    }
+    let map = RadianceMap::new(n as u32, n as u32, 3, pixels).unwrap();
+    let render = |request: &str| {
+        let look = Look::film(&cat, request, ColourMode::PerLayer, Key::Grey(0.18)).unwrap();
+        look.render(&map, filmback::display::Depth::Sixteen)
+            .unwrap()
+    };
+    let plain = render("velvia50+format=2.56mm");
+    let halo = render("velvia50+format=2.56mm+halation=0.05");
+    // 100 µm from the sun's edge (10 px): brighter in red, less in green, not in blue.
+    let at = |img: &filmback::display::DisplayImage, x: usize| {
+        let i = (128 * n + x) * 3;
+        let s = img.samples();
+        [s[i], s[i + 1], s[i + 2]]
+    };
+    let (p, q) = (at(&plain, 140), at(&halo, 140));
+    println!("100 µm from the sun: plain {p:?}, halation {q:?}");
+    assert!(q[0] > p[0] + 2000, "red glows");
+    assert!(q[1] > p[1] && q[1] - p[1] < q[0] - p[0], "green glows less");
+    assert_eq!(q[2], p[2], "blue untouched");
+    // Far from the sun (1 mm), nothing (within one 16-bit step of the tables).
+    let (far_p, far_q) = (at(&plain, 10), at(&halo, 10));
+    println!("1.2 mm from the sun: plain {far_p:?}, halation {far_q:?}");
+    assert!((0..3).all(|c| far_p[c].abs_diff(far_q[c]) <= 2));
+    // Without +halation, the dark frame stays uniform next to the sun's edge.
+    assert_eq!(at(&plain, 140), at(&plain, 200));
+}

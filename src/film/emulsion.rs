@@ -214,8 +214,8 @@ pub struct Emulsion {
     /// Green-layer linear light for the luminance mode.
     transmittance: ExposureTable<f32>,
     grained: Option<Grained>,
-    /// MTF kernels per layer at this image's pixel size.
-    kernels: Option<[Vec<f32>; 3]>,
+    /// MTF per layer and the pixel's size at film scale, mm.
+    kernels: Option<([optics::MtfFit; 3], f64)>,
     /// Halation strength and σ in pixels.
     halation: Option<(f32, f64)>,
     /// The printer light per channel (log10), for a negative.
@@ -316,7 +316,7 @@ impl Emulsion {
                 id: stock.id.clone(),
                 reason: "its data sheet gives no MTF curve, so +mtf cannot be modelled".into(),
             })?;
-            Some([0, 1, 2].map(|c| optics::mtf_kernel(mtf, c, pitch_mm)))
+            Some(([0, 1, 2].map(|c| optics::MtfFit::new(mtf, c)), pitch_mm))
         } else {
             None
         };
@@ -365,9 +365,9 @@ impl Emulsion {
             optics::add_halo(&mut pixels, w, h, 3, 0, strength, sigma);
             optics::add_halo(&mut pixels, w, h, 3, 1, strength / 4.0, sigma);
         }
-        if let Some(kernels) = &self.kernels {
-            for (c, kernel) in kernels.iter().enumerate() {
-                optics::convolve_separable(&mut pixels, w, h, 3, c, kernel);
+        if let Some((fits, pitch_mm)) = &self.kernels {
+            for (c, fit) in fits.iter().enumerate() {
+                optics::apply_mtf(&mut pixels, w, h, 3, c, fit, *pitch_mm);
             }
         }
         Cow::Owned(

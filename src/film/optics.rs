@@ -3,23 +3,25 @@
 //! light), before the characteristic curve, as the data sheets measure the MTF.
 //!
 //! **MTF.** The sheet's curve `M_c(f)` (response against cycles/mm at film scale, layer
-//! `c`) becomes a symmetric FIR kernel at the pixel pitch `p` (mm at film scale):
+//! `c`) is fitted by a sum of Gaussians, a form that is both radially symmetric and
+//! separable:
 //!
-//! `k[n] = 2 ∫₀^½ M_c(ν / p) · cos(2π ν n) dν` (ν in cycles/pixel),
+//! `M_c(f) ≈ Σᵢ wᵢ · exp(−2π² σᵢ² f²)`, `Σᵢ wᵢ = 1` (a uniform area keeps its exposure),
 //!
-//! by the midpoint rule on 2048 steps, cut at the radius where the dropped taps sum to
-//! under 0.002 in absolute value (at most [`MAX_RADIUS`] pixels), then normalised to
-//! `Σ k = 1` so that a uniform area keeps its exposure (`M(0) = 1`). It is applied
-//! separably (rows, then columns): the 2-D response is `M(f_x)·M(f_y)`, exact along the
-//! axes, `M(f/√2)²` instead of `M(f)` on the diagonals. A sheet's response above 100 %
-//! at low frequency (the development's adjacency effects) is kept: edges gain the
-//! film's own acutance. Exposure that the kernel's negative lobes take below zero is
-//! held at zero (no light).
+//! with fixed spreads σᵢ = 1.5, 3, 6, 12, 24, 48, 96 µm and weights by least squares on
+//! the sheet's points (ridge 10⁻⁴; [`MtfFit::worst_error`] states the fit's worst
+//! deviation from the sheet's points). The filtered exposure is `Σᵢ wᵢ·(Gᵢ ∗ H)`, each
+//! `Gᵢ` a Gaussian of σᵢ / p pixels (p the pixel's size at film scale): a sampled kernel
+//! of radius ⌈3σ⌉ up to 8 px σ, three box passes per axis above. A sheet's response above
+//! 100 % at low frequency (the development's adjacency effects) becomes a negative weight
+//! on a wide Gaussian: edges gain the film's own acutance. Exposure taken below zero by
+//! that is held at zero (no light).
 //!
 //! **Halation.** Light that passes the emulsion reflects off the back of the base and
 //! re-exposes the layers nearest the base, red most, from a halo of radius about twice
-//! the base thickness. Modelled as `H'_r = H_r + s·(G_σ ∗ H_r)`,
-//! `H'_g = H_g + (s/4)·(G_σ ∗ H_g)`, blue untouched, with `G_σ` a Gaussian of
+//! the base thickness. Modelled as `H'_r = (H_r + s·(G_σ ∗ H_r)) / (1 + s)`,
+//! `H'_g = (H_g + (s/4)·(G_σ ∗ H_g)) / (1 + s/4)`, blue untouched (dividing keeps a
+//! uniform area's exposure, as the film's rated speed includes its own flare), with `G_σ` a Gaussian of
 //! σ = [`HALATION_SIGMA_MM`] at film scale (three box passes per axis) and `s` the user's
 //! strength. Only bright highlights make a visible halo, since `G_σ ∗ H` is a small
 //! fraction of a mid-tone but a large one next to the sun. The built-in stocks all have an
@@ -29,112 +31,191 @@ use rayon::prelude::*;
 
 use super::stock::Mtf;
 
-/// Largest MTF kernel radius, pixels.
-pub const MAX_RADIUS: usize = 40;
+/// Spreads of the Gaussians the MTF is fitted with, µm at film scale.
+pub const SPREADS_UM: [f64; 7] = [1.5, 3.0, 6.0, 12.0, 24.0, 48.0, 96.0];
 
 /// Halo spread of halation at film scale, mm (a base ≈ 0.12 mm thick).
 pub const HALATION_SIGMA_MM: f64 = 0.1;
 
-/// The symmetric FIR kernel of layer `c` of `mtf` at `pitch_mm` per pixel, centre tap at
-/// index `radius` (`len = 2·radius + 1`).
-pub fn mtf_kernel(mtf: &Mtf, c: usize, pitch_mm: f64) -> Vec<f32> {
-    const STEPS: usize = 2048;
-    let response: Vec<f64> = (0..STEPS)
-        .map(|i| {
-            let nu = (i as f64 + 0.5) / STEPS as f64 * 0.5;
-            mtf.response(c, nu / pitch_mm)
-        })
-        .collect();
-    let tap = |n: usize| -> f64 {
-        let sum: f64 = response
-            .iter()
-            .enumerate()
-            .map(|(i, m)| {
-                let nu = (i as f64 + 0.5) / STEPS as f64 * 0.5;
-                m * (2.0 * std::f64::consts::PI * nu * n as f64).cos()
-            })
-            .sum();
-        2.0 * sum * 0.5 / STEPS as f64
-    };
-    let taps: Vec<f64> = (0..=MAX_RADIUS + 64).map(tap).collect();
-    // The smallest radius whose dropped taps (both sides) sum to under 0.002.
-    let mut radius = MAX_RADIUS;
-    for r in 0..MAX_RADIUS {
-        let dropped: f64 = 2.0 * taps[r + 1..].iter().map(|t| t.abs()).sum::<f64>();
-        if dropped < 0.002 {
-            radius = r;
-            break;
-        }
-    }
-    let mut kernel: Vec<f64> = (0..=2 * radius).map(|i| taps[i.abs_diff(radius)]).collect();
-    let total: f64 = kernel.iter().sum();
-    for k in &mut kernel {
-        *k /= total;
-    }
-    kernel.into_iter().map(|k| k as f32).collect()
+/// One layer's MTF as a weighted sum of Gaussians.
+#[derive(Debug, Clone, PartialEq)]
+pub struct MtfFit {
+    /// `(σ in mm, weight)`.
+    pub terms: Vec<(f64, f64)>,
+    /// The largest `|fit − sheet|` over the sheet's points (response, 1 = 100 %).
+    pub worst_error: f64,
 }
 
-/// Convolves channel `c` of an interleaved `ch`-channel image with `kernel` along rows
-/// then columns (edges repeat the border pixel); results below zero are held at zero.
-pub fn convolve_separable(
+impl MtfFit {
+    /// Fits layer `c` of `mtf`.
+    pub fn new(mtf: &Mtf, c: usize) -> MtfFit {
+        let n = SPREADS_UM.len();
+        let sigma: Vec<f64> = SPREADS_UM.iter().map(|s| s / 1000.0).collect();
+        let basis = |f: f64| -> Vec<f64> {
+            sigma
+                .iter()
+                .map(|s| (-2.0 * std::f64::consts::PI.powi(2) * s * s * f * f).exp())
+                .collect()
+        };
+        // Rows: the sheet's points, and M(0) = 1 weighted 100×.
+        let mut rows: Vec<(Vec<f64>, f64, f64)> = mtf
+            .cycles_per_mm
+            .iter()
+            .zip(&mtf.layers[c])
+            .map(|(&f, &m)| (basis(f), m, 1.0))
+            .collect();
+        rows.push((basis(0.0), 1.0, 100.0));
+        let mut a = vec![vec![0.0; n + 1]; n];
+        for (b, m, weight) in &rows {
+            let w2 = weight * weight;
+            for i in 0..n {
+                for j in 0..n {
+                    a[i][j] += w2 * b[i] * b[j];
+                }
+                a[i][n] += w2 * b[i] * m;
+            }
+        }
+        for (i, row) in a.iter_mut().enumerate() {
+            row[i] += 1e-4;
+        }
+        let w = solve(a);
+        let total: f64 = w.iter().sum();
+        let terms: Vec<(f64, f64)> = sigma
+            .iter()
+            .zip(&w)
+            .map(|(&s, &w)| (s, w / total))
+            .collect();
+        let mut fit = MtfFit {
+            terms,
+            worst_error: 0.0,
+        };
+        fit.worst_error = mtf
+            .cycles_per_mm
+            .iter()
+            .zip(&mtf.layers[c])
+            .map(|(&f, &m)| (fit.response(f) - m).abs())
+            .fold(0.0, f64::max);
+        fit
+    }
+
+    /// The fitted response at `f` cycles/mm.
+    pub fn response(&self, f: f64) -> f64 {
+        self.terms
+            .iter()
+            .map(|(s, w)| w * (-2.0 * std::f64::consts::PI.powi(2) * s * s * f * f).exp())
+            .sum()
+    }
+}
+
+/// Gauss–Jordan elimination with partial pivoting on an augmented `n × (n+1)` matrix.
+fn solve(mut a: Vec<Vec<f64>>) -> Vec<f64> {
+    let n = a.len();
+    for col in 0..n {
+        let pivot = (col..n)
+            .max_by(|&i, &j| a[i][col].abs().total_cmp(&a[j][col].abs()))
+            .unwrap_or(col);
+        a.swap(col, pivot);
+        let p = a[col][col];
+        for v in a[col].iter_mut() {
+            *v /= p;
+        }
+        let pivot_row = a[col].clone();
+        for (i, row) in a.iter_mut().enumerate() {
+            if i != col {
+                let factor = row[col];
+                for (v, p) in row.iter_mut().zip(&pivot_row) {
+                    *v -= factor * p;
+                }
+            }
+        }
+    }
+    a.iter().map(|row| row[n]).collect()
+}
+
+/// Filters channel `c` of an interleaved `ch`-channel image through `fit` at `pitch_mm`
+/// per pixel: `Σ wᵢ·(Gᵢ ∗ H)`, held at zero from below.
+pub fn apply_mtf(
     pixels: &mut [f32],
     width: usize,
     height: usize,
     ch: usize,
     c: usize,
-    kernel: &[f32],
+    fit: &MtfFit,
+    pitch_mm: f64,
 ) {
-    let r = kernel.len() / 2;
-    if r == 0 {
-        return;
+    let plane: Vec<f32> = pixels.iter().skip(c).step_by(ch).copied().collect();
+    let mut acc = vec![0f32; plane.len()];
+    for &(sigma, weight) in &fit.terms {
+        let blurred = gaussian(&plane, width, height, sigma / pitch_mm);
+        acc.par_iter_mut()
+            .zip(blurred.par_iter())
+            .for_each(|(a, b)| *a += weight as f32 * b);
     }
-    // Rows.
-    pixels.par_chunks_mut(width * ch).for_each(|row| {
-        let line: Vec<f32> = row.iter().skip(c).step_by(ch).copied().collect();
-        let mut padded = Vec::with_capacity(width + 2 * r);
-        padded.extend(std::iter::repeat_n(line[0], r));
-        padded.extend_from_slice(&line);
-        padded.extend(std::iter::repeat_n(line[width - 1], r));
-        for x in 0..width {
-            let window = &padded[x..x + 2 * r + 1];
-            let v: f32 = window.iter().zip(kernel).map(|(a, k)| a * k).sum();
-            row[x * ch + c] = v;
-        }
-    });
-    // Columns: transpose through a plane, convolve its rows, write back.
-    let mut plane = vec![0f32; width * height];
-    plane
-        .par_chunks_mut(height)
-        .enumerate()
-        .for_each(|(x, col)| {
-            for (y, v) in col.iter_mut().enumerate() {
-                *v = pixels[(y * width + x) * ch + c];
-            }
-        });
-    let mut out = vec![0f32; width * height];
-    out.par_chunks_mut(height)
-        .zip(plane.par_chunks(height))
-        .for_each(|(o, col)| {
-            for (y, v) in o.iter_mut().enumerate() {
-                let mut s = 0.0;
-                for (i, k) in kernel.iter().enumerate() {
-                    let yy = (y + i).saturating_sub(r).min(height - 1);
-                    s += col[yy] * k;
-                }
-                *v = s;
-            }
-        });
     pixels
-        .par_chunks_mut(width * ch)
-        .enumerate()
-        .for_each(|(y, row)| {
-            for x in 0..width {
-                row[x * ch + c] = out[x * height + y].max(0.0);
-            }
-        });
+        .par_chunks_mut(ch)
+        .zip(acc.par_iter())
+        .for_each(|(p, v)| p[c] = v.max(0.0));
 }
 
-/// Adds the halo: channel `c` += `strength · (G_σ ∗ channel c)` with `σ = sigma_px`
+/// A Gaussian blur of σ `sigma_px` pixels: a sampled, normalised kernel of radius ⌈3σ⌉
+/// for σ ≤ 8, three box passes per axis above (edges repeat the border pixel).
+pub fn gaussian(plane: &[f32], width: usize, height: usize, sigma_px: f64) -> Vec<f32> {
+    if sigma_px > 8.0 {
+        let mut out = plane.to_vec();
+        let half = box_half_width(sigma_px);
+        for _ in 0..3 {
+            box_rows(&mut out, width, half);
+        }
+        let mut t = transpose(&out, width, height);
+        for _ in 0..3 {
+            box_rows(&mut t, height, half);
+        }
+        return transpose(&t, height, width);
+    }
+    let r = (3.0 * sigma_px).ceil().max(1.0) as usize;
+    let mut kernel: Vec<f32> = (0..=2 * r)
+        .map(|i| {
+            let x = i as f64 - r as f64;
+            (-x * x / (2.0 * sigma_px * sigma_px)).exp() as f32
+        })
+        .collect();
+    let total: f32 = kernel.iter().sum();
+    for k in &mut kernel {
+        *k /= total;
+    }
+    let rows = fir_rows(plane, width, &kernel);
+    let t = transpose(&rows, width, height);
+    let cols = fir_rows(&t, height, &kernel);
+    transpose(&cols, height, width)
+}
+
+fn fir_rows(plane: &[f32], width: usize, kernel: &[f32]) -> Vec<f32> {
+    let r = kernel.len() / 2;
+    let mut out = vec![0f32; plane.len()];
+    out.par_chunks_mut(width)
+        .zip(plane.par_chunks(width))
+        .for_each(|(o, row)| {
+            let mut padded = Vec::with_capacity(width + 2 * r);
+            padded.extend(std::iter::repeat_n(row[0], r));
+            padded.extend_from_slice(row);
+            padded.extend(std::iter::repeat_n(row[width - 1], r));
+            for (x, v) in o.iter_mut().enumerate() {
+                *v = padded[x..x + 2 * r + 1]
+                    .iter()
+                    .zip(kernel)
+                    .map(|(a, k)| a * k)
+                    .sum();
+            }
+        });
+    out
+}
+
+/// Half-width of a box whose three passes have variance σ²: `3·((2h+1)² − 1)/12 = σ²`.
+fn box_half_width(sigma_px: f64) -> usize {
+    (((4.0 * sigma_px * sigma_px + 1.0).sqrt() - 1.0) / 2.0).round() as usize
+}
+
+/// Adds the halo: channel `c` = `(c + strength·(G_σ ∗ c)) / (1 + strength)` with `σ = sigma_px`
 /// pixels (three box blurs per axis, each of width `w` with `3·(w² − 1)/12 ≈ σ²`).
 pub fn add_halo(
     pixels: &mut [f32],
@@ -145,7 +226,7 @@ pub fn add_halo(
     strength: f32,
     sigma_px: f64,
 ) {
-    let half = (((4.0 * sigma_px * sigma_px + 1.0).sqrt() - 1.0) / 2.0).round() as usize;
+    let half = box_half_width(sigma_px);
     let mut plane: Vec<f32> = pixels.iter().skip(c).step_by(ch).copied().collect();
     for _ in 0..3 {
         box_rows(&mut plane, width, half);
@@ -158,7 +239,7 @@ pub fn add_halo(
         .zip(plane.par_iter())
         .for_each(|(p, g)| {
             if g.is_finite() {
-                p[c] += strength * g;
+                p[c] = (p[c] + strength * g) / (1.0 + strength);
             }
         });
 }
