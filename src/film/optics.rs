@@ -12,7 +12,7 @@
 //! the sheet's points (ridge 10⁻⁴; [`MtfFit::worst_error`] states the fit's worst
 //! deviation from the sheet's points). The filtered exposure is `Σᵢ wᵢ·(Gᵢ ∗ H)`, each
 //! `Gᵢ` a Gaussian of σᵢ / p pixels (p the pixel's size at film scale): a sampled kernel
-//! of radius ⌈3σ⌉ up to 8 px σ, three box passes per axis above. A sheet's response above
+//! of radius ⌈3σ⌉ up to [`MAX_KERNEL_SIGMA`] px σ, three box passes per axis above. A sheet's response above
 //! 100 % at low frequency (the development's adjacency effects) becomes a negative weight
 //! on a wide Gaussian: edges gain the film's own acutance. Exposure taken below zero by
 //! that is held at zero (no light).
@@ -157,20 +157,24 @@ pub fn apply_mtf(
         .for_each(|(p, v)| p[c] = v.max(0.0));
 }
 
+/// Largest σ (pixels) blurred by a sampled kernel; above it, three box passes per axis.
+pub const MAX_KERNEL_SIGMA: f64 = 4.0;
+
 /// A Gaussian blur of σ `sigma_px` pixels: a sampled, normalised kernel of radius ⌈3σ⌉
-/// for σ ≤ 8, three box passes per axis above (edges repeat the border pixel).
+/// for σ ≤ [`MAX_KERNEL_SIGMA`], three box passes per axis above (edges repeat the
+/// border pixel). Both passes run along rows (columns as whole rows scaled and added), so
+/// the inner loops are over contiguous memory and vectorise.
 pub fn gaussian(plane: &[f32], width: usize, height: usize, sigma_px: f64) -> Vec<f32> {
-    if sigma_px > 8.0 {
-        let mut out = plane.to_vec();
+    if sigma_px > MAX_KERNEL_SIGMA {
         let half = box_half_width(sigma_px);
+        let mut out = plane.to_vec();
         for _ in 0..3 {
             box_rows(&mut out, width, half);
         }
-        let mut t = transpose(&out, width, height);
         for _ in 0..3 {
-            box_rows(&mut t, height, half);
+            out = box_columns(&out, width, height, half);
         }
-        return transpose(&t, height, width);
+        return out;
     }
     let r = (3.0 * sigma_px).ceil().max(1.0) as usize;
     let mut kernel: Vec<f32> = (0..=2 * r)
@@ -184,9 +188,7 @@ pub fn gaussian(plane: &[f32], width: usize, height: usize, sigma_px: f64) -> Ve
         *k /= total;
     }
     let rows = fir_rows(plane, width, &kernel);
-    let t = transpose(&rows, width, height);
-    let cols = fir_rows(&t, height, &kernel);
-    transpose(&cols, height, width)
+    fir_columns(&rows, width, height, &kernel)
 }
 
 fn fir_rows(plane: &[f32], width: usize, kernel: &[f32]) -> Vec<f32> {
@@ -199,14 +201,75 @@ fn fir_rows(plane: &[f32], width: usize, kernel: &[f32]) -> Vec<f32> {
             padded.extend(std::iter::repeat_n(row[0], r));
             padded.extend_from_slice(row);
             padded.extend(std::iter::repeat_n(row[width - 1], r));
-            for (x, v) in o.iter_mut().enumerate() {
-                *v = padded[x..x + 2 * r + 1]
-                    .iter()
-                    .zip(kernel)
-                    .map(|(a, k)| a * k)
-                    .sum();
+            for (j, &k) in kernel.iter().enumerate() {
+                for (v, &a) in o.iter_mut().zip(&padded[j..j + width]) {
+                    *v += k * a;
+                }
             }
         });
+    out
+}
+
+fn fir_columns(plane: &[f32], width: usize, height: usize, kernel: &[f32]) -> Vec<f32> {
+    let r = kernel.len() / 2;
+    let mut out = vec![0f32; plane.len()];
+    out.par_chunks_mut(width).enumerate().for_each(|(y, o)| {
+        for (j, &k) in kernel.iter().enumerate() {
+            let yy = (y + j).saturating_sub(r).min(height - 1);
+            for (v, &a) in o.iter_mut().zip(&plane[yy * width..yy * width + width]) {
+                *v += k * a;
+            }
+        }
+    });
+    out
+}
+
+/// One box pass down the columns: each output row the mean of rows `y−h ..= y+h`
+/// (clamped), kept as a running sum of whole rows in `f64`.
+fn box_columns(plane: &[f32], width: usize, height: usize, half: usize) -> Vec<f32> {
+    if half == 0 {
+        return plane.to_vec();
+    }
+    let n = (2 * half + 1) as f64;
+    let row = |y: isize| {
+        let y = y.clamp(0, height as isize - 1) as usize;
+        &plane[y * width..y * width + width]
+    };
+    let mut out = vec![0f32; plane.len()];
+    // Columns in strips of 256, strips in parallel.
+    const STRIP: usize = 256;
+    let strips: Vec<(usize, usize)> = (0..width)
+        .step_by(STRIP)
+        .map(|x| (x, STRIP.min(width - x)))
+        .collect();
+    let results: Vec<Vec<f32>> = strips
+        .par_iter()
+        .map(|&(x0, w)| {
+            let mut sum = vec![0f64; w];
+            for y in -(half as isize)..=half as isize {
+                for (s, &v) in sum.iter_mut().zip(&row(y)[x0..x0 + w]) {
+                    *s += f64::from(v);
+                }
+            }
+            let mut strip = vec![0f32; w * height];
+            for y in 0..height {
+                for (o, s) in strip[y * w..y * w + w].iter_mut().zip(&sum) {
+                    *o = (s / n) as f32;
+                }
+                let add = &row(y as isize + half as isize + 1)[x0..x0 + w];
+                let sub = &row(y as isize - half as isize)[x0..x0 + w];
+                for ((s, &a), &b) in sum.iter_mut().zip(add).zip(sub) {
+                    *s += f64::from(a) - f64::from(b);
+                }
+            }
+            strip
+        })
+        .collect();
+    for ((x0, w), strip) in strips.iter().zip(results) {
+        for y in 0..height {
+            out[y * width + x0..y * width + x0 + w].copy_from_slice(&strip[y * w..y * w + w]);
+        }
+    }
     out
 }
 
@@ -226,14 +289,8 @@ pub fn add_halo(
     strength: f32,
     sigma_px: f64,
 ) {
-    let half = box_half_width(sigma_px);
-    let mut plane: Vec<f32> = pixels.iter().skip(c).step_by(ch).copied().collect();
-    for _ in 0..3 {
-        box_rows(&mut plane, width, half);
-        plane = transpose(&plane, width, height);
-        box_rows(&mut plane, height, half);
-        plane = transpose(&plane, height, width);
-    }
+    let plane: Vec<f32> = pixels.iter().skip(c).step_by(ch).copied().collect();
+    let plane = gaussian(&plane, width, height, sigma_px);
     pixels
         .par_chunks_mut(ch)
         .zip(plane.par_iter())
@@ -261,14 +318,4 @@ fn box_rows(plane: &mut [f32], width: usize, half: usize) {
             sum += at(x as isize + half as isize + 1) - at(x as isize - half as isize);
         }
     });
-}
-
-fn transpose(plane: &[f32], width: usize, height: usize) -> Vec<f32> {
-    let mut out = vec![0f32; plane.len()];
-    out.par_chunks_mut(height).enumerate().for_each(|(x, col)| {
-        for (y, v) in col.iter_mut().enumerate() {
-            *v = plane[y * width + x];
-        }
-    });
-    out
 }
