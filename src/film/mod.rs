@@ -216,7 +216,8 @@ pub struct Options {
     pub print_stops: f64,
     /// Filter pack change (negatives).
     pub filter: FilterPack,
-    /// The options as typed, canonical order, for file names (`+grain+mtf`).
+    /// The options as typed, for file names (`+grain+mtf`, `+print=-1_3`): a `/` (from a
+    /// fraction) becomes `_`, since it would name a folder.
     pub label: String,
 }
 
@@ -324,7 +325,10 @@ impl Options {
             }
             labels.push(item.to_string());
         }
-        o.label = labels.iter().map(|l| format!("+{l}")).collect();
+        o.label = labels
+            .iter()
+            .map(|l| format!("+{}", l.replace('/', "_")))
+            .collect();
         Ok(o)
     }
 
@@ -543,7 +547,7 @@ mod tests {
         assert_eq!(r.options.paper, "portra-endura");
         assert_eq!(
             r.options.label,
-            "+print=-1/3ev+cc=05m10y+paper=portra-endura"
+            "+print=-1_3ev+cc=05m10y+paper=portra-endura"
         );
         let r: Request = "velvia50+grain=2+mtf+halation+format=6x7".parse().unwrap();
         assert_eq!(r.exposure, 1.0);
