@@ -19,7 +19,7 @@
 //! The curve is evaluated through a table indexed by the bits of the `f32` exposure
 //! ([`ExposureTable`]); its error is at most [`TABLE_MAX_ERROR_D`] in density.
 //!
-//! A negative stock is rendered through a print ([`print`]): its densities filter the
+//! A negative stock is rendered through a print ([`mod@print`]): its densities filter the
 //! printer's light onto a colour paper's curves, and the print is viewed by reflection.
 //!
 //! Options of a look (`velvia50+grain+mtf`, [`Options`]): grain from the sheet's RMS
