@@ -30,6 +30,63 @@ fn best<T>(mut f: impl FnMut() -> T) -> (Duration, T) {
     (best, last.expect("RUNS > 0"))
 }
 
+/// Grain, MTF and printing: the extra time each costs on the 24 MP map (developed to
+/// 8 bits, the optics pass included, key metered once outside the timing), and a colour
+/// negative through its print against a reversal stock. `cargo bench --bench film_speed
+/// -- options` runs only this part.
+fn film_options(map: &RadianceMap, catalogue: &Catalogue) {
+    let key = film::scene_key(map, Key::LogAverage);
+    let time = |request: &str| {
+        let r: film::Request = request.parse().expect("request");
+        let stock = catalogue.get(&r.stock).expect("stock");
+        let (t, _) = best(|| {
+            let emulsion = film::Emulsion::with_options(
+                stock,
+                r.exposure,
+                key,
+                ColourMode::PerLayer,
+                &r.options,
+                (map.width(), map.height()),
+            )
+            .expect("emulsion");
+            emulsion.render(map, Depth::Eight)
+        });
+        t
+    };
+    println!("film options, 8-bit development of the whole map (ms, best of {RUNS}):");
+    let base = time("velvia50");
+    println!("  {:<28} {:>8.1}", "velvia50", ms(base));
+    for request in [
+        "velvia50+grain",
+        "velvia50+mtf",
+        "velvia50+grain+mtf",
+        "velvia50+halation",
+    ] {
+        let t = time(request);
+        println!(
+            "  {request:<28} {:>8.1}  (+{:.1} ms)",
+            ms(t),
+            ms(t.saturating_sub(base))
+        );
+    }
+    for request in ["portra400", "ektar100"] {
+        let t = time(request);
+        println!(
+            "  {request:<28} {:>8.1}  ({:.2}× velvia50)",
+            ms(t),
+            t.as_secs_f64() / base.as_secs_f64()
+        );
+    }
+    let stock = catalogue.get("velvia50").expect("velvia50");
+    let mtf = stock.mtf.as_ref().expect("velvia50 has an MTF sheet");
+    let fit = film::optics::MtfFit::new(mtf, 1);
+    println!(
+        "  MTF as {} Gaussians: worst {:.1} points from the sheet's points\n",
+        fit.terms.len(),
+        100.0 * fit.worst_error
+    );
+}
+
 fn ms(d: Duration) -> f64 {
     d.as_secs_f64() * 1e3
 }
@@ -62,6 +119,10 @@ fn main() {
         ms(start.elapsed())
     );
     let catalogue = Catalogue::builtin().expect("built-in stocks");
+    film_options(&map, &catalogue);
+    if std::env::args().any(|a| a == "options") {
+        return;
+    }
     let stock = catalogue.get("velvia50").expect("velvia50");
 
     println!(
@@ -101,6 +162,7 @@ fn main() {
                 exposure: 1.0,
                 colour: mode,
                 key: Key::LogAverage,
+                options: Box::default(),
             };
             // End to end as `render_all` does it: key, then developing streamed into the
             // encoder (developing on one core while the encoder runs on the other) …

@@ -365,6 +365,13 @@ fn render_all_writes_each_look_atomically_and_refuses_to_clobber() {
     let map = synthetic::scene(96, 64, 7);
     let looks = vec![
         Look::film(&cat, "velvia50@1/2", ColourMode::PerLayer, Key::LogAverage).unwrap(),
+        Look::film(
+            &cat,
+            "portra400+cc=05y",
+            ColourMode::PerLayer,
+            Key::LogAverage,
+        )
+        .unwrap(),
         Look::Tonemap(Operator::parse("histogram").unwrap()),
     ];
     let dir = tempfile::tempdir().unwrap();
@@ -381,11 +388,27 @@ fn render_all_writes_each_look_atomically_and_refuses_to_clobber() {
         .iter()
         .map(|p| p.file_name().unwrap().to_string_lossy().into_owned())
         .collect();
-    assert_eq!(names, ["scene.velvia50-t0.5.png", "scene.histogram.png"]);
+    assert_eq!(
+        names,
+        [
+            "scene.velvia50-t0.5.png",
+            "scene.portra400-t1+cc=05y.png",
+            "scene.histogram.png"
+        ]
+    );
     assert!(rendering::render_all(&map, &looks, &outputs).is_err());
     let leftovers = std::fs::read_dir(dir.path()).unwrap().count();
-    assert_eq!(leftovers, 2, "no temporary files remain");
-    assert!(Look::film(&cat, "portra400", ColourMode::PerLayer, Key::LogAverage).is_err());
+    assert_eq!(leftovers, 3, "no temporary files remain");
+    // Kodak gives no RMS granularity for its negatives.
+    assert!(
+        Look::film(
+            &cat,
+            "portra400+grain",
+            ColourMode::PerLayer,
+            Key::LogAverage
+        )
+        .is_err()
+    );
     assert!(Look::film(&cat, "nosuchfilm@1", ColourMode::PerLayer, Key::LogAverage).is_err());
 }
 
@@ -404,4 +427,373 @@ fn exr_round_trip_through_the_reader() {
     assert_eq!(&map.pixels()[i..i + 3], &[3.5, 1.25, 0.012]);
     let err = hdr_output::read_exr(&dir.path().join("missing.exr")).unwrap_err();
     assert!(err.to_string().contains("missing.exr"));
+}
+
+/// CIELAB (D65 white) of an sRGB-encoded 16-bit pixel: IEC 61966-2.1 decoding, the sRGB
+/// primaries' RGB → XYZ matrix, then CIE 1976 L*a*b*.
+fn lab(px: &[u16]) -> [f64; 3] {
+    let [r, g, b] = [0, 1, 2].map(|c| srgb_decode(px[c]));
+    let x = 0.4124564 * r + 0.3575761 * g + 0.1804375 * b;
+    let y = 0.2126729 * r + 0.7151522 * g + 0.0721750 * b;
+    let z = 0.0193339 * r + 0.1191920 * g + 0.9503041 * b;
+    let f = |t: f64| {
+        if t > (6.0f64 / 29.0).powi(3) {
+            t.cbrt()
+        } else {
+            t / (3.0 * (6.0f64 / 29.0).powi(2)) + 4.0 / 29.0
+        }
+    };
+    let (fx, fy, fz) = (f(x / 0.95047), f(y), f(z / 1.08883));
+    [116.0 * fy - 16.0, 500.0 * (fx - fy), 200.0 * (fy - fz)]
+}
+
+#[test]
+fn negative_through_print_is_neutral_at_mid_grey_and_monotone() {
+    let cat = catalogue();
+    // A grey scale from 8 stops under to 8 stops over the metered grey (E = 1), 16 steps
+    // per stop; the ramp's pixel 16·40 is E = 1 exactly.
+    let map = ramp(16 * 48);
+    let key_pixel = 16 * 40;
+    for request in ["portra400", "ektar100", "portra400+paper=portra-endura"] {
+        let look = Look::film(&cat, request, ColourMode::PerLayer, Key::Grey(1.0)).unwrap();
+        let img = look
+            .render(&map, filmback::display::Depth::Sixteen)
+            .unwrap();
+        let s = img.samples();
+        let grey = lab(&s[key_pixel * 3..key_pixel * 3 + 3]);
+        println!(
+            "{request}: mid grey L* {:.2} a* {:+.2} b* {:+.2}",
+            grey[0], grey[1], grey[2]
+        );
+        for stops in [-2i32, -1, 1, 2] {
+            let i = (key_pixel as i32 + 16 * stops) as usize;
+            let p = lab(&s[i * 3..i * 3 + 3]);
+            println!(
+                "  {stops:+} stops: L* {:.1} a* {:+.2} b* {:+.2}",
+                p[0], p[1], p[2]
+            );
+        }
+        assert!(
+            grey[1].abs() <= 3.0 && grey[2].abs() <= 3.0,
+            "{request}: {grey:?}"
+        );
+        // Printed at the paper's mid grey: 18 % reflectance is L* 49.5.
+        assert!((grey[0] - 49.5).abs() < 1.0, "{request}: L* {}", grey[0]);
+        let mut prev = f64::NEG_INFINITY;
+        let mut prev_px = [0u16; 3];
+        for (i, px) in s.chunks(3).enumerate() {
+            let l = lab(px)[0];
+            assert!(l >= prev - 1e-9, "{request}: L* falls at {i}: {prev} → {l}");
+            for c in 0..3 {
+                assert!(px[c] >= prev_px[c], "{request}: layer {c} falls at {i}");
+            }
+            prev = l;
+            prev_px = [px[0], px[1], px[2]];
+        }
+        // Shadow to highlight: near black eight stops under, near paper white over.
+        let first = lab(&s[..3])[0];
+        assert!(
+            first < 15.0 && prev > 90.0,
+            "{request}: L* {first} … {prev}"
+        );
+    }
+}
+
+#[test]
+fn print_exposure_and_filter_pack_move_the_print_as_in_the_darkroom() {
+    let cat = catalogue();
+    let map = ramp(16 * 48);
+    let key_pixel = 16 * 40;
+    let grey = |request: &str| {
+        let look = Look::film(&cat, request, ColourMode::PerLayer, Key::Grey(1.0)).unwrap();
+        let img = look
+            .render(&map, filmback::display::Depth::Sixteen)
+            .unwrap();
+        lab(&img.samples()[key_pixel * 3..key_pixel * 3 + 3])
+    };
+    let neutral = grey("portra400");
+    let darker = grey("portra400+print=+1/2");
+    let yellow = grey("portra400+cc=20y");
+    println!("neutral {neutral:?}, print +1/2 {darker:?}, cc=20y {yellow:?}");
+    assert!(darker[0] < neutral[0] - 5.0, "more print exposure darkens");
+    // Adding yellow filtration takes blue light: less yellow dye, a bluer print.
+    assert!(yellow[2] < neutral[2] - 5.0, "cc=20y makes the print bluer");
+}
+
+/// A uniform `n`×`n` map of radiance 1.
+fn uniform(n: u32) -> RadianceMap {
+    RadianceMap::new(n, n, 3, vec![1.0; (n * n * 3) as usize]).unwrap()
+}
+
+/// RMS granularity as a data sheet measures it: the standard deviation of the mean
+/// density over a 48 µm circular aperture (radius `24/pitch` pixels), at centres spaced
+/// by the aperture's width so the readings are independent; layer `c`, ×1000.
+fn granularity(img: &filmback::display::DisplayImage, c: usize, d_min: f64, pitch_um: f64) -> f64 {
+    let s = img.samples();
+    let (w, h) = (img.width() as usize, img.height() as usize);
+    let density: Vec<f64> = s
+        .chunks(3)
+        .map(|p| d_min - srgb_decode(p[c]).log10())
+        .collect();
+    let r = 24.0 / pitch_um;
+    let ri = r.ceil() as usize;
+    let disc: Vec<(usize, usize)> = (0..=2 * ri)
+        .flat_map(|dy| (0..=2 * ri).map(move |dx| (dx, dy)))
+        .filter(|&(dx, dy)| {
+            let (x, y) = (dx as f64 - ri as f64, dy as f64 - ri as f64);
+            x * x + y * y <= r * r
+        })
+        .collect();
+    let mut means = Vec::new();
+    for y0 in (0..h - 2 * ri).step_by(2 * ri + 1) {
+        for x0 in (0..w - 2 * ri).step_by(2 * ri + 1) {
+            let sum: f64 = disc
+                .iter()
+                .map(|&(dx, dy)| density[(y0 + dy) * w + x0 + dx])
+                .sum();
+            means.push(sum / disc.len() as f64);
+        }
+    }
+    let mean = means.iter().sum::<f64>() / means.len() as f64;
+    let var = means.iter().map(|m| (m - mean).powi(2)).sum::<f64>() / (means.len() - 1) as f64;
+    1000.0 * var.sqrt()
+}
+
+#[test]
+fn grain_measured_through_the_sheets_aperture_matches_the_sheet() {
+    let cat = catalogue();
+    // 1024 px over 6.144 mm: 6 µm per pixel, a 24 MP 35 mm frame's pixel.
+    let n = 1024;
+    let pitch_um = 6.0;
+    let mut checked = 0;
+    for stock in cat.stocks().iter().filter(|s| s.granularity.is_some()) {
+        let g = stock.granularity.as_ref().unwrap();
+        let green = stock.layer(1);
+        // Expose the patch so the green layer sits at the sheet's density.
+        let target = green.d_min() + g.net_density(green.d_min());
+        let h = 10f64.powf(green.log_h_at(target).expect("the curve reaches it"));
+        let key = Key::Grey(stock.metered_exposure() / h);
+        let request = format!("{}+grain+format=6.144mm", stock.id);
+        let look = Look::film(&cat, &request, ColourMode::PerLayer, key).unwrap();
+        let img = look
+            .render(&uniform(n), filmback::display::Depth::Sixteen)
+            .unwrap();
+        let measured = granularity(&img, 1, green.d_min(), pitch_um);
+        println!(
+            "{:<14} sheet {:>4} measured {measured:.2} ({:+.1} %)",
+            stock.id,
+            g.rms,
+            100.0 * (measured / g.rms - 1.0)
+        );
+        assert!(
+            (measured / g.rms - 1.0).abs() <= 0.15,
+            "{}: {measured:.2} against the sheet's {}",
+            stock.id,
+            g.rms
+        );
+        checked += 1;
+    }
+    assert_eq!(
+        checked, 5,
+        "the five stocks whose sheets give RMS granularity"
+    );
+}
+
+#[test]
+fn grain_is_reproducible_grows_with_density_and_with_pixel_size() {
+    let cat = catalogue();
+    let stock = cat.get("velvia50").unwrap();
+    let green = stock.layer(1);
+    let render = |request: &str, net: f64, n: u32| {
+        let h = 10f64.powf(green.log_h_at(green.d_min() + net).unwrap());
+        let key = Key::Grey(stock.metered_exposure() / h);
+        let look = Look::film(&cat, request, ColourMode::PerLayer, key).unwrap();
+        look.render(&uniform(n), filmback::display::Depth::Sixteen)
+            .unwrap()
+    };
+    let a = render("velvia50+grain+format=3.072mm", 1.0, 512);
+    let b = render("velvia50+grain+format=3.072mm", 1.0, 512);
+    let c = render("velvia50+grain+format=3.072mm+seed=2", 1.0, 512);
+    assert_eq!(a.samples(), b.samples(), "same seed, same grain");
+    assert_ne!(a.samples(), c.samples(), "another seed, other grain");
+    // Nutting–Selwyn: σ ∝ √(D − D_min); a quarter of the density, half the granularity.
+    let dense = granularity(&a, 1, green.d_min(), 6.0);
+    let thin = granularity(
+        &render("velvia50+grain+format=3.072mm", 0.25, 512),
+        1,
+        green.d_min(),
+        6.0,
+    );
+    println!("velvia50 at D-min+1: {dense:.2}; at D-min+0.25: {thin:.2}");
+    assert!((thin / dense - 0.5).abs() < 0.1, "{thin} / {dense}");
+    // The same 48 µm reading on a frame of half the pixels across (12 µm pixels) is
+    // the same granularity: grain scales with the film, not with the pixel.
+    let coarse = granularity(
+        &render("velvia50+grain+format=6.144mm", 1.0, 512),
+        1,
+        green.d_min(),
+        12.0,
+    );
+    println!("velvia50 on 12 µm pixels: {coarse:.2}");
+    assert!((coarse / 9.0 - 1.0).abs() < 0.2, "{coarse}");
+    // Without +grain a uniform patch is uniform.
+    let clean = render("velvia50", 1.0, 64);
+    assert!(
+        clean
+            .samples()
+            .chunks(3)
+            .all(|p| p == &clean.samples()[..3])
+    );
+}
+
+/// Modulation at `cycles_per_mm` of a slanted edge rendered through `request`, measured
+/// as an ISO 12233 slanted-edge reading on the effective exposure: each output value of
+/// layer `c` is taken back through the display (sRGB), the print (for a negative: paper
+/// curve, printer light) and the stock's curve to log H; the edge's profile is binned at
+/// ¼ pixel along its normal, differentiated (line spread), and Fourier transformed.
+fn slanted_edge_mtf(cat: &Catalogue, stock: &Stock, c: usize, frequencies: &[f64]) -> Vec<f64> {
+    let (w, h) = (512usize, 128usize);
+    let pitch_mm = 0.002; // 512 px over 1.024 mm
+    let angle = 5f64.to_radians();
+    let (low, high) = (1.0f32, 1.5f32);
+    let mut pixels = Vec::with_capacity(w * h * 3);
+    let edge_x = |y: usize| w as f64 / 2.0 + (y as f64 - h as f64 / 2.0) * angle.tan();
+    for y in 0..h {
+        for x in 0..w {
+            let e = if x as f64 >= edge_x(y) { high } else { low };
+            pixels.extend_from_slice(&[e, e, e]);
+        }
+    }
+    let map = RadianceMap::new(w as u32, h as u32, 3, pixels).unwrap();
+    let request = format!("{}+mtf+format=1.024mm", stock.id);
+    let look = Look::film(cat, &request, ColourMode::PerLayer, Key::Grey(1.22)).unwrap();
+    let img = look
+        .render(&map, filmback::display::Depth::Sixteen)
+        .unwrap();
+    let emulsion = look.emulsion(&map).unwrap();
+    let paper = filmback::film::Paper::get("endura-premier").unwrap();
+    let curve = stock.layer(c);
+    let log_h = |v: u16| -> f64 {
+        let linear = srgb_decode(v).max(1e-9);
+        let d = match emulsion.printer_light() {
+            None => curve.d_min() - linear.log10(),
+            Some(light) => {
+                let pc = paper.layer(c);
+                let x = pc.log_h_at(pc.d_min() - linear.log10()).unwrap();
+                light[c] - x
+            }
+        };
+        curve.log_h_at(d).unwrap()
+    };
+    let s = img.samples();
+    let bins = 4.0;
+    let reach = 240.0;
+    let nbins = (2.0 * reach * bins) as usize;
+    let mut sum = vec![0.0; nbins];
+    let mut count = vec![0usize; nbins];
+    for y in 0..h {
+        for x in 0..w {
+            let d = (x as f64 - edge_x(y)) * angle.cos();
+            let b = ((d + reach) * bins).floor();
+            if b >= 0.0 && (b as usize) < nbins {
+                sum[b as usize] += 10f64.powf(log_h(s[(y * w + x) * 3 + c]));
+                count[b as usize] += 1;
+            }
+        }
+    }
+    let esf: Vec<f64> = sum
+        .iter()
+        .zip(&count)
+        .map(|(s, &n)| s / n.max(1) as f64)
+        .collect();
+    assert!(count.iter().all(|&n| n > 0), "every bin sampled");
+    let lsf: Vec<f64> = esf.windows(2).map(|p| p[1] - p[0]).collect();
+    let total: f64 = lsf.iter().sum();
+    frequencies
+        .iter()
+        .map(|f| {
+            let (mut re, mut im) = (0.0, 0.0);
+            for (k, v) in lsf.iter().enumerate() {
+                let x_mm = k as f64 / bins * pitch_mm;
+                let phase = 2.0 * std::f64::consts::PI * f * x_mm;
+                re += v * phase.cos();
+                im += v * phase.sin();
+            }
+            (re * re + im * im).sqrt() / total
+        })
+        .collect()
+}
+
+#[test]
+fn slanted_edge_mtf_matches_the_sheet_at_10_20_40_cycles_per_mm() {
+    let cat = catalogue();
+    let frequencies = [10.0, 20.0, 40.0];
+    let mut checked = 0;
+    for stock in cat.stocks().iter().filter(|s| s.mtf.is_some()) {
+        let mtf = stock.mtf.as_ref().unwrap();
+        for c in 0..3 {
+            let measured = slanted_edge_mtf(&cat, stock, c, &frequencies);
+            let fit = filmback::film::optics::MtfFit::new(mtf, c);
+            for (f, m) in frequencies.iter().zip(&measured) {
+                let sheet = mtf.response(c, *f);
+                println!(
+                    "{:<14} layer {c} {f:>4} c/mm: sheet {:>5.1} % measured {:>5.1} % ({:+.1} %), fit's worst {:.1} pt",
+                    stock.id,
+                    100.0 * sheet,
+                    100.0 * m,
+                    100.0 * (m / sheet - 1.0),
+                    100.0 * fit.worst_error
+                );
+                assert!(
+                    (m / sheet - 1.0).abs() <= 0.10,
+                    "{} layer {c} at {f} c/mm: {m:.3} against {sheet:.3}",
+                    stock.id
+                );
+            }
+            checked += 1;
+        }
+    }
+    assert_eq!(
+        checked, 21,
+        "seven stocks with an MTF sheet, three layers each"
+    );
+}
+
+#[test]
+fn halation_is_a_red_glow_around_highlights_only_when_asked() {
+    let cat = catalogue();
+    // A dark frame (E = 0.05) with a small sun (E = 1e4) in the middle; 35 mm at 2 µm
+    // per pixel would be enormous, so the frame is 2.56 mm wide: 10 µm pixels.
+    let n = 256usize;
+    let mut pixels = vec![0.05f32; n * n * 3];
+    for y in 126..130 {
+        for x in 126..130 {
+            pixels[(y * n + x) * 3..(y * n + x) * 3 + 3].copy_from_slice(&[1e4; 3]);
+        }
+    }
+    let map = RadianceMap::new(n as u32, n as u32, 3, pixels).unwrap();
+    let render = |request: &str| {
+        let look = Look::film(&cat, request, ColourMode::PerLayer, Key::Grey(0.18)).unwrap();
+        look.render(&map, filmback::display::Depth::Sixteen)
+            .unwrap()
+    };
+    let plain = render("velvia50+format=2.56mm");
+    let halo = render("velvia50+format=2.56mm+halation=0.05");
+    // 100 µm from the sun's edge (10 px): brighter in red, less in green, not in blue.
+    let at = |img: &filmback::display::DisplayImage, x: usize| {
+        let i = (128 * n + x) * 3;
+        let s = img.samples();
+        [s[i], s[i + 1], s[i + 2]]
+    };
+    let (p, q) = (at(&plain, 140), at(&halo, 140));
+    println!("100 µm from the sun: plain {p:?}, halation {q:?}");
+    assert!(q[0] > p[0] + 2000, "red glows");
+    assert!(q[1] > p[1] && q[1] - p[1] < q[0] - p[0], "green glows less");
+    assert_eq!(q[2], p[2], "blue untouched");
+    // Far from the sun (1 mm), nothing (within one 16-bit step of the tables).
+    let (far_p, far_q) = (at(&plain, 10), at(&halo, 10));
+    println!("1.2 mm from the sun: plain {far_p:?}, halation {far_q:?}");
+    assert!((0..3).all(|c| far_p[c].abs_diff(far_q[c]) <= 2));
+    // Without +halation, the dark frame stays uniform next to the sun's edge.
+    assert_eq!(at(&plain, 140), at(&plain, 200));
 }

@@ -248,7 +248,9 @@ fn plot(stocks: &[&Stock]) -> Canvas {
 }
 
 /// The report's Figure 8 made from the synthetic scene: eight renderings of one map,
-/// each labelled, in a 4 × 2 grid.
+/// each labelled, in a 4 × 2 grid, and a third row: the two colour negatives printed on
+/// Endura Premier, and Velvia 50 without and with grain and MTF at 6 µm per pixel (the
+/// scale of a 24 MP 35 mm frame, so those two tiles are 100 % crops of such a frame).
 fn contact_sheet(catalogue: &Catalogue) -> Result<Canvas> {
     let (tw, th, label_h, gap) = (480u32, 320u32, 30u32, 10u32);
     let map = filmback::synthetic::scene(tw, th, 1);
@@ -271,6 +273,20 @@ fn contact_sheet(catalogue: &Catalogue) -> Result<Canvas> {
         Look::Tonemap(Operator::parse("histogram").expect("known operator")),
         "HISTOGRAM ADJUSTMENT",
     ));
+    for (request, label) in [
+        ("portra400", "PORTRA 400 PRINT"),
+        ("ektar100", "EKTAR 100 PRINT"),
+        ("velvia50+format=2.88mm", "VELVIA 50 1:1 (6 UM PX)"),
+        (
+            "velvia50+grain+mtf+format=2.88mm",
+            "VELVIA 50 +GRAIN +MTF 1:1",
+        ),
+    ] {
+        looks.push((
+            Look::film(catalogue, request, ColourMode::PerLayer, Key::LogAverage)?,
+            label,
+        ));
+    }
     let cols = 4u32;
     let rows = (looks.len() as u32).div_ceil(cols);
     let mut sheet = Canvas::new(

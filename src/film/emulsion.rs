@@ -1,11 +1,13 @@
 //! A stock set up for one exposure: the scene key, the per-layer exposure tables and the
 //! per-pixel emulsion of radiance into display values.
 
+use std::borrow::Cow;
 use std::str::FromStr;
 
 use rayon::prelude::*;
 
-use super::{Curve, FilmError, Kind, Stock};
+use super::grain::Grain;
+use super::{Curve, FilmError, Kind, Options, Stock, optics};
 use crate::display::{Depth, DisplayImage, luminance, srgb_encode, srgb_encode_u16, to_8bit};
 use crate::radiance::RadianceMap;
 
@@ -154,7 +156,53 @@ impl<T: Copy> ExposureTable<T> {
     }
 }
 
-/// Everything the per-pixel loop needs for one stock, exposure and colour mode.
+/// Density to display value of one layer, on a uniform grid of [`DENSITY_STEP`] D:
+/// used when grain moves a pixel's density off its curve.
+#[derive(Debug, Clone)]
+struct DensityTable {
+    low: f32,
+    /// sRGB-encoded, 0..=65535.
+    display: Vec<u16>,
+    /// Linear light.
+    linear: Vec<f32>,
+}
+
+/// Grid step of [`DensityTable`], D: the display error is at most half a step times the
+/// steepest `|dlog10 R/dD|` (1 for a slide, the paper's gradient for a print).
+const DENSITY_STEP: f32 = 1.0 / 2048.0;
+
+impl DensityTable {
+    fn new(low: f64, high: f64, linear: impl Fn(f64) -> f64) -> DensityTable {
+        let n = ((high - low) / f64::from(DENSITY_STEP)).ceil() as usize + 1;
+        let linear: Vec<f32> = (0..n)
+            .map(|i| linear(low + i as f64 * f64::from(DENSITY_STEP)) as f32)
+            .collect();
+        DensityTable {
+            low: low as f32,
+            display: linear
+                .iter()
+                .map(|&t| (srgb_encode(t) * 65535.0).round() as u16)
+                .collect(),
+            linear,
+        }
+    }
+
+    #[inline]
+    fn index(&self, d: f32) -> usize {
+        let i = ((d - self.low) * (1.0 / DENSITY_STEP) + 0.5).max(0.0) as usize;
+        i.min(self.display.len() - 1)
+    }
+}
+
+/// What grain needs: the layers' densities and display values by density.
+#[derive(Debug, Clone)]
+struct Grained {
+    grain: Grain,
+    density: [ExposureTable<f32>; 3],
+    from_density: [DensityTable; 3],
+}
+
+/// Everything the per-pixel loop needs for one stock, exposure, colour mode and options.
 #[derive(Debug, Clone)]
 pub struct Emulsion {
     /// `H = scale[c] · E` per layer (lux·s per unit radiance): `t·k`, times the neutral
@@ -163,27 +211,45 @@ pub struct Emulsion {
     mode: ColourMode,
     /// Per-layer display value (sRGB-encoded, 0..=65535).
     display: [ExposureTable<u16>; 3],
-    /// Green-layer transmittance for the luminance mode.
+    /// Green-layer linear light for the luminance mode.
     transmittance: ExposureTable<f32>,
+    grained: Option<Grained>,
+    /// MTF per layer and the pixel's size at film scale, mm.
+    kernels: Option<([optics::MtfFit; 3], f64)>,
+    /// Halation strength and σ in pixels.
+    halation: Option<(f32, f64)>,
+    /// The printer light per channel (log10), for a negative.
+    printer_light: Option<[f64; 3]>,
 }
 
 impl Emulsion {
-    /// Prepares a stock for a map whose key (relative radiance) is `key`.
-    ///
-    /// `k = (8/S) / key`; the layers' scale is `t·k`; in the neutral-grey mode layer `c`
-    /// is further multiplied by `10^s_c`, where `s_c` makes
-    /// `D_c(log H_key + s_c) − D_min,c = D_g(log H_key) − D_min,g`.
+    /// Prepares a stock for a map whose key (relative radiance) is `key`, without
+    /// options (a negative printed with the default setup).
     pub fn new(
         stock: &Stock,
         exposure: f64,
         key: f64,
         mode: ColourMode,
     ) -> Result<Emulsion, FilmError> {
-        if stock.kind == Kind::Negative {
-            return Err(FilmError::Negative {
-                id: stock.id.clone(),
-            });
-        }
+        Emulsion::with_options(stock, exposure, key, mode, &Options::default(), (1, 1))
+    }
+
+    /// Prepares a stock with `options` for a map of `size` (width, height) pixels whose
+    /// key is `key`.
+    ///
+    /// `k = (8/S) / key`; the layers' scale is `t·k`; in the neutral-grey mode layer `c`
+    /// is further multiplied by `10^s_c`, where `s_c` makes
+    /// `D_c(log H_key + s_c) − D_min,c = D_g(log H_key) − D_min,g`. A negative's printer
+    /// is set on the key's densities ([`super::print`]). The pixel's size at film scale is
+    /// `p = format_mm / max(width, height)`.
+    pub fn with_options(
+        stock: &Stock,
+        exposure: f64,
+        key: f64,
+        mode: ColourMode,
+        options: &Options,
+        size: (u32, u32),
+    ) -> Result<Emulsion, FilmError> {
         let h_key = stock.metered_exposure();
         let k = h_key / key;
         let mut scale = [(exposure * k) as f32; 3];
@@ -197,25 +263,121 @@ impl Emulsion {
                 }
             }
         }
+        let (print, printer_light) = match stock.kind {
+            Kind::Reversal => (None, None),
+            Kind::Negative => {
+                let print = options.print_setup()?;
+                let key_density =
+                    [0, 1, 2].map(|c| stock.layer(c).density((f64::from(scale[c]) * key).log10()));
+                let light = print.printer_light(key_density);
+                (Some(print), Some(light))
+            }
+        };
+        // Linear display light of density `d` in layer `c`: the slide's transmittance or
+        // the print's reflectance, over the base / paper white.
+        let linear = |c: usize, d: f64| -> f64 {
+            match (&print, printer_light) {
+                (Some(print), Some(light)) => print.reflectance(c, light[c], d),
+                _ => 10f64.powf(-(d - stock.layer(c).d_min())),
+            }
+        };
         let display = [0, 1, 2].map(|c| {
-            let d_min = stock.layer(c).d_min();
-            ExposureTable::new(stock.layer(c), move |d| {
-                let t = 10f64.powf(-(d - d_min)) as f32;
-                (srgb_encode(t) * 65535.0).round() as u16
+            ExposureTable::new(stock.layer(c), |d| {
+                (srgb_encode(linear(c, d) as f32) * 65535.0).round() as u16
             })
         });
-        let green_min = stock.layer(1).d_min();
-        let transmittance =
-            ExposureTable::new(stock.layer(1), move |d| 10f64.powf(-(d - green_min)) as f32);
+        let transmittance = ExposureTable::new(stock.layer(1), |d| linear(1, d) as f32);
+        let long_side = f64::from(size.0.max(size.1).max(1));
+        let pitch_mm = options.format_mm / long_side;
+        let grained = match options.grain {
+            None => None,
+            Some(strength) => {
+                let grain = Grain::new(stock, strength, pitch_mm * 1000.0, options.seed)
+                    .ok_or_else(|| FilmError::NoData {
+                        id: stock.id.clone(),
+                        reason: "its data sheet gives no RMS granularity, so +grain cannot be modelled (Kodak gives only a Print Grain Index for colour negatives)".into(),
+                    })?;
+                let density = [0, 1, 2].map(|c| ExposureTable::new(stock.layer(c), |d| d as f32));
+                let from_density = [0, 1, 2].map(|c| {
+                    let curve = stock.layer(c);
+                    DensityTable::new(curve.d_min() - 1.0, curve.d_max() + 1.0, |d| {
+                        linear(c, d).min(1.0)
+                    })
+                });
+                Some(Grained {
+                    grain,
+                    density,
+                    from_density,
+                })
+            }
+        };
+        let kernels = if options.mtf {
+            let mtf = stock.mtf.as_ref().ok_or_else(|| FilmError::NoData {
+                id: stock.id.clone(),
+                reason: "its data sheet gives no MTF curve, so +mtf cannot be modelled".into(),
+            })?;
+            Some(([0, 1, 2].map(|c| optics::MtfFit::new(mtf, c)), pitch_mm))
+        } else {
+            None
+        };
+        let halation = options
+            .halation
+            .map(|s| (s as f32, optics::HALATION_SIGMA_MM / pitch_mm));
         Ok(Emulsion {
             scale,
             mode,
             display,
             transmittance,
+            grained,
+            kernels,
+            halation,
+            printer_light,
         })
     }
 
-    /// Develops one pixel of linear radiance into sRGB-encoded 16-bit values.
+    /// The printer light `L_c` (log10) of a negative, `None` for a slide.
+    pub fn printer_light(&self) -> Option<[f64; 3]> {
+        self.printer_light
+    }
+
+    /// Whether the look needs the optics pass ([`Emulsion::expose`]) before developing.
+    pub fn has_optics(&self) -> bool {
+        self.kernels.is_some() || self.halation.is_some()
+    }
+
+    /// The light inside the film: `map` through the MTF and halation if the look asks for
+    /// them ([`super::optics`]), else `map` itself. Radiance that is NaN or negative
+    /// counts as no light, `+∞` as 10³⁰.
+    pub fn expose<'a>(&self, map: &'a RadianceMap) -> Cow<'a, RadianceMap> {
+        if !self.has_optics() {
+            return Cow::Borrowed(map);
+        }
+        let (w, h) = (map.width() as usize, map.height() as usize);
+        let ch = map.channels();
+        let mut pixels: Vec<f32> = Vec::with_capacity(w * h * 3);
+        for p in map.pixels().chunks_exact(ch) {
+            for c in 0..3 {
+                let v = p[if ch == 3 { c } else { 0 }];
+                pixels.push(if v > 0.0 { v.min(1e30) } else { 0.0 });
+            }
+        }
+        if let Some((strength, sigma)) = self.halation {
+            optics::add_halo(&mut pixels, w, h, 3, 0, strength, sigma);
+            optics::add_halo(&mut pixels, w, h, 3, 1, strength / 4.0, sigma);
+        }
+        if let Some((fits, pitch_mm)) = &self.kernels {
+            for (c, fit) in fits.iter().enumerate() {
+                optics::apply_mtf(&mut pixels, w, h, 3, c, fit, *pitch_mm);
+            }
+        }
+        Cow::Owned(
+            RadianceMap::new(map.width(), map.height(), 3, pixels)
+                .unwrap_or_else(|_| unreachable!("3 samples per pixel were pushed")),
+        )
+    }
+
+    /// Develops one pixel of linear radiance into sRGB-encoded 16-bit values, without
+    /// grain (see [`Emulsion::pixel_at`]).
     #[inline]
     pub fn pixel(&self, e: [f32; 3]) -> [u16; 3] {
         match self.mode {
@@ -225,54 +387,91 @@ impl Emulsion {
                 self.display[2].get(e[2] * self.scale[2]),
             ],
             ColourMode::Luminance => {
-                let e = e.map(|v| {
-                    if v.is_finite() {
-                        v.max(0.0)
-                    } else if v > 0.0 {
-                        f32::MAX
-                    } else {
-                        0.0
-                    }
-                });
-                let l = luminance(e[0], e[1], e[2]);
+                let (e, l) = luminance_of(e);
                 let t = self.transmittance.get(l * self.scale[1]);
-                let rgb = if l > 0.0 && l.is_finite() {
-                    e.map(|v| t * (v / l))
-                } else {
-                    [t; 3]
-                };
-                // Keep chromaticity: scale a channel above white down with the others.
-                let peak = rgb[0].max(rgb[1]).max(rgb[2]);
-                let norm = if peak > 1.0 { 1.0 / peak } else { 1.0 };
-                rgb.map(|v| srgb_encode_u16(if v.is_finite() { v * norm } else { 1.0 }))
+                keep_chromaticity(e, l, t)
+            }
+        }
+    }
+
+    /// Develops the pixel at (`x`, `y`): as [`Emulsion::pixel`], with the grain of that
+    /// position if the look has grain.
+    #[inline]
+    pub fn pixel_at(&self, e: [f32; 3], x: usize, y: usize) -> [u16; 3] {
+        let Some(g) = &self.grained else {
+            return self.pixel(e);
+        };
+        match self.mode {
+            ColourMode::PerLayer | ColourMode::NeutralGrey => [0, 1, 2].map(|c| {
+                let d = g.density[c].get(e[c] * self.scale[c]);
+                let d = g.grain.apply(c, d, x, y);
+                let t = &g.from_density[c];
+                t.display[t.index(d)]
+            }),
+            ColourMode::Luminance => {
+                let (e, l) = luminance_of(e);
+                let d = g.density[1].get(l * self.scale[1]);
+                let d = g.grain.apply(1, d, x, y);
+                let t = &g.from_density[1];
+                keep_chromaticity(e, l, t.linear[t.index(d)])
             }
         }
     }
 }
 
+/// Radiance made safe for the luminance mode (non-finite and negative to 0, `+∞` to
+/// `f32::MAX`) and its luminance.
+#[inline]
+fn luminance_of(e: [f32; 3]) -> ([f32; 3], f32) {
+    let e = e.map(|v| {
+        if v.is_finite() {
+            v.max(0.0)
+        } else if v > 0.0 {
+            f32::MAX
+        } else {
+            0.0
+        }
+    });
+    (e, luminance(e[0], e[1], e[2]))
+}
+
+/// `t · E_c / L`, scaled down with the other channels if one would pass white, encoded.
+#[inline]
+fn keep_chromaticity(e: [f32; 3], l: f32, t: f32) -> [u16; 3] {
+    let rgb = if l > 0.0 && l.is_finite() {
+        e.map(|v| t * (v / l))
+    } else {
+        [t; 3]
+    };
+    let peak = rgb[0].max(rgb[1]).max(rgb[2]);
+    let norm = if peak > 1.0 { 1.0 / peak } else { 1.0 };
+    rgb.map(|v| srgb_encode_u16(if v.is_finite() { v * norm } else { 1.0 }))
+}
+
 impl Emulsion {
-    /// Develops a whole map at `depth` bits per sample (rows in parallel).
+    /// Develops a whole map at `depth` bits per sample (rows in parallel), the optics
+    /// included.
     pub fn render(&self, map: &RadianceMap, depth: Depth) -> DisplayImage {
+        let map = self.expose(map);
+        let map = map.as_ref();
         let ch = map.channels();
         let width = map.width() as usize;
         let height = map.height() as usize;
-        let rows = map.pixels().par_chunks(width * ch);
-        let colour = |p: &[f32]| {
-            if ch == 3 {
-                [p[0], p[1], p[2]]
-            } else {
-                [p[0]; 3]
-            }
-        };
         match depth {
             Depth::Sixteen => {
+                let rows = map.pixels().par_chunks(width * ch);
                 let mut samples = vec![0u16; width * height * 3];
                 samples
                     .par_chunks_mut(width * 3)
                     .zip(rows)
-                    .for_each(|(out, row)| {
-                        for (o, p) in out.chunks_exact_mut(3).zip(row.chunks_exact(ch)) {
-                            o.copy_from_slice(&self.pixel(colour(p)));
+                    .enumerate()
+                    .for_each(|(y, (out, row))| {
+                        for (x, (o, p)) in out
+                            .chunks_exact_mut(3)
+                            .zip(row.chunks_exact(ch))
+                            .enumerate()
+                        {
+                            o.copy_from_slice(&self.pixel_at(colour(p, ch), x, y));
                         }
                     });
                 DisplayImage::new(map.width(), map.height(), samples)
@@ -286,7 +485,8 @@ impl Emulsion {
     }
 
     /// Develops rows `first..first + out.len()/(3·width)` of `map` into 8-bit RGB `out`
-    /// (rows in parallel): the unit the streaming JPEG writer pulls.
+    /// (rows in parallel): the unit the streaming JPEG writer pulls. `map` is the light
+    /// inside the film: pass it through [`Emulsion::expose`] first.
     pub fn render_rows_8bit(&self, map: &RadianceMap, first: usize, out: &mut [u8]) {
         let ch = map.channels();
         let width = map.width() as usize;
@@ -294,21 +494,31 @@ impl Emulsion {
         let input = &map.pixels()[first * width * ch..(first + rows) * width * ch];
         out.par_chunks_mut(width * 3)
             .zip(input.par_chunks(width * ch))
-            .for_each(|(out, row)| {
-                for (o, p) in out.chunks_exact_mut(3).zip(row.chunks_exact(ch)) {
-                    let e = if ch == 3 {
-                        [p[0], p[1], p[2]]
-                    } else {
-                        [p[0]; 3]
-                    };
-                    let v = self.pixel(e);
+            .enumerate()
+            .for_each(|(i, (out, row))| {
+                for (x, (o, p)) in out
+                    .chunks_exact_mut(3)
+                    .zip(row.chunks_exact(ch))
+                    .enumerate()
+                {
+                    let v = self.pixel_at(colour(p, ch), x, first + i);
                     o.copy_from_slice(&[to_8bit(v[0]), to_8bit(v[1]), to_8bit(v[2])]);
                 }
             });
     }
 }
 
-/// Renders `map` through a reversal stock at relative exposure `t`, 16 bits per sample.
+#[inline]
+fn colour(p: &[f32], ch: usize) -> [f32; 3] {
+    if ch == 3 {
+        [p[0], p[1], p[2]]
+    } else {
+        [p[0]; 3]
+    }
+}
+
+/// Renders `map` through a stock (a negative through its default print) at relative
+/// exposure `t`, 16 bits per sample.
 pub fn render(
     map: &RadianceMap,
     stock: &Stock,

@@ -19,11 +19,18 @@
 //! The curve is evaluated through a table indexed by the bits of the `f32` exposure
 //! ([`ExposureTable`]); its error is at most [`TABLE_MAX_ERROR_D`] in density.
 //!
-//! Negative stocks are loaded, validated, listed and plotted, but not rendered: a negative
-//! is viewed through a print, and filmback carries no print-paper curves to model one;
-//! [`render`] refuses them with [`FilmError::Negative`].
+//! A negative stock is rendered through a print ([`mod@print`]): its densities filter the
+//! printer's light onto a colour paper's curves, and the print is viewed by reflection.
+//!
+//! Options of a look (`velvia50+grain+mtf`, [`Options`]): grain from the sheet's RMS
+//! granularity ([`grain`]), the sheet's MTF and halation ([`optics`]), the film format
+//! that sets the pixel's size at film scale, and for negatives the paper, print exposure
+//! and filter pack.
 
 mod emulsion;
+pub mod grain;
+pub mod optics;
+pub mod print;
 mod stock;
 
 use std::fmt;
@@ -35,7 +42,8 @@ use serde::Deserialize;
 pub use emulsion::{
     ColourMode, Emulsion, ExposureTable, Key, TABLE_MAX_ERROR_D, render, scene_key,
 };
-pub use stock::{Catalogue, Curve, Speed, Stock};
+pub use print::{FilterPack, Paper, PrintSetup};
+pub use stock::{Catalogue, Curve, DensityReference, Granularity, Mtf, Speed, Stock};
 
 /// Why a stock could not be loaded or a rendering could not be made.
 #[derive(Debug, thiserror::Error)]
@@ -118,13 +126,21 @@ pub enum FilmError {
         /// The ids available.
         known: String,
     },
-    /// A negative stock was asked to render.
-    #[error(
-        "{id} is a colour negative: it is viewed through a print, and filmback has no print-paper curves to model one; choose a reversal stock"
-    )]
-    Negative {
+    /// No paper has that id.
+    #[error("unknown print paper {id:?} (known: {known})")]
+    UnknownPaper {
+        /// The id asked for.
+        id: String,
+        /// The ids available.
+        known: String,
+    },
+    /// An option asks for data the stock's sheet does not give.
+    #[error("{id}: {reason}")]
+    NoData {
         /// The stock's id.
         id: String,
+        /// What is missing.
+        reason: String,
     },
     /// A rendering request such as `velvia50@1/2` that does not parse.
     #[error("film request {text:?}: {reason}")]
@@ -158,38 +174,222 @@ impl fmt::Display for Kind {
 /// The three dye layers, named by the light they record.
 pub const LAYERS: [&str; 3] = ["red", "green", "blue"];
 
-/// A rendering request as typed: `velvia50`, `provia400@0.5`, `p1600@1/8`, `velvia50@+1ev`.
+/// A rendering request as typed: `velvia50`, `provia400@0.5`, `p1600@1/8`, `velvia50@+1ev`,
+/// with options after `+`: `velvia50+grain+mtf`, `portra400@1/2+print=-1/3ev+cc=05y`.
 #[derive(Debug, Clone, PartialEq)]
 pub struct Request {
     /// Stock id.
     pub stock: String,
     /// Relative exposure `t` (1 = metered; 1/2 = one stop less).
     pub exposure: f64,
+    /// Grain, sharpness, format and print options.
+    pub options: Options,
+}
+
+/// The options of a film look, each typed as `+name` or `+name=value` after the stock.
+///
+/// | option | meaning | default |
+/// |---|---|---|
+/// | `grain`, `grain=G` | grain from the sheet's RMS granularity, `G` times as strong | off |
+/// | `mtf` | the sheet's MTF per layer at the format's scale | off |
+/// | `halation`, `halation=S` | red halo of strength `S` around highlights | off; `S` = 0.1 |
+/// | `format=F` | film format: `35mm` (36 mm long side), `645`, `6x6`, `6x7`, `4x5`, or `Nmm` | `35mm` |
+/// | `seed=N` | the grain's seed | 1 |
+/// | `paper=ID` | print paper for a negative (`endura-premier`, `portra-endura`) | `endura-premier` |
+/// | `print=P` | print exposure in stops (`+1/3`, `-0.5`, `-1ev`): more is a darker print | 0 |
+/// | `cc=F` | filter pack change in CC units: `10y`, `05m10y`, `-5c` | none |
+#[derive(Debug, Clone, PartialEq)]
+pub struct Options {
+    /// Grain strength (1 = the sheet), if on.
+    pub grain: Option<f64>,
+    /// Apply the sheet's MTF.
+    pub mtf: bool,
+    /// Halation strength, if on.
+    pub halation: Option<f64>,
+    /// The film format's long side, mm (36 for 35 mm).
+    pub format_mm: f64,
+    /// The grain's seed.
+    pub seed: u64,
+    /// Print paper id (negatives).
+    pub paper: String,
+    /// Print exposure, stops (negatives).
+    pub print_stops: f64,
+    /// Filter pack change (negatives).
+    pub filter: FilterPack,
+    /// The options as typed, for file names (`+grain+mtf`, `+print=-1_3`): a `/` (from a
+    /// fraction) becomes `_`, since it would name a folder.
+    pub label: String,
+}
+
+impl Default for Options {
+    fn default() -> Options {
+        Options {
+            grain: None,
+            mtf: false,
+            halation: None,
+            format_mm: 36.0,
+            seed: 1,
+            paper: print::DEFAULT_PAPER.to_string(),
+            print_stops: 0.0,
+            filter: FilterPack::default(),
+            label: String::new(),
+        }
+    }
+}
+
+/// Default halation strength for `+halation`: about what a film without its
+/// anti-halation layer shows around a bare bulb.
+pub const DEFAULT_HALATION: f64 = 0.1;
+
+impl Options {
+    /// Parses the options after the stock (each without its `+`).
+    pub fn parse<'a>(items: impl IntoIterator<Item = &'a str>) -> Result<Options, String> {
+        let mut o = Options::default();
+        let mut labels = Vec::new();
+        for item in items {
+            let (name, value) = match item.split_once('=') {
+                Some((n, v)) => (n, Some(v)),
+                None => (item, None),
+            };
+            let number = |v: Option<&str>, lo: f64, hi: f64| -> Result<f64, String> {
+                let v = v.ok_or_else(|| format!("{name} needs a value ({name}=…)"))?;
+                let x: f64 = v.parse().map_err(|_| format!("{name}={v}: not a number"))?;
+                if x.is_finite() && (lo..=hi).contains(&x) {
+                    Ok(x)
+                } else {
+                    Err(format!("{name}={v}: must be within {lo}..={hi}"))
+                }
+            };
+            match name {
+                "grain" => {
+                    o.grain = Some(match value {
+                        None => 1.0,
+                        v => number(v, 0.0, 20.0)?,
+                    })
+                }
+                "mtf" if value.is_none() => o.mtf = true,
+                "halation" => {
+                    o.halation = Some(match value {
+                        None => DEFAULT_HALATION,
+                        v => number(v, 0.0, 10.0)?,
+                    })
+                }
+                "format" => {
+                    let v = value.ok_or("format needs a value such as 35mm or 6x7")?;
+                    o.format_mm = match v {
+                        "35mm" | "135" => 36.0,
+                        "645" => 56.0,
+                        "6x6" | "120" => 56.0,
+                        "6x7" => 70.0,
+                        "4x5" => 120.0,
+                        mm => mm
+                            .strip_suffix("mm")
+                            .and_then(|n| n.parse::<f64>().ok())
+                            .filter(|n| n.is_finite() && (1.0..=1000.0).contains(n))
+                            .ok_or_else(|| {
+                                format!(
+                                    "format={v}: expected 35mm, 645, 6x6, 6x7, 4x5 or Nmm (1–1000)"
+                                )
+                            })?,
+                    };
+                }
+                "seed" => {
+                    let v = value.ok_or("seed needs a value")?;
+                    o.seed = v.parse().map_err(|_| format!("seed={v}: not an integer"))?;
+                }
+                "paper" => o.paper = value.ok_or("paper needs an id")?.to_string(),
+                "print" => {
+                    let v = value.ok_or("print needs stops such as -1/3")?;
+                    let v = v.trim_end_matches("ev").trim_end_matches("EV");
+                    let stops = if let Some((n, d)) = v.split_once('/') {
+                        let n: f64 = n.parse().map_err(|_| format!("print={v}: bad numerator"))?;
+                        let d: f64 = d
+                            .parse()
+                            .map_err(|_| format!("print={v}: bad denominator"))?;
+                        n / d
+                    } else {
+                        v.parse()
+                            .map_err(|_| format!("print={v}: not a number of stops"))?
+                    };
+                    if !(stops.is_finite() && stops.abs() <= 6.0) {
+                        return Err(format!("print={v}: within ±6 stops"));
+                    }
+                    o.print_stops = stops;
+                }
+                "cc" => o.filter = value.ok_or("cc needs filters such as 10y")?.parse()?,
+                _ => {
+                    return Err(format!(
+                        "unknown option {item:?}: expected grain, mtf, halation, format=, seed=, paper=, print=, cc="
+                    ));
+                }
+            }
+            labels.push(item.to_string());
+        }
+        o.label = labels
+            .iter()
+            .map(|l| format!("+{}", l.replace('/', "_")))
+            .collect();
+        Ok(o)
+    }
+
+    /// The print setup these options ask for.
+    pub fn print_setup(&self) -> Result<PrintSetup, FilmError> {
+        Ok(PrintSetup {
+            paper: Paper::get(&self.paper)?,
+            exposure_stops: self.print_stops,
+            filter: self.filter,
+        })
+    }
 }
 
 impl FromStr for Request {
     type Err = FilmError;
 
     fn from_str(text: &str) -> Result<Request, FilmError> {
+        // Options start at a '+' followed by a letter ('+' before a digit is a sign).
+        let bytes = text.as_bytes();
+        let cut = (0..bytes.len())
+            .find(|&i| bytes[i] == b'+' && bytes.get(i + 1).is_some_and(u8::is_ascii_alphabetic))
+            .unwrap_or(text.len());
+        let (head, tail) = text.split_at(cut);
+        let mut items = Vec::new();
+        let mut rest = tail;
+        while let Some(r) = rest.strip_prefix('+') {
+            let bytes = r.as_bytes();
+            let end = (0..bytes.len())
+                .find(|&i| {
+                    bytes[i] == b'+' && bytes.get(i + 1).is_some_and(u8::is_ascii_alphabetic)
+                })
+                .unwrap_or(r.len());
+            items.push(&r[..end]);
+            rest = &r[end..];
+        }
+        let options = Options::parse(items).map_err(|reason| FilmError::Request {
+            text: text.to_string(),
+            reason,
+        })?;
+        let text_all = text;
+        let text = head;
         let (stock, exposure) = match text.split_once('@') {
             None => (text, 1.0),
             Some((stock, t)) => (
                 stock,
                 parse_exposure(t).map_err(|reason| FilmError::Request {
-                    text: text.to_string(),
+                    text: text_all.to_string(),
                     reason,
                 })?,
             ),
         };
         if stock.is_empty() {
             return Err(FilmError::Request {
-                text: text.to_string(),
+                text: text_all.to_string(),
                 reason: "no stock id before '@'".into(),
             });
         }
         Ok(Request {
             stock: stock.to_string(),
             exposure,
+            options,
         })
     }
 }
@@ -337,10 +537,78 @@ mod tests {
     }
 
     #[test]
-    fn negatives_are_refused_with_a_reason() {
+    fn options_parse_and_name_the_look() {
+        let r: Request = "portra400@+1ev+print=-1/3ev+cc=05m10y+paper=portra-endura"
+            .parse()
+            .unwrap();
+        assert_eq!((r.stock.as_str(), r.exposure), ("portra400", 2.0));
+        assert!((r.options.print_stops + 1.0 / 3.0).abs() < 1e-12);
+        assert_eq!(r.options.filter, FilterPack([0.0, 5.0, 10.0]));
+        assert_eq!(r.options.paper, "portra-endura");
+        assert_eq!(
+            r.options.label,
+            "+print=-1_3ev+cc=05m10y+paper=portra-endura"
+        );
+        let r: Request = "velvia50+grain=2+mtf+halation+format=6x7".parse().unwrap();
+        assert_eq!(r.exposure, 1.0);
+        assert_eq!(r.options.grain, Some(2.0));
+        assert!(r.options.mtf);
+        assert_eq!(r.options.halation, Some(DEFAULT_HALATION));
+        assert_eq!(r.options.format_mm, 70.0);
+        assert_eq!(
+            "20r".parse::<FilterPack>().unwrap(),
+            FilterPack([0.0, 20.0, 20.0])
+        );
+        for bad in [
+            "velvia50+grainy",
+            "velvia50+grain=x",
+            "velvia50+format=9x9",
+            "portra400+cc=10q",
+            "portra400+print=9",
+            "velvia50+mtf=2",
+        ] {
+            assert!(bad.parse::<Request>().is_err(), "{bad}");
+        }
+    }
+
+    #[test]
+    fn options_a_sheet_cannot_support_are_refused_with_a_reason() {
         let cat = catalogue();
         let portra = cat.get("portra400").unwrap();
-        let err = Emulsion::new(portra, 1.0, 0.18, ColourMode::PerLayer).unwrap_err();
-        assert!(err.to_string().contains("print"));
+        let grain: Request = "portra400+grain".parse().unwrap();
+        let err = Emulsion::with_options(
+            portra,
+            1.0,
+            0.18,
+            ColourMode::PerLayer,
+            &grain.options,
+            (600, 400),
+        )
+        .unwrap_err();
+        assert!(err.to_string().contains("RMS granularity"), "{err}");
+        let paper: Request = "portra400+paper=crystal".parse().unwrap();
+        let err = Emulsion::with_options(
+            portra,
+            1.0,
+            0.18,
+            ColourMode::PerLayer,
+            &paper.options,
+            (600, 400),
+        )
+        .unwrap_err();
+        assert!(err.to_string().contains("endura-premier"), "{err}");
+        let p1600 = cat.get("p1600").unwrap();
+        let mtf: Request = "p1600+mtf".parse().unwrap();
+        assert!(
+            Emulsion::with_options(
+                p1600,
+                1.0,
+                0.18,
+                ColourMode::PerLayer,
+                &mtf.options,
+                (600, 400)
+            )
+            .is_err()
+        );
     }
 }

@@ -165,7 +165,92 @@ pub struct Stock {
     pub uncertain: Option<String>,
     /// The file it was loaded from (`curves/…` for built-in stocks).
     pub origin: PathBuf,
+    /// The sheet's RMS granularity, if it gives one.
+    pub granularity: Option<Granularity>,
+    /// The sheet's modulation transfer function per layer, if it gives one.
+    pub mtf: Option<Mtf>,
     layers: [Curve; 3],
+}
+
+/// Diffuse RMS granularity as a data sheet states it: `1000·σ_D`, the standard deviation
+/// of density read through a 48 µm circular aperture on a uniformly exposed patch of the
+/// stated density.
+#[derive(Debug, Clone, PartialEq, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct Granularity {
+    /// `1000·σ_D` (dimensionless: density × 1000).
+    pub rms: f64,
+    /// The density the sheet measured at.
+    pub density: f64,
+    /// Whether `density` is above D-min (Fujifilm) or gross, base included (Kodak).
+    pub reference: DensityReference,
+    /// The sheet it was read from.
+    pub source: String,
+}
+
+/// How a sheet states the density of a granularity reading.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Deserialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum DensityReference {
+    /// Density above the film's D-min.
+    AboveBase,
+    /// Gross density, base and fog included.
+    Gross,
+}
+
+impl Granularity {
+    /// The reference density above D-min for a layer whose D-min is `d_min`.
+    pub fn net_density(&self, d_min: f64) -> f64 {
+        match self.reference {
+            DensityReference::AboveBase => self.density,
+            DensityReference::Gross => (self.density - d_min).max(0.05),
+        }
+    }
+}
+
+/// A data sheet's modulation transfer function: response (1 = 100 %) against spatial
+/// frequency in cycles/mm at film scale, per layer.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Mtf {
+    /// Frequencies, cycles/mm, increasing.
+    pub cycles_per_mm: Vec<f64>,
+    /// Response per layer (red, green, blue) at those frequencies, as a fraction.
+    pub layers: [Vec<f64>; 3],
+    /// The sheet it was read from.
+    pub source: String,
+}
+
+impl Mtf {
+    /// Response of layer `c` at `f` cycles/mm: 1 at 0, linear between the sheet's points
+    /// (from 1 at 0 to the first point), and beyond the last point falling like the last
+    /// segment's ratio per cycle/mm (`M(f) = M_n·(M_n/M_{n−1})^((f−f_n)/(f_n−f_{n−1}))`),
+    /// never below 0.
+    pub fn response(&self, c: usize, f: f64) -> f64 {
+        let x = &self.cycles_per_mm;
+        let y = &self.layers[c];
+        let n = x.len();
+        let f = f.abs();
+        if f <= x[0] {
+            return 1.0 + (y[0] - 1.0) * f / x[0];
+        }
+        if f >= x[n - 1] {
+            let ratio = (y[n - 1] / y[n - 2]).min(1.0);
+            return y[n - 1] * ratio.powf((f - x[n - 1]) / (x[n - 1] - x[n - 2]));
+        }
+        let i = x.partition_point(|&v| v <= f) - 1;
+        let s = (f - x[i]) / (x[i + 1] - x[i]);
+        y[i] + s * (y[i + 1] - y[i])
+    }
+}
+
+#[derive(Deserialize)]
+#[serde(deny_unknown_fields)]
+struct MtfFile {
+    source: String,
+    cycles_per_mm: Vec<f64>,
+    red: Vec<f64>,
+    green: Vec<f64>,
+    blue: Vec<f64>,
 }
 
 #[derive(Deserialize)]
@@ -180,14 +265,16 @@ struct StockFile {
     source: String,
     uncertain: Option<String>,
     layers: LayerFile,
+    grain: Option<Granularity>,
+    mtf: Option<MtfFile>,
 }
 
 #[derive(Deserialize)]
 #[serde(deny_unknown_fields)]
-struct LayerFile {
-    red: Vec<(f64, f64)>,
-    green: Vec<(f64, f64)>,
-    blue: Vec<(f64, f64)>,
+pub(super) struct LayerFile {
+    pub(super) red: Vec<(f64, f64)>,
+    pub(super) green: Vec<(f64, f64)>,
+    pub(super) blue: Vec<(f64, f64)>,
 }
 
 /// Plausible log10 H of a data sheet (lux·s): 10⁻⁶ to 10³ lux·s.
@@ -243,6 +330,23 @@ impl Stock {
         let [red, green, blue]: [Curve; 3] = curves
             .try_into()
             .unwrap_or_else(|_| unreachable!("three layers were pushed"));
+        if let Some(g) = &file.grain
+            && !(g.rms.is_finite() && (0.5..=200.0).contains(&g.rms))
+        {
+            return Err(field(
+                "grain.rms",
+                format!("{} is outside 0.5..=200", g.rms),
+            ));
+        }
+        if let Some(g) = &file.grain
+            && !(g.density.is_finite() && (0.1..=4.0).contains(&g.density))
+        {
+            return Err(field(
+                "grain.density",
+                format!("{} is outside 0.1..=4", g.density),
+            ));
+        }
+        let mtf = file.mtf.map(|m| check_mtf(m, origin)).transpose()?;
         Ok(Stock {
             id: file.id,
             name: file.name,
@@ -253,6 +357,8 @@ impl Stock {
             source: file.source,
             uncertain: file.uncertain,
             origin: origin.to_path_buf(),
+            granularity: file.grain,
+            mtf,
             layers: [red, green, blue],
         })
     }
@@ -308,7 +414,49 @@ impl Stock {
     }
 }
 
-fn validate_layer(
+fn check_mtf(m: MtfFile, origin: &Path) -> Result<Mtf, FilmError> {
+    let field = |field: &'static str, reason: String| FilmError::Field {
+        path: origin.to_path_buf(),
+        field,
+        reason,
+    };
+    let x = &m.cycles_per_mm;
+    if x.len() < 2
+        || x.windows(2)
+            .any(|w| w[1].partial_cmp(&w[0]) != Some(std::cmp::Ordering::Greater))
+        || x[0].partial_cmp(&0.0) != Some(std::cmp::Ordering::Greater)
+    {
+        return Err(field(
+            "mtf.cycles_per_mm",
+            "needs at least 2 positive frequencies, increasing".into(),
+        ));
+    }
+    let layers = [m.red, m.green, m.blue];
+    for (name, values) in ["mtf.red", "mtf.green", "mtf.blue"]
+        .into_iter()
+        .zip(&layers)
+    {
+        if values.len() != x.len() {
+            return Err(field(
+                name,
+                format!("{} values for {} frequencies", values.len(), x.len()),
+            ));
+        }
+        if let Some(v) = values
+            .iter()
+            .find(|v| !(v.is_finite() && (0.5..=300.0).contains(*v)))
+        {
+            return Err(field(name, format!("{v} % is outside 0.5..=300")));
+        }
+    }
+    Ok(Mtf {
+        cycles_per_mm: m.cycles_per_mm,
+        layers: layers.map(|l| l.into_iter().map(|v| v / 100.0).collect()),
+        source: m.source,
+    })
+}
+
+pub(super) fn validate_layer(
     path: &Path,
     layer: &'static str,
     kind: Kind,

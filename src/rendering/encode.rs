@@ -226,6 +226,7 @@ impl jpeg_encoder::ImageBuffer for Bands {
 /// bands of 64 rows (in parallel within the band, colour conversion included) while the
 /// single-threaded encoder consumes them, so developing hides behind encoding on a
 /// 2-core machine. Decodes to the 8-bit [`film::Emulsion::render`] within JPEG error.
+/// `map` is the light inside the film ([`film::Emulsion::expose`]).
 pub fn encode_film_jpeg(
     map: &RadianceMap,
     emulsion: &film::Emulsion,
@@ -296,18 +297,10 @@ pub fn encode_look(
         format: format!("{format:?}"),
         reason,
     };
-    if let (
-        Look::Film {
-            stock,
-            exposure,
-            colour,
-            key,
-        },
-        Format::Jpeg { quality },
-    ) = (look, format)
-    {
-        let emulsion = film::Emulsion::new(stock, *exposure, film::scene_key(map, *key), *colour)?;
-        return encode_film_jpeg(map, &emulsion, quality, exif, out).map_err(encode_error);
+    if let (Look::Film { .. }, Format::Jpeg { quality }) = (look, format) {
+        let emulsion = look.emulsion(map)?;
+        let exposed = emulsion.expose(map);
+        return encode_film_jpeg(&exposed, &emulsion, quality, exif, out).map_err(encode_error);
     }
     let image = look.render(map, format.depth())?;
     encode(&image, format, exif, out).map_err(encode_error)

@@ -56,7 +56,7 @@ pub enum RenderingError {
 /// One way to show a radiance map.
 #[derive(Debug, Clone)]
 pub enum Look {
-    /// Through a reversal stock.
+    /// Through a film stock (a negative through its print).
     Film {
         /// The stock (boxed: a stock is large next to a tone-map operator).
         stock: Box<Stock>,
@@ -66,13 +66,17 @@ pub enum Look {
         colour: ColourMode,
         /// What is metered.
         key: Key,
+        /// Grain, MTF, halation, format and print options.
+        options: Box<film::Options>,
     },
     /// A tone-mapping operator.
     Tonemap(tonemap::Operator),
 }
 
 impl Look {
-    /// A film look from a request such as `provia400@1/2`.
+    /// A film look from a request such as `provia400@1/2` or `velvia50+grain+mtf`. An
+    /// option the stock's sheet cannot support (grain without an RMS granularity, MTF
+    /// without a curve) or an unknown paper is refused here, before anything renders.
     pub fn film(
         catalogue: &Catalogue,
         request: &str,
@@ -81,26 +85,32 @@ impl Look {
     ) -> Result<Look, RenderingError> {
         let request: film::Request = request.parse()?;
         let stock = Box::new(catalogue.get(&request.stock)?.clone());
-        if stock.kind == film::Kind::Negative {
-            return Err(FilmError::Negative {
-                id: stock.id.clone(),
-            }
-            .into());
-        }
+        // Builds the emulsion once on a nominal size so that bad options fail now.
+        film::Emulsion::with_options(&stock, 1.0, 1.0, colour, &request.options, (6000, 4000))?;
         Ok(Look::Film {
             stock,
             exposure: request.exposure,
             colour,
             key,
+            options: Box::new(request.options),
         })
     }
 
-    /// The look's part of an output file name: `velvia50-t0.5`, `linear`, `histogram`.
+    /// The look's part of an output file name: `velvia50-t0.5`, `velvia50-t1+grain`,
+    /// `linear`, `histogram`.
     pub fn name(&self) -> String {
         match self {
             Look::Film {
-                stock, exposure, ..
-            } => format!("{}-t{}", stock.id, exposure_label(*exposure)),
+                stock,
+                exposure,
+                options,
+                ..
+            } => format!(
+                "{}-t{}{}",
+                stock.id,
+                exposure_label(*exposure),
+                options.label
+            ),
             Look::Tonemap(op) => op.name().to_string(),
         }
     }
@@ -108,17 +118,35 @@ impl Look {
     /// Renders `map` in this look at `depth` bits per sample.
     pub fn render(&self, map: &RadianceMap, depth: Depth) -> Result<DisplayImage, RenderingError> {
         match self {
+            Look::Film { .. } => Ok(self.emulsion(map)?.render(map, depth)),
+            Look::Tonemap(op) => Ok(op.apply(map).at_depth(depth)),
+        }
+    }
+}
+
+impl Look {
+    /// The emulsion of a film look set up for `map` (its key and size); `None` for a
+    /// tone map.
+    pub fn emulsion(&self, map: &RadianceMap) -> Result<film::Emulsion, RenderingError> {
+        match self {
             Look::Film {
                 stock,
                 exposure,
                 colour,
                 key,
-            } => {
-                let emulsion =
-                    film::Emulsion::new(stock, *exposure, film::scene_key(map, *key), *colour)?;
-                Ok(emulsion.render(map, depth))
-            }
-            Look::Tonemap(op) => Ok(op.apply(map).at_depth(depth)),
+                options,
+            } => Ok(film::Emulsion::with_options(
+                stock,
+                *exposure,
+                film::scene_key(map, *key),
+                *colour,
+                options,
+                (map.width(), map.height()),
+            )?),
+            Look::Tonemap(op) => Err(RenderingError::Parse {
+                text: op.name().to_string(),
+                reason: "a tone map has no emulsion".into(),
+            }),
         }
     }
 }
@@ -189,15 +217,6 @@ pub fn render_all(
     let mut written = Vec::with_capacity(looks.len());
     for look in looks {
         let path = look_path(outputs.dir, outputs.stem, look, outputs.format);
-        // A look that cannot be rendered (a negative stock) fails before any file exists.
-        if let Look::Film { stock, .. } = look
-            && stock.kind == film::Kind::Negative
-        {
-            return Err(FilmError::Negative {
-                id: stock.id.clone(),
-            }
-            .into());
-        }
         let mut failure = None;
         let published = atomic::publish_with(&path, outputs.overwrite, |w| {
             encode_look(map, look, outputs.format, outputs.exif, w).map_err(|e| {
