@@ -859,7 +859,7 @@ fn cli_renders_films_and_tonemaps_beside_the_exr() {
 }
 
 #[test]
-fn cli_refuses_unknown_or_negative_looks_before_writing() {
+fn cli_refuses_unknown_or_unrenderable_looks_before_writing() {
     let dir = tempfile::tempdir().unwrap();
     let (a, b) = pair(dir.path());
     let out = dir.path().join("out");
@@ -868,7 +868,10 @@ fn cli_refuses_unknown_or_negative_looks_before_writing() {
             &["--film", "nosuchstock"],
             &["nosuchstock", "unknown film stock"],
         ),
-        (&["--film", "portra400"], &["portra400", "colour negative"]),
+        (
+            &["--film", "portra400+grain"],
+            &["portra400", "RMS granularity"],
+        ),
         (&["--tonemap", "foo"], &["\"foo\"", "unknown tone map"]),
     ];
     for (extra, needles) in cases {
