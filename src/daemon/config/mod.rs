@@ -1,0 +1,360 @@
+//! The daemon's configuration: one TOML file, parsed in two stages.
+//!
+//! [`RawConfig`] mirrors the file (serde, `deny_unknown_fields`, every value checked while
+//! it is read so the error carries its line and column); [`Config`] is the checked form
+//! the daemon runs on. The defaults are `config/filmback.toml`, embedded in the binary, so
+//! the daemon runs without any file; a user's file is read over them key by key.
+
+use std::path::{Path, PathBuf};
+use std::time::Duration;
+
+use serde::Deserialize;
+
+/// The commented example configuration, which is also the source of every default.
+pub const DEFAULT_TOML: &str = include_str!("../../../config/filmback.toml");
+
+/// Why a configuration cannot be used. Each variant names the file.
+#[derive(Debug, thiserror::Error)]
+pub enum ConfigError {
+    /// The file could not be read.
+    #[error("{path}: cannot read: {source}")]
+    Read {
+        /// The file.
+        path: PathBuf,
+        /// What the operating system said.
+        source: std::io::Error,
+    },
+    /// A syntax error, an unknown key or a bad value.
+    #[error("{path}:{line}:{column}: {key}: {message}")]
+    Invalid {
+        /// The file (`<built-in defaults>` for the embedded file).
+        path: PathBuf,
+        /// 1-based line.
+        line: usize,
+        /// 1-based column.
+        column: usize,
+        /// The key (or table header) on that line.
+        key: String,
+        /// What is wrong.
+        message: String,
+    },
+    /// The folders are valid one by one but not together.
+    #[error("{path}: [folders]: {reason}")]
+    Folders {
+        /// The file.
+        path: PathBuf,
+        /// What is wrong.
+        reason: String,
+    },
+}
+
+/// How the ingest folder is watched.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum WatchMode {
+    /// Kernel events (inotify).
+    Notify,
+    /// Compare listings every `poll_ms` (network shares deliver no events).
+    Poll,
+}
+
+/// What happens to a frame that ends up alone.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum Singles {
+    /// Render it through the camera's cached response.
+    Render,
+    /// Only report it (journal and log).
+    Report,
+}
+
+/// Where a bracket's response curve comes from.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum Recalibrate {
+    /// Fit each bracket; use the cached curve when the fit is weak.
+    Auto,
+    /// Only the bracket's own fit.
+    Always,
+    /// Only the cached curve.
+    Never,
+}
+
+mod raw;
+
+pub use raw::LookName;
+use raw::{RawConfig, line_of, line_of_key, merge, parse};
+
+/// The folders the daemon reads and writes.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Folders {
+    /// Frames arrive here.
+    pub ingest: PathBuf,
+    /// Outputs are published here.
+    pub out: PathBuf,
+    /// Journal, response cache and status.
+    pub state: PathBuf,
+    /// Finished inputs are moved here, when set.
+    pub archive: Option<PathBuf>,
+    /// Extra film stock files (`*.toml`) beside the built-in ones, when set.
+    pub stocks: Option<PathBuf>,
+}
+
+/// How files are noticed and when they count as complete.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Watch {
+    /// Events or polling.
+    pub mode: WatchMode,
+    /// Polling interval.
+    pub poll: Duration,
+    /// Periodic full rescan; `None` disables it.
+    pub rescan: Option<Duration>,
+    /// Watch sub-folders too.
+    pub recursive: bool,
+    /// Size and mtime must be stable this long.
+    pub settle: Duration,
+    /// Temporary-name patterns (`*` wildcard).
+    pub ignore: Vec<String>,
+    /// Accepted extensions, lower case, without the dot.
+    pub extensions: Vec<String>,
+}
+
+/// How frames are grouped into brackets.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct BracketRules {
+    /// Largest capture-time gap between successive frames, seconds.
+    pub max_gap_s: f64,
+    /// Smallest exposure difference within a bracket, stops.
+    pub min_step_ev: f64,
+    /// Frames per bracket (closes when reached).
+    pub size: usize,
+    /// Render or report frames left alone.
+    pub singles: Singles,
+}
+
+/// Concurrency and retries.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Daemon {
+    /// Brackets developed at once.
+    pub jobs: usize,
+    /// Closed brackets waiting for a job.
+    pub queue: usize,
+    /// First retry delay after an output failure.
+    pub retry: Duration,
+}
+
+/// What a camera's brackets are developed into (defaults merged with its preset).
+#[derive(Debug, Clone, PartialEq)]
+pub struct Preset {
+    /// The preset's table name, or `None` for the `[render]` defaults.
+    pub name: Option<String>,
+    /// Write the EXR radiance map.
+    pub exr: bool,
+    /// Film stocks to render.
+    pub films: Vec<String>,
+    /// Tone maps to render.
+    pub tonemaps: Vec<String>,
+    /// Film exposure relative to metered mid-grey, stops.
+    pub t: f64,
+    /// JPEG quality 1..=100.
+    pub jpeg_quality: u8,
+    /// Where the response comes from.
+    pub recalibrate: Recalibrate,
+    /// Fits below this confidence are weak.
+    pub min_confidence: f64,
+}
+
+/// A per-camera preset and what it matches.
+#[derive(Debug, Clone, PartialEq)]
+pub struct CameraPreset {
+    /// EXIF model it applies to.
+    pub model: String,
+    /// Body serial it is restricted to, if any.
+    pub serial: Option<String>,
+    /// The merged settings.
+    pub preset: Preset,
+}
+
+/// The checked configuration the daemon runs on.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Config {
+    /// Where the file came from (`None`: built-in defaults only).
+    pub source: Option<PathBuf>,
+    /// Folders.
+    pub folders: Folders,
+    /// Watching and settling.
+    pub watch: Watch,
+    /// Grouping.
+    pub bracket: BracketRules,
+    /// Concurrency.
+    pub daemon: Daemon,
+    /// Settings for cameras without a preset.
+    pub render: Preset,
+    /// Per-camera presets.
+    pub cameras: Vec<CameraPreset>,
+}
+
+impl Config {
+    /// The built-in defaults.
+    pub fn defaults() -> Config {
+        Config::from_str(DEFAULT_TOML, None).expect("the embedded config/filmback.toml is valid")
+    }
+
+    /// Reads and checks a file over the defaults.
+    pub fn load(path: &Path) -> Result<Config, ConfigError> {
+        let text = std::fs::read_to_string(path).map_err(|source| ConfigError::Read {
+            path: path.to_path_buf(),
+            source,
+        })?;
+        Config::from_str(&text, Some(path))
+    }
+
+    /// Checks `text` (the contents of `path`, if any) over the defaults.
+    pub fn from_str(text: &str, path: Option<&Path>) -> Result<Config, ConfigError> {
+        let label = path.map_or_else(|| PathBuf::from("<built-in defaults>"), Path::to_path_buf);
+        let defaults: RawConfig = parse(DEFAULT_TOML, Path::new("<built-in defaults>"))?;
+        let user: RawConfig = parse(text, &label)?;
+        let config = merge(defaults, user, path.map(Path::to_path_buf));
+        config.check_folders(&label)?;
+        config.check_looks(&label, text)?;
+        Ok(config)
+    }
+
+    /// Checks that every preset's films and tone maps exist and can be rendered (with
+    /// the options their stocks' sheets support), with the stocks of `folders.stocks` if set. An error names
+    /// the line where the name appears in `text`.
+    fn check_looks(&self, label: &Path, text: &str) -> Result<(), ConfigError> {
+        let catalogue =
+            crate::film::Catalogue::builtin().and_then(|c| match &self.folders.stocks {
+                Some(dir) => c.with_folder(dir),
+                None => Ok(c),
+            });
+        let catalogue = catalogue.map_err(|e| ConfigError::Invalid {
+            path: label.to_path_buf(),
+            line: line_of_key(text, "stocks"),
+            column: 1,
+            key: "folders.stocks".into(),
+            message: e.to_string(),
+        })?;
+        let presets = std::iter::once(("render".to_string(), &self.render)).chain(
+            self.cameras.iter().map(|c| {
+                (
+                    format!("camera.{:?}", c.preset.name.as_deref().unwrap_or("")),
+                    &c.preset,
+                )
+            }),
+        );
+        for (table, preset) in presets {
+            for (key, names) in [("films", &preset.films), ("tonemaps", &preset.tonemaps)] {
+                for name in names {
+                    let (films, tonemaps) = if key == "films" {
+                        (std::slice::from_ref(name), &[][..])
+                    } else {
+                        (&[][..], std::slice::from_ref(name))
+                    };
+                    crate::rendering::looks(
+                        &catalogue,
+                        films,
+                        tonemaps,
+                        0.0,
+                        crate::film::ColourMode::PerLayer,
+                        crate::film::Key::LogAverage,
+                    )
+                    .map_err(|e| ConfigError::Invalid {
+                        path: label.to_path_buf(),
+                        line: line_of(text, &format!("\"{name}\"")),
+                        column: 1,
+                        key: format!("{table}.{key}"),
+                        message: e.to_string(),
+                    })?;
+                }
+            }
+        }
+        Ok(())
+    }
+
+    /// Checks the folders together (again after command-line overrides): outputs written
+    /// into the watched folder would come back as frames. `label` names the source.
+    pub fn check_folders(&self, label: &Path) -> Result<(), ConfigError> {
+        let f = &self.folders;
+        let inside =
+            |dir: &Path| dir == f.ingest || (self.watch.recursive && dir.starts_with(&f.ingest));
+        for (name, dir) in [("out", &f.out), ("state", &f.state)]
+            .into_iter()
+            .chain(f.archive.as_ref().map(|a| ("archive", a)))
+        {
+            if inside(dir) {
+                return Err(ConfigError::Folders {
+                    path: label.to_path_buf(),
+                    reason: format!(
+                        "{name} = {:?} is (inside) the watched ingest folder {:?}; its files would be taken as frames",
+                        dir, f.ingest
+                    ),
+                });
+            }
+        }
+        Ok(())
+    }
+
+    /// The preset for a camera body: a preset naming this model and serial, else one
+    /// naming the model without a serial, else the `[render]` defaults.
+    pub fn preset_for(&self, model: Option<&str>, serial: Option<&str>) -> &Preset {
+        let Some(model) = model else {
+            return &self.render;
+        };
+        let by_serial = self
+            .cameras
+            .iter()
+            .find(|c| c.model == model && c.serial.is_some() && c.serial.as_deref() == serial);
+        let by_model = || {
+            self.cameras
+                .iter()
+                .find(|c| c.model == model && c.serial.is_none())
+        };
+        by_serial
+            .or_else(by_model)
+            .map_or(&self.render, |c| &c.preset)
+    }
+}
+
+/// True when `name` matches `pattern`, where `*` matches any run of characters.
+pub fn glob_match(pattern: &str, name: &str) -> bool {
+    let (p, n): (Vec<char>, Vec<char>) = (pattern.chars().collect(), name.chars().collect());
+    // Classic two-pointer wildcard match with backtracking to the last `*`.
+    let (mut pi, mut ni) = (0, 0);
+    let mut star: Option<(usize, usize)> = None;
+    while ni < n.len() {
+        if pi < p.len() && p[pi] == '*' {
+            star = Some((pi, ni));
+            pi += 1;
+        } else if pi < p.len() && p[pi] == n[ni] {
+            pi += 1;
+            ni += 1;
+        } else if let Some((sp, sn)) = star {
+            pi = sp + 1;
+            ni = sn + 1;
+            star = Some((sp, sn + 1));
+        } else {
+            return false;
+        }
+    }
+    p[pi..].iter().all(|&c| c == '*')
+}
+
+impl Watch {
+    /// Whether a file name is a frame to take: not a temporary name, with an accepted
+    /// extension. (Files written by [`crate::atomic`] are temporary names too.)
+    pub fn takes(&self, name: &str) -> bool {
+        if self.ignore.iter().any(|p| glob_match(p, name)) {
+            return false;
+        }
+        let ext = Path::new(name)
+            .extension()
+            .and_then(|e| e.to_str())
+            .map(str::to_ascii_lowercase);
+        ext.is_some_and(|e| self.extensions.contains(&e))
+    }
+}
+
+#[cfg(test)]
+mod tests;
