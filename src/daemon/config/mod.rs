@@ -1,6 +1,6 @@
 //! The daemon's configuration: one TOML file, parsed in two stages.
 //!
-//! [`RawConfig`] mirrors the file (serde, `deny_unknown_fields`, every value checked while
+//! `raw::RawConfig` mirrors the file (serde, `deny_unknown_fields`, every value checked while
 //! it is read so the error carries its line and column); [`Config`] is the checked form
 //! the daemon runs on. The defaults are `config/filmback.toml`, embedded in the binary, so
 //! the daemon runs without any file; a user's file is read over them key by key.

@@ -1,0 +1,319 @@
+//! Which response a bracket is merged with: its own fit, the camera's cached curve,
+//! a response file or sRGB.
+//!
+//! [`ResponsePolicy::Fit`] calibrates from the bracket itself: with more than two
+//! distinct exposures from every frame jointly ([`response::calibrate_bracket`]: the tone
+//! pairs of every two frames adjacent in exposure, one curve per channel), with two from
+//! that pair; about three million
+//! pixels a frame (stride `⌊√(pixels/3·10⁶)⌋`), degree chosen by the data. The fit's
+//! confidence is the smallest of its channels' (a channel that borrowed another's curve
+//! has confidence 0, so a bracket with one saturated channel never counts as good). When
+//! the fit fails or its confidence is below the policy's `min_confidence`, the fallback
+//! (the camera's cached curve, else the sRGB inverse) is used instead and a note says
+//! why — unless the bracket contradicts the fallback: if the fallback explains the tone
+//! pairs worse than the weak fit by more than 0.05 stop RMS (`log₂(g(τ)/(γ·g(b)))`), the
+//! fit is kept, with a note. [`ResponsePolicy::Use`] takes a curve as given (a response file, the cache, sRGB).
+
+use std::path::Path;
+use std::time::Instant;
+
+use super::{DarkroomError, Stages, file_name};
+use crate::histogram::Histogram;
+use crate::merge::BracketFrame;
+use crate::response::{self, Calibration, Degree, InverseResponse, Ratio, RatioSource};
+
+/// Pixels per frame the calibration histograms look at (a speed knob measured in
+/// `benches/calibrate_speed.rs`: beyond a few million pixels the histograms of a
+/// 256-level frame no longer change the fit).
+pub const CALIBRATION_PIXELS: f64 = 3e6;
+
+/// Where a response came from.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum Source {
+    /// Fitted from this bracket's histograms.
+    Fitted,
+    /// The camera body's cached curve.
+    Cached,
+    /// A response file.
+    File,
+    /// The sRGB inverse (IEC 61966-2-1), for lack of anything better.
+    Standard,
+}
+
+impl std::fmt::Display for Source {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(match self {
+            Source::Fitted => "fitted",
+            Source::Cached => "cached",
+            Source::File => "file",
+            Source::Standard => "standard (sRGB)",
+        })
+    }
+}
+
+/// A curve to use as it is, with where it came from.
+#[derive(Debug, Clone)]
+pub struct GivenResponse {
+    /// The curve.
+    pub response: InverseResponse,
+    /// Its origin.
+    pub source: Source,
+    /// One line for logs and the EXR header, e.g. `cached (12 brackets)`.
+    pub label: String,
+}
+
+impl GivenResponse {
+    /// The sRGB inverse for `channels` channels.
+    pub fn standard(channels: usize) -> GivenResponse {
+        GivenResponse {
+            response: InverseResponse::srgb(channels, 1024),
+            source: Source::Standard,
+            label: "sRGB inverse (IEC 61966-2-1), default".to_string(),
+        }
+    }
+}
+
+/// How the response is chosen (see the module docs).
+#[derive(Debug, Clone)]
+pub enum ResponsePolicy {
+    /// Calibrate from the bracket; below `min_confidence`, or when the fit fails, use
+    /// `fallback` (an error when there is none).
+    Fit {
+        /// Used when the fit is weak or impossible.
+        fallback: Option<GivenResponse>,
+        /// The confidence a fit needs to be used.
+        min_confidence: f64,
+    },
+    /// Use this curve.
+    Use(GivenResponse),
+}
+
+/// The response a bracket was merged with.
+#[derive(Debug, Clone)]
+pub struct ChosenResponse {
+    /// The curve used.
+    pub response: InverseResponse,
+    /// Its origin.
+    pub source: Source,
+    /// One line for logs and the EXR header.
+    pub summary: String,
+    /// Machine-readable detail (model, degrees, covered ranges, confidences).
+    pub report: serde_json::Value,
+    /// This bracket's own fit and its confidence, when one was made, used or not (the
+    /// daemon folds good ones into the camera's cache).
+    pub fit: Option<(InverseResponse, f64)>,
+    /// Why a fit was not used, etc.
+    pub notes: Vec<String>,
+}
+
+/// Chooses the response for `bracket` under `policy`; `ratio_source` says where the
+/// exposures came from. Histogram and fit times are appended to `stages`.
+pub fn choose_response(
+    bracket: &[BracketFrame<'_>],
+    ratio_source: RatioSource,
+    policy: ResponsePolicy,
+    stages: &mut Stages,
+) -> Result<ChosenResponse, DarkroomError> {
+    let (fallback, min_confidence) = match policy {
+        ResponsePolicy::Use(given) => return Ok(use_given(given, Vec::new(), None)),
+        ResponsePolicy::Fit {
+            fallback,
+            min_confidence,
+        } => (fallback, min_confidence),
+    };
+    let mut order: Vec<usize> = (0..bracket.len()).collect();
+    order.sort_by(|&a, &b| bracket[a].exposure.total_cmp(&bracket[b].exposure));
+    // The adjacent pair nearest the middle whose exposures differ (duplicates, as in
+    // 1/60, 1/60, 1/15, tell the fit nothing); if none differ, the middle pair, and the
+    // fit says why it cannot work.
+    let mid = (order.len() / 2).max(1);
+    let distinct = |k: &usize| {
+        let (a, b) = (&bracket[order[k - 1]], &bracket[order[*k]]);
+        b.exposure > a.exposure * 1.01
+    };
+    let k = (1..order.len())
+        .filter(distinct)
+        .min_by_key(|k| k.abs_diff(mid))
+        .unwrap_or(mid);
+    let (dark, bright) = (&bracket[order[k - 1]], &bracket[order[k]]);
+    let t = Instant::now();
+    let stride = ((dark.frame.pixel_count() as f64 / CALIBRATION_PIXELS)
+        .sqrt()
+        .floor() as usize)
+        .max(1);
+    // More than two distinct exposures: every frame, every pair, one curve per channel.
+    let distinct = (1..order.len()).filter(distinct).count() + 1;
+    let joint = distinct > 2;
+    let (fitted, ratio, pair, sources) = if joint {
+        use rayon::prelude::*;
+        let histograms: Vec<Histogram> = bracket
+            .par_iter()
+            .map(|f| Histogram::of_frame(f.frame, stride))
+            .collect();
+        stages.push(("histogram", t.elapsed()));
+        let t = Instant::now();
+        let frames: Vec<(&Histogram, f64)> = histograms
+            .iter()
+            .zip(bracket)
+            .map(|(h, f)| (h, f.exposure))
+            .collect();
+        let fitted = response::calibrate_bracket(&frames, ratio_source, Degree::Auto);
+        stages.push(("fit", t.elapsed()));
+        let ratio = bracket[order[order.len() - 1]].exposure / bracket[order[0]].exposure;
+        let sources: Vec<&Path> = order.iter().map(|&i| bracket[i].source).collect();
+        let pair = format!("all {} frames", bracket.len());
+        (fitted, ratio, pair, sources)
+    } else {
+        let (h_dark, h_bright) = rayon::join(
+            || Histogram::of_frame(dark.frame, stride),
+            || Histogram::of_frame(bright.frame, stride),
+        );
+        stages.push(("histogram", t.elapsed()));
+        let t = Instant::now();
+        let ratio = bright.exposure / dark.exposure;
+        let fitted = response::calibrate(
+            &h_dark,
+            &h_bright,
+            Ratio::Known(ratio, ratio_source),
+            Degree::Auto,
+        );
+        stages.push(("fit", t.elapsed()));
+        let pair = format!(
+            "{} and {}",
+            file_name(dark.source),
+            file_name(bright.source)
+        );
+        (fitted, ratio, pair, vec![dark.source, bright.source])
+    };
+    let (calibration, fallback) = match (fitted, fallback) {
+        (Ok(c), fallback) => (c, fallback),
+        (Err(source), None) => {
+            return Err(DarkroomError::Calibrate {
+                dark: dark.source.to_path_buf(),
+                bright: bright.source.to_path_buf(),
+                source,
+            });
+        }
+        (Err(e), Some(given)) => {
+            let note = format!(
+                "no response could be fitted from {pair} ({e}); used the {}",
+                given.label
+            );
+            return Ok(use_given(given, vec![note], None));
+        }
+    };
+    let confidence = calibration
+        .channels
+        .iter()
+        .map(|c| c.fit.confidence)
+        .fold(f64::INFINITY, f64::min)
+        .clamp(0.0, 1.0);
+    let fit = Some((calibration.response.clone(), confidence));
+    let report = serde_json::json!({
+        "source": "fitted",
+        "frames": sources.iter().map(|p| p.display().to_string()).collect::<Vec<_>>(),
+        "ratio": ratio,
+        "ratio_source": ratio_source.as_str(),
+        "confidence": confidence,
+        "channels": calibration.channels.iter().map(|c| serde_json::json!({
+            "name": c.name,
+            "model": c.fit.model(),
+            "degree": c.fit.degree,
+            "effective_parameters": c.fit.effective_parameters,
+            "covered": [c.fit.covered.0, c.fit.covered.1],
+            "residual_rms_stops": c.fit.residual_rms,
+            "confidence": c.fit.confidence,
+            "borrowed_from": c.borrowed_from,
+        })).collect::<Vec<_>>(),
+    });
+    let mut notes = Vec::new();
+    if confidence < min_confidence
+        && let Some(given) = fallback
+    {
+        // A fallback is only better than a weak fit if the bracket does not contradict it.
+        let fit_misfit = misfit(&calibration, &calibration.response);
+        let given_misfit = misfit(&calibration, &given.response);
+        if given_misfit <= fit_misfit + CONTRADICTION_STOPS {
+            let note = format!(
+                "the fit from {pair} has confidence {confidence:.2} < {min_confidence:.2}; used the {}",
+                given.label
+            );
+            let mut chosen = use_given(given, vec![note], fit);
+            chosen.report["rejected_fit"] = report;
+            return Ok(chosen);
+        }
+        notes.push(format!(
+            "the fit from {pair} has confidence {confidence:.2} < {min_confidence:.2}, but the {} \
+             contradicts this bracket ({given_misfit:.3} stops RMS against the fit's \
+             {fit_misfit:.3}); used the fit",
+            given.label
+        ));
+    }
+    let sizes: Vec<String> = calibration
+        .channels
+        .iter()
+        .map(|c| format!("{} {}", c.name, c.fit.size()))
+        .collect();
+    let family = calibration
+        .channels
+        .iter()
+        .find(|c| c.borrowed_from.is_none())
+        .map_or_else(String::new, |c| c.fit.family());
+    if confidence < 0.5 {
+        notes.push(format!(
+            "low-confidence response fit ({confidence:.2}) from {pair}: check the result or give a response file"
+        ));
+    }
+    Ok(ChosenResponse {
+        response: calibration.response,
+        source: Source::Fitted,
+        summary: format!(
+            "calibrated from {pair} (ratio {ratio:.4}, {}): {family}; {}; confidence {confidence:.2}",
+            ratio_source.as_str(),
+            sizes.join("; ")
+        ),
+        report,
+        fit,
+        notes,
+    })
+}
+
+/// How much worse (RMS, stops) a fallback may explain the bracket's tone pairs than the
+/// bracket's own fit before it counts as contradicted. A ripple the two exposures cannot
+/// resolve costs a few hundredths of a stop; a wrong curve family (sRGB for a film
+/// shoulder) costs tenths.
+const CONTRADICTION_STOPS: f64 = 0.05;
+
+/// RMS over the calibration's tone pairs of `log₂(g(τ(b)) / (γ·g(b)))`, stops, each pair
+/// at its own ratio `γ`: how far `g` is from explaining the frames' histograms. Pairs
+/// where `g` is 0 are skipped; no pairs gives 0.
+fn misfit(calibration: &Calibration, g: &InverseResponse) -> f64 {
+    let (mut sum, mut n) = (0.0, 0usize);
+    for (c, channel) in calibration.channels.iter().enumerate() {
+        let c = c.min(g.channels().saturating_sub(1));
+        for (p, log_ratio) in channel.pairs.iter().zip(&channel.log_ratios) {
+            let (lo, hi) = (g.eval(c, p.dark), g.eval(c, p.bright));
+            if lo > 0.0 && hi > 0.0 {
+                sum += ((hi / lo).ln() - log_ratio).powi(2) / std::f64::consts::LN_2.powi(2);
+                n += 1;
+            }
+        }
+    }
+    if n == 0 { 0.0 } else { (sum / n as f64).sqrt() }
+}
+
+pub(super) fn use_given(
+    given: GivenResponse,
+    notes: Vec<String>,
+    fit: Option<(InverseResponse, f64)>,
+) -> ChosenResponse {
+    ChosenResponse {
+        report: serde_json::json!({ "source": given.source, "model": given.label }),
+        summary: given.label,
+        response: given.response,
+        source: given.source,
+        fit,
+        notes,
+    }
+}

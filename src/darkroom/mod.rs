@@ -1,0 +1,392 @@
+//! The darkroom: decoded frames in, published files out. One bracket goes through the
+//! report's three steps — response ([`crate::response`]), radiance merge
+//! ([`crate::merge`]), display renderings ([`crate::rendering`]) — and the radiance map is
+//! written as OpenEXR ([`crate::hdr_output`]). `filmback merge` and the daemon both
+//! develop through here, so a bracket dropped in the ingest folder and the same bracket
+//! given on the command line come out identical.
+//!
+//! # Memory
+//!
+//! Two 8-bit frames written only as EXR are merged while the file is encoded
+//! ([`PairMerge`]): no radiance buffer exists. With renderings (or a confidence layer, or
+//! more frames) the map is built once (`width × height × channels × 4` bytes) beside the
+//! decoded frames the caller holds, and the EXR and every rendering read that one map.
+
+use std::io::Cursor;
+use std::path::{Path, PathBuf};
+use std::time::{Duration, Instant};
+
+use crate::atomic::{self, Overwrite, PublishError};
+use crate::frame::{LoadedFrame, Samples};
+use crate::hdr_output::{
+    self, ExrOptions, FrameRecord, OutputError, Provenance, RadianceSource, Written,
+};
+use crate::merge::{self, BracketFrame, MergeError, MergeOptions, PairMerge};
+use crate::radiance::RadianceMap;
+use crate::rendering::{self, Format, Look, Outputs, RenderingError, SourceExif};
+use crate::response::{CalibrationError, InverseResponse, RatioSource};
+
+mod choice;
+
+use choice::use_given;
+
+pub use choice::{
+    CALIBRATION_PIXELS, ChosenResponse, GivenResponse, ResponsePolicy, Source, choose_response,
+};
+
+/// Why a bracket could not be developed. Each variant names the file concerned.
+#[derive(Debug, thiserror::Error)]
+pub enum DarkroomError {
+    /// The frames do not form a bracket (sizes, depths, cameras, exposures).
+    #[error(transparent)]
+    Merge(#[from] MergeError),
+    /// The response could not be recovered and there was no fallback.
+    #[error("cannot calibrate the response from {dark} and {bright}: {source}")]
+    Calibrate {
+        /// The darker frame of the pair.
+        dark: PathBuf,
+        /// The brighter frame.
+        bright: PathBuf,
+        /// Why.
+        source: CalibrationError,
+    },
+    /// The OpenEXR or Radiance HDR file could not be encoded or published.
+    #[error(transparent)]
+    Output(#[from] OutputError),
+    /// A rendering could not be made or published.
+    #[error(transparent)]
+    Rendering(#[from] RenderingError),
+    /// A file could not be published.
+    #[error(transparent)]
+    Publish(#[from] PublishError),
+}
+
+impl DarkroomError {
+    /// The output file a failure to write concerns, if it is one (full disk, permissions,
+    /// an existing file): such failures are worth retrying; the others are not.
+    pub fn output_path(&self) -> Option<&Path> {
+        let publish = match self {
+            DarkroomError::Publish(p)
+            | DarkroomError::Output(OutputError::Publish(p))
+            | DarkroomError::Rendering(RenderingError::Publish(p)) => p,
+            DarkroomError::Rendering(RenderingError::Encode { path, .. }) => return Some(path),
+            _ => return None,
+        };
+        Some(match publish {
+            PublishError::Exists { path }
+            | PublishError::Io { path, .. }
+            | PublishError::Content { path, .. } => path,
+        })
+    }
+}
+
+/// Wall time per stage, in the order they ran.
+pub type Stages = Vec<(&'static str, Duration)>;
+
+fn file_name(path: &Path) -> String {
+    path.file_name().map_or_else(
+        || path.display().to_string(),
+        |n| n.to_string_lossy().into_owned(),
+    )
+}
+
+/// What to make of a radiance map, and where.
+#[derive(Debug, Clone)]
+pub struct Prints<'a> {
+    /// Output folder (must exist).
+    pub dir: &'a Path,
+    /// Stem of every output name: `DIR/STEM.exr`, `DIR/STEM.LOOK.jpg`.
+    pub stem: &'a str,
+    /// Write the OpenEXR map, with these options.
+    pub exr: Option<ExrOptions>,
+    /// Also write a Radiance RGBE file `DIR/STEM.hdr`.
+    pub radiance_hdr: bool,
+    /// Renderings, one file each.
+    pub looks: &'a [Look],
+    /// Encoding of the renderings.
+    pub format: Format,
+    /// EXIF carried into the renderings.
+    pub exif: &'a SourceExif,
+    /// Replace existing files or refuse.
+    pub overwrite: Overwrite,
+}
+
+impl Prints<'_> {
+    /// `DIR/STEM.exr`.
+    pub fn exr_path(&self) -> PathBuf {
+        self.dir.join(format!("{}.exr", self.stem))
+    }
+
+    /// `DIR/STEM.hdr`.
+    pub fn hdr_path(&self) -> PathBuf {
+        self.dir.join(format!("{}.hdr", self.stem))
+    }
+
+    /// Every path this will write, in order (EXR, HDR, renderings).
+    pub fn paths(&self) -> Vec<PathBuf> {
+        let mut paths = Vec::new();
+        if self.exr.is_some() {
+            paths.push(self.exr_path());
+        }
+        if self.radiance_hdr {
+            paths.push(self.hdr_path());
+        }
+        for look in self.looks {
+            paths.push(rendering::look_path(self.dir, self.stem, look, self.format));
+        }
+        paths
+    }
+}
+
+/// What developing a bracket did.
+#[derive(Debug)]
+pub struct Developed {
+    /// Files published, in the order of [`Prints::paths`].
+    pub outputs: Vec<PathBuf>,
+    /// The response used.
+    pub response: ChosenResponse,
+    /// Input indices sorted by exposure, darkest first.
+    pub order: Vec<usize>,
+    /// Longest over shortest exposure.
+    pub ratio: f64,
+    /// Samples clipped high and low in every frame.
+    pub clipped: (u64, u64),
+    /// Factor applied to the EXR's values (1 unless half overflow was scaled).
+    pub exr_scale: f32,
+    /// True when the merge ran inside the EXR encoder (no radiance buffer).
+    pub fused: bool,
+    /// Warnings (frame metadata, half overflow, weak fits).
+    pub warnings: Vec<String>,
+    /// Wall time per stage.
+    pub stages: Stages,
+}
+
+/// The merged bracket: evaluated during encoding, or held as a map.
+enum Radiance<'a> {
+    Fused(PairMerge<'a>),
+    Buffered(merge::Merged),
+}
+
+/// The merge's view of decoded `frames` with relative `exposures` (same order).
+pub fn bracket<'a>(frames: &'a [LoadedFrame], exposures: &[f64]) -> Vec<BracketFrame<'a>> {
+    frames
+        .iter()
+        .zip(exposures)
+        .map(|(f, &exposure)| BracketFrame {
+            source: &f.path,
+            frame: &f.frame,
+            exposure,
+            camera: &f.metadata.camera,
+        })
+        .collect()
+}
+
+/// Develops a bracket of decoded `frames` with relative `exposures` (same order):
+/// response under `policy`, merge, then the EXR and renderings of `prints`.
+pub fn develop(
+    frames: &[LoadedFrame],
+    exposures: &[f64],
+    ratio_source: RatioSource,
+    policy: ResponsePolicy,
+    options: MergeOptions,
+    prints: &Prints<'_>,
+) -> Result<Developed, DarkroomError> {
+    let mut stages = Stages::new();
+    let bracket = bracket(frames, exposures);
+    // One frame is not a bracket (sizes, depths and cameras are checked by the merge).
+    if bracket.len() < 2 {
+        return Err(MergeError::TooFewFrames(bracket.len()).into());
+    }
+    let chosen = choose_response(&bracket, ratio_source, policy, &mut stages)?;
+    let t = Instant::now();
+    let fused = if options.confidence || !prints.looks.is_empty() || prints.exr.is_none() {
+        None
+    } else {
+        PairMerge::new(&bracket, &chosen.response, options.weighting)?
+    };
+    let merged = match fused {
+        Some(pair) => Radiance::Fused(pair),
+        None => Radiance::Buffered(merge::merge(&bracket, &chosen.response, options)?),
+    };
+    stages.push(("merge", t.elapsed()));
+    let (order, ratio, clipped) = match &merged {
+        Radiance::Fused(p) => (p.order.clone(), p.ratio(), (p.clipped_high, p.clipped_low)),
+        Radiance::Buffered(m) => (m.order.clone(), m.ratio(), (m.clipped_high, m.clipped_low)),
+    };
+    let provenance = Provenance {
+        camera: frames[0].metadata.camera.clone(),
+        captured_at: frames[order[0]].metadata.captured_at,
+        frames: order
+            .iter()
+            .map(|&i| FrameRecord {
+                name: file_name(&frames[i].path),
+                exposure: frames[i].metadata.exposure,
+                relative: exposures[i],
+            })
+            .collect(),
+        response: chosen.summary.clone(),
+        weighting: format!("{:?}", options.weighting),
+        clipped,
+    };
+    let mut warnings: Vec<String> = frames
+        .iter()
+        .flat_map(|f| {
+            f.metadata
+                .warnings
+                .iter()
+                .map(move |w| format!("{}: {w}", f.path.display()))
+        })
+        .chain(chosen.notes.iter().cloned())
+        .collect();
+    let (source, confidence): (&dyn RadianceSource, Option<&[f32]>) = match &merged {
+        Radiance::Fused(pair) => (pair, None),
+        Radiance::Buffered(m) => (&m.radiance, m.confidence.as_deref()),
+    };
+    let mut outputs = Vec::new();
+    let mut exr_scale = 1.0;
+    if let Some(exr) = prints.exr {
+        let written = write_radiance(source, confidence, &provenance, exr, prints, &mut stages)?;
+        exr_scale = written.scale;
+        warnings.extend(written.warnings);
+        outputs.push(prints.exr_path());
+    }
+    if prints.radiance_hdr {
+        let t = Instant::now();
+        let path = prints.hdr_path();
+        let mut hdr = Vec::new();
+        hdr_output::encode_radiance_hdr(&mut hdr, source)?;
+        atomic::publish(&path, &hdr, prints.overwrite)?;
+        outputs.push(path);
+        stages.push(("hdr", t.elapsed()));
+    }
+    let fused = matches!(merged, Radiance::Fused(_));
+    if let Radiance::Buffered(m) = merged {
+        outputs.extend(print_looks(&m.radiance, prints, &mut stages)?);
+    }
+    Ok(Developed {
+        outputs,
+        response: chosen,
+        order,
+        ratio,
+        clipped,
+        exr_scale,
+        fused,
+        warnings,
+        stages,
+    })
+}
+
+/// Encodes the EXR in memory (stage `encode`), then publishes it (stage `write`), so the
+/// two costs are told apart.
+fn write_radiance(
+    source: &dyn RadianceSource,
+    confidence: Option<&[f32]>,
+    provenance: &Provenance,
+    options: ExrOptions,
+    prints: &Prints<'_>,
+    stages: &mut Stages,
+) -> Result<Written, DarkroomError> {
+    let t = Instant::now();
+    let mut exr = Cursor::new(Vec::new());
+    let written = hdr_output::encode_exr(&mut exr, source, confidence, provenance, options)?;
+    stages.push(("encode", t.elapsed()));
+    let t = Instant::now();
+    let path = prints.exr_path();
+    atomic::publish(&path, exr.get_ref(), prints.overwrite)?;
+    stages.push(("write", t.elapsed()));
+    Ok(written)
+}
+
+/// Renders `map` in every look of `prints` (stage `render`).
+fn print_looks(
+    map: &RadianceMap,
+    prints: &Prints<'_>,
+    stages: &mut Stages,
+) -> Result<Vec<PathBuf>, DarkroomError> {
+    if prints.looks.is_empty() {
+        return Ok(Vec::new());
+    }
+    let t = Instant::now();
+    let written = rendering::render_all(
+        map,
+        prints.looks,
+        &Outputs {
+            dir: prints.dir,
+            stem: prints.stem,
+            format: prints.format,
+            overwrite: prints.overwrite,
+            exif: prints.exif,
+        },
+    )?;
+    stages.push(("render", t.elapsed()));
+    Ok(written)
+}
+
+/// One frame's radiance estimate, `E = g(B)` per sample: the frame's own range, no
+/// extension (scale: a sample at the top code reads 1.0, as the longest frame of a
+/// bracket does).
+pub fn linearise(
+    loaded: &LoadedFrame,
+    response: &InverseResponse,
+) -> Result<RadianceMap, MergeError> {
+    let frame = &loaded.frame;
+    let channels = frame.channels();
+    if response.channels() != channels {
+        return Err(MergeError::ChannelMismatch {
+            path: loaded.path.clone(),
+            frame: channels,
+            response: response.channels(),
+        });
+    }
+    let levels = frame.bit_depth().levels();
+    let tables: Vec<Vec<f32>> = (0..channels).map(|c| response.table(c, levels)).collect();
+    let pixels = match frame.samples() {
+        Samples::Eight(v) => v
+            .iter()
+            .enumerate()
+            .map(|(i, &k)| tables[i % channels][usize::from(k)])
+            .collect(),
+        Samples::Sixteen(v) => v
+            .iter()
+            .enumerate()
+            .map(|(i, &k)| tables[i % channels][usize::from(k)])
+            .collect(),
+    };
+    Ok(
+        RadianceMap::new(frame.width(), frame.height(), channels, pixels)
+            .expect("one value per sample of a valid frame"),
+    )
+}
+
+/// Renders a single frame (no bracket) through `response` in every look of `prints`;
+/// the EXR is not written (it would hold no more range than the frame).
+pub fn develop_single(
+    frame: &LoadedFrame,
+    response: GivenResponse,
+    prints: &Prints<'_>,
+) -> Result<Developed, DarkroomError> {
+    let mut stages = Stages::new();
+    let t = Instant::now();
+    let map = linearise(frame, &response.response)?;
+    stages.push(("linearise", t.elapsed()));
+    let outputs = print_looks(&map, prints, &mut stages)?;
+    Ok(Developed {
+        outputs,
+        response: use_given(response, Vec::new(), None),
+        order: vec![0],
+        ratio: 1.0,
+        clipped: (0, 0),
+        exr_scale: 1.0,
+        fused: false,
+        warnings: frame
+            .metadata
+            .warnings
+            .iter()
+            .map(|w| format!("{}: {w}", frame.path.display()))
+            .collect(),
+        stages,
+    })
+}
+
+#[cfg(test)]
+mod tests;

@@ -1,0 +1,125 @@
+use super::*;
+use crate::frame::{BitDepth, Frame};
+use crate::metadata::{Camera, Exposure, Metadata};
+use crate::synthetic::{ResponseCurve, Sensor, expose, scene};
+
+fn loaded(name: &str, frame: Frame) -> LoadedFrame {
+    LoadedFrame {
+        path: PathBuf::from(name),
+        frame,
+        metadata: Metadata {
+            camera: Camera::default(),
+            exposure: Exposure::default(),
+            captured_at: None,
+            orientation: 1,
+            warnings: Vec::new(),
+        },
+    }
+}
+
+/// 1/60, 1/60, 1/15: the middle pair is a duplicate; the fit must take the pair that
+/// differs, not fail on a ratio of 1.
+#[test]
+fn duplicate_exposures_in_the_middle_do_not_stop_the_fit() {
+    let truth = scene(240, 160, 3);
+    let sensor = Sensor::noiseless(ResponseCurve::Srgb, BitDepth::Eight);
+    let exposures = [1.0 / 60.0, 1.0 / 60.0, 1.0 / 15.0];
+    let frames: Vec<LoadedFrame> = exposures
+        .iter()
+        .enumerate()
+        .map(|(i, &e)| loaded(&format!("f{i}.png"), expose(&truth, e * 15.0, &sensor)))
+        .collect();
+    let bracket = bracket(&frames, &exposures);
+    let policy = ResponsePolicy::Fit {
+        fallback: None,
+        min_confidence: 0.0,
+    };
+    let chosen = choose_response(&bracket, RatioSource::Argument, policy, &mut Stages::new())
+        .expect("the distinct pair is fitted");
+    assert_eq!(chosen.source, Source::Fitted);
+    assert!((chosen.report["ratio"].as_f64().unwrap() - 4.0).abs() < 1e-9);
+    assert!(chosen.summary.contains("f2.png"), "{}", chosen.summary);
+}
+
+/// Three distinct exposures are calibrated jointly from all frames, and the
+/// contradiction check weighs each tone pair at its own ratio: frames through a film
+/// S curve still contradict sRGB.
+#[test]
+fn three_exposures_are_fitted_from_every_frame() {
+    let truth = scene(240, 160, 5);
+    let sensor = Sensor::noiseless(ResponseCurve::FilmS, BitDepth::Eight);
+    let exposures = [0.25, 1.0, 4.0];
+    let frames: Vec<LoadedFrame> = exposures
+        .iter()
+        .enumerate()
+        .map(|(i, &e)| loaded(&format!("f{i}.png"), expose(&truth, e, &sensor)))
+        .collect();
+    let bracket = bracket(&frames, &exposures);
+    let policy = ResponsePolicy::Fit {
+        fallback: Some(GivenResponse::standard(3)),
+        min_confidence: 1.01,
+    };
+    let chosen =
+        choose_response(&bracket, RatioSource::Argument, policy, &mut Stages::new()).unwrap();
+    assert_eq!(chosen.source, Source::Fitted, "{:?}", chosen.notes);
+    assert!(
+        chosen.summary.contains("all 3 frames"),
+        "{}",
+        chosen.summary
+    );
+    assert_eq!(chosen.report["frames"].as_array().unwrap().len(), 3);
+    assert!((chosen.report["ratio"].as_f64().unwrap() - 16.0).abs() < 1e-9);
+    assert!(
+        chosen.notes[0].contains("contradicts"),
+        "{:?}",
+        chosen.notes
+    );
+}
+
+/// A weak fit below `min_confidence` gives way to the fallback, and says so; the fit
+/// itself is still reported (the daemon decides whether the cache learns from it).
+#[test]
+fn a_fit_below_min_confidence_uses_the_fallback() {
+    let truth = scene(240, 160, 4);
+    let sensor = Sensor::noiseless(ResponseCurve::Srgb, BitDepth::Eight);
+    let frames = [
+        loaded("a.png", expose(&truth, 1.0, &sensor)),
+        loaded("b.png", expose(&truth, 4.0, &sensor)),
+    ];
+    let bracket = bracket(&frames, &[1.0, 4.0]);
+    let policy = ResponsePolicy::Fit {
+        fallback: Some(GivenResponse::standard(3)),
+        min_confidence: 1.01,
+    };
+    let chosen =
+        choose_response(&bracket, RatioSource::Argument, policy, &mut Stages::new()).unwrap();
+    assert_eq!(chosen.source, Source::Standard);
+    assert!(chosen.fit.is_some());
+    assert!(chosen.notes[0].contains("confidence"), "{:?}", chosen.notes);
+    assert_eq!(chosen.report["rejected_fit"]["source"], "fitted");
+}
+
+/// A weak fit is kept when the fallback contradicts the bracket: frames through a film
+/// S curve are not explained by sRGB.
+#[test]
+fn a_fallback_the_bracket_contradicts_is_not_used() {
+    let truth = scene(240, 160, 4);
+    let sensor = Sensor::noiseless(ResponseCurve::FilmS, BitDepth::Eight);
+    let frames = [
+        loaded("a.png", expose(&truth, 1.0, &sensor)),
+        loaded("b.png", expose(&truth, 4.0, &sensor)),
+    ];
+    let bracket = bracket(&frames, &[1.0, 4.0]);
+    let policy = ResponsePolicy::Fit {
+        fallback: Some(GivenResponse::standard(3)),
+        min_confidence: 1.01,
+    };
+    let chosen =
+        choose_response(&bracket, RatioSource::Argument, policy, &mut Stages::new()).unwrap();
+    assert_eq!(chosen.source, Source::Fitted, "{:?}", chosen.notes);
+    assert!(
+        chosen.notes[0].contains("contradicts"),
+        "{:?}",
+        chosen.notes
+    );
+}
