@@ -89,6 +89,36 @@ impl CaptureTime {
         secs as f64 + f64::from(self.nanos.unwrap_or(0)) * 1e-9
     }
 
+    /// This time advanced by `seconds` (≥ 0; negative counts as 0) on the camera's clock,
+    /// to the nanosecond; the offset is kept. Sub-seconds are recorded when this time has
+    /// them or the result falls between whole seconds.
+    pub fn later_by(&self, seconds: f64) -> CaptureTime {
+        let whole = CaptureTime {
+            nanos: None,
+            ..*self
+        }
+        .local_seconds() as i64;
+        let total = i128::from(whole) * 1_000_000_000
+            + i128::from(self.nanos.unwrap_or(0))
+            + (seconds.max(0.0) * 1e9).round() as i128;
+        let (secs, nanos) = (
+            total.div_euclid(1_000_000_000) as i64,
+            total.rem_euclid(1_000_000_000) as u32,
+        );
+        let (days, of_day) = (secs.div_euclid(86_400), secs.rem_euclid(86_400));
+        let (year, month, day) = civil_from_days(days);
+        CaptureTime {
+            year: year as u16,
+            month: month as u8,
+            day: day as u8,
+            hour: (of_day / 3600) as u8,
+            minute: (of_day / 60 % 60) as u8,
+            second: (of_day % 60) as u8,
+            nanos: (self.nanos.is_some() || nanos != 0).then_some(nanos),
+            offset_minutes: self.offset_minutes,
+        }
+    }
+
     /// RFC 3339 text, with sub-seconds when recorded and the offset when recorded
     /// (without an offset the time is local to the camera and printed without a zone).
     pub fn to_rfc3339(&self) -> String {
@@ -128,6 +158,20 @@ fn days_from_civil(y: i64, m: i64, d: i64) -> i64 {
     let doy = (153 * mp + 2) / 5 + d - 1;
     let doe = yoe * 365 + yoe / 4 - yoe / 100 + doy;
     era * 146_097 + doe - 719_468
+}
+
+/// The proleptic Gregorian date `(year, month, day)` of a day count since 1970-01-01: the
+/// inverse of [`days_from_civil`] (H. Hinnant's algorithm).
+fn civil_from_days(days: i64) -> (i64, i64, i64) {
+    let z = days + 719_468;
+    let era = z.div_euclid(146_097);
+    let doe = z - era * 146_097;
+    let yoe = (doe - doe / 1460 + doe / 36_524 - doe / 146_096) / 365;
+    let doy = doe - (365 * yoe + yoe / 4 - yoe / 100);
+    let mp = (5 * doy + 2) / 153;
+    let day = doy - (153 * mp + 2) / 5 + 1;
+    let month = if mp < 10 { mp + 3 } else { mp - 9 };
+    (yoe + era * 400 + i64::from(month <= 2), month, day)
 }
 
 /// Everything filmback reads from a frame's EXIF.
@@ -668,5 +712,16 @@ mod tests {
         };
         // 2000-03-01 is day 11017 after 1970-01-01.
         assert_eq!(t.local_seconds(), 11_017.0 * 86_400.0 + 1.5);
+    }
+
+    #[test]
+    fn civil_dates_and_day_counts_are_inverse() {
+        for days in (-800_000..3_000_000).step_by(997) {
+            let (y, m, d) = civil_from_days(days);
+            assert!((1..=12).contains(&m) && (1..=31).contains(&d), "{days}");
+            assert_eq!(days_from_civil(y, m, d), days, "{y}-{m}-{d}");
+        }
+        assert_eq!(civil_from_days(11_017), (2000, 3, 1));
+        assert_eq!(civil_from_days(-1), (1969, 12, 31));
     }
 }

@@ -70,43 +70,9 @@ impl Shot {
                     f_number: Some(f_number),
                     iso: Some(iso),
                 },
-                captured_at: later(first, k as f64 * interval_s),
+                captured_at: first.later_by(k as f64 * interval_s),
             })
             .collect()
-    }
-}
-
-/// `t` advanced by `seconds` (≥ 0) on the camera's clock, to the nanosecond.
-fn later(t: CaptureTime, seconds: f64) -> CaptureTime {
-    // Whole seconds since 1970 of the civil time (exact in f64), then nanoseconds.
-    let whole = CaptureTime { nanos: None, ..t }.local_seconds() as i64;
-    let total = i128::from(whole) * 1_000_000_000
-        + i128::from(t.nanos.unwrap_or(0))
-        + (seconds.max(0.0) * 1e9).round() as i128;
-    let (secs, nanos) = (
-        total.div_euclid(1_000_000_000) as i64,
-        total.rem_euclid(1_000_000_000) as u32,
-    );
-    let (days, of_day) = (secs.div_euclid(86_400), secs.rem_euclid(86_400));
-    // Civil date from days since 1970-01-01 (H. Hinnant's algorithm).
-    let z = days + 719_468;
-    let era = z.div_euclid(146_097);
-    let doe = z - era * 146_097;
-    let yoe = (doe - doe / 1460 + doe / 36_524 - doe / 146_096) / 365;
-    let doy = doe - (365 * yoe + yoe / 4 - yoe / 100);
-    let mp = (5 * doy + 2) / 153;
-    let day = doy - (153 * mp + 2) / 5 + 1;
-    let month = if mp < 10 { mp + 3 } else { mp - 9 };
-    let year = yoe + era * 400 + i64::from(month <= 2);
-    CaptureTime {
-        year: year as u16,
-        month: month as u8,
-        day: day as u8,
-        hour: (of_day / 3600) as u8,
-        minute: (of_day / 60 % 60) as u8,
-        second: (of_day % 60) as u8,
-        nanos: (t.nanos.is_some() || nanos != 0).then_some(nanos),
-        offset_minutes: t.offset_minutes,
     }
 }
 
@@ -195,7 +161,7 @@ mod tests {
             ..first
         };
         assert_eq!(
-            later(leap, 86_400.0).to_rfc3339(),
+            leap.later_by(86_400.0).to_rfc3339(),
             "2024-02-29T12:59:58+01:00"
         );
     }
