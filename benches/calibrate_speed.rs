@@ -20,7 +20,7 @@ use filmback::frame::{self, BitDepth, Frame, Limits};
 use filmback::histogram::Histogram;
 use filmback::metadata::{Camera, CaptureTime, Exposure};
 use filmback::response::{Degree, Preset, Ratio, RatioSource, calibrate, calibrate_bracket};
-use filmback::synthetic::{self, Encoding, ResponseCurve, Sensor, Shot};
+use filmback::synthetic::{self, Encoding, ResponseCurve, Sensor, Shot, measure};
 
 fn median_ms(mut f: impl FnMut()) -> f64 {
     let mut t: Vec<f64> = (0..5)
@@ -34,22 +34,13 @@ fn median_ms(mut f: impl FnMut()) -> f64 {
     t[2]
 }
 
-/// (own, shape) error in stops, RMS over channels, of `g(channel, code)`.
+/// (own, shape) error in stops, RMS over the three channels, of `g(channel, code)`.
 fn errors(curve: &ResponseCurve, g: impl Fn(usize, usize) -> f64) -> (f64, f64) {
-    let truth: Vec<f64> = (16..=239)
-        .map(|k| curve.inverse(k as f64 / 255.0).log2())
-        .collect();
-    let (mut own2, mut shape2) = (0.0, 0.0);
-    for c in 0..3 {
-        let d: Vec<f64> = (16..=239)
-            .zip(&truth)
-            .map(|(k, t)| g(c, k).max(1e-300).log2() - t)
-            .collect();
-        let mean = d.iter().sum::<f64>() / d.len() as f64;
-        own2 += d.iter().map(|x| x * x).sum::<f64>() / d.len() as f64;
-        shape2 += d.iter().map(|x| (x - mean).powi(2)).sum::<f64>() / d.len() as f64;
-    }
-    ((own2 / 3.0).sqrt(), (shape2 / 3.0).sqrt())
+    let e = measure::curve_errors(3, |c, b| g(c, (b * 255.0).round() as usize), curve);
+    let rms = |f: fn(&measure::CurveError) -> f64| {
+        (e.iter().map(|x| f(x).powi(2)).sum::<f64>() / 3.0).sqrt()
+    };
+    (rms(|x| x.own), rms(|x| x.shape))
 }
 
 fn shot(exposure: f64) -> Shot {

@@ -3,12 +3,15 @@
 //! is), and a clear error when the folder does not exist.
 
 use std::path::Path;
-use std::process::{Command, Output};
+use std::process::Output;
 
 use filmback::daemon::bracket::CameraId;
 use filmback::daemon::cache::{CachedResponse, ResponseCache};
 use filmback::response::InverseResponse;
 use image::RgbImage;
+
+mod common;
+use common::filmback;
 
 /// Panel width of the figure (one panel per channel) and its height (title strip + panel).
 const PANEL_W: u32 = 300;
@@ -35,8 +38,8 @@ fn state_with_entry(dir: &Path, channels: usize) {
         .unwrap();
 }
 
-fn filmback(state: &Path, args: &[&std::ffi::OsStr]) -> Output {
-    Command::new(env!("CARGO_BIN_EXE_filmback"))
+fn cache(state: &Path, args: &[&std::ffi::OsStr]) -> Output {
+    filmback()
         .arg("cache")
         .arg("--state")
         .arg(state)
@@ -46,7 +49,7 @@ fn filmback(state: &Path, args: &[&std::ffi::OsStr]) -> Output {
 }
 
 fn show_plot(state: &Path, camera: &str, png: &Path) -> Output {
-    filmback(
+    cache(
         state,
         &[
             "show".as_ref(),

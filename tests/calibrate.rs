@@ -2,7 +2,6 @@
 //! `filmback calibrate` command's JSON, TOML and PNG outputs.
 
 use std::path::Path;
-use std::process::Command;
 
 use filmback::frame::{BitDepth, Frame, Samples};
 use filmback::histogram::Histogram;
@@ -12,6 +11,9 @@ use filmback::response::{
     self, Calibration, CalibrationError, Degree, Ratio, RatioSource, calibrate, calibrate_bracket,
 };
 use filmback::synthetic::{self, Encoding, ResponseCurve, Sensor, Shot, measure};
+
+mod common;
+use common::filmback;
 
 const W: u32 = 384;
 const H: u32 = 256;
@@ -52,22 +54,11 @@ fn run(
     )
 }
 
-/// (own, shape) RMSE of `log₂ g − log₂ g_true` over codes 16..239, worst channel, stops.
+/// (own, shape) error of `log₂ g − log₂ g_true` over codes 16..239, worst channel, stops.
 fn stops_error(cal: &Calibration, curve: &ResponseCurve) -> (f64, f64) {
-    let mut worst = (0.0f64, 0.0f64);
-    for c in 0..cal.response.channels() {
-        let d: Vec<f64> = (16..=239)
-            .map(|k| {
-                let b = f64::from(k) / 255.0;
-                cal.response.eval(c, b).log2() - curve.inverse(b).log2()
-            })
-            .collect();
-        let mean = d.iter().sum::<f64>() / d.len() as f64;
-        let own = (d.iter().map(|x| x * x).sum::<f64>() / d.len() as f64).sqrt();
-        let shape = (d.iter().map(|x| (x - mean).powi(2)).sum::<f64>() / d.len() as f64).sqrt();
-        worst = (worst.0.max(own), worst.1.max(shape));
-    }
-    worst
+    measure::response_errors(&cal.response, curve)
+        .iter()
+        .fold((0.0f64, 0.0f64), |w, e| (w.0.max(e.own), w.1.max(e.shape)))
 }
 
 /// Every curve finite, monotone, `g(0) = 0`, `g(1) = 1`; every reported number finite.
@@ -419,12 +410,8 @@ fn write_frame(path: &Path, frame: &Frame, exposure: Option<f64>) {
     synthetic::write(path, frame, &shot, Encoding::Png).unwrap();
 }
 
-fn filmback(args: &[&std::ffi::OsStr]) -> std::process::Output {
-    Command::new(env!("CARGO_BIN_EXE_filmback"))
-        .arg("calibrate")
-        .args(args)
-        .output()
-        .unwrap()
+fn calibrate_command(args: &[&std::ffi::OsStr]) -> std::process::Output {
+    filmback().arg("calibrate").args(args).output().unwrap()
 }
 
 #[test]
@@ -437,7 +424,7 @@ fn command_prints_the_json_contract_and_writes_toml_and_png() {
     let toml = dir.path().join("response.toml");
     let png = dir.path().join("figure.png");
     // Bright first: the order must not matter.
-    let out = filmback(&[
+    let out = calibrate_command(&[
         a.as_os_str(),
         b.as_os_str(),
         "--json".as_ref(),
@@ -487,7 +474,7 @@ fn command_prints_the_json_contract_and_writes_toml_and_png() {
     assert_eq!((figure.width(), figure.height()), (1200, 690));
 
     // --ratio overrides EXIF.
-    let out = filmback(&[
+    let out = calibrate_command(&[
         a.as_os_str(),
         b.as_os_str(),
         "--json".as_ref(),
@@ -506,7 +493,7 @@ fn command_estimates_the_ratio_without_exif_and_says_so() {
     let (a, b) = (dir.path().join("a.png"), dir.path().join("b.png"));
     write_frame(&a, &dark, None);
     write_frame(&b, &bright, None);
-    let out = filmback(&[
+    let out = calibrate_command(&[
         a.as_os_str(),
         b.as_os_str(),
         "--json".as_ref(),
@@ -531,11 +518,11 @@ fn command_names_the_file_and_reason_on_bad_input() {
     let dir = tempfile::tempdir().unwrap();
     let bad = dir.path().join("broken.jpg");
     std::fs::write(&bad, b"not an image").unwrap();
-    let out = filmback(&[bad.as_os_str(), bad.as_os_str()]);
+    let out = calibrate_command(&[bad.as_os_str(), bad.as_os_str()]);
     assert!(!out.status.success());
     let err = String::from_utf8_lossy(&out.stderr);
     assert!(err.contains("broken.jpg"), "{err}");
-    let out = filmback(&[
+    let out = calibrate_command(&[
         bad.as_os_str(),
         bad.as_os_str(),
         "--degree".as_ref(),

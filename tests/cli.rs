@@ -16,6 +16,9 @@ use image::codecs::png::PngEncoder;
 use image::{ExtendedColorType, ImageEncoder};
 use serde_json::Value as Json;
 
+mod common;
+use common::filmback;
+
 // ---------------------------------------------------------------------------------------
 // Fixture builders
 // ---------------------------------------------------------------------------------------
@@ -257,7 +260,7 @@ struct Run {
 }
 
 fn inspect_json(files: &[&Path]) -> Run {
-    let out = Command::new(env!("CARGO_BIN_EXE_filmback"))
+    let out = filmback()
         .arg("inspect")
         .arg("--json")
         .args(files)
@@ -387,7 +390,7 @@ fn inspect_table_names_every_file() {
     let dir = tempfile::tempdir().unwrap();
     let good = good_png(dir.path(), "good.png");
     let empty = write(dir.path(), "empty.jpg", b"");
-    let out = Command::new(env!("CARGO_BIN_EXE_filmback"))
+    let out = filmback()
         .arg("inspect")
         .args([&good, &empty])
         .output()

@@ -2,7 +2,6 @@
 //! `filmback merge` command through the real file system.
 
 use std::path::{Path, PathBuf};
-use std::process::Command;
 
 use filmback::frame::{BitDepth, Frame, Samples};
 use filmback::histogram::Histogram;
@@ -11,6 +10,9 @@ use filmback::metadata::Camera;
 use filmback::radiance::RadianceMap;
 use filmback::response::{self, Degree, InverseResponse, Ratio, RatioSource};
 use filmback::synthetic::{ResponseCurve, SceneKind, Sensor, expose, measure, scene};
+
+mod common;
+use common::filmback;
 
 const WIDTH: u32 = 256;
 const HEIGHT: u32 = 192;
@@ -402,10 +404,6 @@ fn equal_exposures_average_as_duplicates() {
 }
 
 // ---- the command line ----
-
-fn filmback() -> Command {
-    Command::new(env!("CARGO_BIN_EXE_filmback"))
-}
 
 /// Writes a synthetic 8-bit sRGB frame as PNG (no EXIF: exposures go in `--times`).
 fn write_png(path: &Path, truth: &RadianceMap, exposure: f64) {

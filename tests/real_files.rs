@@ -8,10 +8,12 @@
 
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
-use std::process::Command;
 
 use filmback::frame::{self, Limits};
 use serde_json::Value as Json;
+
+mod common;
+use common::filmback;
 
 fn testdata() -> Option<PathBuf> {
     let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("../shared/testdata/exif");
@@ -130,7 +132,7 @@ fn inspect_agrees_with_the_reference_dumps() {
         "tests/resources/",
     );
 
-    let out = Command::new(env!("CARGO_BIN_EXE_filmback"))
+    let out = filmback()
         .arg("inspect")
         .arg("--json")
         .args(&files)

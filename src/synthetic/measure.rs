@@ -9,43 +9,53 @@ use crate::response::InverseResponse;
 /// Codes (of 255) over which curve errors are taken: the tones a merge relies on.
 pub const ERROR_CODES: std::ops::RangeInclusive<u32> = 16..=239;
 
-/// Per channel, the **scale error** of `g` in stops: the mean over [`ERROR_CODES`] of
-/// `log₂ g(k/255) − log₂ g_true(k/255)`. It is how far the channel's level sits from the
-/// truth under `g`'s own normalisation `g(1) = 1`; the differences between channels are
-/// the colour cast a merge with `g` shows.
-pub fn scale_errors(g: &InverseResponse, truth: &ResponseCurve) -> Vec<f64> {
-    (0..g.channels())
+/// One channel's error in stops against the truth, over [`ERROR_CODES`], from the
+/// differences `d(k) = log₂ g(k/255) − log₂ g_true(k/255)`.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct CurveError {
+    /// The **scale error**: the mean of `d`. How far the channel's level sits from the
+    /// truth under the curve's own normalisation `g(1) = 1`; the differences between
+    /// channels are the colour cast a merge with the curve shows.
+    pub scale: f64,
+    /// The **shape error**: the RMS of `d` after removing the scale error (what two
+    /// histograms can determine at all).
+    pub shape: f64,
+    /// The RMS of `d` itself: `√(scale² + shape²)`.
+    pub own: f64,
+}
+
+/// Per channel (`0..channels`), the error of a curve given as `g(channel, b)` (`b` in
+/// 0..=1) against `truth`. Values of `g` at or below zero count as `1e-300`.
+pub fn curve_errors(
+    channels: usize,
+    g: impl Fn(usize, f64) -> f64,
+    truth: &ResponseCurve,
+) -> Vec<CurveError> {
+    (0..channels)
         .map(|c| {
-            let n = ERROR_CODES.count() as f64;
-            ERROR_CODES
+            let d: Vec<f64> = ERROR_CODES
                 .map(|k| {
                     let b = f64::from(k) / 255.0;
-                    g.eval(c, b).max(1e-300).log2() - truth.inverse(b).log2()
+                    g(c, b).max(1e-300).log2() - truth.inverse(b).log2()
                 })
-                .sum::<f64>()
-                / n
+                .collect();
+            let n = d.len() as f64;
+            let scale = d.iter().sum::<f64>() / n;
+            let shape = (d.iter().map(|x| (x - scale).powi(2)).sum::<f64>() / n).sqrt();
+            let own = (d.iter().map(|x| x * x).sum::<f64>() / n).sqrt();
+            CurveError { scale, shape, own }
         })
         .collect()
 }
 
-/// Per channel, the **shape error** of `g` in stops: the RMS over [`ERROR_CODES`] of
-/// `log₂ g − log₂ g_true` after removing the channel's scale error (what two histograms
-/// can determine at all).
-pub fn shape_errors(g: &InverseResponse, truth: &ResponseCurve) -> Vec<f64> {
-    let scales = scale_errors(g, truth);
-    (0..g.channels())
-        .map(|c| {
-            let n = ERROR_CODES.count() as f64;
-            (ERROR_CODES
-                .map(|k| {
-                    let b = f64::from(k) / 255.0;
-                    (g.eval(c, b).max(1e-300).log2() - truth.inverse(b).log2() - scales[c]).powi(2)
-                })
-                .sum::<f64>()
-                / n)
-                .sqrt()
-        })
-        .collect()
+/// [`curve_errors`] of an inverse response, every channel.
+pub fn response_errors(g: &InverseResponse, truth: &ResponseCurve) -> Vec<CurveError> {
+    curve_errors(g.channels(), |c, b| g.eval(c, b), truth)
+}
+
+/// Per channel, the scale error of `g` in stops ([`CurveError::scale`]).
+pub fn scale_errors(g: &InverseResponse, truth: &ResponseCurve) -> Vec<f64> {
+    response_errors(g, truth).iter().map(|e| e.scale).collect()
 }
 
 /// The merged radiance error: the median over samples of `|s·E/e_ref − E_true| / E_true`,
@@ -124,7 +134,9 @@ mod tests {
         let g = InverseResponse::from_samples(vec![g.clone(), g.clone(), g]).unwrap();
         let scale = scale_errors(&g, &truth);
         assert!((scale[0] - 1.1f64.log2()).abs() < 2e-3, "{scale:?}");
-        assert!(shape_errors(&g, &truth)[1] < 2e-3);
+        let errors = response_errors(&g, &truth);
+        assert!(errors[1].shape < 2e-3, "{errors:?}");
+        assert!((errors[1].own - errors[1].scale.hypot(errors[1].shape)).abs() < 1e-12);
         let exact = true_response(&truth, 1024);
         assert!(scale_errors(&exact, &truth)[2].abs() < 1e-3);
     }
