@@ -158,7 +158,7 @@ fn number(x: f64) -> Value {
     if x.is_finite() { json!(x) } else { Value::Null }
 }
 
-/// The `--json` contract of issue 3, with more fields.
+/// The `--json` report: the ratio, and per channel the curve summary and its confidence.
 fn report(cal: &Calibration, dark: &Path, bright: &Path) -> Value {
     let channels: Vec<Value> = cal
         .channels

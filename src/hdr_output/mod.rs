@@ -20,8 +20,8 @@
 //!
 //! Compression (see [`ExrCompression`]): PIZ by default, a lossless wavelet coder that does
 //! best on noisy photographic data; lossy coders only when asked for by name. Half PIZ
-//! blocks are compressed by filmback's own encoder (`piz`, 1.5× faster than exr's on a
-//! 24 MP map, same format and size); everything else by the exr crate.
+//! blocks are compressed by filmback's own encoder (`piz`: the same format and size as
+//! exr's, faster; `docs/performance.md`); everything else by the exr crate.
 //!
 //! Every file is published through [`crate::atomic`]: a failure (unwritable
 //! folder, full disk, encoder error) leaves no partial file.

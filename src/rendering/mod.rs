@@ -4,8 +4,8 @@
 //! published atomically.
 //!
 //! JPEG goes through the `jpeg-encoder` crate with its `simd` feature (AVX2 DCT chosen at
-//! run time): about 2.3 times faster than the `image` crate's encoder on the same 24 MP
-//! image (see `docs/film.md`), and it pulls rows from an `ImageBuffer`, so a film look is
+//! run time), faster than the `image` crate's encoder on the same image (`docs/film.md`),
+//! and it pulls rows from an `ImageBuffer`, so a film look is
 //! developed band by band on one core while the other encodes ([`encode_film_jpeg`]).
 //! PNG goes through `image`'s encoder, TIFF through `kamadak-exif`'s TIFF writer so that
 //! the EXIF sub-IFD (exposure, date) sits in the same file as the pixels.

@@ -52,8 +52,7 @@
 //! units nats² per nat of log brightness). Where the curve is steep — a shoulder near
 //! white, where the last few codes span a stop or more of exposure — the plain curvature
 //! `∫ u''² dx` would make the bend prohibitively dear and flatten the top of `g`, and
-//! through `g(1) = 1` shift the whole curve (this was the largest error on the DoRF film
-//! curves). The integral is taken by Gauss–Legendre nodes on every piece
+//! through `g(1) = 1` shift the whole curve. The integral is taken by Gauss–Legendre nodes on every piece
 //! ([`Basis::curvature_quadrature`], exact for the plain curvature), added as rows of the
 //! least-squares system. A power law costs nothing.
 //!
@@ -504,16 +503,10 @@ impl Problem {
 }
 
 /// How many standard errors of the cross-validation score a smoother `λ` may lose to the
-/// best and still be chosen. Scores of neighbouring `λ` often differ by noise alone; the
-/// smoother of two indistinguishable curves has fewer ripples and a smaller predicted
-/// error. Measured (`benches/response_accuracy.rs`, DoRF at ratio 4, 8-bit lossless, own
-/// normalisation median / the lowest channel confidence of a plain sRGB camera in
-/// `tests/calibrate.rs`, whose own error is below 0.01 stop): 0.25 → 0.020 / 0.48,
-/// 0.5 → 0.022 / 0.63, 1 → 0.024 / 0.62, and the plain minimum on a grid of whole decades
-/// 0.018 / 0.38; the shape error (median 0.005, p90 0.03) is the same for all. (Measured
-/// with the tones trusted to 2.5 codes from clipping; with half a code for lossless
-/// frames, [`crate::histogram::UsableTones`], 0.25 → 0.0186 and 0.5 → 0.0197, and 0.25
-/// still takes the sRGB camera below confidence 0.5.)
+/// best and still be chosen (the one-standard-error rule, at half a standard error).
+/// Scores of neighbouring `λ` often differ by noise alone; the smoother of two
+/// indistinguishable curves has fewer ripples and a smaller predicted error. How the
+/// choice trades accuracy against confidence is measured in `docs/accuracy.md`.
 pub const STANDARD_ERRORS: f64 = 0.5;
 
 /// One cross-validation fold: the equations it holds out, and the others reduced by

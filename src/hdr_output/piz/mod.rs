@@ -1,7 +1,7 @@
 //! OpenEXR's PIZ compression, encoder side, for scan-line blocks of half samples.
 //!
-//! It writes the same format as the exr crate's PIZ encoder, about 2× faster because its
-//! Huffman stage packs codes through a 64-bit bit accumulator instead of writing one byte
+//! It writes the same format as the exr crate's PIZ encoder, faster (measured in
+//! `docs/performance.md`) because its Huffman stage packs codes through a 64-bit bit accumulator instead of writing one byte
 //! at a time through `io::Write`. Any conforming reader decodes it (the tests decode with
 //! the exr crate, `tests/openexr_check.py` with the OpenEXR library); other compressions
 //! and float samples go through exr's encoders.
