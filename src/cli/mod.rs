@@ -64,8 +64,49 @@ pub fn main() -> ExitCode {
     match result {
         Ok(code) => code,
         Err(e) => {
-            eprintln!("filmback: {e:#}");
+            eprintln!("filmback: {}", chain_text(&e));
             ExitCode::FAILURE
         }
+    }
+}
+
+/// An error and its causes joined by `": "`, each cause said once: the library's errors
+/// already name their cause in their own message, so a cause that the text so far ends
+/// with is not repeated.
+fn chain_text(e: &anyhow::Error) -> String {
+    let mut text = String::new();
+    for cause in e.chain() {
+        let part = cause.to_string();
+        if text.ends_with(&part) {
+            continue;
+        }
+        if !text.is_empty() {
+            text.push_str(": ");
+        }
+        text.push_str(&part);
+    }
+    text
+}
+
+#[cfg(test)]
+mod tests {
+    use super::chain_text;
+
+    #[derive(Debug, thiserror::Error)]
+    #[error("channel R: {source}")]
+    struct Channel {
+        source: std::io::Error,
+    }
+
+    #[test]
+    fn a_cause_already_in_the_message_is_said_once() {
+        let inner = std::io::Error::other("frames swapped");
+        let e = anyhow::Error::new(Channel { source: inner }).context("calibrating a.png");
+        assert_eq!(
+            chain_text(&e),
+            "calibrating a.png: channel R: frames swapped"
+        );
+        let plain = anyhow::Error::new(std::io::Error::other("disk full")).context("writing x");
+        assert_eq!(chain_text(&plain), "writing x: disk full");
     }
 }
