@@ -511,6 +511,14 @@ fn command_estimates_the_ratio_without_exif_and_says_so() {
     // The scene went through sRGB, so the prior holds and the estimate is close to 4.
     let r = json["ratio"].as_f64().unwrap();
     assert!((r / 4.0).log2().abs() < 0.25, "{r}");
+    // The range a user is given holds the estimate and the truth.
+    let range: Vec<f64> = json["ratio_range"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|v| v.as_f64().unwrap())
+        .collect();
+    assert!(range[0] < r.min(4.0) && r.max(4.0) < range[1], "{range:?}");
 }
 
 #[test]

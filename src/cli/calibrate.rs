@@ -198,6 +198,7 @@ fn report(cal: &Calibration, dark: &Path, bright: &Path) -> Value {
         "ratio_prior": (cal.ratio_source == RatioSource::Estimated).then(|| format!(
             "g(0.5) = {PRIOR_MID_GREY:.4} as on the sRGB curve (g and the ratio trade off as g^k, ratio^k)"
         )),
+        "ratio_range": cal.ratio_range().map(|(lo, hi)| [lo, hi]),
         "dark": dark.display().to_string(),
         "bright": bright.display().to_string(),
         "channels": channels,
@@ -218,6 +219,17 @@ fn table(r: &Value) -> String {
             .as_str()
             .map_or(String::new(), |p| format!(", assuming {p}"))
     );
+    if let Some([lo, hi]) = r["ratio_range"].as_array().map(|a| {
+        [
+            a[0].as_f64().unwrap_or(f64::NAN),
+            a[1].as_f64().unwrap_or(f64::NAN),
+        ]
+    }) {
+        let _ = writeln!(
+            out,
+            "the true ratio is {lo:.2}..{hi:.2} for four camera curves in five: give --ratio or EXIF for more"
+        );
+    }
     let _ = writeln!(
         out,
         "{:<3} {:>6} {:>6} {:>9} {:>9} {:>15} {:>9} {:>9} {:>10} {:>10}  g(0.25) g(0.5) g(0.75)",

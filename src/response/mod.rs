@@ -158,6 +158,13 @@ pub const CALIBRATED_SAMPLES: usize = 1024;
 /// `g(0.5)` of the sRGB curve: the prior used when the ratio must be estimated.
 pub const PRIOR_MID_GREY: f64 = 0.214_041_140_482_232_55;
 
+/// How far the prior can be off: the 10th and 90th percentiles of
+/// `κ = ln PRIOR_MID_GREY / ln g(0.5)` over the DoRF curves the prior is checked on (the
+/// even records ≡ 0 mod 4 of `dorf-even.csv`). A curve with exponent `κ` gives an estimate
+/// `γ̂ = γ^κ`, so for four curves in five the true ratio lies in
+/// `γ̂^(1/κ₉₀) ..= γ̂^(1/κ₁₀)` ([`Calibration::ratio_range`]).
+pub const PRIOR_EXPONENTS: [f64; 2] = [0.797, 1.585];
+
 /// Where the exposure ratio `γ = e_bright / e_dark` came from.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
 #[serde(rename_all = "lowercase")]
@@ -244,6 +251,18 @@ pub struct Calibration {
     pub channels: Vec<ChannelCalibration>,
     /// The curves, sampled at [`CALIBRATED_SAMPLES`] points per channel.
     pub response: InverseResponse,
+}
+
+impl Calibration {
+    /// For an estimated ratio, the range `γ̂^(1/κ₉₀) ..= γ̂^(1/κ₁₀)` that holds the true
+    /// ratio for four camera curves in five ([`PRIOR_EXPONENTS`]); `None` when the ratio
+    /// was known.
+    pub fn ratio_range(&self) -> Option<(f64, f64)> {
+        (self.ratio_source == RatioSource::Estimated).then(|| {
+            let [lo, hi] = PRIOR_EXPONENTS;
+            (self.ratio.powf(1.0 / hi), self.ratio.powf(1.0 / lo))
+        })
+    }
 }
 
 fn channel_names(channels: usize) -> &'static [&'static str] {

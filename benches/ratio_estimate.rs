@@ -1,0 +1,233 @@
+//! How well the exposure ratio is estimated when a pair has no EXIF.
+//!
+//! `cargo bench --bench ratio_estimate [-- --curves tune|report|all] [--size WxH]`
+//!
+//! Histograms alone fix the inverse response only up to a power (`g^k` with `γ^k`), so the
+//! estimate rests on a prior, [`filmback::response::PRIOR_MID_GREY`]: the value of `g` at
+//! mid brightness. This bench shows both sides of that prior:
+//!
+//! 1. **Synthetic pairs**: every scene kind exposed through the DoRF curves (split as in
+//!    `response_accuracy`: `tune` = records ≡ 0 mod 4, `report` = the others; default
+//!    `report`) at ratios 2, 4 and 8, 8-bit lossless with 1 DN read noise. For each the
+//!    estimated ratio over the true one, and the curve's own `g(0.5)`, so a reader sees how
+//!    much of the error is the prior's (a curve whose mid grey differs from the prior
+//!    cannot be estimated right by any histogram method).
+//! 2. **Real pairs**: the adjacent frames of `../shared/testdata/brackets/` (skipped when
+//!    absent) with their known ratios: `frobisher` (EXIF), `learnopencv` (exposure time
+//!    from EXIF, same aperture, no ISO), `memorial` (`exposure_times_seconds.csv`).
+
+use std::path::{Path, PathBuf};
+
+use filmback::frame::{self, BitDepth, Limits};
+use filmback::histogram::Histogram;
+use filmback::response::{Degree, PRIOR_MID_GREY, Ratio, calibrate};
+use filmback::synthetic::{self, SceneKind, Sensor};
+
+const RATIOS: [f64; 3] = [2.0, 4.0, 8.0];
+
+fn quantile(v: &mut [f64], q: f64) -> f64 {
+    v.sort_by(f64::total_cmp);
+    v[((v.len() - 1) as f64 * q).round() as usize]
+}
+
+/// `(median, p10, p90)` of `v`, or NaNs when empty.
+fn spread(v: &mut [f64]) -> (f64, f64, f64) {
+    if v.is_empty() {
+        return (f64::NAN, f64::NAN, f64::NAN);
+    }
+    (quantile(v, 0.5), quantile(v, 0.1), quantile(v, 0.9))
+}
+
+/// The estimated ratio of one pair of histograms and the range it states
+/// ([`filmback::response::Calibration::ratio_range`]), or `None` when the pair cannot be
+/// calibrated.
+fn estimate(dark: &Histogram, bright: &Histogram) -> Option<(f64, (f64, f64))> {
+    let c = calibrate(dark, bright, Ratio::Estimate, Degree::Auto).ok()?;
+    Some((c.ratio, c.ratio_range()?))
+}
+
+fn synthetic_pairs(split: &str, width: u32, height: u32) {
+    let path = Path::new(env!("CARGO_MANIFEST_DIR"))
+        .join("../shared/testdata/response-curves/dorf-even.csv");
+    let mut curves = match synthetic::dorf_curves(&path) {
+        Ok(c) => c,
+        Err(e) => {
+            eprintln!("(DoRF curves unavailable: {e}: synthetic pairs skipped)");
+            return;
+        }
+    };
+    let record = |name: &str| -> u32 { name.trim_start_matches("dorf-").parse().unwrap_or(0) };
+    match split {
+        "all" => {}
+        "tune" => curves.retain(|(n, _)| record(n) % 4 == 0),
+        "report" => curves.retain(|(n, _)| record(n) % 4 != 0),
+        other => panic!("--curves takes all, tune or report, not {other}"),
+    }
+    let mut mids: Vec<f64> = curves.iter().map(|(_, c)| c.inverse(0.5)).collect();
+    let (m, lo, hi) = spread(&mut mids);
+    println!(
+        "DoRF {split} ({} curves): g(0.5) median {m:.3}, p10 {lo:.3}, p90 {hi:.3}; prior {PRIOR_MID_GREY:.3}\n",
+        curves.len()
+    );
+    println!("| scene | ratio | pairs | failed | est/true median | p10 | p90 | true in range |");
+    println!("|---|---|---|---|---|---|---|---|");
+    let mut all = Vec::new();
+    let mut covered_all = 0;
+    for kind in SceneKind::ALL {
+        let scene = kind.render(width, height, 21);
+        for ratio in RATIOS {
+            let mut r = Vec::new();
+            let (mut failed, mut covered) = (0, 0);
+            for (ci, (_, curve)) in curves.iter().enumerate() {
+                let sensor = |seed| Sensor {
+                    read_noise_dn: 1.0,
+                    seed,
+                    ..Sensor::noiseless(curve.clone(), BitDepth::Eight)
+                };
+                let dark = synthetic::expose(&scene, 1.0 / ratio.sqrt(), &sensor(ci as u64));
+                let bright = synthetic::expose(&scene, ratio.sqrt(), &sensor(ci as u64 + 7));
+                match estimate(
+                    &Histogram::of_frame(&dark, 1),
+                    &Histogram::of_frame(&bright, 1),
+                ) {
+                    Some((e, (lo, hi))) => {
+                        r.push(e / ratio);
+                        covered += usize::from((lo..=hi).contains(&ratio));
+                    }
+                    None => failed += 1,
+                }
+            }
+            all.extend_from_slice(&r);
+            covered_all += covered;
+            let n = r.len();
+            let (m, lo, hi) = spread(&mut r);
+            println!(
+                "| {} | {ratio} | {n} | {failed} | {m:.3} | {lo:.3} | {hi:.3} | {:.0} % |",
+                kind.name(),
+                100.0 * covered as f64 / n.max(1) as f64
+            );
+        }
+    }
+    let n = all.len();
+    let (m, lo, hi) = spread(&mut all);
+    println!(
+        "| all | 2–8 | {n} | | {m:.3} | {lo:.3} | {hi:.3} | {:.0} % |\n",
+        100.0 * covered_all as f64 / n.max(1) as f64
+    );
+}
+
+/// Two adjacent frames of a real set, darker first, and their true ratio.
+type RealPair = (PathBuf, PathBuf, f64);
+
+/// Each real set's name and adjacent pairs.
+fn real_sets(root: &Path) -> Vec<(String, Vec<RealPair>)> {
+    let mut sets = Vec::new();
+    let by_time = |files: Vec<(PathBuf, f64)>| {
+        let mut files = files;
+        files.sort_by(|a, b| a.1.total_cmp(&b.1));
+        files
+            .windows(2)
+            .map(|w| (w[0].0.clone(), w[1].0.clone(), w[1].1 / w[0].1))
+            .collect::<Vec<_>>()
+    };
+    for name in ["frobisher", "learnopencv"] {
+        let dir = root.join(name);
+        let Ok(entries) = std::fs::read_dir(&dir) else {
+            continue;
+        };
+        let files: Vec<(PathBuf, f64)> = entries
+            .filter_map(|e| e.ok().map(|e| e.path()))
+            .filter(|p| p.extension().is_some_and(|e| e == "jpg"))
+            .filter_map(|p| {
+                let bytes = std::fs::read(&p).ok()?;
+                let t = filmback::metadata::read(&bytes).exposure.time_s?;
+                Some((p, t))
+            })
+            .collect();
+        sets.push((name.to_string(), by_time(files)));
+    }
+    let memorial = root.join("memorial");
+    if let Ok(csv) = std::fs::read_to_string(memorial.join("exposure_times_seconds.csv")) {
+        let files: Vec<(PathBuf, f64)> = csv
+            .lines()
+            .skip(1)
+            .filter_map(|l| {
+                let (f, t) = l.split_once(',')?;
+                Some((memorial.join(f.trim()), t.trim().parse().ok()?))
+            })
+            .collect();
+        sets.push(("memorial".to_string(), by_time(files)));
+    }
+    sets
+}
+
+fn real_pairs() {
+    let root = Path::new(env!("CARGO_MANIFEST_DIR")).join("../shared/testdata/brackets");
+    let sets = real_sets(&root);
+    if sets.is_empty() {
+        eprintln!("(real brackets unavailable: skipped)");
+        return;
+    }
+    println!("| set | pair | true ratio | estimated | est/true | stated range |");
+    println!("|---|---|---|---|---|---|");
+    let mut all = Vec::new();
+    let mut covered = 0;
+    for (name, pairs) in sets {
+        for (dark, bright, ratio) in pairs {
+            let load = |p: &Path| frame::load(p, Limits::default()).map(|l| l.frame);
+            let (Ok(d), Ok(b)) = (load(&dark), load(&bright)) else {
+                continue;
+            };
+            let stride = ((d.width() as f64 * d.height() as f64) / 3e6)
+                .sqrt()
+                .max(1.0) as usize;
+            let est = estimate(
+                &Histogram::of_frame(&d, stride),
+                &Histogram::of_frame(&b, stride),
+            );
+            let stem = |p: &Path| p.file_stem().unwrap().to_string_lossy().into_owned();
+            let (est_s, rel, range) = match est {
+                Some((e, (lo, hi))) => {
+                    all.push(e / ratio);
+                    covered += usize::from((lo..=hi).contains(&ratio));
+                    (
+                        format!("{e:.2}"),
+                        format!("{:.3}", e / ratio),
+                        format!("{lo:.2}–{hi:.2}"),
+                    )
+                }
+                None => ("failed".into(), String::new(), String::new()),
+            };
+            println!(
+                "| {name} | {} → {} | {ratio:.2} | {est_s} | {rel} | {range} |",
+                stem(&dark),
+                stem(&bright)
+            );
+        }
+    }
+    let n = all.len();
+    let (m, lo, hi) = spread(&mut all);
+    println!(
+        "\nreal pairs: {n}, est/true median {m:.3}, p10 {lo:.3}, p90 {hi:.3}; true ratio in the stated range: {covered} of {n}"
+    );
+}
+
+fn main() {
+    let args: Vec<String> = std::env::args().collect();
+    let arg = |flag: &str| {
+        args.iter()
+            .position(|a| a == flag)
+            .and_then(|i| args.get(i + 1))
+            .cloned()
+    };
+    let split = arg("--curves").unwrap_or_else(|| "report".into());
+    let (width, height) = match arg("--size") {
+        Some(size) => {
+            let (w, h) = size.split_once('x').expect("--size takes WxH");
+            (w.parse().expect("width"), h.parse().expect("height"))
+        }
+        None => (512, 384),
+    };
+    synthetic_pairs(&split, width, height);
+    real_pairs();
+}
