@@ -106,6 +106,37 @@ pub enum FitError {
         "the brighter frame is darker than the darker one in most tones: frames or ratio swapped"
     )]
     Swapped,
+    /// The fitted curve falls deeper below white than any camera records
+    /// ([`DEEPEST_STOPS`]) within the tones its equations covered: contradictory
+    /// equations, not a response.
+    #[error(
+        "the fitted curve is degenerate: {stops:.0} stops below white at brightness {at:.3}, inside the tones the frames cover"
+    )]
+    Degenerate {
+        /// How far below white, in stops (infinite for `g = 0`).
+        stops: f64,
+        /// The brightness where it is that deep.
+        at: f64,
+    },
+}
+
+/// The deepest a fitted curve may fall below white over the tones its equations covered,
+/// in stops: twice the 16 stops of 16-bit linear data. A curve beyond it (or one that is
+/// not finite there) is refused as [`FitError::Degenerate`].
+pub const DEEPEST_STOPS: f64 = 32.0;
+
+/// Refuses a fit whose `log₂ g` at the darkest covered tone, or anywhere on a grid of 64
+/// brightnesses across the covered range, is below `−DEEPEST_STOPS` or not finite.
+fn check_degenerate(fit: &ChannelFit) -> Result<(), FitError> {
+    let (lo, hi) = fit.covered;
+    for i in 0..=64 {
+        let b = lo + (hi - lo) * f64::from(i) / 64.0;
+        let stops = -fit.log_g(b) / std::f64::consts::LN_2;
+        if stops.is_nan() || stops > DEEPEST_STOPS {
+            return Err(FitError::Degenerate { stops, at: b });
+        }
+    }
+    Ok(())
 }
 
 /// One channel's fitted inverse response and how well the data determined it.
@@ -645,6 +676,7 @@ pub fn fit_joint(
         fit.predicted_error = fit.predicted_error.hypot(spread);
         fit.confidence = confidence(fit.coverage, fit.predicted_error);
     }
+    check_degenerate(&fit)?;
     Ok(fit)
 }
 
@@ -877,5 +909,24 @@ mod tests {
             fit(&power_pairs(2.2, 4.0), 1.0, Degree::Fixed(0)),
             Err(FitError::Degree(0))
         );
+    }
+
+    #[test]
+    fn a_curve_deeper_than_any_camera_is_refused_as_degenerate() {
+        let good = fit(&power_pairs(2.2, 4.0), 4f64.ln(), Degree::Auto).unwrap();
+        assert!(check_degenerate(&good).is_ok());
+        // The same fit pushed 40 stops down below its top coefficient: g ≈ 2⁻⁴⁰ up to
+        // near white, as a contradictory set of equations can leave it.
+        let mut deep = good.clone();
+        let last = deep.coefficients.len() - 1;
+        for c in &mut deep.coefficients[..last] {
+            *c -= 40.0 * std::f64::consts::LN_2;
+        }
+        match check_degenerate(&deep) {
+            Err(FitError::Degenerate { stops, .. }) => assert!(stops > DEEPEST_STOPS, "{stops}"),
+            other => panic!("{other:?}"),
+        }
+        deep.coefficients[0] = f64::NEG_INFINITY;
+        assert!(check_degenerate(&deep).is_err());
     }
 }
