@@ -105,6 +105,18 @@ pub fn run(args: Args) -> anyhow::Result<ExitCode> {
         Some(s) => println!("daemon        not running (last pid {})", s.pid),
         None => println!("daemon        never ran here"),
     }
+    if let Some(s) = snap.as_ref().filter(|_| running) {
+        let now = journal::unix_now();
+        for r in &s.retries {
+            println!(
+                "  retry       {}: {} (attempt {}, next in {} s)",
+                r.what,
+                r.reason,
+                r.attempts,
+                r.next.saturating_sub(now)
+            );
+        }
+    }
     println!("done          {brackets} brackets, {singles} single frames");
     println!("failed        {}", failed.len());
     for f in &failed {

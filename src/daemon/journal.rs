@@ -8,7 +8,14 @@
 //! line (the crash hit the append itself) is ignored: that bracket is simply redone.
 //!
 //! Inputs are identified by path, size and modification time: a file rewritten under the
-//! same name is new work.
+//! same name is new work. Paths are stored losslessly, whatever bytes the file system
+//! allows in a name (see [`any_path`]).
+//!
+//! A failed append (full or failing disk) is fatal: the daemon exits with the error, and
+//! under systemd `Restart=on-failure` starts it again. The append is cut back to the last
+//! whole line first, so the journal never keeps a torn line; should the cut itself fail
+//! (or the process be killed mid-append), the next start drops the torn last line and the
+//! bracket it would have recorded is simply developed again.
 
 use std::collections::HashSet;
 use std::fs::{self, File, OpenOptions};
@@ -34,6 +41,14 @@ pub enum JournalError {
         path: PathBuf,
         /// What the operating system said.
         source: io::Error,
+    },
+    /// An entry could not be written as JSON.
+    #[error("{path}: cannot serialise an entry: {reason}")]
+    Serialise {
+        /// The journal.
+        path: PathBuf,
+        /// The serialiser's message.
+        reason: String,
     },
     /// A line other than the last is not a journal entry: the file was edited or damaged.
     #[error("{path}:{line}: not a journal entry: {reason}")]
@@ -188,16 +203,29 @@ impl Journal {
             path: self.path.clone(),
             source,
         };
+        let before = self.file.metadata().map_err(io_err)?.len();
         // One write per line: O_APPEND keeps concurrent appends whole.
-        self.file
+        let written = self
+            .file
             .write_all(format!("{line}\n").as_bytes())
-            .map_err(io_err)?;
-        self.file.sync_data().map_err(io_err)
+            .and_then(|()| self.file.sync_data());
+        if let Err(source) = written {
+            // Leave no torn line behind (best effort: the next open drops one anyway).
+            let _ = self
+                .file
+                .set_len(before)
+                .and_then(|()| self.file.sync_data());
+            return Err(io_err(source));
+        }
+        Ok(())
     }
 
     /// Appends an entry and syncs it to disk.
     pub fn record(&mut self, entry: Entry) -> Result<(), JournalError> {
-        let line = serde_json::to_string(&entry).expect("journal entries serialise");
+        let line = serde_json::to_string(&entry).map_err(|e| JournalError::Serialise {
+            path: self.path.clone(),
+            reason: e.to_string(),
+        })?;
         self.append_line(&line)?;
         self.note(entry);
         Ok(())
@@ -216,6 +244,43 @@ impl Journal {
     /// The journal file.
     pub fn path(&self) -> &Path {
         &self.path
+    }
+}
+
+/// Serde for paths that may not be UTF-8: a UTF-8 path is a JSON string (as before); any
+/// other is `{"bytes": [..]}`, the name's raw bytes (Unix file names are byte strings,
+/// anything but `/` and NUL). Both read back to the identical path.
+pub mod any_path {
+    use std::ffi::OsString;
+    use std::os::unix::ffi::{OsStrExt, OsStringExt};
+    use std::path::{Path, PathBuf};
+
+    use serde::{Deserialize, Deserializer, Serialize, Serializer};
+
+    #[derive(Serialize, Deserialize)]
+    #[serde(untagged)]
+    enum Stored {
+        Text(String),
+        Raw { bytes: Vec<u8> },
+    }
+
+    /// Writes `path` as a string, or as its bytes when it is not UTF-8.
+    pub fn serialize<S: Serializer>(path: &Path, s: S) -> Result<S::Ok, S::Error> {
+        match path.to_str() {
+            Some(text) => s.serialize_str(text),
+            None => Stored::Raw {
+                bytes: path.as_os_str().as_bytes().to_vec(),
+            }
+            .serialize(s),
+        }
+    }
+
+    /// Reads what [`serialize`] wrote.
+    pub fn deserialize<'de, D: Deserializer<'de>>(d: D) -> Result<PathBuf, D::Error> {
+        Ok(match Stored::deserialize(d)? {
+            Stored::Text(text) => PathBuf::from(text),
+            Stored::Raw { bytes } => PathBuf::from(OsString::from_vec(bytes)),
+        })
     }
 }
 
@@ -329,6 +394,46 @@ mod tests {
         let err = Journal::open(dir.path()).unwrap_err();
         let msg = err.to_string();
         assert!(msg.contains("journal.jsonl:1:"), "{msg}");
+    }
+
+    #[test]
+    fn any_file_name_is_journaled_losslessly() {
+        use std::os::unix::ffi::OsStrExt;
+        let dir = tempfile::tempdir().unwrap();
+        let odd = [
+            &b"/in/bad\xff.jpg"[..],
+            b"/in/line\nbreak.jpg",
+            b"/in/\xc3\x28-half.jpg",
+            "/in/caf\u{e9}.jpg".as_bytes(),
+        ];
+        let inputs: Vec<Input> = odd
+            .iter()
+            .map(|b| Input {
+                path: PathBuf::from(std::ffi::OsStr::from_bytes(b)),
+                size: 7,
+                modified_ns: 1,
+            })
+            .collect();
+        {
+            let mut j = Journal::open(dir.path()).unwrap();
+            for i in &inputs {
+                j.record(Entry::Rejected {
+                    input: i.clone(),
+                    reason: "not an image".into(),
+                    at: 3,
+                })
+                .unwrap();
+            }
+        }
+        let j = Journal::open(dir.path()).unwrap();
+        for i in &inputs {
+            assert!(j.is_settled(i), "{}", i.path.display());
+        }
+        let text = fs::read_to_string(dir.path().join(FILE_NAME)).unwrap();
+        assert!(
+            text.contains("\"/in/caf\u{e9}.jpg\""),
+            "UTF-8 stays text: {text}"
+        );
     }
 
     #[test]

@@ -10,7 +10,9 @@ use tracing::{error, info, warn};
 use super::bracket::{Alone, Bracket, Closed};
 use super::config::{Recalibrate, Singles};
 use super::journal::{self, Entry};
-use super::{DaemonError, Job, JobError, MAX_RETRY, Outcome, Processed, State, Work, file_stem};
+use super::{
+    DaemonError, Job, JobError, MAX_RETRY, Outcome, Processed, State, Work, file_stem, job_bytes,
+};
 
 impl State {
     pub(super) fn dispatch(&mut self) -> Result<(), DaemonError> {
@@ -18,6 +20,25 @@ impl State {
             let Some(work) = self.queue.pop_front() else {
                 break;
             };
+            // The memory budget: a job starts when its estimate fits beside those
+            // developing; one that cannot fit even alone is recorded as failed.
+            let need = self.job_bytes(&work.closed);
+            let budget = self.config.daemon.memory_mb.saturating_mul(1_000_000);
+            let single_reported = matches!(&work.closed, Closed::Single(..))
+                && self.config.bracket.singles == Singles::Report;
+            if !single_reported && self.in_use + need > budget {
+                if self.in_flight.is_empty() {
+                    let reason = format!(
+                        "needs {} MB to develop, more than the memory budget ([daemon] memory_mb = {})",
+                        need.div_ceil(1_000_000),
+                        self.config.daemon.memory_mb
+                    );
+                    self.failed(&work, reason)?;
+                    continue;
+                }
+                self.queue.push_front(work);
+                break;
+            }
             if let Closed::Single(capture, alone) = &work.closed
                 && self.config.bracket.singles == Singles::Report
             {
@@ -61,6 +82,7 @@ impl State {
                 stocks: self.config.folders.stocks.clone(),
             };
             let lab = Arc::clone(&self.lab);
+            self.in_use += need;
             self.in_flight.spawn_blocking(move || {
                 let t = Instant::now();
                 let result =
@@ -106,12 +128,25 @@ impl State {
     pub(super) fn release(&mut self, closed: &Closed) {
         for f in closed.frames() {
             self.taken.remove(&f.input.path);
+            self.footprints.remove(&f.input.path);
         }
+    }
+
+    /// The memory estimate of a closed group ([`job_bytes`] of its frames' footprints;
+    /// a frame without one, e.g. from a test, counts nothing).
+    pub(super) fn job_bytes(&self, closed: &Closed) -> u64 {
+        let frames: Vec<_> = closed
+            .frames()
+            .iter()
+            .filter_map(|c| self.footprints.get(&c.input.path).copied())
+            .collect();
+        job_bytes(&frames)
     }
 
     /// Takes a job's outcome: journal and cache on success; on a bad frame, reject it and
     /// requeue the rest; retry output failures with back-off; record other failures.
     pub(super) fn finish(&mut self, (work, result, took): Outcome) -> Result<(), DaemonError> {
+        self.in_use = self.in_use.saturating_sub(self.job_bytes(&work.closed));
         match result {
             Ok(processed) => self.developed(&work.closed, &processed, took)?,
             Err(JobError::Frame { path, reason }) => self.frame_failed(&work, &path, reason)?,
@@ -256,6 +291,7 @@ impl State {
                 closed: work.closed,
                 attempts: work.attempts + 1,
             },
+            e.to_string(),
         ));
     }
 

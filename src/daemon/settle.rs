@@ -9,7 +9,10 @@ use tracing::{error, info, warn};
 use super::bracket::Input;
 use super::intake::{self, Notice, Probe};
 use super::journal::{self, Entry};
-use super::{Candidate, DaemonError, State, WRITER_PATIENCE, Work, folder_id, wall_seconds};
+use super::{
+    Candidate, DaemonError, MAX_RETRY, State, Unreadable, WRITER_PATIENCE, Work, folder_id,
+    job_bytes, wall_seconds,
+};
 
 impl State {
     /// Notices the ingest folder appearing, disappearing or being replaced, and
@@ -52,6 +55,19 @@ impl State {
 
     pub(super) fn consider(&mut self, path: PathBuf, closed: bool) {
         if self.taken.contains(&path) {
+            return;
+        }
+        // Waiting out its back-off after a read error (see `unreadable`).
+        if self
+            .unreadable
+            .get(&path)
+            .is_some_and(|u| Instant::now() < u.next)
+        {
+            return;
+        }
+        // Reached through a linked folder (a watcher that followed it): not in ingest.
+        if intake::through_link(&self.config.folders.ingest, &path) {
+            tracing::debug!(file = %path.display(), "reached through a link; not followed");
             return;
         }
         let cand = self.candidates.entry(path).or_insert(Candidate {
@@ -97,7 +113,11 @@ impl State {
         let writing = self
             .candidates
             .values()
-            .any(|c| c.first_seen.elapsed() < WRITER_PATIENCE);
+            .any(|c| c.first_seen.elapsed() < WRITER_PATIENCE)
+            || self
+                .unreadable
+                .values()
+                .any(|u| u.first_seen.elapsed() < WRITER_PATIENCE);
         if writing || self.queue.len() >= self.config.daemon.queue {
             self.grouper.postpone(now);
         }
@@ -109,10 +129,19 @@ impl State {
         }
         let due = Instant::now();
         let (ready, later): (Vec<_>, Vec<_>) =
-            self.retries.drain(..).partition(|(at, _)| *at <= due);
+            self.retries.drain(..).partition(|(at, _, _)| *at <= due);
         self.retries = later;
-        for (_, work) in ready {
+        for (_, work, _) in ready {
             self.queue.push_back(work);
+        }
+        let again: Vec<PathBuf> = self
+            .unreadable
+            .iter()
+            .filter(|(p, u)| u.next <= due && !self.candidates.contains_key(*p))
+            .map(|(p, _)| p.clone())
+            .collect();
+        for path in again {
+            self.consider(path, true);
         }
         if let Some(interval) = self.watchdog
             && self.last_watchdog.elapsed() >= interval / 2
@@ -150,7 +179,7 @@ impl State {
                     gone.push(path);
                     continue;
                 }
-                // The probe reports it (e.g. permission denied) as a rejection.
+                // The probe tells a transient error (retried) from a final one.
                 Err(_) => {
                     ready.push(path);
                     continue;
@@ -205,18 +234,41 @@ impl State {
         .expect("probing does not panic");
         let mut frames = Vec::new();
         for (path, probe) in probed {
+            if !matches!(probe, Probe::Unreadable(_)) {
+                self.unreadable.remove(&path);
+            }
             match probe {
-                Probe::Frame(c) if self.journal.is_settled(&c.input) => {}
-                Probe::Frame(c) => frames.push(c),
+                Probe::Frame(c, _) if self.journal.is_settled(&c.input) => {}
+                Probe::Frame(c, dims) => frames.push((c, dims)),
                 Probe::Rejected(input, reason) => {
                     if !self.journal.is_settled(&input) {
                         self.reject(input, reason)?;
                     }
                 }
+                Probe::Unreadable(reason) => self.unreadable_for_now(path, reason),
                 Probe::Changed => self.consider(path, false),
                 Probe::Gone => {}
             }
         }
+        let mut admitted = Vec::new();
+        for (c, footprint) in frames {
+            let need = job_bytes(&[footprint]);
+            let budget = self.config.daemon.memory_mb.saturating_mul(1_000_000);
+            if need > budget {
+                let reason = format!(
+                    "{}×{} pixels need {} MB to develop, more than the memory budget ([daemon] memory_mb = {})",
+                    footprint.width,
+                    footprint.height,
+                    need.div_ceil(1_000_000),
+                    self.config.daemon.memory_mb
+                );
+                self.reject(c.input, reason)?;
+            } else {
+                self.footprints.insert(c.input.path.clone(), footprint);
+                admitted.push(c);
+            }
+        }
+        let mut frames = admitted;
         // A batch (start-up scan, burst) enters in capture-time order.
         frames.sort_by(|a, b| {
             a.time_s
@@ -237,9 +289,35 @@ impl State {
         Ok(())
     }
 
+    /// A file that cannot be read now: look again after `retry · 2^attempts` (at most
+    /// [`MAX_RETRY`]); meanwhile open brackets wait for it (up to [`WRITER_PATIENCE`]),
+    /// and `status` shows it with the reason. Nothing is journaled.
+    pub(super) fn unreadable_for_now(&mut self, path: PathBuf, reason: String) {
+        let now = Instant::now();
+        let entry = self.unreadable.entry(path.clone()).or_insert(Unreadable {
+            first_seen: now,
+            attempts: 0,
+            next: now,
+            reason: String::new(),
+        });
+        let delay =
+            (self.config.daemon.retry * 2u32.saturating_pow(entry.attempts.min(16))).min(MAX_RETRY);
+        entry.attempts += 1;
+        entry.next = now + delay;
+        entry.reason.clone_from(&reason);
+        warn!(
+            file = %path.display(),
+            reason = %reason,
+            attempt = entry.attempts,
+            retry_in_s = delay.as_secs_f64(),
+            "cannot read; will retry"
+        );
+    }
+
     pub(super) fn reject(&mut self, input: Input, reason: String) -> Result<(), DaemonError> {
         warn!(file = %input.path.display(), reason = %reason, "rejected");
         self.taken.remove(&input.path);
+        self.footprints.remove(&input.path);
         self.summary.rejected += 1;
         self.journal.record(Entry::Rejected {
             input,
