@@ -142,10 +142,21 @@ pub(crate) fn scan(cfg: &Watch, dir: &Path) -> Vec<PathBuf> {
 
 /// True when a folder between `root` and `path` (exclusive of `path` itself) is a
 /// symbolic link: such a path is not inside the ingest folder, only reachable from it.
+/// `path` may be given under `root` as configured or as resolved (watchers report either);
+/// a path under neither is not in the ingest folder either.
 pub(crate) fn through_link(root: &Path, path: &Path) -> bool {
-    let Ok(rest) = path.strip_prefix(root) else {
-        return true;
-    };
+    if let Ok(rest) = path.strip_prefix(root) {
+        return linked_folder(root, rest);
+    }
+    match std::fs::canonicalize(root) {
+        Ok(real) => path
+            .strip_prefix(&real)
+            .map_or(true, |rest| linked_folder(&real, rest)),
+        Err(_) => true,
+    }
+}
+
+fn linked_folder(root: &Path, rest: &Path) -> bool {
     let mut at = root.to_path_buf();
     let parts: Vec<_> = rest.components().collect();
     for part in parts.iter().take(parts.len().saturating_sub(1)) {
