@@ -1215,6 +1215,90 @@ fn reused_file_names_never_replace_finished_outputs() {
 }
 
 #[test]
+fn touched_frames_are_not_redone_and_a_reshot_frame_replaces_its_brackets_outputs() {
+    let mut rig = Rig::start(&[], Arc::new(DarkroomLab), |_| {});
+    put(&rig.ingest(), &aeb("Body A", 10, "t"));
+    expect_outputs(&rig.out(), &bracket_outputs(&["t-1"]), T);
+    let first_exr = std::fs::read(rig.out().join("t-1.exr")).unwrap();
+    // A tool touches every frame: new modification times, same content.
+    let later = std::time::SystemTime::now() + Duration::from_secs(5);
+    for i in 1..=3 {
+        std::fs::File::options()
+            .write(true)
+            .open(rig.ingest().join(format!("t-{i}.jpg")))
+            .unwrap()
+            .set_modified(later)
+            .unwrap();
+    }
+    let start = Instant::now();
+    let unchanged = |state: &Path| {
+        journal::read(state)
+            .unwrap()
+            .iter()
+            .filter(|e| matches!(e, Entry::Unchanged { .. }))
+            .count()
+    };
+    while unchanged(&rig.state()) < 3 {
+        assert!(start.elapsed() < T, "touched frames not noticed");
+        std::thread::sleep(Duration::from_millis(50));
+    }
+    expect_outputs(&rig.out(), &bracket_outputs(&["t-1"]), T);
+    assert_eq!(std::fs::read(rig.out().join("t-1.exr")).unwrap(), first_exr);
+    // The middle frame is shot again under its name: the bracket is developed again,
+    // in place; no second EXR, no single.
+    let again = aeb("Body A", 50, "t").remove(1);
+    put(&rig.ingest(), &[again]);
+    let start = Instant::now();
+    while journaled_brackets_all(&rig.state()) < 2 {
+        assert!(start.elapsed() < T, "re-shot frame not developed");
+        std::thread::sleep(Duration::from_millis(50));
+    }
+    expect_outputs(&rig.out(), &bracket_outputs(&["t-1"]), T);
+    assert_ne!(std::fs::read(rig.out().join("t-1.exr")).unwrap(), first_exr);
+    rig.stop();
+}
+
+/// Bracket entries in the journal, superseded ones included.
+fn journaled_brackets_all(state: &Path) -> usize {
+    journal::read(state)
+        .unwrap()
+        .iter()
+        .filter(|e| matches!(e, Entry::Bracket { .. }))
+        .count()
+}
+
+#[test]
+fn deleted_outputs_stay_deleted_until_filmback_redo() {
+    let mut rig = Rig::start(&[], Arc::new(DarkroomLab), |_| {});
+    put(&rig.ingest(), &aeb("Body A", 10, "d"));
+    expect_outputs(&rig.out(), &bracket_outputs(&["d-1"]), T);
+    std::fs::remove_file(rig.out().join("d-1.exr")).unwrap();
+    std::thread::sleep(Duration::from_secs(3));
+    assert_eq!(listing(&rig.out()), ["d-1.linear.jpg".to_string()].into());
+    let redo = |stem: &str| {
+        Command::new(env!("CARGO_BIN_EXE_filmback"))
+            .args(["redo", stem, "--state"])
+            .arg(rig.state())
+            .output()
+            .unwrap()
+    };
+    let unknown = redo("nothing-1");
+    assert!(!unknown.status.success());
+    assert!(
+        String::from_utf8_lossy(&unknown.stderr).contains("nothing-1: no finished bracket"),
+        "{unknown:?}"
+    );
+    let done = redo("d-1");
+    assert!(done.status.success(), "{done:?}");
+    expect_outputs(&rig.out(), &bracket_outputs(&["d-1"]), T);
+    assert!(
+        listing(&rig.state().join("redo")).is_empty(),
+        "request taken"
+    );
+    rig.stop();
+}
+
+#[test]
 fn polling_mode_and_archive_folder() {
     let dir = tempfile::tempdir().unwrap();
     let archive = dir.path().join("archive");

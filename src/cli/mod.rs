@@ -13,6 +13,7 @@ mod films;
 mod inspect;
 mod looks;
 mod merge;
+mod redo;
 mod render;
 mod status;
 mod watch;
@@ -41,6 +42,8 @@ enum Command {
     Watch(watch::Args),
     /// What the daemon has done and is doing: brackets, pending work, rejected files.
     Status(status::Args),
+    /// Have the daemon develop finished brackets again (e.g. after deleting outputs).
+    Redo(redo::Args),
     /// Validate a configuration file without starting.
     CheckConfig(check_config::Args),
     /// The per-camera response cache: list, show, reset.
@@ -98,6 +101,7 @@ pub fn main() -> ExitCode {
         Command::Render(args) => render::run(args),
         Command::Watch(args) => watch::run(args),
         Command::Status(args) => status::run(args),
+        Command::Redo(args) => redo::run(args),
         Command::CheckConfig(args) => check_config::run(args),
         Command::Cache(args) => cache::run(args),
     };

@@ -56,6 +56,7 @@ pub fn run(args: Args) -> anyhow::Result<ExitCode> {
                     failed.push(json!({"inputs": inputs.iter().map(|i| i.path.display().to_string()).collect::<Vec<_>>(), "reason": reason}));
                 }
             }
+            Entry::Unchanged { .. } => {}
             Entry::Rejected { input, reason, .. } => {
                 if std::ptr::eq(latest[input.path.as_path()], e) {
                     rejected

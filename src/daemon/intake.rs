@@ -18,6 +18,7 @@ use tokio::sync::mpsc::UnboundedSender;
 use crate::daemon::Footprint;
 use crate::daemon::bracket::{CameraId, Capture, Input};
 use crate::daemon::config::{Watch, WatchMode};
+use crate::daemon::journal;
 use crate::metadata;
 
 /// What the watcher reports to the daemon loop.
@@ -205,8 +206,8 @@ fn jpeg_complete(bytes: &[u8]) -> bool {
 /// What reading a settled file found.
 #[derive(Debug)]
 pub(crate) enum Probe {
-    /// A frame with its EXIF and its decoded size.
-    Frame(Capture, Footprint),
+    /// A frame with its EXIF, its decoded size and its content digest.
+    Frame(Capture, Footprint, u64),
     /// Not a usable frame (its content, or a link); set aside with the reason.
     Rejected(Input, String),
     /// It could not be read now (permission denied, I/O error): try again later.
@@ -346,6 +347,7 @@ pub(crate) fn probe(path: &Path) -> Probe {
             input: before,
         },
         footprint,
+        journal::content_digest(&bytes),
     )
 }
 
@@ -373,7 +375,7 @@ mod tests {
         let good = dir.path().join("a.jpg");
         std::fs::write(&good, &jpeg).unwrap();
         match probe(&good) {
-            Probe::Frame(c, fp) => {
+            Probe::Frame(c, fp, _) => {
                 assert_eq!((fp.width, fp.height, fp.bytes_per_pixel), (96, 64, 3));
                 assert_eq!(c.camera.serial.as_deref(), Some("9"));
                 assert!((c.exposure.unwrap() - 100.0 / 15.0 / 64.0).abs() < 1e-9);

@@ -17,7 +17,7 @@
 //! (or the process be killed mid-append), the next start drops the torn last line and the
 //! bracket it would have recorded is simply developed again.
 
-use std::collections::HashSet;
+use std::collections::{HashMap, HashSet};
 use std::fs::{self, File, OpenOptions};
 use std::io::{self, Write};
 use std::path::{Path, PathBuf};
@@ -76,6 +76,10 @@ pub enum Entry {
         inputs: Vec<Input>,
         /// Published outputs.
         outputs: Vec<PathBuf>,
+        /// [`content_digest`] of each input, in the order of `inputs` (absent in entries
+        /// of older versions).
+        #[serde(default, skip_serializing_if = "Vec::is_empty")]
+        digests: Vec<u64>,
         /// Exposure ratio `e_max / e_min`.
         ratio: f64,
         /// Where the response came from.
@@ -95,6 +99,9 @@ pub enum Entry {
         alone: Alone,
         /// Published outputs (empty when only reported).
         outputs: Vec<PathBuf>,
+        /// [`content_digest`] of the input (absent in entries of older versions).
+        #[serde(default, skip_serializing_if = "Vec::is_empty")]
+        digests: Vec<u64>,
         /// Unix time, seconds.
         at: u64,
     },
@@ -104,6 +111,16 @@ pub enum Entry {
         input: Input,
         /// Why.
         reason: String,
+        /// Unix time, seconds.
+        at: u64,
+    },
+    /// A developed input whose modification time changed but whose content did not (a
+    /// tool touched it): nothing is redone.
+    Unchanged {
+        /// The file as it is now.
+        input: Input,
+        /// Id of the bracket or single it was developed in.
+        of: String,
         /// Unix time, seconds.
         at: u64,
     },
@@ -126,9 +143,66 @@ impl Entry {
     pub fn inputs(&self) -> Vec<&Input> {
         match self {
             Entry::Bracket { inputs, .. } | Entry::Failed { inputs, .. } => inputs.iter().collect(),
-            Entry::Single { input, .. } | Entry::Rejected { input, .. } => vec![input],
+            Entry::Single { input, .. }
+            | Entry::Rejected { input, .. }
+            | Entry::Unchanged { input, .. } => vec![input],
         }
     }
+
+    /// The content digest recorded for the input at `path`, if this entry developed it.
+    pub fn digest_of(&self, path: &Path) -> Option<u64> {
+        let (inputs, digests): (Vec<&Input>, &[u64]) = match self {
+            Entry::Bracket {
+                inputs, digests, ..
+            } => (inputs.iter().collect(), digests),
+            Entry::Single { input, digests, .. } => (vec![input], digests),
+            _ => return None,
+        };
+        inputs
+            .iter()
+            .position(|i| i.path == path)
+            .and_then(|k| digests.get(k).copied())
+    }
+
+    /// The output stem this bracket or single was published under: the first input's
+    /// file stem, or that stem with `-<8 hex digits of the id>` when the outputs say so.
+    pub fn output_stem(&self) -> Option<String> {
+        let (id, first, outputs) = match self {
+            Entry::Bracket {
+                id,
+                inputs,
+                outputs,
+                ..
+            } => (id, inputs.first()?, outputs),
+            Entry::Single {
+                id, input, outputs, ..
+            } => (id, input, outputs),
+            _ => return None,
+        };
+        let stem = first
+            .path
+            .file_stem()
+            .map_or_else(String::new, |s| s.to_string_lossy().into_owned());
+        let suffixed = format!("{stem}-{}", id.get(..8).unwrap_or(id));
+        let named = |s: &str| {
+            outputs.iter().any(|o| {
+                o.file_name()
+                    .is_some_and(|n| n.to_string_lossy().starts_with(&format!("{s}.")))
+            })
+        };
+        Some(if named(&suffixed) { suffixed } else { stem })
+    }
+}
+
+/// FNV-1a (64 bit) of a file's bytes: tells a touched file (same content, new
+/// modification time) from a changed one.
+pub fn content_digest(bytes: &[u8]) -> u64 {
+    let mut h: u64 = 0xcbf2_9ce4_8422_2325;
+    for &b in bytes {
+        h ^= u64::from(b);
+        h = h.wrapping_mul(0x0000_0100_0000_01b3);
+    }
+    h
 }
 
 /// Seconds since the Unix epoch, now.
@@ -145,6 +219,8 @@ pub struct Journal {
     file: File,
     entries: Vec<Entry>,
     settled: HashSet<Input>,
+    /// Index into `entries` of the latest bracket or single that developed each path.
+    developed: HashMap<PathBuf, usize>,
 }
 
 impl Journal {
@@ -169,6 +245,7 @@ impl Journal {
             file,
             entries: Vec::new(),
             settled: HashSet::new(),
+            developed: HashMap::new(),
         };
         // A torn last line (no newline) is cut off so the next entry starts cleanly.
         let bytes = fs::read(&journal.path).map_err(|source| JournalError::Io {
@@ -194,7 +271,25 @@ impl Journal {
 
     fn note(&mut self, entry: Entry) {
         self.settled.extend(entry.inputs().into_iter().cloned());
+        if matches!(entry, Entry::Bracket { .. } | Entry::Single { .. }) {
+            for i in entry.inputs() {
+                self.developed.insert(i.path.clone(), self.entries.len());
+            }
+        }
         self.entries.push(entry);
+    }
+
+    /// The latest bracket or single that developed the file at `path`.
+    pub fn developed(&self, path: &Path) -> Option<&Entry> {
+        self.developed.get(path).map(|&k| &self.entries[k])
+    }
+
+    /// The latest bracket or single published under output stem `stem`.
+    pub fn by_stem(&self, stem: &str) -> Option<&Entry> {
+        self.entries
+            .iter()
+            .rev()
+            .find(|e| e.output_stem().as_deref() == Some(stem))
     }
 
     fn append_line(&mut self, line: &str) -> Result<(), JournalError> {
@@ -337,6 +432,7 @@ mod tests {
             },
             inputs: names.iter().map(|n| input(n)).collect(),
             outputs: vec![PathBuf::from("/out/a.exr")],
+            digests: Vec::new(),
             ratio: 4.0,
             response: Source::Fitted,
             at: 1,

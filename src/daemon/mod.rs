@@ -55,6 +55,9 @@ pub const STOP_GRACE: Duration = Duration::from_secs(8);
 /// How long a file still being written keeps open brackets from closing by the gap.
 const WRITER_PATIENCE: Duration = Duration::from_secs(60);
 
+/// Folder in the state folder where `filmback redo STEM` leaves its requests.
+pub const REDO_FOLDER: &str = "redo";
+
 /// Longest delay between retries of a bracket whose outputs could not be written.
 const MAX_RETRY: Duration = Duration::from_secs(300);
 
@@ -102,6 +105,26 @@ pub struct Summary {
 struct Work {
     closed: Closed,
     attempts: u32,
+    /// The earlier bracket or single this one replaces (a re-shot frame, `redo`).
+    supersedes: Option<Superseded>,
+}
+
+impl Work {
+    fn new(closed: Closed) -> Work {
+        Work {
+            closed,
+            attempts: 0,
+            supersedes: None,
+        }
+    }
+}
+
+/// What a re-development replaces: its outputs are published under the same stem, and
+/// those of the earlier outputs the new set lacks are removed.
+#[derive(Debug, Clone)]
+struct Superseded {
+    stem: String,
+    outputs: Vec<PathBuf>,
 }
 
 /// The decoded size of one frame, read from its header at intake.
@@ -173,11 +196,14 @@ struct State {
     /// After a failed attempt to watch, the next one waits until then.
     watch_retry_at: Instant,
     last_rescan: Instant,
+    last_redo: Instant,
     candidates: HashMap<PathBuf, Candidate>,
     /// Files whose last read failed transiently, with their back-off.
     unreadable: HashMap<PathBuf, Unreadable>,
     /// Decoded sizes of the frames taken (for the memory budget).
     footprints: HashMap<PathBuf, Footprint>,
+    /// Content digests of the frames taken (journaled with their bracket).
+    digests: HashMap<PathBuf, u64>,
     /// Estimated bytes of the jobs in flight.
     in_use: u64,
     /// Paths in the grouper, queue, retry list or in flight.
@@ -243,9 +269,11 @@ pub async fn run(
         watched: None,
         watch_retry_at: now,
         last_rescan: now,
+        last_redo: now,
         candidates: HashMap::new(),
         unreadable: HashMap::new(),
         footprints: HashMap::new(),
+        digests: HashMap::new(),
         in_use: 0,
         taken: HashSet::new(),
         queue: VecDeque::new(),

@@ -49,6 +49,11 @@ impl State {
                     input: capture.input.clone(),
                     alone: *alone,
                     outputs: Vec::new(),
+                    digests: self
+                        .digests
+                        .get(&capture.input.path)
+                        .map(|d| vec![*d])
+                        .unwrap_or_default(),
                     at: journal::unix_now(),
                 })?;
                 self.summary.finished += 1;
@@ -78,7 +83,10 @@ impl State {
                 },
                 preset,
                 out: self.config.folders.out.clone(),
-                stem: self.output_stem(&work.closed),
+                stem: work
+                    .supersedes
+                    .as_ref()
+                    .map_or_else(|| self.output_stem(&work.closed), |s| s.stem.clone()),
                 stocks: self.config.folders.stocks.clone(),
             };
             let lab = Arc::clone(&self.lab);
@@ -129,6 +137,7 @@ impl State {
         for f in closed.frames() {
             self.taken.remove(&f.input.path);
             self.footprints.remove(&f.input.path);
+            self.digests.remove(&f.input.path);
         }
     }
 
@@ -148,7 +157,7 @@ impl State {
     pub(super) fn finish(&mut self, (work, result, took): Outcome) -> Result<(), DaemonError> {
         self.in_use = self.in_use.saturating_sub(self.job_bytes(&work.closed));
         match result {
-            Ok(processed) => self.developed(&work.closed, &processed, took)?,
+            Ok(processed) => self.developed(&work, &processed, took)?,
             Err(JobError::Frame { path, reason }) => self.frame_failed(&work, &path, reason)?,
             Err(e @ JobError::Output { .. }) => self.retry_later(work, &e),
             Err(JobError::Bracket(reason)) => self.failed(&work, reason)?,
@@ -159,10 +168,17 @@ impl State {
     /// A job that published its outputs: refine the cache, journal it, log it, archive.
     pub(super) fn developed(
         &mut self,
-        closed: &Closed,
+        work: &Work,
         dev: &Processed,
         took: Duration,
     ) -> Result<(), DaemonError> {
+        let closed = &work.closed;
+        let digests: Vec<u64> = closed
+            .frames()
+            .iter()
+            .map(|c| self.digests.get(&c.input.path).copied())
+            .collect::<Option<_>>()
+            .unwrap_or_default();
         let camera = closed.camera().clone();
         let preset = self
             .config
@@ -186,6 +202,7 @@ impl State {
                 camera: camera.clone(),
                 inputs: b.frames.iter().map(|c| c.input.clone()).collect(),
                 outputs: dev.outputs.clone(),
+                digests,
                 ratio: b.ratio(),
                 response: dev.source,
                 at,
@@ -196,10 +213,23 @@ impl State {
                 input: c.input.clone(),
                 alone: *alone,
                 outputs: dev.outputs.clone(),
+                digests,
                 at,
             },
         };
         self.journal.record(entry)?;
+        if let Some(old) = &work.supersedes {
+            // Outputs of the earlier development the new one did not replace are stale.
+            for stale in old.outputs.iter().filter(|o| !dev.outputs.contains(o)) {
+                match std::fs::remove_file(stale) {
+                    Ok(()) => info!(file = %stale.display(), "removed stale output"),
+                    Err(e) if e.kind() == std::io::ErrorKind::NotFound => {}
+                    Err(e) => {
+                        warn!(file = %stale.display(), error = %e, "cannot remove stale output")
+                    }
+                }
+            }
+        }
         self.summary.finished += 1;
         let stages: Vec<String> = dev
             .stages
@@ -267,10 +297,7 @@ impl State {
                 frames: rest,
             }),
         };
-        self.queue.push_front(Work {
-            closed,
-            attempts: 0,
-        });
+        self.queue.push_front(Work::new(closed));
         Ok(())
     }
 
@@ -288,8 +315,8 @@ impl State {
         self.retries.push((
             Instant::now() + delay,
             Work {
-                closed: work.closed,
                 attempts: work.attempts + 1,
+                ..work
             },
             e.to_string(),
         ));

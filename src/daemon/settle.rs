@@ -1,18 +1,19 @@
 //! Watching and settling: files noticed in the ingest folder become candidates, settled
 //! candidates are probed (EXIF, header) and fed to the grouper in capture-time order.
 
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 use std::time::{Duration, Instant};
 
 use tracing::{error, info, warn};
 
-use super::bracket::Input;
+use super::bracket::{Alone, Bracket, Capture, Closed, Input};
 use super::intake::{self, Notice, Probe};
 use super::journal::{self, Entry};
 use super::{
-    Candidate, DaemonError, MAX_RETRY, State, Unreadable, WRITER_PATIENCE, Work, folder_id,
-    job_bytes, wall_seconds,
+    Candidate, DaemonError, MAX_RETRY, REDO_FOLDER, State, Superseded, Unreadable, WRITER_PATIENCE,
+    Work, folder_id, job_bytes, wall_seconds,
 };
+use crate::atomic;
 
 impl State {
     /// Notices the ingest folder appearing, disappearing or being replaced, and
@@ -91,6 +92,9 @@ impl State {
 
     pub(super) async fn tick(&mut self) -> Result<(), DaemonError> {
         self.check_folder();
+        if !self.stopping {
+            self.redo_requests().await?;
+        }
         let rescan_due = match self.config.watch.rescan {
             Some(every) => self.last_rescan.elapsed() >= every,
             // Without a watcher, scans are all there is.
@@ -122,10 +126,7 @@ impl State {
             self.grouper.postpone(now);
         }
         for closed in self.grouper.expire(now) {
-            self.queue.push_back(Work {
-                closed,
-                attempts: 0,
-            });
+            self.queue.push_back(Work::new(closed));
         }
         let due = Instant::now();
         let (ready, later): (Vec<_>, Vec<_>) =
@@ -238,8 +239,24 @@ impl State {
                 self.unreadable.remove(&path);
             }
             match probe {
-                Probe::Frame(c, _) if self.journal.is_settled(&c.input) => {}
-                Probe::Frame(c, dims) => frames.push((c, dims)),
+                Probe::Frame(c, ..) if self.journal.is_settled(&c.input) => {}
+                Probe::Frame(c, footprint, digest) => {
+                    let before = self.journal.developed(&c.input.path);
+                    if let Some(e) = before.filter(|e| e.digest_of(&c.input.path) == Some(digest)) {
+                        let of = match e {
+                            Entry::Bracket { id, .. } | Entry::Single { id, .. } => id.clone(),
+                            _ => String::new(),
+                        };
+                        info!(file = %c.input.path.display(), "touched, content unchanged: nothing redone");
+                        self.journal.record(Entry::Unchanged {
+                            input: c.input,
+                            of,
+                            at: journal::unix_now(),
+                        })?;
+                        continue;
+                    }
+                    frames.push((c, footprint, digest));
+                }
                 Probe::Rejected(input, reason) => {
                     if !self.journal.is_settled(&input) {
                         self.reject(input, reason)?;
@@ -251,7 +268,7 @@ impl State {
             }
         }
         let mut admitted = Vec::new();
-        for (c, footprint) in frames {
+        for (c, footprint, digest) in frames {
             let need = job_bytes(&[footprint]);
             let budget = self.config.daemon.memory_mb.saturating_mul(1_000_000);
             if need > budget {
@@ -265,10 +282,31 @@ impl State {
                 self.reject(c.input, reason)?;
             } else {
                 self.footprints.insert(c.input.path.clone(), footprint);
+                self.digests.insert(c.input.path.clone(), digest);
                 admitted.push(c);
             }
         }
-        let mut frames = admitted;
+        // A new version of a frame of a developed bracket (re-shot under the same name)
+        // re-develops that bracket with it, in place of the old outputs.
+        let mut reshot: Vec<(Entry, Vec<Capture>)> = Vec::new();
+        let mut frames = Vec::new();
+        for c in admitted {
+            match self.journal.developed(&c.input.path) {
+                Some(e @ Entry::Bracket { .. }) => {
+                    match reshot.iter_mut().find(|(old, _)| old == e) {
+                        Some((_, new)) => new.push(c),
+                        None => reshot.push((e.clone(), vec![c])),
+                    }
+                }
+                _ => frames.push(c),
+            }
+        }
+        for (old, new) in reshot {
+            if let Err((new, why)) = self.redevelop(&old, new).await {
+                tracing::debug!(reason = %why, "not a re-shot frame; new work");
+                frames.extend(new);
+            }
+        }
         // A batch (start-up scan, burst) enters in capture-time order.
         frames.sort_by(|a, b| {
             a.time_s
@@ -280,10 +318,138 @@ impl State {
             tracing::debug!(file = %c.input.path.display(), time_s = c.time_s, "frame taken");
             self.taken.insert(c.input.path.clone());
             for closed in self.grouper.push(c, now) {
-                self.queue.push_back(Work {
-                    closed,
-                    attempts: 0,
-                });
+                self.queue.push_back(Work::new(closed));
+            }
+        }
+        Ok(())
+    }
+
+    /// Develops again the frames of an earlier bracket or single `old`, with `new`
+    /// versions of some of its files, publishing under its output stem and removing its
+    /// outputs the new set lacks. Every other input of `old` must still be there,
+    /// unchanged, and of the same camera; otherwise `new` is handed back with the reason.
+    pub(super) async fn redevelop(
+        &mut self,
+        old: &Entry,
+        new: Vec<Capture>,
+    ) -> Result<(), (Vec<Capture>, String)> {
+        let (Some(stem), Entry::Bracket { outputs, .. } | Entry::Single { outputs, .. }) =
+            (old.output_stem(), old)
+        else {
+            return Err((new, "not a developed bracket".to_string()));
+        };
+        let replaced: Vec<&Path> = new.iter().map(|c| c.input.path.as_path()).collect();
+        let others: Vec<PathBuf> = old
+            .inputs()
+            .into_iter()
+            .filter(|i| !replaced.contains(&i.path.as_path()))
+            .map(|i| i.path.clone())
+            .collect();
+        if !new.is_empty() && others.is_empty() {
+            return Err((
+                new,
+                "no unchanged frame of the earlier bracket left".to_string(),
+            ));
+        }
+        if others.iter().any(|p| self.taken.contains(p)) {
+            return Err((new, "its other frames are being developed".to_string()));
+        }
+        let journaled: Vec<Input> = old.inputs().into_iter().cloned().collect();
+        let digests: Vec<(PathBuf, Option<u64>)> = journaled
+            .iter()
+            .map(|i| (i.path.clone(), old.digest_of(&i.path)))
+            .collect();
+        // Unchanged: the very file journaled, or (touched since) the same content.
+        let unchanged = |c: &Capture, digest: u64| {
+            journaled.contains(&c.input)
+                || digests
+                    .iter()
+                    .any(|(p, d)| *p == c.input.path && *d == Some(digest))
+        };
+        let probed = tokio::task::spawn_blocking(move || {
+            others
+                .into_iter()
+                .map(|p| {
+                    let r = intake::probe(&p);
+                    (p, r)
+                })
+                .collect::<Vec<_>>()
+        })
+        .await
+        .expect("probing does not panic");
+        let mut frames = new;
+        let mut found = Vec::new();
+        for (path, probe) in probed {
+            match probe {
+                Probe::Frame(c, footprint, digest) if unchanged(&c, digest) => {
+                    found.push((c, footprint, digest));
+                }
+                _ => {
+                    return Err((frames, format!("{} changed or is gone", path.display())));
+                }
+            }
+        }
+        for (c, footprint, digest) in found {
+            self.footprints.insert(c.input.path.clone(), footprint);
+            self.digests.insert(c.input.path.clone(), digest);
+            frames.push(c);
+        }
+        let camera = frames[0].camera.clone();
+        if frames.iter().any(|c| c.camera != camera) {
+            return Err((frames, "frames of another camera".to_string()));
+        }
+        frames.sort_by(|a, b| a.time_s.total_cmp(&b.time_s));
+        for c in &frames {
+            self.taken.insert(c.input.path.clone());
+        }
+        let closed = if frames.len() == 1 {
+            Closed::Single(frames.pop().expect("one"), Alone::NoPartner)
+        } else {
+            Closed::Bracket(Bracket { camera, frames })
+        };
+        info!(bracket = %stem, frames = closed.frames().len(), "developing again");
+        self.queue.push_back(Work {
+            closed,
+            attempts: 0,
+            supersedes: Some(Superseded {
+                stem,
+                outputs: outputs.clone(),
+            }),
+        });
+        Ok(())
+    }
+
+    /// Requests of `filmback redo STEM`: files in `state/redo/`, each named by the output
+    /// stem of a finished bracket or single, checked every half second.
+    pub(super) async fn redo_requests(&mut self) -> Result<(), DaemonError> {
+        if self.last_redo.elapsed() < Duration::from_millis(500) {
+            return Ok(());
+        }
+        self.last_redo = Instant::now();
+        let dir = self.config.folders.state.join(REDO_FOLDER);
+        let Ok(entries) = std::fs::read_dir(&dir) else {
+            return Ok(());
+        };
+        let requests: Vec<PathBuf> = entries
+            .filter_map(Result::ok)
+            .map(|e| e.path())
+            .filter(|p| !atomic::is_temporary(p))
+            .collect();
+        for request in requests {
+            let stem = request
+                .file_name()
+                .map(|n| n.to_string_lossy().into_owned())
+                .unwrap_or_default();
+            match self.journal.by_stem(&stem).cloned() {
+                Some(old) => {
+                    if let Err((_, why)) = self.redevelop(&old, Vec::new()).await {
+                        warn!(bracket = %stem, reason = %why, "cannot develop again");
+                    }
+                }
+                None => warn!(bracket = %stem, "redo: no finished bracket or single of that name"),
+            }
+            if let Err(e) = std::fs::remove_file(&request) {
+                warn!(file = %request.display(), error = %e, "cannot remove redo request");
             }
         }
         Ok(())
