@@ -6,6 +6,13 @@
 //! allowed, by `link` (which fails if the name exists, so two writers can never clobber
 //! each other) when it is not. The folder is synced afterwards so the new name survives a
 //! power cut. On any error the temporary file is removed.
+//!
+//! A set of files that belongs together (a bracket's EXR and its renderings) is published
+//! as a unit by [`publish_set`]: all are written into a hidden staging folder beside
+//! the destination, synced, marked complete, and only then renamed into place one by
+//! one; a rename that fails moves the ones already renamed back, so either all names
+//! appear or none. A crash between the renames is finished at the next start by
+//! [`recover_sets`] (a complete set is moved into place, an incomplete one removed).
 
 use std::fs::{self, File};
 use std::io::{self, Write};
@@ -127,6 +134,120 @@ pub fn publish(path: &Path, bytes: &[u8], overwrite: Overwrite) -> Result<(), Pu
     })
 }
 
+/// Prefix of the hidden staging folders of [`publish_set`] (`.filmback-stage-<key>`).
+pub const STAGE_PREFIX: &str = ".filmback-stage-";
+
+/// Name of the marker written into a staging folder once every file in it is complete.
+const COMPLETE: &str = ".complete";
+
+/// The staging folder of a set `key` (e.g. a bracket id) in `dir`.
+pub fn stage_folder(dir: &Path, key: &str) -> PathBuf {
+    dir.join(format!("{STAGE_PREFIX}{key}"))
+}
+
+fn sync_folder(dir: &Path) {
+    // Not every file system supports syncing a folder.
+    if let Ok(d) = File::open(dir) {
+        let _ = d.sync_all();
+    }
+}
+
+/// The files of a staging folder (not the marker, not temporaries), sorted.
+fn staged(stage: &Path) -> io::Result<Vec<PathBuf>> {
+    let mut files: Vec<PathBuf> = fs::read_dir(stage)?
+        .filter_map(Result::ok)
+        .filter(|e| e.file_type().is_ok_and(|t| t.is_file()))
+        .map(|e| e.path())
+        .filter(|p| !is_temporary(p) && p.file_name().is_some_and(|n| n != COMPLETE))
+        .collect();
+    files.sort();
+    Ok(files)
+}
+
+/// Publishes every file of the staging folder `stage` into `dir` (its parent) as one
+/// set, replacing files of the same names, and removes the folder. Returns the published
+/// paths, sorted. On error nothing of the set is visible in `dir` (files it replaced are
+/// gone) and the staging folder is removed.
+pub fn publish_set(stage: &Path, dir: &Path) -> Result<Vec<PathBuf>, PublishError> {
+    let result = publish_staged(stage, dir);
+    let _ = fs::remove_dir_all(stage);
+    result
+}
+
+fn publish_staged(stage: &Path, dir: &Path) -> Result<Vec<PathBuf>, PublishError> {
+    let io_err = |path: &Path| {
+        let path = path.to_path_buf();
+        move |source| PublishError::Io { path, source }
+    };
+    let files = staged(stage).map_err(io_err(stage))?;
+    for f in &files {
+        File::open(f)
+            .and_then(|h| h.sync_all())
+            .map_err(io_err(f))?;
+    }
+    File::create(stage.join(COMPLETE))
+        .and_then(|h| h.sync_all())
+        .map_err(io_err(stage))?;
+    sync_folder(stage);
+    let mut moved: Vec<(PathBuf, PathBuf)> = Vec::with_capacity(files.len());
+    for from in &files {
+        let to = dir.join(from.file_name().expect("read_dir names files"));
+        if let Err(source) = fs::rename(from, &to) {
+            // Undo: the set is not visible at all.
+            for (back_from, back_to) in moved.iter().rev() {
+                let _ = fs::rename(back_to, back_from);
+            }
+            let _ = fs::remove_file(stage.join(COMPLETE));
+            sync_folder(dir);
+            return Err(PublishError::Io { path: to, source });
+        }
+        moved.push((from.clone(), to));
+    }
+    sync_folder(dir);
+    Ok(moved.into_iter().map(|(_, to)| to).collect())
+}
+
+/// What [`recover_sets`] did with one staging folder.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub enum Recovered {
+    /// A complete set interrupted between renames: the rest was moved into place.
+    Completed(PathBuf, Vec<PathBuf>),
+    /// An incomplete set: removed, nothing of it was visible.
+    RolledBack(PathBuf),
+}
+
+/// Finishes or removes the staging folders an interrupted [`publish_set`] left in `dir`.
+pub fn recover_sets(dir: &Path) -> Vec<Recovered> {
+    let Ok(entries) = fs::read_dir(dir) else {
+        return Vec::new();
+    };
+    let mut done = Vec::new();
+    for stage in entries.filter_map(Result::ok).map(|e| e.path()) {
+        let is_stage = stage
+            .file_name()
+            .and_then(|n| n.to_str())
+            .is_some_and(|n| n.starts_with(STAGE_PREFIX));
+        if !is_stage || !stage.is_dir() {
+            continue;
+        }
+        if stage.join(COMPLETE).is_file() {
+            let mut moved = Vec::new();
+            for from in staged(&stage).unwrap_or_default() {
+                let to = dir.join(from.file_name().expect("read_dir names files"));
+                if fs::rename(&from, &to).is_ok() {
+                    moved.push(to);
+                }
+            }
+            sync_folder(dir);
+            done.push(Recovered::Completed(stage.clone(), moved));
+        } else {
+            done.push(Recovered::RolledBack(stage.clone()));
+        }
+        let _ = fs::remove_dir_all(&stage);
+    }
+    done
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -157,6 +278,64 @@ mod tests {
         .unwrap_err();
         assert!(err.to_string().contains("encoder failed"));
         assert_eq!(fs::read_dir(dir.path()).unwrap().count(), 0);
+    }
+
+    #[test]
+    fn a_set_appears_whole_or_not_at_all() {
+        let dir = tempfile::tempdir().unwrap();
+        let out = dir.path();
+        let stage = stage_folder(out, "b1");
+        fs::create_dir(&stage).unwrap();
+        publish(&stage.join("x.exr"), b"e", Overwrite::Replace).unwrap();
+        publish(&stage.join("x.look.jpg"), b"j", Overwrite::Replace).unwrap();
+        // The second name is taken by a folder: the rename fails, the first is undone.
+        fs::create_dir(out.join("x.look.jpg")).unwrap();
+        let err = publish_set(&stage, out).unwrap_err();
+        assert!(err.to_string().contains("x.look.jpg"), "{err}");
+        let mut names: Vec<_> = fs::read_dir(out)
+            .unwrap()
+            .map(|e| e.unwrap().file_name().into_string().unwrap())
+            .collect();
+        names.sort();
+        assert_eq!(names, ["x.look.jpg"], "only the blocking folder");
+        fs::remove_dir(out.join("x.look.jpg")).unwrap();
+        fs::create_dir(&stage).unwrap();
+        publish(&stage.join("x.exr"), b"e", Overwrite::Replace).unwrap();
+        publish(&stage.join("x.look.jpg"), b"j", Overwrite::Replace).unwrap();
+        let published = publish_set(&stage, out).unwrap();
+        assert_eq!(published, [out.join("x.exr"), out.join("x.look.jpg")]);
+        assert!(!stage.exists());
+    }
+
+    #[test]
+    fn a_crash_between_renames_is_completed_and_a_partial_set_rolled_back() {
+        let dir = tempfile::tempdir().unwrap();
+        let out = dir.path();
+        // Crashed after the marker and the first rename.
+        let done = stage_folder(out, "a");
+        fs::create_dir(&done).unwrap();
+        fs::write(out.join("a.exr"), b"e").unwrap();
+        fs::write(done.join("a.look.jpg"), b"j").unwrap();
+        fs::write(done.join(COMPLETE), b"").unwrap();
+        // Crashed while writing.
+        let partial = stage_folder(out, "b");
+        fs::create_dir(&partial).unwrap();
+        fs::write(partial.join("b.exr"), b"half").unwrap();
+        let mut r = recover_sets(out);
+        r.sort_by_key(|x| format!("{x:?}"));
+        assert_eq!(
+            r,
+            [
+                Recovered::Completed(done.clone(), vec![out.join("a.look.jpg")]),
+                Recovered::RolledBack(partial.clone()),
+            ]
+        );
+        let mut names: Vec<_> = fs::read_dir(out)
+            .unwrap()
+            .map(|e| e.unwrap().file_name().into_string().unwrap())
+            .collect();
+        names.sort();
+        assert_eq!(names, ["a.exr", "a.look.jpg"]);
     }
 
     #[test]

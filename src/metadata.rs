@@ -54,7 +54,7 @@ impl Exposure {
 /// optional UTC offset (EXIF `DateTimeOriginal`, `SubSecTimeOriginal`, `OffsetTimeOriginal`).
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub struct CaptureTime {
-    /// Year (1..=9999).
+    /// Year (1..=9998; 0000 and 9999 are placeholders).
     pub year: u16,
     /// Month 1..=12.
     pub month: u8,
@@ -383,7 +383,15 @@ impl TagReader<'_> {
                 return None;
             }
         };
-        let valid = (1..=9999).contains(&dt.year)
+        // Year 9999 is EXIF's largest, written as a placeholder the way 0000 is.
+        if dt.year == 9999 {
+            self.warnings.push(format!(
+                "EXIF DateTimeOriginal {:?} is a placeholder (year 9999), not a real date: capture time unknown",
+                String::from_utf8_lossy(raw)
+            ));
+            return None;
+        }
+        let valid = (1..=9998).contains(&dt.year)
             && (1..=12).contains(&dt.month)
             && (1..=days_in_month(dt.year, dt.month)).contains(&dt.day)
             && dt.hour < 24
@@ -643,6 +651,9 @@ mod tests {
         let m = with(Tag::DateTimeOriginal, Some(ascii("0000:00:00 00:00:00")));
         assert_eq!(m.captured_at, None);
         assert!(warned(&m, "DateTimeOriginal"), "{:?}", m.warnings);
+        let m = with(Tag::DateTimeOriginal, Some(ascii("9999:12:31 23:59:59")));
+        assert_eq!(m.captured_at, None);
+        assert!(warned(&m, "placeholder (year 9999)"), "{:?}", m.warnings);
         let m = with(Tag::DateTimeOriginal, Some(ascii("2023:02:30 10:00:00")));
         assert_eq!(m.captured_at, None);
         assert!(warned(&m, "not a real date"), "{:?}", m.warnings);

@@ -868,3 +868,34 @@ fn inspect_json_reads_back_synthetic_frames_in_every_encoding() {
         assert_eq!(r, &expected, "{}", path.display());
     }
 }
+
+// ---------------------------------------------------------------------------------------
+// A reader that goes away (`filmback … | head -1`)
+// ---------------------------------------------------------------------------------------
+
+#[test]
+fn every_command_exits_quietly_when_its_reader_goes_away() {
+    use std::process::Stdio;
+    let dir = tempfile::tempdir().unwrap();
+    std::fs::create_dir_all(dir.path().join("state")).unwrap();
+    let state = dir.path().join("state").display().to_string();
+    for args in [
+        vec!["check-config"],
+        vec!["films"],
+        vec!["status", "--state", &state],
+        vec!["--help"],
+    ] {
+        let mut child = Command::new(env!("CARGO_BIN_EXE_filmback"))
+            .args(&args)
+            .stdout(Stdio::piped())
+            .stderr(Stdio::piped())
+            .spawn()
+            .unwrap();
+        // Close the pipe's read end before the command prints.
+        drop(child.stdout.take());
+        let out = child.wait_with_output().unwrap();
+        let stderr = String::from_utf8_lossy(&out.stderr);
+        assert!(stderr.is_empty(), "{args:?}: {stderr}");
+        assert_ne!(out.status.code(), Some(101), "{args:?} panicked");
+    }
+}

@@ -655,49 +655,305 @@ fn burst_of_200_frames_is_worked_off_with_nothing_dropped() {
     assert_eq!(listing(&out), expected);
 }
 
-#[test]
-fn unreadable_file_is_rejected_with_the_reason() {
+/// A root-owned test runs the daemon as `nobody` (permissions do not bind root).
+fn unprivileged(program: &str) -> Command {
+    let is_root = Command::new("id").arg("-u").output().unwrap().stdout == b"0\n";
+    if is_root {
+        let mut c = Command::new("setpriv");
+        c.args(["--reuid=65534", "--regid=65534", "--clear-groups"])
+            .arg(program);
+        c
+    } else {
+        Command::new(program)
+    }
+}
+
+/// Folders `nobody` may write, under a root it may enter.
+fn open_folders(root: &Path) {
     use std::os::unix::fs::PermissionsExt;
-    let dir = tempfile::tempdir().unwrap();
-    let root = dir.path();
     for d in ["ingest", "out", "state"] {
         std::fs::create_dir_all(root.join(d)).unwrap();
         std::fs::set_permissions(root.join(d), std::fs::Permissions::from_mode(0o777)).unwrap();
     }
     std::fs::set_permissions(root, std::fs::Permissions::from_mode(0o755)).unwrap();
+}
+
+#[test]
+fn unreadable_frame_is_retried_until_readable_and_its_bracket_made_whole() {
+    use std::os::unix::fs::PermissionsExt;
+    let dir = tempfile::tempdir().unwrap();
+    let root = dir.path();
+    open_folders(root);
     let config = root.join("filmback.toml");
     std::fs::write(&config, config_text(root, &[])).unwrap();
     let frames = aeb("Body U", 10, "u");
     put(&root.join("ingest"), &frames);
-    std::fs::set_permissions(
-        root.join("ingest/u-2.jpg"),
-        std::fs::Permissions::from_mode(0o000),
-    )
-    .unwrap();
-    // Permissions do not bind root: run the daemon as `nobody` then.
-    let is_root = Command::new("id").arg("-u").output().unwrap().stdout == b"0\n";
-    let mut command = if is_root {
-        let mut c = Command::new("setpriv");
-        c.args(["--reuid=65534", "--regid=65534", "--clear-groups"])
-            .arg(env!("CARGO_BIN_EXE_filmback"));
-        c
-    } else {
-        Command::new(env!("CARGO_BIN_EXE_filmback"))
-    };
-    // The test binary's folder must be reachable for `nobody`.
-    let mut child = command
+    let locked = root.join("ingest/u-2.jpg");
+    std::fs::set_permissions(&locked, std::fs::Permissions::from_mode(0o000)).unwrap();
+    let mut child = unprivileged(env!("CARGO_BIN_EXE_filmback"))
         .args(["watch", "--config"])
         .arg(&config)
         .stdout(Stdio::null())
         .stderr(Stdio::null())
         .spawn()
         .unwrap();
+    // `status` says what is retried, why, and when next.
+    wait_for_status(&root.join("state"), |s| {
+        s.retries.iter().any(|r| {
+            r.what.ends_with("u-2.jpg") && r.reason.contains("ermission denied") && r.next > 0
+        })
+    });
+    let shown = Command::new(env!("CARGO_BIN_EXE_filmback"))
+        .args(["status", "--state"])
+        .arg(root.join("state"))
+        .output()
+        .unwrap();
+    let text = String::from_utf8_lossy(&shown.stdout);
+    assert!(
+        text.lines().any(|l| l.contains("u-2.jpg")
+            && l.contains("ermission denied")
+            && l.contains("next in")),
+        "{text}"
+    );
+    std::thread::sleep(Duration::from_secs(2));
+    assert!(
+        listing(&root.join("out")).is_empty(),
+        "the bracket waits for its frame"
+    );
+    std::fs::set_permissions(&locked, std::fs::Permissions::from_mode(0o644)).unwrap();
     expect_outputs(&root.join("out"), &bracket_outputs(&["u-1"]), T);
     terminate(&mut child);
-    let r = rejected(&root.join("state"));
+    assert!(rejected(&root.join("state")).is_empty());
+    let entries = journal::read(&root.join("state")).unwrap();
+    assert!(
+        matches!(&entries[..], [Entry::Bracket { inputs, .. }] if inputs.len() == 3),
+        "{entries:?}"
+    );
+}
+
+#[test]
+fn any_file_name_is_journaled_and_logged_on_one_line() {
+    use std::os::unix::ffi::OsStrExt;
+    let dir = tempfile::tempdir().unwrap();
+    let root = dir.path();
+    let ingest = root.join("ingest");
+    std::fs::create_dir_all(&ingest).unwrap();
+    let config = root.join("filmback.toml");
+    std::fs::write(&config, config_text(root, &[])).unwrap();
+    let mut names = Vec::new();
+    for (i, (_, bytes)) in aeb("Body N", 10, "n").iter().enumerate() {
+        let name = [b"bad\xff-".as_slice(), format!("{}.jpg", i + 1).as_bytes()].concat();
+        let path = ingest.join(std::ffi::OsStr::from_bytes(&name));
+        std::fs::write(&path, bytes).unwrap();
+        names.push(path);
+    }
+    std::fs::write(ingest.join("evil\nERROR forged line.jpg"), b"not an image").unwrap();
+    let state = root.join("state");
+    for round in 0..2 {
+        let mut child = spawn_binary(&config);
+        expect_outputs(&root.join("out"), &bracket_outputs(&["bad\u{fffd}-1"]), T);
+        let start = Instant::now();
+        while rejected(&state).is_empty() {
+            assert!(start.elapsed() < T, "never rejected");
+            std::thread::sleep(Duration::from_millis(50));
+        }
+        std::thread::sleep(Duration::from_millis(300));
+        terminate(&mut child);
+        if round == 0 {
+            let log = std::fs::read_to_string(config.with_extension("log")).unwrap();
+            assert!(
+                !log.lines().any(|l| l.starts_with("ERROR forged")),
+                "a name forged a log line:\n{log}"
+            );
+            assert!(log.contains("evil\\nERROR forged line.jpg"), "{log}");
+        }
+    }
+    // The second start redid nothing and found every name in the journal.
+    let entries = journal::read(&state).unwrap();
+    assert_eq!(entries.len(), 2, "{entries:?}");
+    let journaled: Vec<PathBuf> = entries
+        .iter()
+        .flat_map(|e| e.inputs().into_iter().map(|i| i.path.clone()))
+        .collect();
+    for n in &names {
+        assert!(journaled.contains(n), "{} not journaled", n.display());
+    }
+}
+
+#[test]
+fn links_in_ingest_are_never_followed_and_refused_with_a_reason() {
+    use std::os::unix::fs::symlink;
+    let outside = tempfile::tempdir().unwrap();
+    put(outside.path(), &aeb("Body L", 40, "stray"));
+    let mut rig = Rig::start(
+        &[("watch", "recursive = true")],
+        Arc::new(DarkroomLab),
+        |root| {
+            let ingest = root.join("ingest");
+            // A loop up to the root reaches out/: outputs must not come back as frames.
+            symlink("..", ingest.join("loop")).unwrap();
+            symlink(outside.path(), ingest.join("linked-folder")).unwrap();
+            symlink(
+                outside.path().join("stray-1.jpg"),
+                ingest.join("stray-1.jpg"),
+            )
+            .unwrap();
+            symlink(root.join("nowhere.jpg"), ingest.join("dangling.jpg")).unwrap();
+            put(&ingest, &aeb("Body L", 10, "l"));
+        },
+    );
+    expect_outputs(&rig.out(), &bracket_outputs(&["l-1"]), T);
+    // A later bracket's outputs appear under ingest/loop/out too: still nothing extra.
+    put(&rig.ingest(), &aeb("Body L", 70, "m"));
+    expect_outputs(&rig.out(), &bracket_outputs(&["l-1", "m-1"]), T);
+    std::thread::sleep(Duration::from_secs(3));
+    assert_eq!(listing(&rig.out()), bracket_outputs(&["l-1", "m-1"]));
+    let state = rig.state();
+    rig.stop();
+    let mut r = rejected(&state);
+    r.sort();
+    assert_eq!(r.len(), 2, "{r:?}");
+    assert_eq!(r[0].0, "dangling.jpg");
+    assert!(
+        r[0].1.contains("symbolic link") && r[0].1.contains("dangling"),
+        "{r:?}"
+    );
+    assert_eq!(r[1].0, "stray-1.jpg");
+    assert!(
+        r[1].1.contains("symbolic link") && r[1].1.contains("not followed"),
+        "{r:?}"
+    );
+    assert_eq!(journaled_brackets(&state), ["l-1", "m-1"]);
+}
+
+#[test]
+fn an_out_folder_reachable_from_ingest_through_a_link_is_refused() {
+    let dir = tempfile::tempdir().unwrap();
+    let root = dir.path();
+    std::fs::create_dir_all(root.join("real/ingest")).unwrap();
+    // The configured ingest is a link to real/ingest; out is real/ingest/out.
+    std::os::unix::fs::symlink(root.join("real/ingest"), root.join("ingest")).unwrap();
+    let text = config_text(root, &[("watch", "recursive = true")]).replace(
+        &format!("out = \"{}\"", root.join("out").display()),
+        &format!("out = \"{}\"", root.join("real/ingest/out").display()),
+    );
+    let config = Config::from_str(&text, Some(Path::new("t.toml"))).expect("lexically fine");
+    let (control, rx) = tokio::sync::mpsc::channel(1);
+    let rt = tokio::runtime::Builder::new_multi_thread()
+        .worker_threads(1)
+        .enable_all()
+        .build()
+        .unwrap();
+    let result = rt.block_on(async move {
+        let stop = tokio::spawn(async move {
+            tokio::time::sleep(Duration::from_secs(1)).await;
+            let _ = control.send(Control::Stop).await;
+        });
+        let r = daemon::run(config, Arc::new(DarkroomLab), rx).await;
+        stop.abort();
+        r
+    });
+    let err = result.expect_err("out inside the watched folder must be refused");
+    assert!(
+        err.to_string().contains("inside the watched ingest"),
+        "{err}"
+    );
+}
+
+#[test]
+fn a_brackets_outputs_appear_together_or_not_at_all() {
+    let calls = Arc::new(AtomicUsize::new(0));
+    let counted = Arc::clone(&calls);
+    let lab = move |job: &Job| -> Result<Processed, JobError> {
+        counted.fetch_add(1, Ordering::SeqCst);
+        DarkroomLab.process(job)
+    };
+    let mut rig = Rig::start(&[], Arc::new(lab), |root| {
+        // The rendering's name is occupied (as by a full disk for its last file): the
+        // EXR, written fine, must not be visible alone.
+        std::fs::create_dir_all(root.join("out/s-1.linear.jpg")).unwrap();
+    });
+    put(&rig.ingest(), &aeb("Body A", 10, "s"));
+    let start = Instant::now();
+    while calls.load(Ordering::SeqCst) < 2 {
+        assert!(start.elapsed() < T, "no retry happened");
+        std::thread::sleep(Duration::from_millis(20));
+        assert!(
+            !rig.out().join("s-1.exr").exists(),
+            "the EXR appeared without its rendering"
+        );
+    }
+    wait_for_status(&rig.state(), |s| {
+        s.retries
+            .iter()
+            .any(|r| r.what == "s-1" && r.reason.contains("s-1.linear.jpg"))
+    });
+    let visible: BTreeSet<String> = listing(&rig.out())
+        .into_iter()
+        .filter(|n| !n.starts_with('.'))
+        .collect();
+    assert_eq!(visible, ["s-1.linear.jpg".to_string()].into());
+    std::fs::remove_dir(rig.out().join("s-1.linear.jpg")).unwrap();
+    expect_outputs(&rig.out(), &bracket_outputs(&["s-1"]), T);
+    rig.stop();
+}
+
+#[test]
+fn the_memory_budget_rejects_what_cannot_fit_and_runs_the_rest_in_turn() {
+    let running = Arc::new(AtomicUsize::new(0));
+    let peak = Arc::new(AtomicUsize::new(0));
+    let (r, p) = (Arc::clone(&running), Arc::clone(&peak));
+    let lab = move |_: &Job| -> Result<Processed, JobError> {
+        let now = r.fetch_add(1, Ordering::SeqCst) + 1;
+        p.fetch_max(now, Ordering::SeqCst);
+        std::thread::sleep(Duration::from_millis(600));
+        r.fetch_sub(1, Ordering::SeqCst);
+        Ok(Processed {
+            outputs: Vec::new(),
+            source: filmback::darkroom::Source::Standard,
+            fit: None,
+            stages: Vec::new(),
+            notes: Vec::new(),
+        })
+    };
+    // Each bracket: 1000 × 700 px × (2 × 3 frames × 3 B + 48 B) = 46.2 MB; two do not
+    // fit in 64 MB. The grey PNG: 2000 × 1000 × (2 × 1 + 48) = 100 MB, never fits.
+    let shots = |model: &str, second: u32| {
+        let shots = demo::aeb(model, None, second);
+        demo::jpegs(1000, 700, &shots, u64::from(second))
+            .unwrap()
+            .into_iter()
+            .enumerate()
+            .map(|(i, bytes)| (format!("{}{second}-{}.jpg", &model[5..], i + 1), bytes))
+            .collect::<Vec<_>>()
+    };
+    let (one, two) = (shots("Body P", 10), shots("Body Q", 10));
+    let mut rig = Rig::start(&[("daemon", "memory_mb = 64")], Arc::new(lab), |root| {
+        put(&root.join("ingest"), &one);
+        put(&root.join("ingest"), &two);
+        image::GrayImage::new(2000, 1000)
+            .save(root.join("ingest/huge.png"))
+            .unwrap();
+    });
+    let start = Instant::now();
+    while journaled_brackets(&rig.state()).len() < 2 {
+        assert!(start.elapsed() < T, "brackets not developed");
+        std::thread::sleep(Duration::from_millis(50));
+    }
+    let state = rig.state();
+    rig.stop();
+    assert_eq!(
+        peak.load(Ordering::SeqCst),
+        1,
+        "two brackets developed at once"
+    );
+    let r = rejected(&state);
     assert_eq!(r.len(), 1, "{r:?}");
-    assert_eq!(r[0].0, "u-2.jpg");
-    assert!(r[0].1.contains("ermission denied"), "{r:?}");
+    assert_eq!(r[0].0, "huge.png");
+    assert!(
+        r[0].1.contains("100 MB") && r[0].1.contains("memory_mb = 64"),
+        "{r:?}"
+    );
 }
 
 #[test]
@@ -955,6 +1211,90 @@ fn reused_file_names_never_replace_finished_outputs() {
     let second = format!("n-1-{}", &id[..8]);
     expect_outputs(&rig.out(), &bracket_outputs(&["n-1", &second]), T);
     assert_eq!(std::fs::read(rig.out().join("n-1.exr")).unwrap(), first_exr);
+    rig.stop();
+}
+
+#[test]
+fn touched_frames_are_not_redone_and_a_reshot_frame_replaces_its_brackets_outputs() {
+    let mut rig = Rig::start(&[], Arc::new(DarkroomLab), |_| {});
+    put(&rig.ingest(), &aeb("Body A", 10, "t"));
+    expect_outputs(&rig.out(), &bracket_outputs(&["t-1"]), T);
+    let first_exr = std::fs::read(rig.out().join("t-1.exr")).unwrap();
+    // A tool touches every frame: new modification times, same content.
+    let later = std::time::SystemTime::now() + Duration::from_secs(5);
+    for i in 1..=3 {
+        std::fs::File::options()
+            .write(true)
+            .open(rig.ingest().join(format!("t-{i}.jpg")))
+            .unwrap()
+            .set_modified(later)
+            .unwrap();
+    }
+    let start = Instant::now();
+    let unchanged = |state: &Path| {
+        journal::read(state)
+            .unwrap()
+            .iter()
+            .filter(|e| matches!(e, Entry::Unchanged { .. }))
+            .count()
+    };
+    while unchanged(&rig.state()) < 3 {
+        assert!(start.elapsed() < T, "touched frames not noticed");
+        std::thread::sleep(Duration::from_millis(50));
+    }
+    expect_outputs(&rig.out(), &bracket_outputs(&["t-1"]), T);
+    assert_eq!(std::fs::read(rig.out().join("t-1.exr")).unwrap(), first_exr);
+    // The middle frame is shot again under its name: the bracket is developed again,
+    // in place; no second EXR, no single.
+    let again = aeb("Body A", 50, "t").remove(1);
+    put(&rig.ingest(), &[again]);
+    let start = Instant::now();
+    while journaled_brackets_all(&rig.state()) < 2 {
+        assert!(start.elapsed() < T, "re-shot frame not developed");
+        std::thread::sleep(Duration::from_millis(50));
+    }
+    expect_outputs(&rig.out(), &bracket_outputs(&["t-1"]), T);
+    assert_ne!(std::fs::read(rig.out().join("t-1.exr")).unwrap(), first_exr);
+    rig.stop();
+}
+
+/// Bracket entries in the journal, superseded ones included.
+fn journaled_brackets_all(state: &Path) -> usize {
+    journal::read(state)
+        .unwrap()
+        .iter()
+        .filter(|e| matches!(e, Entry::Bracket { .. }))
+        .count()
+}
+
+#[test]
+fn deleted_outputs_stay_deleted_until_filmback_redo() {
+    let mut rig = Rig::start(&[], Arc::new(DarkroomLab), |_| {});
+    put(&rig.ingest(), &aeb("Body A", 10, "d"));
+    expect_outputs(&rig.out(), &bracket_outputs(&["d-1"]), T);
+    std::fs::remove_file(rig.out().join("d-1.exr")).unwrap();
+    std::thread::sleep(Duration::from_secs(3));
+    assert_eq!(listing(&rig.out()), ["d-1.linear.jpg".to_string()].into());
+    let redo = |stem: &str| {
+        Command::new(env!("CARGO_BIN_EXE_filmback"))
+            .args(["redo", stem, "--state"])
+            .arg(rig.state())
+            .output()
+            .unwrap()
+    };
+    let unknown = redo("nothing-1");
+    assert!(!unknown.status.success());
+    assert!(
+        String::from_utf8_lossy(&unknown.stderr).contains("nothing-1: no finished bracket"),
+        "{unknown:?}"
+    );
+    let done = redo("d-1");
+    assert!(done.status.success(), "{done:?}");
+    expect_outputs(&rig.out(), &bracket_outputs(&["d-1"]), T);
+    assert!(
+        listing(&rig.state().join("redo")).is_empty(),
+        "request taken"
+    );
     rig.stop();
 }
 

@@ -13,6 +13,7 @@ mod films;
 mod inspect;
 mod looks;
 mod merge;
+mod redo;
 mod render;
 mod status;
 mod watch;
@@ -41,15 +42,57 @@ enum Command {
     Watch(watch::Args),
     /// What the daemon has done and is doing: brackets, pending work, rejected files.
     Status(status::Args),
+    /// Have the daemon develop finished brackets again (e.g. after deleting outputs).
+    Redo(redo::Args),
     /// Validate a configuration file without starting.
     CheckConfig(check_config::Args),
     /// The per-camera response cache: list, show, reset.
     Cache(cache::Args),
 }
 
-/// Parses the command line, runs the subcommand, and reports errors on stderr.
+/// Exit status when the reader of standard output went away (`filmback … | head -1`):
+/// 128 + SIGPIPE, what the shell reports for a program the signal ended.
+const BROKEN_PIPE: u8 = 141;
+
+/// True for the panic `print!` raises when standard output is a closed pipe (Rust
+/// ignores SIGPIPE, so the write fails with EPIPE and the macro panics).
+fn is_broken_pipe_panic(info: &std::panic::PanicHookInfo<'_>) -> bool {
+    let text = info
+        .payload()
+        .downcast_ref::<String>()
+        .map(String::as_str)
+        .or_else(|| info.payload().downcast_ref::<&str>().copied())
+        .unwrap_or("");
+    text.starts_with("failed printing to stdout") && text.contains("Broken pipe")
+}
+
+/// True when an error comes from writing to a closed pipe.
+fn is_broken_pipe(e: &anyhow::Error) -> bool {
+    e.chain().any(|c| {
+        c.downcast_ref::<std::io::Error>()
+            .is_some_and(|io| io.kind() == std::io::ErrorKind::BrokenPipe)
+    })
+}
+
+/// Parses the command line, runs the subcommand, and reports errors on stderr. A closed
+/// standard output ends any command quietly with status 141, as SIGPIPE would.
 pub fn main() -> ExitCode {
-    let cli = Cli::parse();
+    let default_hook = std::panic::take_hook();
+    std::panic::set_hook(Box::new(move |info| {
+        if is_broken_pipe_panic(info) {
+            std::process::exit(i32::from(BROKEN_PIPE));
+        }
+        default_hook(info);
+    }));
+    let cli = match Cli::try_parse() {
+        Ok(cli) => cli,
+        Err(e) => {
+            // `--help`, `--version` and usage errors: clap prints them; a closed pipe
+            // is not worth a message.
+            let _ = e.print();
+            return ExitCode::from(if e.use_stderr() { 2 } else { 0 });
+        }
+    };
     let result = match cli.command {
         Command::Calibrate(args) => calibrate::run(args),
         Command::Inspect(args) => inspect::run(args),
@@ -58,11 +101,13 @@ pub fn main() -> ExitCode {
         Command::Render(args) => render::run(args),
         Command::Watch(args) => watch::run(args),
         Command::Status(args) => status::run(args),
+        Command::Redo(args) => redo::run(args),
         Command::CheckConfig(args) => check_config::run(args),
         Command::Cache(args) => cache::run(args),
     };
     match result {
         Ok(code) => code,
+        Err(e) if is_broken_pipe(&e) => ExitCode::from(BROKEN_PIPE),
         Err(e) => {
             eprintln!("filmback: {}", chain_text(&e));
             ExitCode::FAILURE

@@ -56,6 +56,7 @@ pub fn run(args: Args) -> anyhow::Result<ExitCode> {
                     failed.push(json!({"inputs": inputs.iter().map(|i| i.path.display().to_string()).collect::<Vec<_>>(), "reason": reason}));
                 }
             }
+            Entry::Unchanged { .. } => {}
             Entry::Rejected { input, reason, .. } => {
                 if std::ptr::eq(latest[input.path.as_path()], e) {
                     rejected
@@ -104,6 +105,18 @@ pub fn run(args: Args) -> anyhow::Result<ExitCode> {
         ),
         Some(s) => println!("daemon        not running (last pid {})", s.pid),
         None => println!("daemon        never ran here"),
+    }
+    if let Some(s) = snap.as_ref().filter(|_| running) {
+        let now = journal::unix_now();
+        for r in &s.retries {
+            println!(
+                "  retry       {}: {} (attempt {}, next in {} s)",
+                r.what,
+                r.reason,
+                r.attempts,
+                r.next.saturating_sub(now)
+            );
+        }
     }
     println!("done          {brackets} brackets, {singles} single frames");
     println!("failed        {}", failed.len());

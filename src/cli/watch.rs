@@ -61,20 +61,59 @@ impl Args {
     }
 }
 
+/// Standard error, one log event per line whatever it contains: control characters in
+/// an event (a file name with a newline, an EXIF field with a carriage return) are
+/// written as `\n`, `\r`, `\t` or `\xNN`, so no name can forge or split a log line.
+/// The event's own final newline, and the escape character of colours on a terminal,
+/// pass through.
+struct OneLine {
+    colour: bool,
+}
+
+impl std::io::Write for OneLine {
+    fn write(&mut self, buf: &[u8]) -> std::io::Result<usize> {
+        let body = buf.strip_suffix(b"\n").unwrap_or(buf);
+        let mut line = Vec::with_capacity(buf.len() + 8);
+        for &b in body {
+            match b {
+                b'\n' => line.extend_from_slice(b"\\n"),
+                b'\r' => line.extend_from_slice(b"\\r"),
+                b'\t' => line.extend_from_slice(b"\\t"),
+                0x1b if self.colour => line.push(b),
+                0..=0x1f | 0x7f => line.extend_from_slice(format!("\\x{b:02x}").as_bytes()),
+                _ => line.push(b),
+            }
+        }
+        if body.len() < buf.len() {
+            line.push(b'\n');
+        }
+        std::io::stderr().lock().write_all(&line)?;
+        Ok(buf.len())
+    }
+
+    fn flush(&mut self) -> std::io::Result<()> {
+        std::io::stderr().flush()
+    }
+}
+
 /// Human-readable logs on a terminal; plain lines (no colour, no timestamp: journald
-/// stamps them) when systemd captures stderr (`JOURNAL_STREAM` set).
+/// stamps them) when systemd captures stderr (`JOURNAL_STREAM` set). Every event is one
+/// line ([`OneLine`]).
 fn init_tracing() {
     use std::io::IsTerminal;
     let filter = tracing_subscriber::EnvFilter::try_from_default_env()
         .unwrap_or_else(|_| tracing_subscriber::EnvFilter::new("info"));
+    let journald = std::env::var_os("JOURNAL_STREAM").is_some();
+    let colour = !journald && std::io::stderr().is_terminal();
     let builder = tracing_subscriber::fmt()
         .with_env_filter(filter)
-        .with_writer(std::io::stderr)
-        .with_target(false);
-    if std::env::var_os("JOURNAL_STREAM").is_some() {
-        builder.with_ansi(false).without_time().init();
+        .with_writer(move || OneLine { colour })
+        .with_target(false)
+        .with_ansi(colour);
+    if journald {
+        builder.without_time().init();
     } else {
-        builder.with_ansi(std::io::stderr().is_terminal()).init();
+        builder.init();
     }
 }
 

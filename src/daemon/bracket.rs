@@ -55,7 +55,8 @@ impl fmt::Display for CameraId {
 /// One input file as it was when taken: its identity for the journal.
 #[derive(Debug, Clone, PartialEq, Eq, PartialOrd, Ord, Hash, Serialize, Deserialize)]
 pub struct Input {
-    /// Where it is.
+    /// Where it is (any name the file system allows; see [`crate::daemon::journal::any_path`]).
+    #[serde(with = "crate::daemon::journal::any_path")]
     pub path: PathBuf,
     /// Size in bytes.
     pub size: u64,

@@ -1,5 +1,11 @@
 //! Noticing files and taking only complete ones: the watcher (inotify or polling), the
 //! folder scan, and the probe that reads a settled file's EXIF and checks its header.
+//!
+//! Symbolic links inside the ingest folder are never followed: a linked folder is not
+//! descended into (nor watched), and a link with a frame's name is refused with the
+//! reason (where it points, or that it dangles) instead of being opened. Files are
+//! opened with `O_NOFOLLOW`, so a file swapped for a link after the check is refused too.
+//! The ingest folder itself may be a link (the operator's choice in the configuration).
 
 use std::io::Cursor;
 use std::path::{Path, PathBuf};
@@ -9,8 +15,10 @@ use notify::event::{AccessKind, AccessMode, ModifyKind, RenameMode};
 use notify::{EventKind, RecursiveMode, Watcher};
 use tokio::sync::mpsc::UnboundedSender;
 
+use crate::daemon::Footprint;
 use crate::daemon::bracket::{CameraId, Capture, Input};
 use crate::daemon::config::{Watch, WatchMode};
+use crate::daemon::journal;
 use crate::metadata;
 
 /// What the watcher reports to the daemon loop.
@@ -48,8 +56,12 @@ pub(crate) fn watch(
                 return;
             }
             for path in event.paths {
-                let name = path.file_name().and_then(|n| n.to_str()).unwrap_or("");
-                if takes.takes(name) {
+                // Any name the file system allows: matched on its lossy text, kept whole.
+                let name = path
+                    .file_name()
+                    .map(|n| n.to_string_lossy())
+                    .unwrap_or_default();
+                if takes.takes(&name) {
                     let _ = tx.send(Notice::File { path, closed });
                 }
             }
@@ -80,12 +92,18 @@ pub(crate) fn watch(
     };
     let mut watcher: ActiveWatcher = match cfg.mode {
         WatchMode::Notify => Box::new(
-            notify::RecommendedWatcher::new(handler, notify::Config::default()).map_err(explain)?,
+            notify::RecommendedWatcher::new(
+                handler,
+                notify::Config::default().with_follow_symlinks(false),
+            )
+            .map_err(explain)?,
         ),
         WatchMode::Poll => Box::new(
             notify::PollWatcher::new(
                 handler,
-                notify::Config::default().with_poll_interval(cfg.poll),
+                notify::Config::default()
+                    .with_poll_interval(cfg.poll)
+                    .with_follow_symlinks(false),
             )
             .map_err(explain)?,
         ),
@@ -94,8 +112,8 @@ pub(crate) fn watch(
     Ok(watcher)
 }
 
-/// Every file under `dir` whose name is taken (sorted; sub-folders when `recursive`).
-/// A missing folder is an empty list.
+/// Every file (or link, to be refused) under `dir` whose name is taken (sorted;
+/// sub-folders when `recursive`, never through a link). A missing folder is an empty list.
 pub(crate) fn scan(cfg: &Watch, dir: &Path) -> Vec<PathBuf> {
     let mut found = Vec::new();
     let mut folders = vec![dir.to_path_buf()];
@@ -123,12 +141,47 @@ pub(crate) fn scan(cfg: &Watch, dir: &Path) -> Vec<PathBuf> {
     found
 }
 
-/// Size and modification time of a file, as the journal identifies it.
+/// True when a folder between `root` and `path` (exclusive of `path` itself) is a
+/// symbolic link: such a path is not inside the ingest folder, only reachable from it.
+/// `path` may be given under `root` as configured or as resolved (watchers report either);
+/// a path under neither is not in the ingest folder either.
+pub(crate) fn through_link(root: &Path, path: &Path) -> bool {
+    if let Ok(rest) = path.strip_prefix(root) {
+        return linked_folder(root, rest);
+    }
+    match std::fs::canonicalize(root) {
+        Ok(real) => path
+            .strip_prefix(&real)
+            .map_or(true, |rest| linked_folder(&real, rest)),
+        Err(_) => true,
+    }
+}
+
+fn linked_folder(root: &Path, rest: &Path) -> bool {
+    let mut at = root.to_path_buf();
+    let parts: Vec<_> = rest.components().collect();
+    for part in parts.iter().take(parts.len().saturating_sub(1)) {
+        at.push(part);
+        match std::fs::symlink_metadata(&at) {
+            Ok(m) if m.file_type().is_symlink() => return true,
+            Ok(_) => {}
+            Err(_) => return false,
+        }
+    }
+    false
+}
+
+/// Size and modification time of a file, as the journal identifies it. A symbolic link
+/// is identified as itself (not followed), so that it can be refused once.
 pub(crate) fn identify(path: &Path) -> std::io::Result<Input> {
-    let meta = std::fs::metadata(path)?;
-    if !meta.is_file() {
+    let meta = std::fs::symlink_metadata(path)?;
+    if !meta.is_file() && !meta.file_type().is_symlink() {
         return Err(std::io::Error::other("not a regular file"));
     }
+    stamp(path, &meta)
+}
+
+fn stamp(path: &Path, meta: &std::fs::Metadata) -> std::io::Result<Input> {
     let modified_ns = meta
         .modified()?
         .duration_since(UNIX_EPOCH)
@@ -153,22 +206,69 @@ fn jpeg_complete(bytes: &[u8]) -> bool {
 /// What reading a settled file found.
 #[derive(Debug)]
 pub(crate) enum Probe {
-    /// A frame with its EXIF.
-    Frame(Capture),
-    /// Not a usable frame; set aside with the reason.
+    /// A frame with its EXIF, its decoded size and its content digest.
+    Frame(Capture, Footprint, u64),
+    /// Not a usable frame (its content, or a link); set aside with the reason.
     Rejected(Input, String),
+    /// It could not be read now (permission denied, I/O error): try again later.
+    Unreadable(String),
     /// It changed while being read: still being written, look again later.
     Changed,
     /// It disappeared.
     Gone,
 }
 
+/// True for read errors that are the file's (or the system's) state now, not its
+/// content: permission denied, I/O error, stale or busy file, out of descriptors or
+/// memory. These are retried; anything else about a file is final.
+pub(crate) fn transient(e: &std::io::Error) -> bool {
+    e.kind() == std::io::ErrorKind::PermissionDenied
+        || e.raw_os_error().is_some_and(|code| {
+            [
+                libc::EIO,
+                libc::EAGAIN,
+                libc::EBUSY,
+                libc::EINTR,
+                libc::ETIMEDOUT,
+                libc::ESTALE,
+                libc::ENFILE,
+                libc::EMFILE,
+                libc::ENOMEM,
+                libc::ENOLCK,
+            ]
+            .contains(&code)
+        })
+}
+
+/// Why a link is refused: where it points, and whether that exists.
+fn link_reason(path: &Path) -> String {
+    let target = std::fs::read_link(path)
+        .map(|t| t.display().to_string())
+        .unwrap_or_else(|e| format!("? ({e})"));
+    if std::fs::metadata(path).is_err() {
+        format!("symbolic link to {target} (dangling): links in ingest are not followed")
+    } else {
+        format!("symbolic link to {target}: links in ingest are not followed")
+    }
+}
+
+/// Opens a file for reading without following a final symbolic link.
+fn open_no_follow(path: &Path) -> std::io::Result<std::fs::File> {
+    use std::os::unix::fs::OpenOptionsExt;
+    std::fs::OpenOptions::new()
+        .read(true)
+        .custom_flags(libc::O_NOFOLLOW)
+        .open(path)
+}
+
 /// Reads a settled file: EXIF (camera, exposure, capture time) and the image header
 /// (format and dimensions; the pixels are decoded later, by the developer).
 pub(crate) fn probe(path: &Path) -> Probe {
+    use std::io::Read;
     let before = match identify(path) {
         Ok(i) => i,
         Err(e) if e.kind() == std::io::ErrorKind::NotFound => return Probe::Gone,
+        Err(e) if transient(&e) => return Probe::Unreadable(format!("cannot read: {e}")),
         Err(e) => {
             return Probe::Rejected(
                 Input {
@@ -180,9 +280,21 @@ pub(crate) fn probe(path: &Path) -> Probe {
             );
         }
     };
-    let bytes = match std::fs::read(path) {
+    if std::fs::symlink_metadata(path).is_ok_and(|m| m.file_type().is_symlink()) {
+        return Probe::Rejected(before, link_reason(path));
+    }
+    let read = open_no_follow(path).and_then(|mut f| {
+        let mut bytes = Vec::new();
+        f.read_to_end(&mut bytes).map(|_| bytes)
+    });
+    let bytes = match read {
         Ok(b) => b,
         Err(e) if e.kind() == std::io::ErrorKind::NotFound => return Probe::Gone,
+        // ELOOP: swapped for a link since `identify`.
+        Err(e) if e.raw_os_error() == Some(libc::ELOOP) => {
+            return Probe::Rejected(before, link_reason(path));
+        }
+        Err(e) if transient(&e) => return Probe::Unreadable(format!("cannot read: {e}")),
         Err(e) => return Probe::Rejected(before, format!("cannot read: {e}")),
     };
     match identify(path) {
@@ -201,28 +313,42 @@ pub(crate) fn probe(path: &Path) -> Probe {
                 Err("JPEG data ends before its end-of-image marker (truncated file)".to_string())
             }
             Some(image::ImageFormat::Jpeg | image::ImageFormat::Png | image::ImageFormat::Tiff) => {
-                r.into_dimensions()
+                use image::ImageDecoder;
+                r.into_decoder()
+                    .map(|d| {
+                        let (width, height) = d.dimensions();
+                        Footprint {
+                            width,
+                            height,
+                            bytes_per_pixel: u32::from(d.color_type().bytes_per_pixel()),
+                        }
+                    })
                     .map_err(|e| format!("unreadable image header: {e}"))
             }
             _ => Err("not a JPEG, PNG or TIFF image (unrecognised content)".to_string()),
         });
-    if let Err(reason) = header {
-        return Probe::Rejected(before, reason);
-    }
+    let footprint = match header {
+        Ok(d) => d,
+        Err(reason) => return Probe::Rejected(before, reason),
+    };
     let meta = metadata::read(&bytes);
     let time_s = meta
         .captured_at
         .map_or(before.modified_ns as f64 * 1e-9, |t| t.local_seconds());
-    Probe::Frame(Capture {
-        camera: CameraId {
-            make: meta.camera.make,
-            model: meta.camera.model,
-            serial: meta.camera.serial,
+    Probe::Frame(
+        Capture {
+            camera: CameraId {
+                make: meta.camera.make,
+                model: meta.camera.model,
+                serial: meta.camera.serial,
+            },
+            exposure: meta.exposure.relative(),
+            time_s,
+            input: before,
         },
-        exposure: meta.exposure.relative(),
-        time_s,
-        input: before,
-    })
+        footprint,
+        journal::content_digest(&bytes),
+    )
 }
 
 #[cfg(test)]
@@ -249,7 +375,8 @@ mod tests {
         let good = dir.path().join("a.jpg");
         std::fs::write(&good, &jpeg).unwrap();
         match probe(&good) {
-            Probe::Frame(c) => {
+            Probe::Frame(c, fp, _) => {
+                assert_eq!((fp.width, fp.height, fp.bytes_per_pixel), (96, 64, 3));
                 assert_eq!(c.camera.serial.as_deref(), Some("9"));
                 assert!((c.exposure.unwrap() - 100.0 / 15.0 / 64.0).abs() < 1e-9);
                 assert_eq!(c.input.size, jpeg.len() as u64);
@@ -267,5 +394,12 @@ mod tests {
         std::fs::write(&empty, b"").unwrap();
         assert!(matches!(probe(&empty), Probe::Rejected(_, r) if r.contains("empty")));
         assert!(matches!(probe(&dir.path().join("none.jpg")), Probe::Gone));
+        let link = dir.path().join("d.jpg");
+        std::os::unix::fs::symlink(&good, &link).unwrap();
+        let p = probe(&link);
+        assert!(
+            matches!(&p, Probe::Rejected(i, r) if r.contains("not followed") && i.path == link),
+            "{p:?}"
+        );
     }
 }

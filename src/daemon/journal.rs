@@ -8,9 +8,16 @@
 //! line (the crash hit the append itself) is ignored: that bracket is simply redone.
 //!
 //! Inputs are identified by path, size and modification time: a file rewritten under the
-//! same name is new work.
+//! same name is new work. Paths are stored losslessly, whatever bytes the file system
+//! allows in a name (see [`any_path`]).
+//!
+//! A failed append (full or failing disk) is fatal: the daemon exits with the error, and
+//! under systemd `Restart=on-failure` starts it again. The append is cut back to the last
+//! whole line first, so the journal never keeps a torn line; should the cut itself fail
+//! (or the process be killed mid-append), the next start drops the torn last line and the
+//! bracket it would have recorded is simply developed again.
 
-use std::collections::HashSet;
+use std::collections::{HashMap, HashSet};
 use std::fs::{self, File, OpenOptions};
 use std::io::{self, Write};
 use std::path::{Path, PathBuf};
@@ -34,6 +41,14 @@ pub enum JournalError {
         path: PathBuf,
         /// What the operating system said.
         source: io::Error,
+    },
+    /// An entry could not be written as JSON.
+    #[error("{path}: cannot serialise an entry: {reason}")]
+    Serialise {
+        /// The journal.
+        path: PathBuf,
+        /// The serialiser's message.
+        reason: String,
     },
     /// A line other than the last is not a journal entry: the file was edited or damaged.
     #[error("{path}:{line}: not a journal entry: {reason}")]
@@ -61,6 +76,10 @@ pub enum Entry {
         inputs: Vec<Input>,
         /// Published outputs.
         outputs: Vec<PathBuf>,
+        /// [`content_digest`] of each input, in the order of `inputs` (absent in entries
+        /// of older versions).
+        #[serde(default, skip_serializing_if = "Vec::is_empty")]
+        digests: Vec<u64>,
         /// Exposure ratio `e_max / e_min`.
         ratio: f64,
         /// Where the response came from.
@@ -80,6 +99,9 @@ pub enum Entry {
         alone: Alone,
         /// Published outputs (empty when only reported).
         outputs: Vec<PathBuf>,
+        /// [`content_digest`] of the input (absent in entries of older versions).
+        #[serde(default, skip_serializing_if = "Vec::is_empty")]
+        digests: Vec<u64>,
         /// Unix time, seconds.
         at: u64,
     },
@@ -89,6 +111,16 @@ pub enum Entry {
         input: Input,
         /// Why.
         reason: String,
+        /// Unix time, seconds.
+        at: u64,
+    },
+    /// A developed input whose modification time changed but whose content did not (a
+    /// tool touched it): nothing is redone.
+    Unchanged {
+        /// The file as it is now.
+        input: Input,
+        /// Id of the bracket or single it was developed in.
+        of: String,
         /// Unix time, seconds.
         at: u64,
     },
@@ -111,9 +143,66 @@ impl Entry {
     pub fn inputs(&self) -> Vec<&Input> {
         match self {
             Entry::Bracket { inputs, .. } | Entry::Failed { inputs, .. } => inputs.iter().collect(),
-            Entry::Single { input, .. } | Entry::Rejected { input, .. } => vec![input],
+            Entry::Single { input, .. }
+            | Entry::Rejected { input, .. }
+            | Entry::Unchanged { input, .. } => vec![input],
         }
     }
+
+    /// The content digest recorded for the input at `path`, if this entry developed it.
+    pub fn digest_of(&self, path: &Path) -> Option<u64> {
+        let (inputs, digests): (Vec<&Input>, &[u64]) = match self {
+            Entry::Bracket {
+                inputs, digests, ..
+            } => (inputs.iter().collect(), digests),
+            Entry::Single { input, digests, .. } => (vec![input], digests),
+            _ => return None,
+        };
+        inputs
+            .iter()
+            .position(|i| i.path == path)
+            .and_then(|k| digests.get(k).copied())
+    }
+
+    /// The output stem this bracket or single was published under: the first input's
+    /// file stem, or that stem with `-<8 hex digits of the id>` when the outputs say so.
+    pub fn output_stem(&self) -> Option<String> {
+        let (id, first, outputs) = match self {
+            Entry::Bracket {
+                id,
+                inputs,
+                outputs,
+                ..
+            } => (id, inputs.first()?, outputs),
+            Entry::Single {
+                id, input, outputs, ..
+            } => (id, input, outputs),
+            _ => return None,
+        };
+        let stem = first
+            .path
+            .file_stem()
+            .map_or_else(String::new, |s| s.to_string_lossy().into_owned());
+        let suffixed = format!("{stem}-{}", id.get(..8).unwrap_or(id));
+        let named = |s: &str| {
+            outputs.iter().any(|o| {
+                o.file_name()
+                    .is_some_and(|n| n.to_string_lossy().starts_with(&format!("{s}.")))
+            })
+        };
+        Some(if named(&suffixed) { suffixed } else { stem })
+    }
+}
+
+/// FNV-1a (64 bit) of a file's bytes: tells a touched file (same content, new
+/// modification time) from a changed one.
+pub fn content_digest(bytes: &[u8]) -> u64 {
+    let mut h: u64 = 0xcbf2_9ce4_8422_2325;
+    for &b in bytes {
+        h ^= u64::from(b);
+        h = h.wrapping_mul(0x0000_0100_0000_01b3);
+    }
+    h
 }
 
 /// Seconds since the Unix epoch, now.
@@ -130,6 +219,8 @@ pub struct Journal {
     file: File,
     entries: Vec<Entry>,
     settled: HashSet<Input>,
+    /// Index into `entries` of the latest bracket or single that developed each path.
+    developed: HashMap<PathBuf, usize>,
 }
 
 impl Journal {
@@ -154,6 +245,7 @@ impl Journal {
             file,
             entries: Vec::new(),
             settled: HashSet::new(),
+            developed: HashMap::new(),
         };
         // A torn last line (no newline) is cut off so the next entry starts cleanly.
         let bytes = fs::read(&journal.path).map_err(|source| JournalError::Io {
@@ -179,7 +271,25 @@ impl Journal {
 
     fn note(&mut self, entry: Entry) {
         self.settled.extend(entry.inputs().into_iter().cloned());
+        if matches!(entry, Entry::Bracket { .. } | Entry::Single { .. }) {
+            for i in entry.inputs() {
+                self.developed.insert(i.path.clone(), self.entries.len());
+            }
+        }
         self.entries.push(entry);
+    }
+
+    /// The latest bracket or single that developed the file at `path`.
+    pub fn developed(&self, path: &Path) -> Option<&Entry> {
+        self.developed.get(path).map(|&k| &self.entries[k])
+    }
+
+    /// The latest bracket or single published under output stem `stem`.
+    pub fn by_stem(&self, stem: &str) -> Option<&Entry> {
+        self.entries
+            .iter()
+            .rev()
+            .find(|e| e.output_stem().as_deref() == Some(stem))
     }
 
     fn append_line(&mut self, line: &str) -> Result<(), JournalError> {
@@ -188,16 +298,29 @@ impl Journal {
             path: self.path.clone(),
             source,
         };
+        let before = self.file.metadata().map_err(io_err)?.len();
         // One write per line: O_APPEND keeps concurrent appends whole.
-        self.file
+        let written = self
+            .file
             .write_all(format!("{line}\n").as_bytes())
-            .map_err(io_err)?;
-        self.file.sync_data().map_err(io_err)
+            .and_then(|()| self.file.sync_data());
+        if let Err(source) = written {
+            // Leave no torn line behind (best effort: the next open drops one anyway).
+            let _ = self
+                .file
+                .set_len(before)
+                .and_then(|()| self.file.sync_data());
+            return Err(io_err(source));
+        }
+        Ok(())
     }
 
     /// Appends an entry and syncs it to disk.
     pub fn record(&mut self, entry: Entry) -> Result<(), JournalError> {
-        let line = serde_json::to_string(&entry).expect("journal entries serialise");
+        let line = serde_json::to_string(&entry).map_err(|e| JournalError::Serialise {
+            path: self.path.clone(),
+            reason: e.to_string(),
+        })?;
         self.append_line(&line)?;
         self.note(entry);
         Ok(())
@@ -216,6 +339,43 @@ impl Journal {
     /// The journal file.
     pub fn path(&self) -> &Path {
         &self.path
+    }
+}
+
+/// Serde for paths that may not be UTF-8: a UTF-8 path is a JSON string (as before); any
+/// other is `{"bytes": [..]}`, the name's raw bytes (Unix file names are byte strings,
+/// anything but `/` and NUL). Both read back to the identical path.
+pub mod any_path {
+    use std::ffi::OsString;
+    use std::os::unix::ffi::{OsStrExt, OsStringExt};
+    use std::path::{Path, PathBuf};
+
+    use serde::{Deserialize, Deserializer, Serialize, Serializer};
+
+    #[derive(Serialize, Deserialize)]
+    #[serde(untagged)]
+    enum Stored {
+        Text(String),
+        Raw { bytes: Vec<u8> },
+    }
+
+    /// Writes `path` as a string, or as its bytes when it is not UTF-8.
+    pub fn serialize<S: Serializer>(path: &Path, s: S) -> Result<S::Ok, S::Error> {
+        match path.to_str() {
+            Some(text) => s.serialize_str(text),
+            None => Stored::Raw {
+                bytes: path.as_os_str().as_bytes().to_vec(),
+            }
+            .serialize(s),
+        }
+    }
+
+    /// Reads what [`serialize`] wrote.
+    pub fn deserialize<'de, D: Deserializer<'de>>(d: D) -> Result<PathBuf, D::Error> {
+        Ok(match Stored::deserialize(d)? {
+            Stored::Text(text) => PathBuf::from(text),
+            Stored::Raw { bytes } => PathBuf::from(OsString::from_vec(bytes)),
+        })
     }
 }
 
@@ -272,6 +432,7 @@ mod tests {
             },
             inputs: names.iter().map(|n| input(n)).collect(),
             outputs: vec![PathBuf::from("/out/a.exr")],
+            digests: Vec::new(),
             ratio: 4.0,
             response: Source::Fitted,
             at: 1,
@@ -329,6 +490,46 @@ mod tests {
         let err = Journal::open(dir.path()).unwrap_err();
         let msg = err.to_string();
         assert!(msg.contains("journal.jsonl:1:"), "{msg}");
+    }
+
+    #[test]
+    fn any_file_name_is_journaled_losslessly() {
+        use std::os::unix::ffi::OsStrExt;
+        let dir = tempfile::tempdir().unwrap();
+        let odd = [
+            &b"/in/bad\xff.jpg"[..],
+            b"/in/line\nbreak.jpg",
+            b"/in/\xc3\x28-half.jpg",
+            "/in/caf\u{e9}.jpg".as_bytes(),
+        ];
+        let inputs: Vec<Input> = odd
+            .iter()
+            .map(|b| Input {
+                path: PathBuf::from(std::ffi::OsStr::from_bytes(b)),
+                size: 7,
+                modified_ns: 1,
+            })
+            .collect();
+        {
+            let mut j = Journal::open(dir.path()).unwrap();
+            for i in &inputs {
+                j.record(Entry::Rejected {
+                    input: i.clone(),
+                    reason: "not an image".into(),
+                    at: 3,
+                })
+                .unwrap();
+            }
+        }
+        let j = Journal::open(dir.path()).unwrap();
+        for i in &inputs {
+            assert!(j.is_settled(i), "{}", i.path.display());
+        }
+        let text = fs::read_to_string(dir.path().join(FILE_NAME)).unwrap();
+        assert!(
+            text.contains("\"/in/caf\u{e9}.jpg\""),
+            "UTF-8 stays text: {text}"
+        );
     }
 
     #[test]

@@ -12,12 +12,12 @@
 //! only if no fit is possible); `never` uses the cached curve (else sRGB). A single frame
 //! is rendered through the cached curve (else sRGB), without an EXR.
 
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 use std::time::Duration;
 
 use rayon::prelude::*;
 
-use crate::atomic::Overwrite;
+use crate::atomic::{self, Overwrite, PublishError};
 use crate::daemon::bracket::{CameraId, Capture};
 use crate::daemon::cache::CachedResponse;
 use crate::daemon::config::{Preset, Recalibrate};
@@ -26,7 +26,7 @@ use crate::film::{Catalogue, ColourMode, Key};
 use crate::frame::{self, Limits, LoadedFrame};
 use crate::hdr_output::ExrOptions;
 use crate::merge::MergeOptions;
-use crate::rendering::{self, Format, SourceExif};
+use crate::rendering::{self, Format, Look, SourceExif};
 use crate::response::{InverseResponse, RatioSource};
 
 /// One unit of work: a bracket (two or more frames) or a single frame.
@@ -151,6 +151,15 @@ impl Lab for DarkroomLab {
             .frames
             .par_iter()
             .map(|c| {
+                // Links in ingest are never followed (intake refuses them; this catches
+                // a frame swapped for a link since).
+                if std::fs::symlink_metadata(&c.input.path).is_ok_and(|m| m.is_symlink()) {
+                    return Err(JobError::Frame {
+                        path: c.input.path.clone(),
+                        reason: "became a symbolic link: links in ingest are not followed"
+                            .to_string(),
+                    });
+                }
                 frame::load(&c.input.path, Limits::default()).map_err(|e| JobError::Frame {
                     path: c.input.path.clone(),
                     reason: e.to_string(),
@@ -179,27 +188,80 @@ impl Lab for DarkroomLab {
         let exif = std::fs::read(&job.frames[0].input.path)
             .map(|bytes| SourceExif::from_frame_bytes(&bytes))
             .unwrap_or_default();
-        std::fs::create_dir_all(&job.out).map_err(|e| JobError::Output {
-            path: job.out.clone(),
+        // The outputs are written into a staging folder and published as one set.
+        let stage = atomic::stage_folder(&job.out, &job.id);
+        let _ = std::fs::remove_dir_all(&stage);
+        std::fs::create_dir_all(&stage).map_err(|e| JobError::Output {
+            path: stage.clone(),
             reason: e.to_string(),
         })?;
+        let developed = Self::develop(job, &frames, &looks, &exif, &stage);
+        let developed = match developed {
+            Ok(d) => d,
+            Err(e) => {
+                let _ = std::fs::remove_dir_all(&stage);
+                return Err(match e {
+                    JobError::Output { path, reason } => JobError::Output {
+                        path: path
+                            .file_name()
+                            .map_or_else(|| job.out.clone(), |n| job.out.join(n)),
+                        reason,
+                    },
+                    other => other,
+                });
+            }
+        };
+        let outputs = atomic::publish_set(&stage, &job.out).map_err(|e| JobError::Output {
+            path: match &e {
+                PublishError::Exists { path }
+                | PublishError::Io { path, .. }
+                | PublishError::Content { path, .. } => path.clone(),
+            },
+            reason: e.to_string(),
+        })?;
+        let mut stages = vec![("decode", decode)];
+        stages.extend(developed.stages);
+        Ok(Processed {
+            outputs,
+            source: developed.response.source,
+            fit: developed.response.fit,
+            stages,
+            notes: developed.warnings,
+        })
+    }
+}
+
+impl DarkroomLab {
+    /// Develops the decoded frames into `dir` (the staging folder).
+    fn develop(
+        job: &Job,
+        frames: &[LoadedFrame],
+        looks: &[Look],
+        exif: &SourceExif,
+        dir: &Path,
+    ) -> Result<darkroom::Developed, JobError> {
+        let preset = &job.preset;
         let prints = Prints {
-            dir: &job.out,
+            dir,
             stem: &job.stem,
             exr: (preset.exr && !job.is_single()).then(ExrOptions::default),
             radiance_hdr: false,
-            looks: &looks,
+            looks,
             format: Format::Jpeg {
                 quality: preset.jpeg_quality,
             },
-            exif: &exif,
+            exif,
             // A complete file under a job's name is a leftover of an interrupted earlier
             // attempt at this same job (names are unique per bracket): replace it.
             overwrite: Overwrite::Replace,
         };
         let channels = frames[0].frame.channels();
-        let developed = if job.is_single() {
-            darkroom::develop_single(&frames[0], Self::fallback(job, channels), &prints)?
+        if job.is_single() {
+            Ok(darkroom::develop_single(
+                &frames[0],
+                Self::fallback(job, channels),
+                &prints,
+            )?)
         } else {
             let exposures: Vec<f64> = job
                 .frames
@@ -225,23 +287,14 @@ impl Lab for DarkroomLab {
                     min_confidence: preset.min_confidence,
                 },
             };
-            darkroom::develop(
-                &frames,
+            Ok(darkroom::develop(
+                frames,
                 &exposures,
                 RatioSource::Exif,
                 policy,
                 MergeOptions::default(),
                 &prints,
-            )?
-        };
-        let mut stages = vec![("decode", decode)];
-        stages.extend(developed.stages);
-        Ok(Processed {
-            outputs: developed.outputs,
-            source: developed.response.source,
-            fit: developed.response.fit,
-            stages,
-            notes: developed.warnings,
-        })
+            )?)
+        }
     }
 }

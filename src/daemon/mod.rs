@@ -9,8 +9,9 @@
 //! One async task owns all state (candidates, grouper, queue, journal, cache); pixel
 //! work runs on blocking threads through the [`Lab`] boundary, at most `jobs` at a
 //! time. A file is taken once its writer closed it or its size and mtime were stable for
-//! `settle_ms`. When the queue is full, files simply stay on disk as candidates: memory
-//! is bounded by `jobs` developing brackets, and nothing is dropped.
+//! `settle_ms`. When the queue is full, files simply stay on disk as candidates, and
+//! nothing is dropped. Memory is bounded twice: by `jobs` developing brackets, and by the
+//! `memory_mb` budget their estimates ([`job_bytes`]) must fit in.
 //!
 //! Errors split as in any service: [`DaemonError`] is fatal (folders cannot be created,
 //! the journal cannot be written); a bad frame, a failed output or a bad reload is
@@ -37,7 +38,7 @@ use tokio::task::JoinSet;
 use tracing::{info, warn};
 
 pub use lab::{DarkroomLab, Job, JobError, Lab, Processed};
-pub use status::{STATUS_FILE, Snapshot, read_snapshot};
+pub use status::{Retry, STATUS_FILE, Snapshot, read_snapshot};
 
 use crate::atomic;
 use bracket::{Closed, Grouper, Input};
@@ -53,6 +54,9 @@ pub const STOP_GRACE: Duration = Duration::from_secs(8);
 
 /// How long a file still being written keeps open brackets from closing by the gap.
 const WRITER_PATIENCE: Duration = Duration::from_secs(60);
+
+/// Folder in the state folder where `filmback redo STEM` leaves its requests.
+pub const REDO_FOLDER: &str = "redo";
 
 /// Longest delay between retries of a bracket whose outputs could not be written.
 const MAX_RETRY: Duration = Duration::from_secs(300);
@@ -77,6 +81,9 @@ pub enum DaemonError {
         /// What the operating system said.
         source: std::io::Error,
     },
+    /// The folders overlap once links are resolved: outputs would come back as frames.
+    #[error("{0}")]
+    Folders(String),
     /// The journal cannot be read or written: continuing could lose or repeat work.
     #[error("journal: {0}")]
     Journal(#[from] JournalError),
@@ -98,6 +105,70 @@ pub struct Summary {
 struct Work {
     closed: Closed,
     attempts: u32,
+    /// The earlier bracket or single this one replaces (a re-shot frame, `redo`).
+    supersedes: Option<Superseded>,
+}
+
+impl Work {
+    fn new(closed: Closed) -> Work {
+        Work {
+            closed,
+            attempts: 0,
+            supersedes: None,
+        }
+    }
+}
+
+/// What a re-development replaces: its outputs are published under the same stem, and
+/// those of the earlier outputs the new set lacks are removed.
+#[derive(Debug, Clone)]
+struct Superseded {
+    stem: String,
+    outputs: Vec<PathBuf>,
+}
+
+/// The decoded size of one frame, read from its header at intake.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct Footprint {
+    /// Width in pixels.
+    pub width: u32,
+    /// Height in pixels.
+    pub height: u32,
+    /// Bytes per decoded pixel (3 for 8-bit RGB, 6 for 16-bit RGB, 1 for 8-bit grey).
+    pub bytes_per_pixel: u32,
+}
+
+/// Bytes per pixel of a job beside its decoded frames: the radiance map and its weight
+/// sums (f32 RGB each, 12 + 12), one rendering at a time in f32 RGB and its 8-bit image
+/// (12 + 3), and the EXR's half-float copy (6): 45, rounded up to 48.
+pub const WORKING_BYTES_PER_PIXEL: u64 = 48;
+
+/// The memory a job needs, in bytes, for frames `f_i` of `w_i × h_i` pixels and `b_i`
+/// bytes per decoded pixel:
+///
+/// `Σ_i w_i·h_i·2·b_i + max_i(w_i·h_i)·48`
+///
+/// Each frame is counted twice (the decoder's buffer and the converted frame coexist
+/// briefly, and all frames stay decoded through the merge); the 48 bytes per pixel are
+/// [`WORKING_BYTES_PER_PIXEL`]. A three-frame bracket of 45 MP 8-bit JPEGs:
+/// `45e6·(2·3·3 + 48) ≈ 2.97e9` bytes.
+pub fn job_bytes(frames: &[Footprint]) -> u64 {
+    let pixels = |f: &Footprint| u64::from(f.width) * u64::from(f.height);
+    let decoded: u64 = frames
+        .iter()
+        .map(|f| pixels(f) * 2 * u64::from(f.bytes_per_pixel))
+        .sum();
+    let largest = frames.iter().map(pixels).max().unwrap_or(0);
+    decoded + largest * WORKING_BYTES_PER_PIXEL
+}
+
+/// A file that could not be read (permission denied, I/O error), waiting to be retried.
+#[derive(Debug)]
+struct Unreadable {
+    first_seen: Instant,
+    attempts: u32,
+    next: Instant,
+    reason: String,
 }
 
 /// A file seen but not yet complete.
@@ -125,11 +196,21 @@ struct State {
     /// After a failed attempt to watch, the next one waits until then.
     watch_retry_at: Instant,
     last_rescan: Instant,
+    last_redo: Instant,
     candidates: HashMap<PathBuf, Candidate>,
+    /// Files whose last read failed transiently, with their back-off.
+    unreadable: HashMap<PathBuf, Unreadable>,
+    /// Decoded sizes of the frames taken (for the memory budget).
+    footprints: HashMap<PathBuf, Footprint>,
+    /// Content digests of the frames taken (journaled with their bracket).
+    digests: HashMap<PathBuf, u64>,
+    /// Estimated bytes of the jobs in flight.
+    in_use: u64,
     /// Paths in the grouper, queue, retry list or in flight.
     taken: HashSet<PathBuf>,
     queue: VecDeque<Work>,
-    retries: Vec<(Instant, Work)>,
+    /// Brackets whose outputs failed: when to try again, and why.
+    retries: Vec<(Instant, Work, String)>,
     in_flight: JoinSet<Outcome>,
     summary: Summary,
     stopping: bool,
@@ -159,6 +240,20 @@ pub async fn run(
     ] {
         remove_temporaries(&dir);
     }
+    refuse_overlap(&config)?;
+    for r in atomic::recover_sets(&folders.out) {
+        match r {
+            atomic::Recovered::Completed(stage, files) => info!(
+                stage = %stage.display(),
+                files = files.len(),
+                "finished publishing a bracket's outputs interrupted by a crash"
+            ),
+            atomic::Recovered::RolledBack(stage) => info!(
+                stage = %stage.display(),
+                "removed the unpublished outputs of an interrupted bracket"
+            ),
+        }
+    }
     let journal = Journal::open(&folders.state)?;
     let (notices, mut rx) = mpsc::unbounded_channel();
     let now = Instant::now();
@@ -174,7 +269,12 @@ pub async fn run(
         watched: None,
         watch_retry_at: now,
         last_rescan: now,
+        last_redo: now,
         candidates: HashMap::new(),
+        unreadable: HashMap::new(),
+        footprints: HashMap::new(),
+        digests: HashMap::new(),
+        in_use: 0,
         taken: HashSet::new(),
         queue: VecDeque::new(),
         retries: Vec::new(),
@@ -248,6 +348,34 @@ pub async fn run(
         "stopped"
     );
     Ok(st.summary)
+}
+
+/// Refuses folders that overlap once links are resolved (the configuration's check is
+/// lexical): out, state or archive equal to the ingest folder, or inside it when it is
+/// watched recursively.
+fn refuse_overlap(config: &Config) -> Result<(), DaemonError> {
+    let f = &config.folders;
+    let Ok(ingest) = std::fs::canonicalize(&f.ingest) else {
+        return Ok(());
+    };
+    for (name, dir) in [("out", &f.out), ("state", &f.state)]
+        .into_iter()
+        .chain(f.archive.as_ref().map(|a| ("archive", a)))
+    {
+        let Ok(real) = std::fs::canonicalize(dir) else {
+            continue;
+        };
+        if real == ingest || (config.watch.recursive && real.starts_with(&ingest)) {
+            return Err(DaemonError::Folders(format!(
+                "{name} folder {} (really {}) is inside the watched ingest folder {} (really {}); its files would be taken as frames",
+                dir.display(),
+                real.display(),
+                f.ingest.display(),
+                ingest.display()
+            )));
+        }
+    }
+    Ok(())
 }
 
 /// Removes temporary files of [`atomic`] left by an earlier run that was killed.

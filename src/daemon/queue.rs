@@ -10,7 +10,9 @@ use tracing::{error, info, warn};
 use super::bracket::{Alone, Bracket, Closed};
 use super::config::{Recalibrate, Singles};
 use super::journal::{self, Entry};
-use super::{DaemonError, Job, JobError, MAX_RETRY, Outcome, Processed, State, Work, file_stem};
+use super::{
+    DaemonError, Job, JobError, MAX_RETRY, Outcome, Processed, State, Work, file_stem, job_bytes,
+};
 
 impl State {
     pub(super) fn dispatch(&mut self) -> Result<(), DaemonError> {
@@ -18,6 +20,25 @@ impl State {
             let Some(work) = self.queue.pop_front() else {
                 break;
             };
+            // The memory budget: a job starts when its estimate fits beside those
+            // developing; one that cannot fit even alone is recorded as failed.
+            let need = self.job_bytes(&work.closed);
+            let budget = self.config.daemon.memory_mb.saturating_mul(1_000_000);
+            let single_reported = matches!(&work.closed, Closed::Single(..))
+                && self.config.bracket.singles == Singles::Report;
+            if !single_reported && self.in_use + need > budget {
+                if self.in_flight.is_empty() {
+                    let reason = format!(
+                        "needs {} MB to develop, more than the memory budget ([daemon] memory_mb = {})",
+                        need.div_ceil(1_000_000),
+                        self.config.daemon.memory_mb
+                    );
+                    self.failed(&work, reason)?;
+                    continue;
+                }
+                self.queue.push_front(work);
+                break;
+            }
             if let Closed::Single(capture, alone) = &work.closed
                 && self.config.bracket.singles == Singles::Report
             {
@@ -28,6 +49,11 @@ impl State {
                     input: capture.input.clone(),
                     alone: *alone,
                     outputs: Vec::new(),
+                    digests: self
+                        .digests
+                        .get(&capture.input.path)
+                        .map(|d| vec![*d])
+                        .unwrap_or_default(),
                     at: journal::unix_now(),
                 })?;
                 self.summary.finished += 1;
@@ -57,10 +83,14 @@ impl State {
                 },
                 preset,
                 out: self.config.folders.out.clone(),
-                stem: self.output_stem(&work.closed),
+                stem: work
+                    .supersedes
+                    .as_ref()
+                    .map_or_else(|| self.output_stem(&work.closed), |s| s.stem.clone()),
                 stocks: self.config.folders.stocks.clone(),
             };
             let lab = Arc::clone(&self.lab);
+            self.in_use += need;
             self.in_flight.spawn_blocking(move || {
                 let t = Instant::now();
                 let result =
@@ -106,14 +136,28 @@ impl State {
     pub(super) fn release(&mut self, closed: &Closed) {
         for f in closed.frames() {
             self.taken.remove(&f.input.path);
+            self.footprints.remove(&f.input.path);
+            self.digests.remove(&f.input.path);
         }
+    }
+
+    /// The memory estimate of a closed group ([`job_bytes`] of its frames' footprints;
+    /// a frame without one, e.g. from a test, counts nothing).
+    pub(super) fn job_bytes(&self, closed: &Closed) -> u64 {
+        let frames: Vec<_> = closed
+            .frames()
+            .iter()
+            .filter_map(|c| self.footprints.get(&c.input.path).copied())
+            .collect();
+        job_bytes(&frames)
     }
 
     /// Takes a job's outcome: journal and cache on success; on a bad frame, reject it and
     /// requeue the rest; retry output failures with back-off; record other failures.
     pub(super) fn finish(&mut self, (work, result, took): Outcome) -> Result<(), DaemonError> {
+        self.in_use = self.in_use.saturating_sub(self.job_bytes(&work.closed));
         match result {
-            Ok(processed) => self.developed(&work.closed, &processed, took)?,
+            Ok(processed) => self.developed(&work, &processed, took)?,
             Err(JobError::Frame { path, reason }) => self.frame_failed(&work, &path, reason)?,
             Err(e @ JobError::Output { .. }) => self.retry_later(work, &e),
             Err(JobError::Bracket(reason)) => self.failed(&work, reason)?,
@@ -124,10 +168,17 @@ impl State {
     /// A job that published its outputs: refine the cache, journal it, log it, archive.
     pub(super) fn developed(
         &mut self,
-        closed: &Closed,
+        work: &Work,
         dev: &Processed,
         took: Duration,
     ) -> Result<(), DaemonError> {
+        let closed = &work.closed;
+        let digests: Vec<u64> = closed
+            .frames()
+            .iter()
+            .map(|c| self.digests.get(&c.input.path).copied())
+            .collect::<Option<_>>()
+            .unwrap_or_default();
         let camera = closed.camera().clone();
         let preset = self
             .config
@@ -151,6 +202,7 @@ impl State {
                 camera: camera.clone(),
                 inputs: b.frames.iter().map(|c| c.input.clone()).collect(),
                 outputs: dev.outputs.clone(),
+                digests,
                 ratio: b.ratio(),
                 response: dev.source,
                 at,
@@ -161,10 +213,23 @@ impl State {
                 input: c.input.clone(),
                 alone: *alone,
                 outputs: dev.outputs.clone(),
+                digests,
                 at,
             },
         };
         self.journal.record(entry)?;
+        if let Some(old) = &work.supersedes {
+            // Outputs of the earlier development the new one did not replace are stale.
+            for stale in old.outputs.iter().filter(|o| !dev.outputs.contains(o)) {
+                match std::fs::remove_file(stale) {
+                    Ok(()) => info!(file = %stale.display(), "removed stale output"),
+                    Err(e) if e.kind() == std::io::ErrorKind::NotFound => {}
+                    Err(e) => {
+                        warn!(file = %stale.display(), error = %e, "cannot remove stale output")
+                    }
+                }
+            }
+        }
         self.summary.finished += 1;
         let stages: Vec<String> = dev
             .stages
@@ -232,10 +297,7 @@ impl State {
                 frames: rest,
             }),
         };
-        self.queue.push_front(Work {
-            closed,
-            attempts: 0,
-        });
+        self.queue.push_front(Work::new(closed));
         Ok(())
     }
 
@@ -253,9 +315,10 @@ impl State {
         self.retries.push((
             Instant::now() + delay,
             Work {
-                closed: work.closed,
                 attempts: work.attempts + 1,
+                ..work
             },
+            e.to_string(),
         ));
     }
 

@@ -1,15 +1,19 @@
 //! Watching and settling: files noticed in the ingest folder become candidates, settled
 //! candidates are probed (EXIF, header) and fed to the grouper in capture-time order.
 
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 use std::time::{Duration, Instant};
 
 use tracing::{error, info, warn};
 
-use super::bracket::Input;
+use super::bracket::{Alone, Bracket, Capture, Closed, Input};
 use super::intake::{self, Notice, Probe};
 use super::journal::{self, Entry};
-use super::{Candidate, DaemonError, State, WRITER_PATIENCE, Work, folder_id, wall_seconds};
+use super::{
+    Candidate, DaemonError, MAX_RETRY, REDO_FOLDER, State, Superseded, Unreadable, WRITER_PATIENCE,
+    Work, folder_id, job_bytes, wall_seconds,
+};
+use crate::atomic;
 
 impl State {
     /// Notices the ingest folder appearing, disappearing or being replaced, and
@@ -54,6 +58,19 @@ impl State {
         if self.taken.contains(&path) {
             return;
         }
+        // Waiting out its back-off after a read error (see `unreadable`).
+        if self
+            .unreadable
+            .get(&path)
+            .is_some_and(|u| Instant::now() < u.next)
+        {
+            return;
+        }
+        // Reached through a linked folder (a watcher that followed it): not in ingest.
+        if intake::through_link(&self.config.folders.ingest, &path) {
+            tracing::debug!(file = %path.display(), "reached through a link; not followed");
+            return;
+        }
         let cand = self.candidates.entry(path).or_insert(Candidate {
             first_seen: Instant::now(),
             seen: None,
@@ -75,6 +92,9 @@ impl State {
 
     pub(super) async fn tick(&mut self) -> Result<(), DaemonError> {
         self.check_folder();
+        if !self.stopping {
+            self.redo_requests().await?;
+        }
         let rescan_due = match self.config.watch.rescan {
             Some(every) => self.last_rescan.elapsed() >= every,
             // Without a watcher, scans are all there is.
@@ -97,22 +117,32 @@ impl State {
         let writing = self
             .candidates
             .values()
-            .any(|c| c.first_seen.elapsed() < WRITER_PATIENCE);
+            .any(|c| c.first_seen.elapsed() < WRITER_PATIENCE)
+            || self
+                .unreadable
+                .values()
+                .any(|u| u.first_seen.elapsed() < WRITER_PATIENCE);
         if writing || self.queue.len() >= self.config.daemon.queue {
             self.grouper.postpone(now);
         }
         for closed in self.grouper.expire(now) {
-            self.queue.push_back(Work {
-                closed,
-                attempts: 0,
-            });
+            self.queue.push_back(Work::new(closed));
         }
         let due = Instant::now();
         let (ready, later): (Vec<_>, Vec<_>) =
-            self.retries.drain(..).partition(|(at, _)| *at <= due);
+            self.retries.drain(..).partition(|(at, _, _)| *at <= due);
         self.retries = later;
-        for (_, work) in ready {
+        for (_, work, _) in ready {
             self.queue.push_back(work);
+        }
+        let again: Vec<PathBuf> = self
+            .unreadable
+            .iter()
+            .filter(|(p, u)| u.next <= due && !self.candidates.contains_key(*p))
+            .map(|(p, _)| p.clone())
+            .collect();
+        for path in again {
+            self.consider(path, true);
         }
         if let Some(interval) = self.watchdog
             && self.last_watchdog.elapsed() >= interval / 2
@@ -150,7 +180,7 @@ impl State {
                     gone.push(path);
                     continue;
                 }
-                // The probe reports it (e.g. permission denied) as a rejection.
+                // The probe tells a transient error (retried) from a final one.
                 Err(_) => {
                     ready.push(path);
                     continue;
@@ -205,16 +235,76 @@ impl State {
         .expect("probing does not panic");
         let mut frames = Vec::new();
         for (path, probe) in probed {
+            if !matches!(probe, Probe::Unreadable(_)) {
+                self.unreadable.remove(&path);
+            }
             match probe {
-                Probe::Frame(c) if self.journal.is_settled(&c.input) => {}
-                Probe::Frame(c) => frames.push(c),
+                Probe::Frame(c, ..) if self.journal.is_settled(&c.input) => {}
+                Probe::Frame(c, footprint, digest) => {
+                    let before = self.journal.developed(&c.input.path);
+                    if let Some(e) = before.filter(|e| e.digest_of(&c.input.path) == Some(digest)) {
+                        let of = match e {
+                            Entry::Bracket { id, .. } | Entry::Single { id, .. } => id.clone(),
+                            _ => String::new(),
+                        };
+                        info!(file = %c.input.path.display(), "touched, content unchanged: nothing redone");
+                        self.journal.record(Entry::Unchanged {
+                            input: c.input,
+                            of,
+                            at: journal::unix_now(),
+                        })?;
+                        continue;
+                    }
+                    frames.push((c, footprint, digest));
+                }
                 Probe::Rejected(input, reason) => {
                     if !self.journal.is_settled(&input) {
                         self.reject(input, reason)?;
                     }
                 }
+                Probe::Unreadable(reason) => self.unreadable_for_now(path, reason),
                 Probe::Changed => self.consider(path, false),
                 Probe::Gone => {}
+            }
+        }
+        let mut admitted = Vec::new();
+        for (c, footprint, digest) in frames {
+            let need = job_bytes(&[footprint]);
+            let budget = self.config.daemon.memory_mb.saturating_mul(1_000_000);
+            if need > budget {
+                let reason = format!(
+                    "{}×{} pixels need {} MB to develop, more than the memory budget ([daemon] memory_mb = {})",
+                    footprint.width,
+                    footprint.height,
+                    need.div_ceil(1_000_000),
+                    self.config.daemon.memory_mb
+                );
+                self.reject(c.input, reason)?;
+            } else {
+                self.footprints.insert(c.input.path.clone(), footprint);
+                self.digests.insert(c.input.path.clone(), digest);
+                admitted.push(c);
+            }
+        }
+        // A new version of a frame of a developed bracket (re-shot under the same name)
+        // re-develops that bracket with it, in place of the old outputs.
+        let mut reshot: Vec<(Entry, Vec<Capture>)> = Vec::new();
+        let mut frames = Vec::new();
+        for c in admitted {
+            match self.journal.developed(&c.input.path) {
+                Some(e @ Entry::Bracket { .. }) => {
+                    match reshot.iter_mut().find(|(old, _)| old == e) {
+                        Some((_, new)) => new.push(c),
+                        None => reshot.push((e.clone(), vec![c])),
+                    }
+                }
+                _ => frames.push(c),
+            }
+        }
+        for (old, new) in reshot {
+            if let Err((new, why)) = self.redevelop(&old, new).await {
+                tracing::debug!(reason = %why, "not a re-shot frame; new work");
+                frames.extend(new);
             }
         }
         // A batch (start-up scan, burst) enters in capture-time order.
@@ -228,18 +318,172 @@ impl State {
             tracing::debug!(file = %c.input.path.display(), time_s = c.time_s, "frame taken");
             self.taken.insert(c.input.path.clone());
             for closed in self.grouper.push(c, now) {
-                self.queue.push_back(Work {
-                    closed,
-                    attempts: 0,
-                });
+                self.queue.push_back(Work::new(closed));
             }
         }
         Ok(())
     }
 
+    /// Develops again the frames of an earlier bracket or single `old`, with `new`
+    /// versions of some of its files, publishing under its output stem and removing its
+    /// outputs the new set lacks. Every other input of `old` must still be there,
+    /// unchanged, and of the same camera; otherwise `new` is handed back with the reason.
+    pub(super) async fn redevelop(
+        &mut self,
+        old: &Entry,
+        new: Vec<Capture>,
+    ) -> Result<(), (Vec<Capture>, String)> {
+        let (Some(stem), Entry::Bracket { outputs, .. } | Entry::Single { outputs, .. }) =
+            (old.output_stem(), old)
+        else {
+            return Err((new, "not a developed bracket".to_string()));
+        };
+        let replaced: Vec<&Path> = new.iter().map(|c| c.input.path.as_path()).collect();
+        let others: Vec<PathBuf> = old
+            .inputs()
+            .into_iter()
+            .filter(|i| !replaced.contains(&i.path.as_path()))
+            .map(|i| i.path.clone())
+            .collect();
+        if !new.is_empty() && others.is_empty() {
+            return Err((
+                new,
+                "no unchanged frame of the earlier bracket left".to_string(),
+            ));
+        }
+        if others.iter().any(|p| self.taken.contains(p)) {
+            return Err((new, "its other frames are being developed".to_string()));
+        }
+        let journaled: Vec<Input> = old.inputs().into_iter().cloned().collect();
+        let digests: Vec<(PathBuf, Option<u64>)> = journaled
+            .iter()
+            .map(|i| (i.path.clone(), old.digest_of(&i.path)))
+            .collect();
+        // Unchanged: the very file journaled, or (touched since) the same content.
+        let unchanged = |c: &Capture, digest: u64| {
+            journaled.contains(&c.input)
+                || digests
+                    .iter()
+                    .any(|(p, d)| *p == c.input.path && *d == Some(digest))
+        };
+        let probed = tokio::task::spawn_blocking(move || {
+            others
+                .into_iter()
+                .map(|p| {
+                    let r = intake::probe(&p);
+                    (p, r)
+                })
+                .collect::<Vec<_>>()
+        })
+        .await
+        .expect("probing does not panic");
+        let mut frames = new;
+        let mut found = Vec::new();
+        for (path, probe) in probed {
+            match probe {
+                Probe::Frame(c, footprint, digest) if unchanged(&c, digest) => {
+                    found.push((c, footprint, digest));
+                }
+                _ => {
+                    return Err((frames, format!("{} changed or is gone", path.display())));
+                }
+            }
+        }
+        for (c, footprint, digest) in found {
+            self.footprints.insert(c.input.path.clone(), footprint);
+            self.digests.insert(c.input.path.clone(), digest);
+            frames.push(c);
+        }
+        let camera = frames[0].camera.clone();
+        if frames.iter().any(|c| c.camera != camera) {
+            return Err((frames, "frames of another camera".to_string()));
+        }
+        frames.sort_by(|a, b| a.time_s.total_cmp(&b.time_s));
+        for c in &frames {
+            self.taken.insert(c.input.path.clone());
+        }
+        let closed = if frames.len() == 1 {
+            Closed::Single(frames.pop().expect("one"), Alone::NoPartner)
+        } else {
+            Closed::Bracket(Bracket { camera, frames })
+        };
+        info!(bracket = %stem, frames = closed.frames().len(), "developing again");
+        self.queue.push_back(Work {
+            closed,
+            attempts: 0,
+            supersedes: Some(Superseded {
+                stem,
+                outputs: outputs.clone(),
+            }),
+        });
+        Ok(())
+    }
+
+    /// Requests of `filmback redo STEM`: files in `state/redo/`, each named by the output
+    /// stem of a finished bracket or single, checked every half second.
+    pub(super) async fn redo_requests(&mut self) -> Result<(), DaemonError> {
+        if self.last_redo.elapsed() < Duration::from_millis(500) {
+            return Ok(());
+        }
+        self.last_redo = Instant::now();
+        let dir = self.config.folders.state.join(REDO_FOLDER);
+        let Ok(entries) = std::fs::read_dir(&dir) else {
+            return Ok(());
+        };
+        let requests: Vec<PathBuf> = entries
+            .filter_map(Result::ok)
+            .map(|e| e.path())
+            .filter(|p| !atomic::is_temporary(p))
+            .collect();
+        for request in requests {
+            let stem = request
+                .file_name()
+                .map(|n| n.to_string_lossy().into_owned())
+                .unwrap_or_default();
+            match self.journal.by_stem(&stem).cloned() {
+                Some(old) => {
+                    if let Err((_, why)) = self.redevelop(&old, Vec::new()).await {
+                        warn!(bracket = %stem, reason = %why, "cannot develop again");
+                    }
+                }
+                None => warn!(bracket = %stem, "redo: no finished bracket or single of that name"),
+            }
+            if let Err(e) = std::fs::remove_file(&request) {
+                warn!(file = %request.display(), error = %e, "cannot remove redo request");
+            }
+        }
+        Ok(())
+    }
+
+    /// A file that cannot be read now: look again after `retry · 2^attempts` (at most
+    /// [`MAX_RETRY`]); meanwhile open brackets wait for it (up to [`WRITER_PATIENCE`]),
+    /// and `status` shows it with the reason. Nothing is journaled.
+    pub(super) fn unreadable_for_now(&mut self, path: PathBuf, reason: String) {
+        let now = Instant::now();
+        let entry = self.unreadable.entry(path.clone()).or_insert(Unreadable {
+            first_seen: now,
+            attempts: 0,
+            next: now,
+            reason: String::new(),
+        });
+        let delay =
+            (self.config.daemon.retry * 2u32.saturating_pow(entry.attempts.min(16))).min(MAX_RETRY);
+        entry.attempts += 1;
+        entry.next = now + delay;
+        entry.reason.clone_from(&reason);
+        warn!(
+            file = %path.display(),
+            reason = %reason,
+            attempt = entry.attempts,
+            retry_in_s = delay.as_secs_f64(),
+            "cannot read; will retry"
+        );
+    }
+
     pub(super) fn reject(&mut self, input: Input, reason: String) -> Result<(), DaemonError> {
         warn!(file = %input.path.display(), reason = %reason, "rejected");
         self.taken.remove(&input.path);
+        self.footprints.remove(&input.path);
         self.summary.rejected += 1;
         self.journal.record(Entry::Rejected {
             input,

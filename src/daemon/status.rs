@@ -39,12 +39,28 @@ pub struct Snapshot {
     pub queued: usize,
     /// Brackets developing now.
     pub in_flight: usize,
-    /// Brackets waiting to retry after an output failure.
+    /// Brackets waiting to retry after an output failure, and files after a read error.
     pub retrying: usize,
+    /// What is retried, why, and when next (absent in snapshots of older versions).
+    #[serde(default)]
+    pub retries: Vec<Retry>,
     /// Finished in this run.
     pub finished: usize,
     /// Rejected in this run.
     pub rejected: usize,
+}
+
+/// One thing the daemon will try again.
+#[derive(Debug, Clone, PartialEq, Eq, Serialize, Deserialize)]
+pub struct Retry {
+    /// A bracket (its output stem) or a file (its path).
+    pub what: String,
+    /// Why the last attempt failed.
+    pub reason: String,
+    /// Attempts so far.
+    pub attempts: u32,
+    /// Unix seconds of the next attempt.
+    pub next: u64,
 }
 
 /// Reads `state/status.json`, if the daemon ever wrote one.
@@ -66,10 +82,37 @@ impl State {
             grouping: self.grouper.waiting(),
             queued: self.queue.len(),
             in_flight: self.in_flight.len(),
-            retrying: self.retries.len(),
+            retrying: self.retries.len() + self.unreadable.len(),
+            retries: self.retry_list(),
             finished: self.summary.finished,
             rejected: self.summary.rejected,
         }
+    }
+
+    /// Output retries and unreadable files, soonest first.
+    fn retry_list(&self) -> Vec<Retry> {
+        let now = Instant::now();
+        let unix = journal::unix_now();
+        let at =
+            |when: Instant| unix + when.saturating_duration_since(now).as_secs_f64().ceil() as u64;
+        let mut list: Vec<Retry> = self
+            .retries
+            .iter()
+            .map(|(when, work, reason)| Retry {
+                what: work.closed.stem(),
+                reason: reason.clone(),
+                attempts: work.attempts,
+                next: at(*when),
+            })
+            .chain(self.unreadable.iter().map(|(path, u)| Retry {
+                what: path.display().to_string(),
+                reason: u.reason.clone(),
+                attempts: u.attempts,
+                next: at(u.next),
+            }))
+            .collect();
+        list.sort_by(|a, b| a.next.cmp(&b.next).then_with(|| a.what.cmp(&b.what)));
+        list
     }
 
     /// Publishes the status snapshot and the systemd STATUS line when a count changed
@@ -90,12 +133,13 @@ impl State {
         }
         self.last_report = Instant::now();
         let status = format!(
-            "{} finished, {} rejected, {} developing, {} queued, {} waiting",
+            "{} finished, {} rejected, {} developing, {} queued, {} waiting, {} retrying",
             snap.finished,
             snap.rejected,
             snap.in_flight,
             snap.queued,
-            snap.settling + snap.grouping
+            snap.settling + snap.grouping,
+            snap.retrying
         );
         let _ = sd_notify::notify(&[sd_notify::NotifyState::Status(&status)]);
         let path = self.config.folders.state.join(STATUS_FILE);

@@ -139,8 +139,11 @@ pub struct Daemon {
     pub jobs: usize,
     /// Closed brackets waiting for a job.
     pub queue: usize,
-    /// First retry delay after an output failure.
+    /// First retry delay after an output failure (or a read error).
     pub retry: Duration,
+    /// Memory budget of the brackets developing at once, in MB (10^6 bytes); a job is
+    /// admitted when its estimate ([`crate::daemon::job_bytes`]) fits beside the others.
+    pub memory_mb: u64,
 }
 
 /// What a camera's brackets are developed into (defaults merged with its preset).

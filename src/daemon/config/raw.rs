@@ -52,6 +52,7 @@ bounded!(BracketSize, usize, 2, 9, "frames");
 bounded!(Jobs, usize, 1, 64, "brackets");
 bounded!(QueueLen, usize, 1, 100_000, "brackets");
 bounded!(RetrySeconds, u64, 1, 3600, "seconds");
+bounded!(MemoryMb, u64, 64, 16_777_216, "MB");
 bounded!(Stops, f64, -10.0, 10.0, "stops");
 bounded!(Quality, u8, 1, 100, "JPEG quality");
 bounded!(Fraction, f64, 0.0, 1.0, "confidence");
@@ -134,6 +135,7 @@ struct RawDaemon {
     jobs: Option<Jobs>,
     queue: Option<QueueLen>,
     retry_s: Option<RetrySeconds>,
+    memory_mb: Option<MemoryMb>,
 }
 
 #[derive(Debug, Default, Clone, Deserialize)]
@@ -291,6 +293,7 @@ pub(super) fn merge(d: RawConfig, u: RawConfig, source: Option<PathBuf>) -> Conf
             jobs: ud.jobs.or(dd.jobs).expect(MISSING).0,
             queue: ud.queue.or(dd.queue).expect(MISSING).0,
             retry: Duration::from_secs(ud.retry_s.or(dd.retry_s).expect(MISSING).0),
+            memory_mb: ud.memory_mb.or(dd.memory_mb).expect(MISSING).0,
         },
         render: preset(&render),
         cameras,
