@@ -224,7 +224,12 @@ impl Lab for DarkroomLab {
         Ok(Processed {
             outputs,
             source: developed.response.source,
-            fit: developed.response.fit,
+            // A bracket that contradicts the cached curve is reported (its note), not
+            // averaged into the cache.
+            fit: developed
+                .response
+                .fit
+                .filter(|_| !developed.response.contradicts_cache),
             stages,
             notes: developed.warnings,
         })

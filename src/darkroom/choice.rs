@@ -105,6 +105,10 @@ pub struct ChosenResponse {
     pub fit: Option<(InverseResponse, f64)>,
     /// Why a fit was not used, etc.
     pub notes: Vec<String>,
+    /// True when this bracket's own fit was good but the camera's cached curve explains
+    /// its frames worse by more than [`CONTRADICTION_STOPS`] (a picture style or setting
+    /// changed): the daemon reports it and keeps the cache as it was.
+    pub contradicts_cache: bool,
 }
 
 /// Chooses the response for `bracket` under `policy`; `ratio_source` says where the
@@ -228,6 +232,22 @@ pub fn choose_response(
         })).collect::<Vec<_>>(),
     });
     let mut notes = Vec::new();
+    let mut contradicts_cache = false;
+    if confidence >= min_confidence
+        && let Some(cached) = fallback.as_ref().filter(|g| g.source == Source::Cached)
+    {
+        let fit_misfit = misfit(&calibration, &calibration.response);
+        let cached_misfit = misfit(&calibration, &cached.response);
+        if cached_misfit > fit_misfit + CONTRADICTION_STOPS {
+            contradicts_cache = true;
+            notes.push(format!(
+                "this bracket contradicts the {} ({cached_misfit:.3} stops RMS against its own \
+                 fit's {fit_misfit:.3}: has a picture style or setting changed?); used its own \
+                 fit and left the cache as it was",
+                cached.label
+            ));
+        }
+    }
     if confidence < min_confidence
         && let Some(given) = fallback
     {
@@ -276,6 +296,7 @@ pub fn choose_response(
         report,
         fit,
         notes,
+        contradicts_cache,
     })
 }
 
@@ -283,7 +304,7 @@ pub fn choose_response(
 /// bracket's own fit before it counts as contradicted. A ripple the two exposures cannot
 /// resolve costs a few hundredths of a stop; a wrong curve family (sRGB for a film
 /// shoulder) costs tenths.
-const CONTRADICTION_STOPS: f64 = 0.05;
+pub const CONTRADICTION_STOPS: f64 = 0.05;
 
 /// RMS over the calibration's tone pairs of `log₂(g(τ(b)) / (γ·g(b)))`, stops, each pair
 /// at its own ratio `γ`: how far `g` is from explaining the frames' histograms. Pairs
@@ -315,5 +336,6 @@ pub(super) fn use_given(
         source: given.source,
         fit,
         notes,
+        contradicts_cache: false,
     }
 }

@@ -31,7 +31,8 @@ mod choice;
 use choice::use_given;
 
 pub use choice::{
-    CALIBRATION_PIXELS, ChosenResponse, GivenResponse, ResponsePolicy, Source, choose_response,
+    CALIBRATION_PIXELS, CONTRADICTION_STOPS, ChosenResponse, GivenResponse, ResponsePolicy, Source,
+    choose_response,
 };
 
 /// Why a bracket could not be developed. Each variant names the file concerned.

@@ -123,3 +123,43 @@ fn a_fallback_the_bracket_contradicts_is_not_used() {
         chosen.notes
     );
 }
+
+/// A good fit that the camera's cached curve contradicts (frames through a film S curve,
+/// a cache holding sRGB) is used and flagged, so the daemon leaves the cache alone; a
+/// cached curve that agrees with the bracket is refined as before.
+#[test]
+fn a_good_fit_that_contradicts_the_cached_curve_is_flagged() {
+    let truth = scene(240, 160, 6);
+    let develop = |curve: ResponseCurve| {
+        let sensor = Sensor::noiseless(curve, BitDepth::Eight);
+        let frames = [
+            loaded("a.png", expose(&truth, 1.0, &sensor)),
+            loaded("b.png", expose(&truth, 4.0, &sensor)),
+        ];
+        let bracket = bracket(&frames, &[1.0, 4.0]);
+        let cached = GivenResponse {
+            source: Source::Cached,
+            label: "cached curve of Body (5 bracket(s))".to_string(),
+            ..GivenResponse::standard(3)
+        };
+        let policy = ResponsePolicy::Fit {
+            fallback: Some(cached),
+            min_confidence: 0.0,
+        };
+        choose_response(&bracket, RatioSource::Argument, policy, &mut Stages::new()).unwrap()
+    };
+    let other = develop(ResponseCurve::FilmS);
+    assert_eq!(other.source, Source::Fitted);
+    assert!(other.contradicts_cache, "{:?}", other.notes);
+    assert!(
+        other
+            .notes
+            .iter()
+            .any(|n| n.contains("contradicts the cached curve")),
+        "{:?}",
+        other.notes
+    );
+    let same = develop(ResponseCurve::Srgb);
+    assert_eq!(same.source, Source::Fitted);
+    assert!(!same.contradicts_cache, "{:?}", same.notes);
+}
