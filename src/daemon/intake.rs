@@ -11,6 +11,7 @@ use tokio::sync::mpsc::UnboundedSender;
 
 use crate::daemon::bracket::{CameraId, Capture, Input};
 use crate::daemon::config::{Watch, WatchMode};
+use crate::frame;
 use crate::metadata;
 
 /// What the watcher reports to the daemon loop.
@@ -193,6 +194,11 @@ pub(crate) fn probe(path: &Path) -> Probe {
     if bytes.is_empty() {
         return Probe::Rejected(before, "file is empty (0 bytes)".to_string());
     }
+    match frame::probe_raw(path, &bytes) {
+        Some(Ok(meta)) => return capture(before, meta),
+        Some(Err(e)) => return Probe::Rejected(before, e.to_string()),
+        None => {}
+    }
     let header = image::ImageReader::new(Cursor::new(&bytes))
         .with_guessed_format()
         .map_err(|e| e.to_string())
@@ -209,7 +215,12 @@ pub(crate) fn probe(path: &Path) -> Probe {
     if let Err(reason) = header {
         return Probe::Rejected(before, reason);
     }
-    let meta = metadata::read(&bytes);
+    capture(before, metadata::read(&bytes))
+}
+
+/// A frame probed: its camera, exposure and capture time (the file's time when the EXIF
+/// has none).
+fn capture(before: Input, meta: metadata::Metadata) -> Probe {
     let time_s = meta
         .captured_at
         .map_or(before.modified_ns as f64 * 1e-9, |t| t.local_seconds());
