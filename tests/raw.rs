@@ -299,3 +299,74 @@ fn damaged_raws_are_errors_naming_the_file() {
         assert!(error.to_string().contains(name), "{error}");
     }
 }
+
+fn filmback() -> std::process::Command {
+    std::process::Command::new(env!("CARGO_BIN_EXE_filmback"))
+}
+
+/// `filmback merge` of a raw bracket: one EXR whose header says the response is
+/// "linear (raw)" and states Rec. 709 chromaticities; the JSON report says the same.
+#[test]
+fn merge_cli_takes_a_raw_bracket() {
+    use exr::prelude::{AttributeValue, ReadChannels, ReadLayers, Text};
+    let b = bracket(13);
+    let out = b._dir.path().join("out");
+    let o = filmback()
+        .arg("merge")
+        .args([&b.paths[2], &b.paths[0], &b.paths[1]])
+        .arg("-o")
+        .arg(&out)
+        .arg("--json")
+        .output()
+        .unwrap();
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let report: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
+    assert_eq!(report["response"]["model"], "linear (raw)", "{report}");
+    assert_eq!(report["response"]["cfa"], "RGGB", "{report}");
+    let image = exr::prelude::read()
+        .no_deep_data()
+        .largest_resolution_level()
+        .all_channels()
+        .first_valid_layer()
+        .all_attributes()
+        .from_file(out.join("r-3.exr"))
+        .unwrap();
+    let attrs = &image.layer_data.attributes;
+    let response = match attrs.other.get(&Text::from("filmbackResponse")) {
+        Some(AttributeValue::Text(t)) => t.to_string(),
+        other => panic!("filmbackResponse: {other:?}"),
+    };
+    assert_eq!(response, "linear (raw)");
+    let chroma = image
+        .attributes
+        .chromaticities
+        .expect("chromaticities stated");
+    assert_eq!(
+        (chroma.red.0, chroma.green.1, chroma.blue.0),
+        (0.64, 0.60, 0.15)
+    );
+    assert_eq!(image.layer_data.size.width(), W as usize);
+}
+
+/// `filmback inspect --json` of a DNG shows its camera, exposure, capture time, bit
+/// depth, levels and CFA.
+#[test]
+fn inspect_shows_a_raws_levels_and_cfa() {
+    let b = bracket(17);
+    let o = filmback()
+        .args(["inspect", "--json"])
+        .arg(&b.paths[0])
+        .output()
+        .unwrap();
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let report: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
+    let r = &report[0];
+    assert_eq!(r["camera"]["model"], "Raw Body", "{r}");
+    assert_eq!(r["exposure"]["time_s"], 0.002, "{r}");
+    assert_eq!(r["captured_at"], "2026-11-24T12:00:05", "{r}");
+    assert_eq!(r["raw"]["bits"], 14, "{r}");
+    assert_eq!(r["raw"]["white"], 15000.0, "{r}");
+    assert_eq!(r["raw"]["black"][0], 512.0, "{r}");
+    assert_eq!(r["raw"]["cfa"], "RGGB", "{r}");
+    assert_eq!(r["raw"]["response"], "linear (raw)", "{r}");
+}
