@@ -147,7 +147,14 @@ fn exact_info(sensor: &RawSensor) -> RawInfo {
 fn reference(b: &Bracket) -> Vec<f32> {
     let info = exact_info(&b.sensor);
     let noise = Noise::typical(Some(100.0), f64::from(b.sensor.white - b.sensor.black));
-    let linear: Vec<Linear<'_>> = b.signals.iter().map(|s| Linear(s)).collect();
+    let linear: Vec<Linear<'_>> = b
+        .signals
+        .iter()
+        .map(|s| Linear {
+            signal: s,
+            width: W as usize,
+        })
+        .collect();
     let inputs: Vec<(&dyn Signal, f64, Noise)> = linear
         .iter()
         .zip(&b.exposures)

@@ -144,6 +144,9 @@ impl Prints<'_> {
     }
 }
 
+/// How the EXR header names a raw bracket's weighting (see `raw::mosaic`).
+const RAW_WEIGHTING: &str = "noise-optimal (linear sensor: shot + read noise)";
+
 /// What developing a bracket did.
 #[derive(Debug)]
 pub struct Developed {
@@ -206,11 +209,11 @@ pub fn develop(
     #[cfg(feature = "raw")]
     let raw_merged = raw::merge(frames, exposures, &mut stages)?;
     #[cfg(not(feature = "raw"))]
-    let raw_merged = None;
+    let raw_merged: Option<(ChosenResponse, merge::Merged)> = None;
     let mut weighting = format!("{:?}", options.weighting);
     let (chosen, merged) = match raw_merged {
         Some((chosen, m)) => {
-            weighting = raw::RAW_WEIGHTING.to_string();
+            weighting = RAW_WEIGHTING.to_string();
             (chosen, Radiance::Buffered(m))
         }
         None => {

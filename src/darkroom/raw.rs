@@ -2,8 +2,6 @@
 //! clipped at the white level), so no response is fitted or chosen; the merge is
 //! [`crate::raw::develop`].
 
-use std::time::Instant;
-
 use super::{ChosenResponse, DarkroomError, Source, Stages};
 use crate::frame::{LoadedFrame, Samples};
 use crate::merge::Merged;
@@ -14,11 +12,8 @@ use crate::response::InverseResponse;
 /// What the report and the EXR header say a raw bracket's response is.
 pub const LINEAR_RAW: &str = "linear (raw)";
 
-/// How the EXR header names the raw merge's weighting.
-pub const RAW_WEIGHTING: &str = "noise-optimal (linear sensor: shot + read noise)";
-
 /// Merges `frames` when they are raws (`None` when none is): the response reported and
-/// the merged radiance in linear Rec. 709 (stage `merge`). A bracket that mixes raw and
+/// the merged radiance in linear Rec. 709 (stages `merge`, `demosaic`, `colour`). A bracket that mixes raw and
 /// other frames is refused.
 pub(super) fn merge(
     frames: &[LoadedFrame],
@@ -28,7 +23,6 @@ pub(super) fn merge(
     let Some(first_raw) = frames.iter().find(|f| f.raw.is_some()) else {
         return Ok(None);
     };
-    let t = Instant::now();
     let mut inputs = Vec::with_capacity(frames.len());
     for (f, &exposure) in frames.iter().zip(exposures) {
         let (Some(info), Samples::Sixteen(codes)) = (f.raw.as_deref(), f.frame.samples()) else {
@@ -49,10 +43,10 @@ pub(super) fn merge(
         });
     }
     let developed = raw::develop(&inputs)?;
+    stages.extend(developed.timings.iter().copied());
     let exposures: Vec<f64> = developed.order.iter().map(|&i| exposures[i]).collect();
     let radiance = RadianceMap::new(developed.width, developed.height, 3, developed.rgb)
         .expect("three values per pixel of the mosaic");
-    stages.push(("merge", t.elapsed()));
     let info = inputs[0].info;
     let chosen = ChosenResponse {
         response: InverseResponse::from_samples(vec![vec![0.0, 1.0]; 3])

@@ -206,6 +206,9 @@ pub struct DevelopedRaw {
     pub order: Vec<usize>,
     /// The demosaicking method used.
     pub demosaic: &'static str,
+    /// Wall time of each step: `merge` (CFA), `demosaic` (white balance and
+    /// interpolation), `colour`.
+    pub timings: Vec<(&'static str, std::time::Duration)>,
 }
 
 /// Merges a bracket of raw frames of one camera ([`mosaic::merge`], noise from
@@ -281,11 +284,13 @@ pub fn develop(frames: &[RawExposure<'_>]) -> Result<DevelopedRaw, RawError> {
             (c as &dyn mosaic::Signal, f.exposure, noise)
         })
         .collect();
+    let t = std::time::Instant::now();
     let merged = mosaic::merge(&inputs, first.width as usize, first.height as usize);
+    let mut timings = vec![("merge", t.elapsed())];
     let clipped = merged.clipped;
     let mut order: Vec<usize> = (0..frames.len()).collect();
     order.sort_by(|&a, &b| frames[a].exposure.total_cmp(&frames[b].exposure));
-    let rgb = finish(merged, first.info, first.path)?;
+    let rgb = finish_timed(merged, first.info, first.path, &mut timings)?;
     Ok(DevelopedRaw {
         width: first.width,
         height: first.height,
@@ -293,19 +298,33 @@ pub fn develop(frames: &[RawExposure<'_>]) -> Result<DevelopedRaw, RawError> {
         clipped,
         order,
         demosaic: demosaic::method(&first.info.cfa),
+        timings,
     })
 }
 
 /// White balance on the mosaic, demosaicking, then camera → Rec. 709: interleaved linear
 /// RGB of `merged` (see [`colour`]).
 pub fn finish(
-    mut merged: mosaic::MergedMosaic,
+    merged: mosaic::MergedMosaic,
     info: &RawInfo,
     path: &std::path::Path,
 ) -> Result<Vec<f32>, RawError> {
+    finish_timed(merged, info, path, &mut Vec::new())
+}
+
+fn finish_timed(
+    mut merged: mosaic::MergedMosaic,
+    info: &RawInfo,
+    path: &std::path::Path,
+    timings: &mut Vec<(&'static str, std::time::Duration)>,
+) -> Result<Vec<f32>, RawError> {
     let to_709 = colour::camera_to_709(info, path)?;
+    let t = std::time::Instant::now();
     mosaic::scale_channels(&mut merged, &info.cfa, colour::white_balance(info));
     let mut rgb = demosaic::demosaic(merged, &info.cfa);
+    timings.push(("demosaic", t.elapsed()));
+    let t = std::time::Instant::now();
     colour::apply(&to_709, &mut rgb);
+    timings.push(("colour", t.elapsed()));
     Ok(rgb)
 }

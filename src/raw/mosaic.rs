@@ -14,7 +14,7 @@
 //! Var x_k = (a·E·r_k + σ²) / r_k²,     w_k = 1 / Var x_k,     E = Σ w_k x_k / Σ w_k
 //! ```
 //!
-//! over the frames whose sample is not clipped (`s_k ≥` [`CLIPPED`](super::CLIPPED)),
+//! over the frames whose sample is not clipped (`s_k ≥` [`CLIPPED`]),
 //! channel by channel as the CFA lays them out. `E` in the variance is not known before
 //! the merge: a first pass takes `E₀ = Σ s_k / Σ r_k` over the unclipped frames (the
 //! estimate under shot noise alone), the second pass weighs with `E₀` (Granados et al.,
@@ -53,8 +53,10 @@ impl Noise {
 
 /// One frame of a bracket in normalised signal `s`, as [`merge`] reads it.
 pub trait Signal: Sync {
-    /// `s` of sample `i`, and whether it is clipped.
-    fn signal(&self, i: usize) -> (f32, bool);
+    /// `s` of every sample of row `y` into `out` (one value per pixel of the row).
+    fn row(&self, y: usize, out: &mut [f32]);
+    /// The signal at and above which a sample is clipped.
+    fn clip(&self) -> f32;
 }
 
 /// Raw codes with their levels.
@@ -74,22 +76,42 @@ pub struct Codes<'a> {
 }
 
 impl Signal for Codes<'_> {
-    fn signal(&self, i: usize) -> (f32, bool) {
-        let (x, y) = (i % self.width, i / self.width);
-        let b = self.black[(y % self.black_height) * self.black_width + x % self.black_width];
-        let s = (f32::from(self.codes[i]) - b) / (self.white - b);
-        (s, s >= CLIPPED)
+    fn row(&self, y: usize, out: &mut [f32]) {
+        let codes = &self.codes[y * self.width..(y + 1) * self.width];
+        let tile = (y % self.black_height) * self.black_width;
+        let black = &self.black[tile..tile + self.black_width];
+        let scale: Vec<f32> = black.iter().map(|&b| 1.0 / (self.white - b)).collect();
+        for (o, c) in out
+            .chunks_mut(self.black_width)
+            .zip(codes.chunks(self.black_width))
+        {
+            for (((o, &c), &b), &k) in o.iter_mut().zip(c).zip(black).zip(&scale) {
+                *o = (f32::from(c) - b) * k;
+            }
+        }
+    }
+
+    fn clip(&self) -> f32 {
+        CLIPPED
     }
 }
 
-/// A frame already in normalised signal (the float reference of the tests): `s ≥ 1` is
-/// clipped.
-pub struct Linear<'a>(pub &'a [f32]);
+/// A frame already in normalised signal, row by row (the float reference of the tests):
+/// `s ≥ 1` is clipped.
+pub struct Linear<'a> {
+    /// The signal, row by row.
+    pub signal: &'a [f32],
+    /// Width of a row.
+    pub width: usize,
+}
 
 impl Signal for Linear<'_> {
-    fn signal(&self, i: usize) -> (f32, bool) {
-        let s = self.0[i];
-        (s, s >= 1.0)
+    fn row(&self, y: usize, out: &mut [f32]) {
+        out.copy_from_slice(&self.signal[y * self.width..(y + 1) * self.width]);
+    }
+
+    fn clip(&self) -> f32 {
+        1.0
     }
 }
 
@@ -130,41 +152,15 @@ pub fn merge(frames: &[(&dyn Signal, f64, Noise)], width: usize, height: usize) 
     let clipped: u64 = values
         .par_chunks_mut(width.max(1))
         .enumerate()
-        .map(|(y, row)| {
-            let mut clipped = 0u64;
-            let mut samples = vec![(0.0f32, false); sorted.len()];
-            for (x, out) in row.iter_mut().enumerate() {
-                let i = y * width + x;
-                let (mut sum_s, mut sum_r) = (0.0f32, 0.0f32);
-                for (k, &(signal, r, ..)) in sorted.iter().enumerate() {
-                    let (s, is_clipped) = signal.signal(i);
-                    samples[k] = (s, is_clipped);
-                    if !is_clipped {
-                        sum_s += s;
-                        sum_r += r;
-                    }
+        .map_init(
+            || vec![vec![0.0f32; width]; sorted.len()],
+            |rows, (y, out)| {
+                for (row, &(signal, ..)) in rows.iter_mut().zip(&sorted) {
+                    signal.row(y, row);
                 }
-                if sum_r == 0.0 {
-                    clipped += 1;
-                    *out = samples[0].0 / sorted[0].1;
-                    continue;
-                }
-                let e0 = (sum_s / sum_r).max(0.0);
-                let (mut num, mut den) = (0.0f32, 0.0f32);
-                for (k, &(_, r, shot, read2)) in sorted.iter().enumerate() {
-                    let (s, is_clipped) = samples[k];
-                    if is_clipped {
-                        continue;
-                    }
-                    // w = 1/Var x = r² / (a·E₀·r + σ²)
-                    let w = r * r / (shot * e0 * r + read2).max(f32::MIN_POSITIVE);
-                    num += w * s / r;
-                    den += w;
-                }
-                *out = num / den;
-            }
-            clipped
-        })
+                merge_row(&sorted, rows, out)
+            },
+        )
         .sum();
     MergedMosaic {
         width,
@@ -172,6 +168,44 @@ pub fn merge(frames: &[(&dyn Signal, f64, Noise)], width: usize, height: usize) 
         values,
         clipped,
     }
+}
+
+/// One row of the merge (see the module docs); returns the samples clipped in every
+/// frame. `frames` are darkest first: `(signal, r, a, σ²)`.
+fn merge_row(frames: &[(&dyn Signal, f32, f32, f32)], rows: &[Vec<f32>], out: &mut [f32]) -> u64 {
+    let clips: Vec<f32> = frames.iter().map(|f| f.0.clip()).collect();
+    let inverse: Vec<f32> = frames.iter().map(|f| 1.0 / f.1).collect();
+    let mut clipped = 0;
+    for (x, out) in out.iter_mut().enumerate() {
+        let (mut sum_s, mut sum_r) = (0.0f32, 0.0f32);
+        for ((row, f), &clip) in rows.iter().zip(frames).zip(&clips) {
+            let s = row[x];
+            if s < clip {
+                sum_s += s;
+                sum_r += f.1;
+            }
+        }
+        if sum_r == 0.0 {
+            clipped += 1;
+            *out = rows[0][x] * inverse[0];
+            continue;
+        }
+        let e0 = (sum_s / sum_r).max(0.0);
+        let (mut num, mut den) = (0.0f32, 0.0f32);
+        for (((row, &(_, r, shot, read2)), &clip), &inv) in
+            rows.iter().zip(frames).zip(&clips).zip(&inverse)
+        {
+            let s = row[x];
+            if s < clip {
+                // w = 1/Var x = r² / (a·E₀·r + σ²)
+                let w = r * r / (shot * e0 * r + read2).max(f32::MIN_POSITIVE);
+                num += w * s * inv;
+                den += w;
+            }
+        }
+        *out = num / den;
+    }
+    clipped
 }
 
 /// Multiplies each sample of `mosaic` by `gains[colour]` (white balance on the mosaic,
