@@ -317,6 +317,33 @@ fn raw_only_bracket_gives_one_exr_and_the_looks() {
     assert!(rejected(&state).is_empty(), "{:?}", rejected(&state));
 }
 
+/// RAW+JPEG: each capture arrives as `r-k.dng` and `r-k.jpg`; the raws make the one
+/// bracket, the JPEGs are set aside as their companions, never a second bracket.
+#[cfg(feature = "raw")]
+#[test]
+fn raw_plus_jpeg_gives_one_bracket_from_the_raws() {
+    let mut rig = Rig::start(&[], Arc::new(DarkroomLab), |_| {});
+    let jpegs = aeb("Raw Body", 10, "r");
+    let raws = raw_aeb("Raw Body", 10, "r");
+    for (raw, jpeg) in raws.iter().zip(&jpegs) {
+        put(&rig.ingest(), std::slice::from_ref(raw));
+        put(&rig.ingest(), std::slice::from_ref(jpeg));
+    }
+    expect_outputs(&rig.out(), &bracket_outputs(&["r-1"]), T);
+    let state = rig.state();
+    let summary = rig.stop();
+    assert_eq!(summary.finished, 1);
+    assert_eq!(journaled_brackets(&state), ["r-1"]);
+    let rejected = rejected(&state);
+    assert_eq!(rejected.len(), 3, "{rejected:?}");
+    assert!(
+        rejected
+            .iter()
+            .all(|(name, why)| name.ends_with(".jpg") && why.contains("RAW+JPEG")),
+        "{rejected:?}"
+    );
+}
+
 #[test]
 fn slow_writer_is_taken_only_when_complete() {
     let mut rig = Rig::start(

@@ -199,6 +199,15 @@ pub(crate) fn probe(path: &Path) -> Probe {
         Some(Err(e)) => return Probe::Rejected(before, e.to_string()),
         None => {}
     }
+    if let Some(raw) = raw_companion(path) {
+        return Probe::Rejected(
+            before,
+            format!(
+                "the JPEG/PNG/TIFF of a RAW+JPEG capture: its raw {} is the frame merged",
+                raw.display()
+            ),
+        );
+    }
     let header = image::ImageReader::new(Cursor::new(&bytes))
         .with_guessed_format()
         .map_err(|e| e.to_string())
@@ -216,6 +225,25 @@ pub(crate) fn probe(path: &Path) -> Probe {
         return Probe::Rejected(before, reason);
     }
     capture(before, metadata::read(&bytes))
+}
+
+/// The raw beside `path` with the same stem (`x.jpg` and `x.CR2` are one capture taken as
+/// RAW+JPEG), when filmback reads raws and there is one.
+fn raw_companion(path: &Path) -> Option<PathBuf> {
+    #[cfg(feature = "raw")]
+    {
+        let stem = path.file_stem()?;
+        std::fs::read_dir(path.parent()?)
+            .ok()?
+            .filter_map(Result::ok)
+            .map(|e| e.path())
+            .find(|p| p != path && p.file_stem() == Some(stem) && crate::raw::is_raw_extension(p))
+    }
+    #[cfg(not(feature = "raw"))]
+    {
+        let _ = path;
+        None
+    }
 }
 
 /// A frame probed: its camera, exposure and capture time (the file's time when the EXIF
