@@ -395,3 +395,41 @@ fn inspect_shows_a_raws_levels_and_cfa() {
     assert_eq!(r["raw"]["cfa"], "RGGB", "{r}");
     assert_eq!(r["raw"]["response"], "linear (raw)", "{r}");
 }
+
+/// A Fuji X-Trans mosaic (6×6) is demosaicked by Markesteijn's method: the round trip
+/// stays within the Bayer figure's neighbourhood.
+#[test]
+fn xtrans_bracket_round_trips() {
+    let sensor = RawSensor {
+        cfa: "GGRGGBGGBGGRBRGRBGGGBGGRGGRGGBRBGBRG",
+        ..RawSensor::typical(23)
+    };
+    let b = bracket_on(sensor);
+    let frames = load(&b.paths);
+    assert_eq!(frames[0].raw.as_deref().unwrap().cfa.width, 6);
+    let error = radiance_error(&develop(&frames).rgb, &b.scene, &b.exposures);
+    println!("X-Trans bracket: {:.3} %", error * 100.0);
+    assert!(
+        error < 0.03,
+        "X-Trans radiance error {:.2} %",
+        error * 100.0
+    );
+}
+
+/// A sensor that is not RGB (here CYGM) is refused with the camera's name and the reason.
+#[test]
+fn a_raw_that_is_not_rgb_is_refused_with_the_camera_and_reason() {
+    let sensor = RawSensor {
+        cfa: "CYGM",
+        ..RawSensor::typical(29)
+    };
+    let shot = &shots()[0];
+    let codes = vec![sensor.black; (W * H) as usize];
+    let bytes = synthetic::dng(&codes, W, H, &sensor, shot).unwrap();
+    let error = frame::decode(Path::new("cygm.dng"), &bytes, Limits::default())
+        .expect_err("CYGM is refused");
+    let message = error.to_string();
+    assert!(message.contains("cygm.dng"), "{message}");
+    assert!(message.contains("filmback Raw Body"), "{message}");
+    assert!(message.contains("not RGB"), "{message}");
+}

@@ -4,14 +4,15 @@
 //! along the direction of the smaller gradient, then red and blue from colour
 //! differences to it, so edges keep their sharpness and zipper artefacts stay small; it
 //! is what dcraw offers as its "-q 2" and what darktable called PPG for years.
-//! X-Trans sensors use Markesteijn's one-pass method (Frank Markesteijn, as in dcraw
-//! and darktable). Both work on floating point, so the merged radiance (values above the
+//! X-Trans sensors use rawler's bilinear interpolation over the 6×6 pattern: rawler 0.8's
+//! Markesteijn demosaicker overflows an index while building its lookup table (a panic
+//! where overflow checks are on), so it is not used. Both work on floating point, so the merged radiance (values above the
 //! longest frame's clipping point) is interpolated without being clipped first.
 
 use rawler::cfa::{CFA, PlaneColor};
 use rawler::imgop::sensor::Demosaic;
 use rawler::imgop::sensor::bayer::ppg::PPGDemosaic;
-use rawler::imgop::sensor::xtrans::markesteijn::XTransMarkesteijnDemosaic;
+use rawler::imgop::sensor::xtrans::bilinear::XTransBilinearDemosaic;
 use rawler::imgop::{Dim2, Point, Rect};
 use rawler::pixarray::PixF32;
 
@@ -21,7 +22,7 @@ use super::mosaic::MergedMosaic;
 /// Which interpolator [`demosaic`] uses for `cfa`.
 pub fn method(cfa: &Cfa) -> &'static str {
     if cfa.width == 6 {
-        "Markesteijn (X-Trans, 1 pass)"
+        "bilinear (X-Trans)"
     } else {
         "PPG (patterned pixel grouping)"
     }
@@ -36,7 +37,7 @@ pub fn demosaic(mosaic: MergedMosaic, cfa: &Cfa) -> Vec<f32> {
     let pixels = PixF32::new_with(mosaic.values, width, height);
     let roi = Rect::new(Point::new(0, 0), Dim2::new(width, height));
     let rgb = if cfa.width == 6 {
-        XTransMarkesteijnDemosaic::new_pass_1().demosaic(&pixels, &pattern, &colours, roi)
+        XTransBilinearDemosaic::new().demosaic(&pixels, &pattern, &colours, roi)
     } else {
         PPGDemosaic::new().demosaic(&pixels, &pattern, &colours, roi)
     };

@@ -15,7 +15,7 @@
 //! [`decode`] reads a file into a [`RawMosaic`] (the visible area of the mosaic, 16-bit
 //! codes, and a [`RawInfo`] with levels, CFA and colour); [`mosaic::merge`] merges a
 //! bracket of mosaics in CFA space with the noise-optimal weight of a linear sensor;
-//! [`demosaic`] interpolates the merged mosaic once (PPG for Bayer sensors, Markesteijn
+//! [`demosaic`] interpolates the merged mosaic once (PPG for Bayer sensors, bilinear
 //! for X-Trans); [`colour`] turns white-balanced camera RGB into linear Rec. 709.
 //!
 //! # Hostile input
