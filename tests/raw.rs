@@ -348,6 +348,10 @@ fn merge_cli_takes_a_raw_bracket() {
     let report: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
     assert_eq!(report["response"]["model"], "linear (raw)", "{report}");
     assert_eq!(report["response"]["cfa"], "RGGB", "{report}");
+    assert_eq!(
+        report["weighting"], "noise-optimal (linear sensor)",
+        "{report}"
+    );
     let image = exr::prelude::read()
         .no_deep_data()
         .largest_resolution_level()
