@@ -384,14 +384,9 @@ pub fn decode(path: &Path, bytes: &[u8], limits: Limits) -> Result<LoadedFrame, 
         // A raw under another name: rawler recognises it by content, or it is unknown.
         #[cfg(feature = "raw")]
         _ => {
-            return match decode_raw(path, bytes, limits) {
-                Err(FrameError::Raw(crate::raw::RawError::Decode { .. })) => {
-                    Err(FrameError::UnknownFormat {
-                        path: path.to_path_buf(),
-                    })
-                }
-                other => other,
-            };
+            return decode_raw(path, bytes, limits).map_err(|_| FrameError::UnknownFormat {
+                path: path.to_path_buf(),
+            });
         }
         #[cfg(not(feature = "raw"))]
         _ => {

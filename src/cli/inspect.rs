@@ -22,7 +22,7 @@ pub struct Args {
 fn report(loaded: &LoadedFrame) -> Value {
     let m = &loaded.metadata;
     let f = &loaded.frame;
-    json!({
+    let mut report = json!({
         "path": loaded.path.display().to_string(),
         "width": f.width(),
         "height": f.height(),
@@ -41,16 +41,19 @@ fn report(loaded: &LoadedFrame) -> Value {
         },
         "captured_at": m.captured_at.map(|t| t.to_rfc3339()),
         "warnings": m.warnings,
-        "raw": raw_report(loaded),
-    })
+    });
+    if let Some(raw) = raw_report(loaded) {
+        report["raw"] = raw;
+    }
+    report
 }
 
-/// A raw's levels, CFA and colour (`null` for other files). `bit_depth` above is then the
-/// container's 16 bits; `raw.bits` is the sensor's.
-fn raw_report(loaded: &LoadedFrame) -> Value {
+/// A raw's levels, CFA and colour, under the key `raw` (absent for other files).
+/// `bit_depth` is then the container's 16 bits; `raw.bits` is the sensor's.
+fn raw_report(loaded: &LoadedFrame) -> Option<Value> {
     #[cfg(feature = "raw")]
     if let Some(info) = loaded.raw.as_deref() {
-        return json!({
+        return Some(json!({
             "camera": info.camera(),
             "bits": info.bits,
             "black": info.black,
@@ -59,11 +62,11 @@ fn raw_report(loaded: &LoadedFrame) -> Value {
             "as_shot_neutral": info.neutral,
             "matrix_illuminant": info.matrix_illuminant,
             "response": "linear (raw)",
-        });
+        }));
     }
     #[cfg(not(feature = "raw"))]
     let _ = loaded;
-    Value::Null
+    None
 }
 
 /// Runs the command; exit status 1 if any file failed. Every file is reported, in order,
