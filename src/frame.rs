@@ -457,15 +457,7 @@ pub fn decode(path: &Path, bytes: &[u8], limits: Limits) -> Result<LoadedFrame, 
 /// whose EXIF is not in a TIFF structure, such as CR3 and RAF, have it only there).
 #[cfg(feature = "raw")]
 fn decode_raw(path: &Path, bytes: &[u8], limits: Limits) -> Result<LoadedFrame, FrameError> {
-    let mosaic = crate::raw::decode(path, bytes)?;
-    if u64::from(mosaic.width) * u64::from(mosaic.height) > limits.max_pixels {
-        return Err(FrameError::TooLarge {
-            path: path.to_path_buf(),
-            width: mosaic.width,
-            height: mosaic.height,
-            max_pixels: limits.max_pixels,
-        });
-    }
+    let mosaic = crate::raw::decode(path, bytes, limits.max_pixels)?;
     let info = mosaic.info;
     let metadata = raw_metadata(
         bytes,

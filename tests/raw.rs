@@ -315,6 +315,14 @@ fn damaged_raws_are_errors_naming_the_file() {
             .expect_err("a truncated DNG is refused");
         assert!(error.to_string().contains("cut.dng"), "{error}");
     }
+    let small = Limits {
+        max_pixels: u64::from(W * H) - 1,
+    };
+    let error = frame::decode(Path::new("big.dng"), &bytes, small).expect_err("over the limit");
+    assert!(
+        error.to_string().contains("refused before decoding"),
+        "{error}"
+    );
     let noise: Vec<u8> = (0..4096u32)
         .map(|i| (i.wrapping_mul(2_654_435_761) >> 13) as u8)
         .collect();

@@ -32,9 +32,14 @@ pub fn is_raw_extension(path: &Path) -> bool {
 /// sensors that are not RGB Bayer or X-Trans (monochrome, CYGM, Foveon), and raws already
 /// demosaicked (linear DNG, sRAW). The mosaic is not rotated: raw frames keep the
 /// sensor's orientation.
-pub fn decode(path: &Path, bytes: &[u8]) -> Result<RawMosaic, RawError> {
-    catch_unwind(AssertUnwindSafe(|| decode_unguarded(path, bytes)))
-        .unwrap_or_else(|_| Err(panicked(path)))
+///
+/// The sensor's size is read first, without decoding (rawler's "dummy" image): a file
+/// declaring more than `max_pixels` is refused before its pixels are allocated.
+pub fn decode(path: &Path, bytes: &[u8], max_pixels: u64) -> Result<RawMosaic, RawError> {
+    catch_unwind(AssertUnwindSafe(|| {
+        decode_unguarded(path, bytes, max_pixels)
+    }))
+    .unwrap_or_else(|_| Err(panicked(path)))
 }
 
 /// What a raw's metadata says about its capture, read without decoding the image.
@@ -107,11 +112,21 @@ fn failed(path: &Path, error: RawlerError) -> RawError {
     }
 }
 
-fn decode_unguarded(path: &Path, bytes: &[u8]) -> Result<RawMosaic, RawError> {
+fn decode_unguarded(path: &Path, bytes: &[u8], max_pixels: u64) -> Result<RawMosaic, RawError> {
     let failed = |error: RawlerError| failed(path, error);
     let source = RawSource::new_from_slice(bytes);
     let params = RawDecodeParams::default();
     let decoder = rawler::get_decoder(&source).map_err(failed)?;
+    let header = decoder.raw_image(&source, &params, true).map_err(failed)?;
+    if (header.width as u64).saturating_mul(header.height as u64) > max_pixels {
+        return Err(RawError::TooLarge {
+            path: path.to_path_buf(),
+            width: header.width,
+            height: header.height,
+            max_pixels,
+        });
+    }
+    drop(header);
     let image = decoder.raw_image(&source, &params, false).map_err(failed)?;
     let exif = decoder.raw_metadata(&source, &params).map(|m| m.exif).ok();
     let camera = format!("{} {}", image.clean_make, image.clean_model)

@@ -165,6 +165,20 @@ pub enum RawError {
         /// How.
         reason: String,
     },
+    /// The sensor declares more pixels than allowed; refused before decoding.
+    #[error(
+        "{path}: raw of {width}×{height} pixels exceeds the limit of {max_pixels} pixels; refused before decoding"
+    )]
+    TooLarge {
+        /// The file.
+        path: PathBuf,
+        /// Declared width.
+        width: usize,
+        /// Declared height.
+        height: usize,
+        /// The limit.
+        max_pixels: u64,
+    },
     /// The colour matrix cannot be inverted.
     #[error("{path}: the colour matrix is singular")]
     SingularMatrix {
