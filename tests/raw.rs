@@ -148,8 +148,15 @@ fn exact_info(sensor: &RawSensor) -> RawInfo {
 
 /// The same merge, demosaic and colour on the float signals with the exact response.
 fn reference(b: &Bracket) -> Vec<f32> {
+    reference_with(
+        b,
+        Noise::typical(Some(100.0), f64::from(b.sensor.white - b.sensor.black)),
+    )
+}
+
+/// [`reference`] with the weights of `noise`.
+fn reference_with(b: &Bracket, noise: Noise) -> Vec<f32> {
     let info = exact_info(&b.sensor);
-    let noise = Noise::typical(Some(100.0), f64::from(b.sensor.white - b.sensor.black));
     let linear: Vec<Linear<'_>> = b
         .signals
         .iter()
@@ -276,6 +283,67 @@ fn noiseless_bracket_shows_the_demosaicking_error() {
     let error = radiance_error(&develop(&load(&b.paths)).rgb, &b.scene, &b.exposures);
     println!("noiseless bracket: {:.3} %", error * 100.0);
     assert!(error < 0.005, "demosaicking error {:.2} %", error * 100.0);
+}
+
+/// The assumed noise (`Noise::typical`) is not the sensor's (30 000 e⁻, 3 DN): weights
+/// from a noise model 10× off either way change the error little, while dropping the shot
+/// noise term (weights `r²`, all trust on the longest frame) costs more.
+#[test]
+fn the_error_depends_weakly_on_the_assumed_noise() {
+    let b = bracket(31);
+    let typical = Noise::typical(Some(100.0), f64::from(b.sensor.white - b.sensor.black));
+    let error = |noise: Noise| radiance_error(&reference_with(&b, noise), &b.scene, &b.exposures);
+    let base = error(typical);
+    let mut worst: f64 = 0.0;
+    for (label, noise) in [
+        (
+            "shot ×10",
+            Noise {
+                shot: typical.shot * 10.0,
+                ..typical
+            },
+        ),
+        (
+            "shot ÷10",
+            Noise {
+                shot: typical.shot / 10.0,
+                ..typical
+            },
+        ),
+        (
+            "read ×10",
+            Noise {
+                read: typical.read * 10.0,
+                ..typical
+            },
+        ),
+        (
+            "read ÷10",
+            Noise {
+                read: typical.read / 10.0,
+                ..typical
+            },
+        ),
+    ] {
+        let e = error(noise);
+        println!(
+            "noise {label}: {:.3} % (typical {:.3} %)",
+            e * 100.0,
+            base * 100.0
+        );
+        worst = worst.max((e - base).abs());
+    }
+    let read_only = error(Noise {
+        shot: 0.0,
+        ..typical
+    });
+    println!("read noise only (w = r²): {:.3} %", read_only * 100.0);
+    assert!(
+        worst < 0.002,
+        "a noise model 10× off moves the error by {:.3} pp",
+        worst * 100.0
+    );
+    assert!(read_only > base, "read-only weights {read_only} vs {base}");
 }
 
 #[test]
