@@ -135,6 +135,10 @@ pub enum FrameError {
         /// The limit in pixels.
         max_pixels: u64,
     },
+    /// A camera raw that could not be decoded (unsupported camera, damaged file).
+    #[cfg(feature = "raw")]
+    #[error(transparent)]
+    Raw(#[from] crate::raw::RawError),
     /// The decoder failed (truncated or corrupt data).
     #[error("{path}: cannot decode {format}: {reason}")]
     Decode {
@@ -201,6 +205,11 @@ pub struct LoadedFrame {
     pub frame: Frame,
     /// EXIF metadata (with warnings for anything missing or absurd).
     pub metadata: Metadata,
+    /// For a camera raw: its levels, CFA and colour. The frame then holds the raw mosaic
+    /// itself, one 16-bit code per pixel (1 channel), which is not an image to merge
+    /// through a response: raw brackets go through [`crate::raw::develop`].
+    #[cfg(feature = "raw")]
+    pub raw: Option<Box<crate::raw::RawInfo>>,
 }
 
 impl Frame {
@@ -367,9 +376,19 @@ pub fn decode(path: &Path, bytes: &[u8], limits: Limits) -> Result<LoadedFrame, 
         });
     }
     let format = match image::guess_format(bytes) {
+        #[cfg(feature = "raw")]
+        _ if crate::raw::is_raw_extension(path) => return decode_raw(path, bytes, limits),
         Ok(f @ (image::ImageFormat::Jpeg | image::ImageFormat::Png | image::ImageFormat::Tiff)) => {
             f
         }
+        // A raw under another name: rawler recognises it by content, or it is unknown.
+        #[cfg(feature = "raw")]
+        _ => {
+            return decode_raw(path, bytes, limits).map_err(|_| FrameError::UnknownFormat {
+                path: path.to_path_buf(),
+            });
+        }
+        #[cfg(not(feature = "raw"))]
         _ => {
             return Err(FrameError::UnknownFormat {
                 path: path.to_path_buf(),
@@ -428,7 +447,136 @@ pub fn decode(path: &Path, bytes: &[u8], limits: Limits) -> Result<LoadedFrame, 
         path: path.to_path_buf(),
         frame,
         metadata,
+        #[cfg(feature = "raw")]
+        raw: None,
     })
+}
+
+/// Decodes a camera raw: the frame is its visible mosaic (1 channel, 16-bit codes, not
+/// rotated), the metadata its EXIF, completed from what the raw decoder read (formats
+/// whose EXIF is not in a TIFF structure, such as CR3 and RAF, have it only there).
+#[cfg(feature = "raw")]
+fn decode_raw(path: &Path, bytes: &[u8], limits: Limits) -> Result<LoadedFrame, FrameError> {
+    let mosaic = crate::raw::decode(path, bytes, limits.max_pixels)?;
+    let info = mosaic.info;
+    let metadata = raw_metadata(
+        bytes,
+        &crate::raw::RawExif {
+            make: info.make.clone(),
+            model: info.model.clone(),
+            exposure_time_s: info.exposure_time_s,
+            f_number: info.f_number,
+            iso: info.iso,
+            captured: info.captured.clone(),
+        },
+    );
+    let frame = Frame::new(
+        mosaic.width,
+        mosaic.height,
+        1,
+        Samples::Sixteen(mosaic.codes),
+    )?;
+    Ok(LoadedFrame {
+        path: path.to_path_buf(),
+        frame,
+        metadata,
+        raw: Some(Box::new(info)),
+    })
+}
+
+/// For a file named as a camera raw (see [`crate::raw::RAW_EXTENSIONS`]): its metadata and
+/// sensor size `(width, height)`, read without decoding the pixels, or why the raw cannot
+/// be taken (unsupported camera, damaged file). `None` for every other file, and always
+/// without the `raw` feature.
+pub type RawProbe = Result<(Metadata, (u32, u32)), FrameError>;
+
+/// See [`RawProbe`].
+pub fn probe_raw(path: &Path, bytes: &[u8]) -> Option<RawProbe> {
+    #[cfg(feature = "raw")]
+    if crate::raw::is_raw_extension(path) {
+        return Some(
+            crate::raw::probe(path, bytes)
+                .map(|(exif, size)| (raw_metadata(bytes, &exif), size))
+                .map_err(FrameError::from),
+        );
+    }
+    #[cfg(not(feature = "raw"))]
+    let _ = (path, bytes);
+    None
+}
+
+/// The EXIF of a raw in `bytes` (read as for any TIFF-structured file), completed from
+/// what the raw decoder read: formats whose EXIF is not in a TIFF structure (CR3, RAF)
+/// have it only there. The orientation is not applied to a mosaic: a warning says so.
+#[cfg(feature = "raw")]
+fn raw_metadata(bytes: &[u8], exif: &crate::raw::RawExif) -> Metadata {
+    let mut metadata = metadata::read(bytes);
+    let mut filled: Vec<&str> = Vec::new();
+    let exposure = &mut metadata.exposure;
+    if exposure.time_s.is_none() && exif.exposure_time_s.is_some() {
+        exposure.time_s = exif.exposure_time_s;
+        filled.push("ExposureTime");
+    }
+    if exposure.f_number.is_none() && exif.f_number.is_some() {
+        exposure.f_number = exif.f_number;
+        filled.push("FNumber");
+    }
+    if exposure.iso.is_none() && exif.iso.is_some() {
+        exposure.iso = exif.iso;
+        filled.extend(["PhotographicSensitivity", "ISO"]);
+    }
+    if metadata.captured_at.is_none()
+        && let Some(t) = exif.captured.as_deref().and_then(capture_time)
+    {
+        metadata.captured_at = Some(t);
+        filled.push("DateTimeOriginal");
+    }
+    if metadata.camera.make.is_none() && !exif.make.is_empty() {
+        metadata.camera.make = Some(exif.make.clone());
+        filled.push("Make");
+    }
+    if metadata.camera.model.is_none() && !exif.model.is_empty() {
+        metadata.camera.model = Some(exif.model.clone());
+        filled.push("Model");
+    }
+    metadata
+        .warnings
+        .retain(|w| !filled.iter().any(|tag| w.contains(tag)));
+    if metadata.orientation != 1 {
+        metadata.warnings.push(format!(
+            "EXIF orientation {} not applied: raw frames keep the sensor's orientation",
+            metadata.orientation
+        ));
+        metadata.orientation = 1;
+    }
+    metadata
+}
+
+/// `YYYY:MM:DD HH:MM:SS` (EXIF's date format) as a capture time without offset.
+#[cfg(feature = "raw")]
+fn capture_time(text: &str) -> Option<metadata::CaptureTime> {
+    let digits: Vec<u32> = text
+        .split([':', ' ', '-', 'T'])
+        .map(|p| p.trim().parse().ok())
+        .collect::<Option<Vec<u32>>>()?;
+    let [year, month, day, hour, minute, second] = digits[..] else {
+        return None;
+    };
+    ((1..=12).contains(&month)
+        && (1..=31).contains(&day)
+        && hour < 24
+        && minute < 60
+        && second < 61)
+        .then_some(metadata::CaptureTime {
+            year: u16::try_from(year).ok()?,
+            month: month as u8,
+            day: day as u8,
+            hour: hour as u8,
+            minute: minute as u8,
+            second: second as u8,
+            nanos: None,
+            offset_minutes: None,
+        })
 }
 
 /// Walks the JPEG marker structure (segment lengths, then entropy-coded scans) and

@@ -7,6 +7,7 @@
 //! |---|---|
 //! | publishing files (temporary name, fsync, rename) | [`atomic`] |
 //! | a capture's EXIF | [`metadata`] |
+//! | camera raw: decoding, CFA merge, demosaicking, colour (feature `raw`) | `raw` |
 //! | decoding a frame at its native depth | [`frame`] |
 //! | the relative radiance map | [`radiance`] |
 //! | histograms and the intensity mapping `τ` | [`histogram`] |
@@ -25,6 +26,8 @@
 
 pub mod atomic;
 pub mod metadata;
+#[cfg(feature = "raw")]
+pub mod raw;
 pub mod frame;
 pub mod radiance;
 pub mod histogram;

@@ -258,6 +258,92 @@ fn files_present_before_start_are_developed() {
     assert_eq!(journaled_brackets(&state), ["a-1", "b-1"]);
 }
 
+/// A three-frame AEB as DNGs (`<prefix>-1.dng` …) from a 14-bit RGGB sensor, the longest
+/// frame's mid-grey at 0.18 of full scale.
+#[cfg(feature = "raw")]
+fn raw_aeb(model: &str, second: u32, prefix: &str) -> Vec<(String, Vec<u8>)> {
+    let shots = demo::aeb(model, None, second);
+    let scene = synthetic::scene(u32::from(W), u32::from(H), u64::from(second));
+    let sensor = synthetic::RawSensor::typical(u64::from(second));
+    let longest = shots
+        .iter()
+        .map(|s| s.exposure.relative().unwrap())
+        .fold(0.0, f64::max);
+    shots
+        .iter()
+        .enumerate()
+        .map(|(i, shot)| {
+            let signal =
+                synthetic::raw_signal(&scene, shot.exposure.relative().unwrap() / longest, &sensor);
+            let codes = synthetic::raw_codes(&signal, &sensor);
+            let dng = synthetic::dng(&codes, u32::from(W), u32::from(H), &sensor, shot).unwrap();
+            (format!("{prefix}-{}.dng", i + 1), dng)
+        })
+        .collect()
+}
+
+/// A raw-only bracket dropped into ingest gives exactly one EXR ("linear (raw)") and the
+/// configured look.
+#[cfg(feature = "raw")]
+#[test]
+fn raw_only_bracket_gives_one_exr_and_the_looks() {
+    use exr::prelude::{ReadChannels, ReadLayers};
+    let mut rig = Rig::start(&[], Arc::new(DarkroomLab), |_| {});
+    put(&rig.ingest(), &raw_aeb("Raw Body", 10, "r"));
+    expect_outputs(&rig.out(), &bracket_outputs(&["r-1"]), T);
+    let image = exr::prelude::read()
+        .no_deep_data()
+        .largest_resolution_level()
+        .all_channels()
+        .first_valid_layer()
+        .all_attributes()
+        .from_file(rig.out().join("r-1.exr"))
+        .unwrap();
+    let response = image
+        .layer_data
+        .attributes
+        .other
+        .get(&exr::prelude::Text::from("filmbackResponse"))
+        .cloned();
+    assert_eq!(
+        response,
+        Some(exr::prelude::AttributeValue::Text(
+            exr::prelude::Text::from("linear (raw)")
+        ))
+    );
+    let state = rig.state();
+    let summary = rig.stop();
+    assert_eq!(summary.finished, 1);
+    assert!(rejected(&state).is_empty(), "{:?}", rejected(&state));
+}
+
+/// RAW+JPEG: each capture arrives as `r-k.dng` and `r-k.jpg`; the raws make the one
+/// bracket, the JPEGs are set aside as their companions, never a second bracket.
+#[cfg(feature = "raw")]
+#[test]
+fn raw_plus_jpeg_gives_one_bracket_from_the_raws() {
+    let mut rig = Rig::start(&[], Arc::new(DarkroomLab), |_| {});
+    let jpegs = aeb("Raw Body", 10, "r");
+    let raws = raw_aeb("Raw Body", 10, "r");
+    for (raw, jpeg) in raws.iter().zip(&jpegs) {
+        put(&rig.ingest(), std::slice::from_ref(raw));
+        put(&rig.ingest(), std::slice::from_ref(jpeg));
+    }
+    expect_outputs(&rig.out(), &bracket_outputs(&["r-1"]), T);
+    let state = rig.state();
+    let summary = rig.stop();
+    assert_eq!(summary.finished, 1);
+    assert_eq!(journaled_brackets(&state), ["r-1"]);
+    let rejected = rejected(&state);
+    assert_eq!(rejected.len(), 3, "{rejected:?}");
+    assert!(
+        rejected
+            .iter()
+            .all(|(name, why)| name.ends_with(".jpg") && why.contains("RAW+JPEG")),
+        "{rejected:?}"
+    );
+}
+
 #[test]
 fn slow_writer_is_taken_only_when_complete() {
     let mut rig = Rig::start(

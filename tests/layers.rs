@@ -5,9 +5,10 @@
 use std::path::{Path, PathBuf};
 
 /// The library's top-level modules, bottom first.
-const LAYERS: [&str; 15] = [
+const LAYERS: [&str; 16] = [
     "atomic",
     "metadata",
+    "raw",
     "frame",
     "radiance",
     "histogram",

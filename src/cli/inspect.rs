@@ -9,7 +9,7 @@ use serde_json::{Value, json};
 /// Arguments of `filmback inspect`.
 #[derive(Debug, clap::Args)]
 pub struct Args {
-    /// Image files (JPEG, PNG, TIFF).
+    /// Image files (JPEG, PNG, TIFF, camera raw).
     #[arg(required = true)]
     files: Vec<PathBuf>,
     /// Print a JSON array, one object per file, instead of a table.
@@ -22,7 +22,7 @@ pub struct Args {
 fn report(loaded: &LoadedFrame) -> Value {
     let m = &loaded.metadata;
     let f = &loaded.frame;
-    json!({
+    let mut report = json!({
         "path": loaded.path.display().to_string(),
         "width": f.width(),
         "height": f.height(),
@@ -41,7 +41,32 @@ fn report(loaded: &LoadedFrame) -> Value {
         },
         "captured_at": m.captured_at.map(|t| t.to_rfc3339()),
         "warnings": m.warnings,
-    })
+    });
+    if let Some(raw) = raw_report(loaded) {
+        report["raw"] = raw;
+    }
+    report
+}
+
+/// A raw's levels, CFA and colour, under the key `raw` (absent for other files).
+/// `bit_depth` is then the container's 16 bits; `raw.bits` is the sensor's.
+fn raw_report(loaded: &LoadedFrame) -> Option<Value> {
+    #[cfg(feature = "raw")]
+    if let Some(info) = loaded.raw.as_deref() {
+        return Some(json!({
+            "camera": info.camera(),
+            "bits": info.bits,
+            "black": info.black,
+            "white": info.white,
+            "cfa": info.cfa.name(),
+            "as_shot_neutral": info.neutral,
+            "matrix_illuminant": info.matrix_illuminant,
+            "response": "linear (raw)",
+        }));
+    }
+    #[cfg(not(feature = "raw"))]
+    let _ = loaded;
+    None
 }
 
 /// Runs the command; exit status 1 if any file failed. Every file is reported, in order,
@@ -112,6 +137,18 @@ fn print_frame(loaded: &LoadedFrame) {
             .map_or_else(|| "?".to_string(), |v| format!("{v:.2}")),
         or_unknown(m.captured_at.map(|t| t.to_rfc3339())),
     );
+    #[cfg(feature = "raw")]
+    if let Some(info) = loaded.raw.as_deref() {
+        println!(
+            "  raw: {}  {}-bit  black {:?}  white {}  CFA {}  neutral {:.3?}  response linear (raw)",
+            info.camera(),
+            info.bits,
+            info.black,
+            info.white,
+            info.cfa.name(),
+            info.neutral,
+        );
+    }
     for w in &m.warnings {
         println!("  warning: {w}");
     }

@@ -27,7 +27,7 @@ use super::looks::LookArgs;
 /// Arguments of `filmback merge`.
 #[derive(Debug, clap::Args)]
 pub struct Args {
-    /// The bracket's frames (JPEG, PNG, TIFF), in any order; at least two.
+    /// The bracket's frames (JPEG, PNG, TIFF or camera raw), in any order; at least two.
     #[arg(required = true, num_args = 2..)]
     frames: Vec<PathBuf>,
     /// Output folder (created if missing); the file is DIR/<stem of the first frame>.exr,
@@ -199,7 +199,11 @@ pub fn run(args: Args) -> anyhow::Result<ExitCode> {
                 "exposure": exposures[i],
             })).collect::<Vec<_>>(),
             "ratio": developed.ratio,
-            "weighting": options.weighting,
+            "weighting": if developed.response.source == Source::Raw {
+                json!("noise-optimal (linear sensor)")
+            } else {
+                json!(options.weighting)
+            },
             "merge_mode": if developed.fused {
                 "fused into encode (8-bit pair: merge ms is the table build, the lookups are inside encode ms)"
             } else {

@@ -19,6 +19,7 @@ use crate::daemon::Footprint;
 use crate::daemon::bracket::{CameraId, Capture, Input};
 use crate::daemon::config::{Watch, WatchMode};
 use crate::daemon::journal;
+use crate::frame;
 use crate::metadata;
 
 /// What the watcher reports to the daemon loop.
@@ -305,6 +306,28 @@ pub(crate) fn probe(path: &Path) -> Probe {
     if bytes.is_empty() {
         return Probe::Rejected(before, "file is empty (0 bytes)".to_string());
     }
+    match frame::probe_raw(path, &bytes) {
+        Some(Ok((meta, (width, height)))) => {
+            // The mosaic is decoded as one 16-bit sample per pixel.
+            let footprint = Footprint {
+                width,
+                height,
+                bytes_per_pixel: 2,
+            };
+            return capture(before, meta, footprint, &bytes);
+        }
+        Some(Err(e)) => return Probe::Rejected(before, e.to_string()),
+        None => {}
+    }
+    if let Some(raw) = raw_companion(path) {
+        return Probe::Rejected(
+            before,
+            format!(
+                "the JPEG/PNG/TIFF of a RAW+JPEG capture: its raw {} is the frame merged",
+                raw.display()
+            ),
+        );
+    }
     let header = image::ImageReader::new(Cursor::new(&bytes))
         .with_guessed_format()
         .map_err(|e| e.to_string())
@@ -327,11 +350,34 @@ pub(crate) fn probe(path: &Path) -> Probe {
             }
             _ => Err("not a JPEG, PNG or TIFF image (unrecognised content)".to_string()),
         });
-    let footprint = match header {
-        Ok(d) => d,
-        Err(reason) => return Probe::Rejected(before, reason),
-    };
-    let meta = metadata::read(&bytes);
+    match header {
+        Ok(footprint) => capture(before, metadata::read(&bytes), footprint, &bytes),
+        Err(reason) => Probe::Rejected(before, reason),
+    }
+}
+
+/// The raw beside `path` with the same stem (`x.jpg` and `x.CR2` are one capture taken as
+/// RAW+JPEG), when filmback reads raws and there is one.
+fn raw_companion(path: &Path) -> Option<PathBuf> {
+    #[cfg(feature = "raw")]
+    {
+        let stem = path.file_stem()?;
+        std::fs::read_dir(path.parent()?)
+            .ok()?
+            .filter_map(Result::ok)
+            .map(|e| e.path())
+            .find(|p| p != path && p.file_stem() == Some(stem) && crate::raw::is_raw_extension(p))
+    }
+    #[cfg(not(feature = "raw"))]
+    {
+        let _ = path;
+        None
+    }
+}
+
+/// A frame probed: its camera, exposure and capture time (the file's time when the EXIF
+/// has none), its decoded size and the digest of its `bytes`.
+fn capture(before: Input, meta: metadata::Metadata, footprint: Footprint, bytes: &[u8]) -> Probe {
     let time_s = meta
         .captured_at
         .map_or(before.modified_ns as f64 * 1e-9, |t| t.local_seconds());
@@ -347,7 +393,7 @@ pub(crate) fn probe(path: &Path) -> Probe {
             input: before,
         },
         footprint,
-        journal::content_digest(&bytes),
+        journal::content_digest(bytes),
     )
 }
 

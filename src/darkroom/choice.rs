@@ -39,6 +39,8 @@ pub enum Source {
     File,
     /// The sRGB inverse (IEC 61966-2-1), for lack of anything better.
     Standard,
+    /// A camera raw: linear after the black level, clipped at the white level.
+    Raw,
 }
 
 impl std::fmt::Display for Source {
@@ -48,6 +50,7 @@ impl std::fmt::Display for Source {
             Source::Cached => "cached",
             Source::File => "file",
             Source::Standard => "standard (sRGB)",
+            Source::Raw => "linear (raw)",
         })
     }
 }

@@ -27,6 +27,8 @@ use crate::rendering::{self, Format, Look, Outputs, RenderingError, SourceExif};
 use crate::response::{CalibrationError, InverseResponse, RatioSource};
 
 mod choice;
+#[cfg(feature = "raw")]
+mod raw;
 
 use choice::use_given;
 
@@ -57,6 +59,10 @@ pub enum DarkroomError {
     /// A rendering could not be made or published.
     #[error(transparent)]
     Rendering(#[from] RenderingError),
+    /// A raw bracket could not be merged (mixed with other frames, unlike frames).
+    #[cfg(feature = "raw")]
+    #[error(transparent)]
+    Raw(#[from] crate::raw::RawError),
     /// A file could not be published.
     #[error(transparent)]
     Publish(#[from] PublishError),
@@ -139,6 +145,9 @@ impl Prints<'_> {
     }
 }
 
+/// How the EXR header names a raw bracket's weighting (see `raw::mosaic`).
+const RAW_WEIGHTING: &str = "noise-optimal (linear sensor: shot + read noise)";
+
 /// What developing a bracket did.
 #[derive(Debug)]
 pub struct Developed {
@@ -198,18 +207,32 @@ pub fn develop(
     if bracket.len() < 2 {
         return Err(MergeError::TooFewFrames(bracket.len()).into());
     }
-    let chosen = choose_response(&bracket, ratio_source, policy, &mut stages)?;
-    let t = Instant::now();
-    let fused = if options.confidence || !prints.looks.is_empty() || prints.exr.is_none() {
-        None
-    } else {
-        PairMerge::new(&bracket, &chosen.response, options.weighting)?
+    #[cfg(feature = "raw")]
+    let raw_merged = raw::merge(frames, exposures, &mut stages)?;
+    #[cfg(not(feature = "raw"))]
+    let raw_merged: Option<(ChosenResponse, merge::Merged)> = None;
+    let mut weighting = format!("{:?}", options.weighting);
+    let (chosen, merged) = match raw_merged {
+        Some((chosen, m)) => {
+            weighting = RAW_WEIGHTING.to_string();
+            (chosen, Radiance::Buffered(m))
+        }
+        None => {
+            let chosen = choose_response(&bracket, ratio_source, policy, &mut stages)?;
+            let t = Instant::now();
+            let fused = if options.confidence || !prints.looks.is_empty() || prints.exr.is_none() {
+                None
+            } else {
+                PairMerge::new(&bracket, &chosen.response, options.weighting)?
+            };
+            let merged = match fused {
+                Some(pair) => Radiance::Fused(pair),
+                None => Radiance::Buffered(merge::merge(&bracket, &chosen.response, options)?),
+            };
+            stages.push(("merge", t.elapsed()));
+            (chosen, merged)
+        }
     };
-    let merged = match fused {
-        Some(pair) => Radiance::Fused(pair),
-        None => Radiance::Buffered(merge::merge(&bracket, &chosen.response, options)?),
-    };
-    stages.push(("merge", t.elapsed()));
     let (order, ratio, clipped) = match &merged {
         Radiance::Fused(p) => (p.order.clone(), p.ratio(), (p.clipped_high, p.clipped_low)),
         Radiance::Buffered(m) => (m.order.clone(), m.ratio(), (m.clipped_high, m.clipped_low)),
@@ -226,7 +249,7 @@ pub fn develop(
             })
             .collect(),
         response: chosen.summary.clone(),
-        weighting: format!("{:?}", options.weighting),
+        weighting,
         clipped,
     };
     let mut warnings: Vec<String> = frames
@@ -367,13 +390,23 @@ pub fn develop_single(
     prints: &Prints<'_>,
 ) -> Result<Developed, DarkroomError> {
     let mut stages = Stages::new();
-    let t = Instant::now();
-    let map = linearise(frame, &response.response)?;
-    stages.push(("linearise", t.elapsed()));
+    #[cfg(feature = "raw")]
+    let raw_map = raw::merge(std::slice::from_ref(frame), &[1.0], &mut stages)?;
+    #[cfg(not(feature = "raw"))]
+    let raw_map: Option<(ChosenResponse, merge::Merged)> = None;
+    let (map, response) = match raw_map {
+        Some((chosen, m)) => (m.radiance, chosen),
+        None => {
+            let t = Instant::now();
+            let map = linearise(frame, &response.response)?;
+            stages.push(("linearise", t.elapsed()));
+            (map, use_given(response, Vec::new(), None))
+        }
+    };
     let outputs = print_looks(&map, prints, &mut stages)?;
     Ok(Developed {
         outputs,
-        response: use_given(response, Vec::new(), None),
+        response,
         order: vec![0],
         ratio: 1.0,
         clipped: (0, 0),

@@ -14,6 +14,8 @@ fn loaded(name: &str, frame: Frame) -> LoadedFrame {
             orientation: 1,
             warnings: Vec::new(),
         },
+        #[cfg(feature = "raw")]
+        raw: None,
     }
 }
 

@@ -23,6 +23,8 @@ pub mod measure;
 mod curve;
 mod encode;
 mod kinds;
+#[cfg(feature = "raw")]
+mod raw;
 mod scene;
 mod sensor;
 
@@ -34,6 +36,8 @@ use crate::metadata::{Camera, CaptureTime, Exposure};
 pub use curve::{ResponseCurve, dorf_curves};
 pub use encode::{Encoding, encode, write};
 pub use kinds::{SceneKind, flat_patches, studio};
+#[cfg(feature = "raw")]
+pub use raw::{RawSensor, dng, raw_codes, raw_signal};
 pub use scene::{MID_GREY, scene};
 pub use sensor::{Sensor, bracket, expose};
 
@@ -97,6 +101,10 @@ pub enum SyntheticError {
         /// What is wrong.
         reason: String,
     },
+    /// A DNG could not be written.
+    #[cfg(feature = "raw")]
+    #[error("cannot write DNG: {0}")]
+    Dng(String),
     /// A response curve breaks its invariants.
     #[error("invalid response curve: {0}")]
     Curve(String),

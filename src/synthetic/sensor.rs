@@ -130,7 +130,7 @@ pub fn bracket(
 }
 
 /// Seed of one row's noise stream.
-fn row_seed(seed: u64, exposure: f64, row: usize) -> u64 {
+pub(super) fn row_seed(seed: u64, exposure: f64, row: usize) -> u64 {
     let mut mixer = SplitMix64(seed ^ exposure.to_bits().rotate_left(17));
     mixer.next() ^ (row as u64).wrapping_mul(0xD1B5_4A32_D192_ED03)
 }
@@ -149,13 +149,13 @@ impl SplitMix64 {
 }
 
 /// Standard normal draws by the Box–Muller transform, each transform giving two.
-struct Normals {
+pub(super) struct Normals {
     source: SplitMix64,
     spare: Option<f64>,
 }
 
 impl Normals {
-    fn new(seed: u64) -> Normals {
+    pub(super) fn new(seed: u64) -> Normals {
         Normals {
             source: SplitMix64(seed),
             spare: None,
@@ -165,7 +165,7 @@ impl Normals {
     /// One N(0, 1) draw. From one 64-bit draw, `u₁ ∈ (0, 1]` and `u₂ ∈ [0, 1)` of 24 bits
     /// each give `r = √(−2 ln u₁)` and the pair `(r cos 2πu₂, r sin 2πu₂)`, computed in
     /// `f32` (ample for noise; tails reach 5.7σ).
-    fn next(&mut self) -> f64 {
+    pub(super) fn next(&mut self) -> f64 {
         if let Some(z) = self.spare.take() {
             return z;
         }

@@ -1,0 +1,164 @@
+//! A three-frame raw bracket to a half/PIZ OpenEXR, against decoding the three raws alone.
+//!
+//! `cargo bench --bench raw_speed [-- --mp 24 --runs 3]`
+//!
+//! Three DNGs (14-bit RGGB, lossless JPEG, 3 stops apart) of the synthetic scene at
+//! `--mp` megapixels (3:2) are written to a temporary folder; then, best of `--runs`:
+//! 1. **decode**: `frame::load` of the three files in parallel (what `filmback merge`
+//!    does first);
+//! 2. **bracket → EXR**: decode, then `darkroom::develop` (CFA merge, PPG demosaic,
+//!    colour, half/PIZ encode, publish), the whole of `filmback merge` minus process
+//!    start.
+//!
+//! Printed: both times, their ratio, the develop stages, and the process's peak resident
+//! memory (which includes making the scene and the DNGs).
+
+use std::time::{Duration, Instant};
+
+use filmback::atomic::Overwrite;
+use filmback::darkroom::{self, GivenResponse, Prints, ResponsePolicy};
+use filmback::frame::{self, Limits, LoadedFrame};
+use filmback::hdr_output::ExrOptions;
+use filmback::merge::MergeOptions;
+use filmback::metadata::CaptureTime;
+use filmback::rendering::{Format, SourceExif};
+use filmback::response::RatioSource;
+use filmback::synthetic::{self, RawSensor, Shot, demo};
+use rayon::prelude::*;
+
+fn arg(name: &str, default: f64) -> f64 {
+    let args: Vec<String> = std::env::args().collect();
+    args.iter()
+        .position(|a| a == name)
+        .and_then(|i| args.get(i + 1))
+        .and_then(|v| v.parse().ok())
+        .unwrap_or(default)
+}
+
+fn peak_rss_mib() -> f64 {
+    std::fs::read_to_string("/proc/self/status")
+        .unwrap_or_default()
+        .lines()
+        .find_map(|l| l.strip_prefix("VmHWM:"))
+        .and_then(|v| v.trim().trim_end_matches("kB").trim().parse::<f64>().ok())
+        .map_or(f64::NAN, |kb| kb / 1024.0)
+}
+
+fn main() {
+    let mp = arg("--mp", 24.0);
+    let runs = arg("--runs", 3.0).max(1.0) as usize;
+    let height = ((mp * 1e6 / 1.5).sqrt() as u32) & !1;
+    let width = ((f64::from(height) * 1.5) as u32) & !1;
+    let dir = tempfile::tempdir().expect("temporary folder");
+    let first = CaptureTime {
+        year: 2026,
+        month: 11,
+        day: 24,
+        hour: 12,
+        minute: 0,
+        second: 0,
+        nanos: None,
+        offset_minutes: None,
+    };
+    let shots = Shot::series(
+        &demo::camera("Raw Bench", None),
+        first,
+        &[1.0 / 500.0, 1.0 / 60.0, 1.0 / 8.0],
+        8.0,
+        100.0,
+        0.5,
+    );
+    let t = Instant::now();
+    let scene = synthetic::scene(width, height, 1);
+    let sensor = RawSensor::typical(1);
+    let longest = 1.0 / 8.0;
+    let paths: Vec<_> = shots
+        .iter()
+        .enumerate()
+        .map(|(k, shot)| {
+            let signal =
+                synthetic::raw_signal(&scene, shot.exposure.time_s.unwrap() / longest, &sensor);
+            let codes = synthetic::raw_codes(&signal, &sensor);
+            let dng = synthetic::dng(&codes, width, height, &sensor, shot).expect("DNG");
+            let path = dir.path().join(format!("bench-{}.dng", k + 1));
+            std::fs::write(&path, dng).expect("write DNG");
+            path
+        })
+        .collect();
+    drop(scene);
+    let size: u64 = paths
+        .iter()
+        .map(|p| std::fs::metadata(p).map_or(0, |m| m.len()))
+        .sum();
+    println!(
+        "{width}×{height} ({:.1} MP), 3 DNGs of {:.1} MB in all, made in {:.1} s",
+        f64::from(width) * f64::from(height) / 1e6,
+        size as f64 / 1e6,
+        t.elapsed().as_secs_f64()
+    );
+
+    let load = || -> Vec<LoadedFrame> {
+        paths
+            .par_iter()
+            .map(|p| frame::load(p, Limits::default()).expect("decodes"))
+            .collect()
+    };
+    let mut decode = Duration::MAX;
+    for _ in 0..runs {
+        let t = Instant::now();
+        let frames = load();
+        decode = decode.min(t.elapsed());
+        drop(frames);
+    }
+
+    let out = dir.path().join("out");
+    std::fs::create_dir_all(&out).expect("out folder");
+    let exif = SourceExif::default();
+    let prints = Prints {
+        dir: &out,
+        stem: "bench",
+        exr: Some(ExrOptions::default()),
+        radiance_hdr: false,
+        looks: &[],
+        format: Format::Jpeg { quality: 90 },
+        exif: &exif,
+        overwrite: Overwrite::Replace,
+    };
+    let mut full = Duration::MAX;
+    let mut stages = Vec::new();
+    for _ in 0..runs {
+        let t = Instant::now();
+        let frames = load();
+        let exposures: Vec<f64> = frames
+            .iter()
+            .map(|f| f.metadata.exposure.relative().expect("EXIF exposure"))
+            .collect();
+        let developed = darkroom::develop(
+            &frames,
+            &exposures,
+            RatioSource::Exif,
+            ResponsePolicy::Use(GivenResponse::standard(1)),
+            MergeOptions::default(),
+            &prints,
+        )
+        .expect("develops");
+        let elapsed = t.elapsed();
+        if elapsed < full {
+            full = elapsed;
+            stages = developed.stages;
+        }
+    }
+    println!(
+        "decode 3 raws:        {:7.0} ms",
+        decode.as_secs_f64() * 1e3
+    );
+    println!("bracket → half/PIZ:   {:7.0} ms", full.as_secs_f64() * 1e3);
+    println!(
+        "ratio:                {:7.2} (bracket → EXR over decoding alone)",
+        full.as_secs_f64() / decode.as_secs_f64()
+    );
+    for (stage, d) in &stages {
+        println!("  {stage:<8} {:7.0} ms", d.as_secs_f64() * 1e3);
+    }
+    println!("peak resident memory: {:7.0} MiB", peak_rss_mib());
+}

@@ -1,0 +1,81 @@
+//! Raw brackets in the darkroom: their response is known (linear after the black level,
+//! clipped at the white level), so no response is fitted or chosen; the merge is
+//! [`crate::raw::develop`].
+
+use super::{ChosenResponse, DarkroomError, Source, Stages};
+use crate::frame::{LoadedFrame, Samples};
+use crate::merge::Merged;
+use crate::radiance::RadianceMap;
+use crate::raw::{self, RawError, RawExposure};
+use crate::response::InverseResponse;
+
+/// What the report and the EXR header say a raw bracket's response is.
+pub const LINEAR_RAW: &str = "linear (raw)";
+
+/// Merges `frames` when they are raws (`None` when none is): the response reported and
+/// the merged radiance in linear Rec. 709 (stages `merge`, `demosaic`, `colour`). A bracket that mixes raw and
+/// other frames is refused.
+pub(super) fn merge(
+    frames: &[LoadedFrame],
+    exposures: &[f64],
+    stages: &mut Stages,
+) -> Result<Option<(ChosenResponse, Merged)>, DarkroomError> {
+    let Some(first_raw) = frames.iter().find(|f| f.raw.is_some()) else {
+        return Ok(None);
+    };
+    let mut inputs = Vec::with_capacity(frames.len());
+    for (f, &exposure) in frames.iter().zip(exposures) {
+        let (Some(info), Samples::Sixteen(codes)) = (f.raw.as_deref(), f.frame.samples()) else {
+            return Err(RawError::Mismatch {
+                first: first_raw.path.clone(),
+                other: f.path.clone(),
+                reason: "a bracket is either all raw or all JPEG/PNG/TIFF".to_string(),
+            }
+            .into());
+        };
+        inputs.push(RawExposure {
+            path: &f.path,
+            codes,
+            width: f.frame.width(),
+            height: f.frame.height(),
+            info,
+            exposure,
+        });
+    }
+    let developed = raw::develop(&inputs)?;
+    stages.extend(developed.timings.iter().copied());
+    let exposures: Vec<f64> = developed.order.iter().map(|&i| exposures[i]).collect();
+    let radiance = RadianceMap::new(developed.width, developed.height, 3, developed.rgb)
+        .expect("three values per pixel of the mosaic");
+    let info = inputs[0].info;
+    let chosen = ChosenResponse {
+        response: InverseResponse::from_samples(vec![vec![0.0, 1.0]; 3])
+            .expect("a straight line is a valid response"),
+        source: Source::Raw,
+        summary: LINEAR_RAW.to_string(),
+        report: serde_json::json!({
+            "source": Source::Raw,
+            "model": LINEAR_RAW,
+            "camera": info.camera(),
+            "black": info.black,
+            "white": info.white,
+            "cfa": info.cfa.name(),
+            "demosaic": developed.demosaic,
+            "colour": format!("camera → XYZ ({} matrix) → Rec. 709, as-shot neutral {:?}", info.matrix_illuminant, info.neutral),
+        }),
+        fit: None,
+        notes: Vec::new(),
+        contradicts_cache: false,
+    };
+    Ok(Some((
+        chosen,
+        Merged {
+            radiance,
+            confidence: None,
+            order: developed.order,
+            exposures,
+            clipped_high: developed.clipped,
+            clipped_low: 0,
+        },
+    )))
+}
