@@ -226,15 +226,15 @@ impl jpeg_encoder::ImageBuffer for Bands {
 /// bands of 64 rows (in parallel within the band, colour conversion included) while the
 /// single-threaded encoder consumes them, so developing hides behind encoding on a
 /// 2-core machine. Decodes to the 8-bit [`film::Emulsion::render`] within JPEG error.
-/// `map` is the light inside the film ([`film::Emulsion::expose`]).
+/// `exposure` is the light inside the film ([`film::Emulsion::expose`]).
 pub fn encode_film_jpeg(
-    map: &RadianceMap,
+    exposure: &film::Exposure<'_>,
     emulsion: &film::Emulsion,
     quality: u8,
     exif: &SourceExif,
     out: &mut impl std::io::Write,
 ) -> Result<(), String> {
-    let (w, h) = (map.width(), map.height());
+    let (w, h) = (exposure.width(), exposure.height());
     let width = u16::try_from(w).map_err(|_| "JPEG is limited to 65535 pixels wide")?;
     let height = u16::try_from(h).map_err(|_| "JPEG is limited to 65535 pixels high")?;
     let mut encoder = jpeg_encoder::Encoder::new(out, quality);
@@ -253,7 +253,7 @@ pub fn encode_film_jpeg(
             for first in (0..h as usize).step_by(BAND_ROWS) {
                 let rows = BAND_ROWS.min(h as usize - first);
                 let mut rgb = vec![0u8; rows * w * 3];
-                emulsion.render_rows_8bit(map, first, &mut rgb);
+                emulsion.render_rows_8bit(exposure, first, &mut rgb);
                 let mut planar = vec![0u8; rows * w * 3];
                 planar
                     .par_chunks_mut(w * 3)
@@ -299,8 +299,8 @@ pub fn encode_look(
     };
     if let (Look::Film { .. }, Format::Jpeg { quality }) = (look, format) {
         let emulsion = look.emulsion(map)?;
-        let exposed = emulsion.expose(map);
-        return encode_film_jpeg(&exposed, &emulsion, quality, exif, out).map_err(encode_error);
+        let exposure = emulsion.expose(map);
+        return encode_film_jpeg(&exposure, &emulsion, quality, exif, out).map_err(encode_error);
     }
     let image = look.render(map, format.depth())?;
     encode(&image, format, exif, out).map_err(encode_error)
