@@ -200,6 +200,10 @@ fn main() {
         ms(start.elapsed())
     );
     let catalogue = Catalogue::builtin().expect("built-in stocks");
+    if std::env::args().any(|a| a == "tonemaps") {
+        tone_maps(&map);
+        return;
+    }
     film_options(&map, &catalogue);
     if std::env::args().any(|a| a == "options") {
         return;
@@ -359,6 +363,28 @@ fn tone_maps(map: &RadianceMap) {
             ms(t_all),
             bytes.len() as f64 / 1e6
         );
+        // The table against the curve itself: the display value of every pixel's
+        // luminance, sRGB-encoded to 8 bits (the chromaticity step is the same for both).
+        if let filmback::tonemap::Operator::Histogram(h) = op {
+            let lum: Vec<f32> = map
+                .pixels()
+                .chunks(3)
+                .map(|p| filmback::display::luminance(p[0], p[1], p[2]))
+                .collect();
+            let curve = h.fit(&lum);
+            let table = filmback::tonemap::CurveTable::new(&curve);
+            let code = |v: f32| filmback::display::to_8bit(filmback::display::srgb_encode_u16(v));
+            let (direct, tabled): (Vec<u8>, Vec<u8>) = lum
+                .iter()
+                .filter(|l| l.is_finite() && **l > 0.0)
+                .step_by(7)
+                .map(|&l| (code(curve.display_value(l)), code(table.get(l))))
+                .unzip();
+            println!(
+                "    table against the curve: PSNR {:.1} dB (8-bit grey)",
+                psnr_u8(&direct, &tabled)
+            );
+        }
     }
 }
 
