@@ -166,6 +166,11 @@ fn main() {
             .collect::<Vec<_>>()
             .join(", ")
     );
+    let sum: f64 = stages.iter().map(|(_, d)| d.as_secs_f64()).sum();
+    println!(
+        "  stages add up to {sum:.2} s: the EXR and the renderings run side by side, wall/sum {:.2}",
+        direct_median.as_secs_f64() / sum
+    );
 
     // 2. and 3. through the daemon.
     let (control, rx) = tokio::sync::mpsc::channel(4);

@@ -7,7 +7,7 @@
 
 use rayon::prelude::*;
 
-use crate::display::{DisplayImage, luminance, srgb_encode_u16};
+use crate::display::{DisplayImage, luminance, srgb_encode_u16, to_8bit};
 use crate::radiance::RadianceMap;
 
 /// A tone-mapping operator and its parameters.
@@ -56,18 +56,147 @@ impl Operator {
 
     /// Renders `map` for display.
     pub fn apply(&self, map: &RadianceMap) -> DisplayImage {
+        let tone = self.prepare(map);
+        let mut samples = vec![0u16; map.width() as usize * map.height() as usize * 3];
+        tone.develop(map, 0, &mut samples, |v| v);
+        DisplayImage::new(map.width(), map.height(), samples)
+    }
+
+    /// Measures `map` (percentiles, or the histogram's curve) for rendering it a band of
+    /// rows at a time ([`Tone::render_rows_8bit`]).
+    pub fn prepare(&self, map: &RadianceMap) -> Tone {
         match *self {
             Operator::Linear { low, high } => {
-                let lum = luminances(map);
-                let (lo, hi) = percentiles(&lum, low, high);
-                let span = (hi - lo).max(f32::MIN_POSITIVE);
-                map_luminance(map, |l| ((l - lo) / span).clamp(0.0, 1.0))
+                let (lo, hi) = percentiles(&luminances(map), low, high);
+                Tone::Linear {
+                    lo,
+                    span: (hi - lo).max(f32::MIN_POSITIVE),
+                }
             }
-            Operator::Histogram(h) => {
-                let curve = h.fit(&luminances(map));
-                map_luminance(map, |l| curve.display_value(l))
-            }
+            Operator::Histogram(h) => Tone::Curve(CurveTable::new(&h.fit(&luminances(map)))),
         }
+    }
+}
+
+/// A tone map measured on one map: the display value `v` of a luminance.
+#[derive(Debug, Clone)]
+pub enum Tone {
+    /// `v = (L − lo)/span`, clamped to 0..=1.
+    Linear {
+        /// Luminance shown black.
+        lo: f32,
+        /// Luminance range from black to white.
+        span: f32,
+    },
+    /// The histogram adjustment's curve, tabulated.
+    Curve(CurveTable),
+}
+
+impl Tone {
+    /// The display value of luminance `l > 0`.
+    #[inline]
+    pub fn display_value(&self, l: f32) -> f32 {
+        match self {
+            Tone::Linear { lo, span } => ((l - lo) / span).clamp(0.0, 1.0),
+            Tone::Curve(t) => t.get(l),
+        }
+    }
+
+    /// Rows `first..first + out.len()/(3·width)` of `map` into 8-bit RGB `out` (bands of
+    /// rows in parallel): the unit the streaming JPEG writer pulls.
+    pub fn render_rows_8bit(&self, map: &RadianceMap, first: usize, out: &mut [u8]) {
+        self.develop(map, first, out, to_8bit);
+    }
+
+    fn develop<T: Send + Copy>(
+        &self,
+        map: &RadianceMap,
+        first: usize,
+        out: &mut [T],
+        convert: impl Fn(u16) -> T + Sync,
+    ) {
+        let ch = map.channels();
+        let width = map.width() as usize;
+        let rows = out.len() / (3 * width);
+        let input = &map.pixels()[first * width * ch..(first + rows) * width * ch];
+        out.par_chunks_mut(3 * 4096)
+            .zip(input.par_chunks(ch * 4096))
+            .for_each(|(out, pixels)| {
+                for (o, p) in out.chunks_exact_mut(3).zip(pixels.chunks_exact(ch)) {
+                    let e = if ch == 3 {
+                        [p[0], p[1], p[2]]
+                    } else {
+                        [p[0]; 3]
+                    };
+                    let v = keep_chromaticity(e, |l| self.display_value(l));
+                    o[0] = convert(v[0]);
+                    o[1] = convert(v[1]);
+                    o[2] = convert(v[2]);
+                }
+            });
+    }
+}
+
+/// Mantissa bits of the luminance kept in [`CurveTable`]'s index: buckets of 2⁻¹¹
+/// relative width.
+const CURVE_MANTISSA_BITS: u32 = 11;
+const CURVE_SHIFT: u32 = 23 - CURVE_MANTISSA_BITS;
+
+/// The histogram adjustment's display value tabulated over the curve's world range,
+/// indexed by the top bits of the `f32` luminance (its exponent and 11 mantissa bits),
+/// each entry the curve at its bucket's centre. The curve's log–log slope is at most 1
+/// with the ceiling, so an entry is within `log10(1 + 2⁻¹¹)/2 = 1.06·10⁻⁴` in
+/// `log10 L_d` (0.024 %) of the exact value; without the ceiling the slope, and the
+/// error, can be larger (the PSNR against the direct curve is in `docs/film.md`).
+/// Luminances outside the range take the end values, as the curve does.
+#[derive(Debug, Clone)]
+pub struct CurveTable {
+    low: f32,
+    high: f32,
+    base: u32,
+    entries: Vec<f32>,
+}
+
+impl CurveTable {
+    /// Tabulates `curve`.
+    pub fn new(curve: &ToneCurve) -> CurveTable {
+        let (a, b) = curve.world_range();
+        let low = (10f64.powf(a) as f32).max(f32::MIN_POSITIVE);
+        let high = (10f64.powf(b) as f32).clamp(low, f32::MAX);
+        let base = low.to_bits() >> CURVE_SHIFT;
+        let top = high.to_bits() >> CURVE_SHIFT;
+        let entries = (base..=top)
+            .map(|i| {
+                let centre = f32::from_bits((i << CURVE_SHIFT) | (1 << (CURVE_SHIFT - 1)));
+                let l = if i == base {
+                    low
+                } else if i == top {
+                    high
+                } else {
+                    centre
+                };
+                curve.display_value(l)
+            })
+            .collect();
+        CurveTable {
+            low,
+            high,
+            base,
+            entries,
+        }
+    }
+
+    /// The display value of luminance `l`.
+    #[inline]
+    pub fn get(&self, l: f32) -> f32 {
+        let l = if l >= self.high {
+            self.high
+        } else if l > self.low {
+            l
+        } else {
+            self.low
+        };
+        self.entries[((l.to_bits() >> CURVE_SHIFT) - self.base) as usize]
     }
 }
 
@@ -85,58 +214,82 @@ fn luminances(map: &RadianceMap) -> Vec<f32> {
         .collect()
 }
 
-/// The `low` and `high` percentiles (%) of the finite luminances (0 if there are none).
+/// The `low` and `high` percentiles (%) of the finite luminances (0 if there are none):
+/// the values of rank `round(p/100·(n − 1))` among the `n` finite ones, found exactly by
+/// a histogram of their top 16 bits (order-preserving for floats of either sign) and a
+/// selection inside the bucket that holds the rank.
 fn percentiles(lum: &[f32], low: f64, high: f64) -> (f32, f32) {
-    let mut finite: Vec<f32> = lum.iter().copied().filter(|l| l.is_finite()).collect();
-    if finite.is_empty() {
+    // Order-preserving key of a float: flip all bits of negatives, the sign of the rest.
+    let key = |v: f32| {
+        let b = v.to_bits();
+        if b >> 31 == 1 { !b } else { b | 1 << 31 }
+    };
+    let counts = lum
+        .par_chunks(1 << 16)
+        .fold(
+            || vec![0u32; 1 << 16],
+            |mut counts, chunk| {
+                for &l in chunk.iter().filter(|l| l.is_finite()) {
+                    counts[(key(l) >> 16) as usize] += 1;
+                }
+                counts
+            },
+        )
+        .reduce(
+            || vec![0u32; 1 << 16],
+            |mut a, b| {
+                a.iter_mut().zip(b).for_each(|(a, b)| *a += b);
+                a
+            },
+        );
+    let n: u64 = counts.iter().map(|&c| u64::from(c)).sum();
+    if n == 0 {
         return (0.0, 0.0);
     }
-    let mut pick = |p: f64| {
-        let i = ((p / 100.0) * (finite.len() - 1) as f64).round() as usize;
-        let i = i.min(finite.len() - 1);
-        *finite.select_nth_unstable_by(i, f32::total_cmp).1
+    let pick = |p: f64| {
+        let rank = (((p / 100.0) * (n - 1) as f64).round() as u64).min(n - 1);
+        let mut below = 0u64;
+        let bucket = counts
+            .iter()
+            .position(|&c| {
+                below += u64::from(c);
+                below > rank
+            })
+            .unwrap_or(counts.len() - 1);
+        let before = below - u64::from(counts[bucket]);
+        let mut inside: Vec<f32> = lum
+            .par_iter()
+            .copied()
+            .filter(|l| l.is_finite() && (key(*l) >> 16) as usize == bucket)
+            .collect();
+        let i = (rank - before) as usize;
+        *inside.select_nth_unstable_by(i, f32::total_cmp).1
     };
-    let lo = pick(low);
-    let hi = pick(high);
-    (lo, hi)
+    (pick(low), pick(high))
 }
 
-/// Applies `v = display(L)` to every pixel, keeping chromaticity, and encodes sRGB.
-fn map_luminance(map: &RadianceMap, display: impl Fn(f32) -> f32 + Sync) -> DisplayImage {
-    let ch = map.channels();
-    let mut samples = vec![0u16; map.width() as usize * map.height() as usize * 3];
-    samples
-        .par_chunks_mut(3 * 4096)
-        .zip(map.pixels().par_chunks(ch * 4096))
-        .for_each(|(out, pixels)| {
-            for (o, p) in out.chunks_exact_mut(3).zip(pixels.chunks_exact(ch)) {
-                let e = if ch == 3 {
-                    [p[0], p[1], p[2]]
-                } else {
-                    [p[0]; 3]
-                };
-                let e = e.map(|v| if v.is_nan() { 0.0 } else { v.max(0.0) });
-                let l = luminance(e[0], e[1], e[2]);
-                let rgb = if l == f32::INFINITY || e.iter().any(|v| v.is_infinite()) {
-                    [1.0; 3]
-                } else if l > 0.0 {
-                    let v = display(l);
-                    let rgb = e.map(|c| v * (c / l));
-                    let peak = rgb[0].max(rgb[1]).max(rgb[2]);
-                    if peak > 1.0 {
-                        rgb.map(|c| c / peak)
-                    } else {
-                        rgb
-                    }
-                } else {
-                    [0.0; 3]
-                };
-                for (o, v) in o.iter_mut().zip(rgb) {
-                    *o = srgb_encode_u16(v);
-                }
-            }
-        });
-    DisplayImage::new(map.width(), map.height(), samples)
+/// `v·E_c/L` for display value `v = display(L)`, scaled down together if one channel
+/// would pass white, sRGB-encoded: NaN and negative radiance count as 0, `L ≤ 0` is
+/// black, an infinite channel white.
+#[inline]
+fn keep_chromaticity(e: [f32; 3], display: impl Fn(f32) -> f32) -> [u16; 3] {
+    let e = e.map(|v| if v.is_nan() { 0.0 } else { v.max(0.0) });
+    let l = luminance(e[0], e[1], e[2]);
+    let rgb = if l == f32::INFINITY || e.iter().any(|v| v.is_infinite()) {
+        [1.0; 3]
+    } else if l > 0.0 {
+        let v = display(l);
+        let rgb = e.map(|c| v * (c / l));
+        let peak = rgb[0].max(rgb[1]).max(rgb[2]);
+        if peak > 1.0 {
+            rgb.map(|c| c / peak)
+        } else {
+            rgb
+        }
+    } else {
+        [0.0; 3]
+    };
+    rgb.map(srgb_encode_u16)
 }
 
 /// Histogram adjustment parameters (Ward Larson, Rushmeier & Piatko 1997, §4–5).

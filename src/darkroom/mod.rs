@@ -10,7 +10,9 @@
 //! Two 8-bit frames written only as EXR are merged while the file is encoded
 //! ([`PairMerge`]): no radiance buffer exists. With renderings (or a confidence layer, or
 //! more frames) the map is built once (`width × height × channels × 4` bytes) beside the
-//! decoded frames the caller holds, and the EXR and every rendering read that one map.
+//! decoded frames the caller holds, and the EXR and every rendering read that one map;
+//! the renderings are made on a second thread while the EXR is encoded.
+//! [`job_memory_bytes`] bounds the peak.
 
 use std::io::Cursor;
 use std::path::{Path, PathBuf};
@@ -266,10 +268,71 @@ pub fn develop(
         Radiance::Fused(pair) => (pair, None),
         Radiance::Buffered(m) => (&m.radiance, m.confidence.as_deref()),
     };
+    let fused = matches!(merged, Radiance::Fused(_));
+    let map = match &merged {
+        Radiance::Buffered(m) => Some(&m.radiance),
+        Radiance::Fused(_) => None,
+    };
+    // Outputs are written concurrently below; a name already taken that may not be
+    // replaced stops the bracket before any file is written, as it did in sequence.
+    if prints.overwrite == Overwrite::Refuse
+        && let Some(path) = prints.paths().into_iter().find(|p| p.exists())
+    {
+        return Err(PublishError::Exists { path }.into());
+    }
+    // The renderings run on a thread of their own beside the EXR: the PIZ encoder and
+    // each JPEG encoder are partly single-threaded, so together they keep both cores
+    // busy. Their stage times overlap.
+    let (radiance, looks) = std::thread::scope(|scope| {
+        let looks = map.map(|map| {
+            scope.spawn(move || {
+                let mut stages = Stages::new();
+                print_looks(map, prints, &mut stages).map(|written| (written, stages))
+            })
+        });
+        let radiance = write_radiance_files(source, confidence, &provenance, prints);
+        let looks = looks.map(|handle| {
+            handle
+                .join()
+                .unwrap_or_else(|panic| std::panic::resume_unwind(panic))
+        });
+        (radiance, looks)
+    });
+    let (mut outputs, exr_scale, exr_warnings, radiance_stages) = radiance?;
+    warnings.extend(exr_warnings);
+    stages.extend(radiance_stages);
+    if let Some(looks) = looks {
+        let (written, look_stages) = looks?;
+        outputs.extend(written);
+        stages.extend(look_stages);
+    }
+    Ok(Developed {
+        outputs,
+        response: chosen,
+        order,
+        ratio,
+        clipped,
+        exr_scale,
+        fused,
+        warnings,
+        stages,
+    })
+}
+
+/// The EXR and Radiance HDR files of `prints`: paths written, the EXR's scale, its
+/// warnings and the stages (`encode`, `write`, `hdr`).
+fn write_radiance_files(
+    source: &dyn RadianceSource,
+    confidence: Option<&[f32]>,
+    provenance: &Provenance,
+    prints: &Prints<'_>,
+) -> Result<(Vec<PathBuf>, f32, Vec<String>, Stages), DarkroomError> {
+    let mut stages = Stages::new();
     let mut outputs = Vec::new();
     let mut exr_scale = 1.0;
+    let mut warnings = Vec::new();
     if let Some(exr) = prints.exr {
-        let written = write_radiance(source, confidence, &provenance, exr, prints, &mut stages)?;
+        let written = write_radiance(source, confidence, provenance, exr, prints, &mut stages)?;
         exr_scale = written.scale;
         warnings.extend(written.warnings);
         outputs.push(prints.exr_path());
@@ -283,21 +346,7 @@ pub fn develop(
         outputs.push(path);
         stages.push(("hdr", t.elapsed()));
     }
-    let fused = matches!(merged, Radiance::Fused(_));
-    if let Radiance::Buffered(m) = merged {
-        outputs.extend(print_looks(&m.radiance, prints, &mut stages)?);
-    }
-    Ok(Developed {
-        outputs,
-        response: chosen,
-        order,
-        ratio,
-        clipped,
-        exr_scale,
-        fused,
-        warnings,
-        stages,
-    })
+    Ok((outputs, exr_scale, warnings, stages))
 }
 
 /// Encodes the EXR in memory (stage `encode`), then publishes it (stage `write`), so the
@@ -344,6 +393,39 @@ fn print_looks(
     )?;
     stages.push(("render", t.elapsed()));
     Ok(written)
+}
+
+/// An upper bound on the memory one bracket's development holds at its peak, in bytes,
+/// for `frames` decoded frames of `width × height × channels` samples of
+/// `bytes_per_sample` bytes (1 for 8-bit, 2 for 16-bit) and `looks` renderings. With
+/// `P = width·height` and `S = P·channels`:
+///
+/// `frames·S·bytes_per_sample` (the decoded frames, held as codes; the merge makes no
+/// per-frame float buffer) `+ 4·S` (the radiance map, `f32`) `+ 2·S` (the EXR encoded in
+/// memory before it is published, at most its uncompressed half-float size) `+ 8·P` if
+/// there are looks (the largest working set of one look: a tone map's luminances and
+/// percentile bucket, or the optics' half-resolution pyramid of three layers; looks
+/// render one after another, beside the EXR, and stream to their encoder)
+/// `+ 18·64·width` (the JPEG bands in flight).
+///
+/// So each frame adds only its own decoded size: a 24 MP 8-bit RGB pair with two looks
+/// is bounded by 775 MB, a 7-frame 45 MP (8256 × 5504) bracket by 2.15 GB.
+pub fn job_memory_bytes(
+    width: u32,
+    height: u32,
+    frames: usize,
+    channels: usize,
+    bytes_per_sample: usize,
+    looks: usize,
+) -> u64 {
+    let pixels = u64::from(width) * u64::from(height);
+    let samples = pixels * channels as u64;
+    let decoded = frames as u64 * samples * bytes_per_sample as u64;
+    let map = 4 * samples;
+    let exr = 2 * samples;
+    let look = if looks > 0 { 8 * pixels } else { 0 };
+    let bands = 18 * 64 * u64::from(width);
+    decoded + map + exr + look + bands
 }
 
 /// One frame's radiance estimate, `E = g(B)` per sample: the frame's own range, no

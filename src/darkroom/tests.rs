@@ -165,3 +165,20 @@ fn a_good_fit_that_contradicts_the_cached_curve_is_flagged() {
     assert_eq!(same.source, Source::Fitted);
     assert!(!same.contradicts_cache, "{:?}", same.notes);
 }
+
+#[test]
+fn job_memory_grows_by_each_frames_own_decoded_size() {
+    let pair = job_memory_bytes(6000, 4000, 2, 3, 1, 2);
+    let five = job_memory_bytes(6000, 4000, 5, 3, 1, 2);
+    assert_eq!(five - pair, 3 * 6000 * 4000 * 3, "three more 8-bit frames");
+    let sixteen = job_memory_bytes(6000, 4000, 2, 3, 2, 2);
+    assert_eq!(
+        sixteen - pair,
+        2 * 6000 * 4000 * 3,
+        "16-bit frames hold twice the bytes"
+    );
+    let no_looks = job_memory_bytes(6000, 4000, 2, 3, 1, 0);
+    assert_eq!(pair - no_looks, 8 * 6000 * 4000);
+    // The figure the documentation states for a 24 MP pair with two looks.
+    assert_eq!(pair / 1_000_000, 774);
+}

@@ -1,7 +1,6 @@
 //! A stock set up for one exposure: the scene key, the per-layer exposure tables and the
 //! per-pixel emulsion of radiance into display values.
 
-use std::borrow::Cow;
 use std::str::FromStr;
 
 use rayon::prelude::*;
@@ -346,34 +345,35 @@ impl Emulsion {
     }
 
     /// The light inside the film: `map` through the MTF and halation if the look asks for
-    /// them ([`super::optics`]), else `map` itself. Radiance that is NaN or negative
+    /// them ([`super::optics`]), else `map` itself, delivered a band of rows at a time
+    /// (the optics' wide terms are computed here). Radiance that is NaN or negative
     /// counts as no light, `+∞` as 10³⁰.
-    pub fn expose<'a>(&self, map: &'a RadianceMap) -> Cow<'a, RadianceMap> {
+    pub fn expose<'a>(&self, map: &'a RadianceMap) -> Exposure<'a> {
         if !self.has_optics() {
-            return Cow::Borrowed(map);
+            return Exposure { map, filter: None };
         }
         let (w, h) = (map.width() as usize, map.height() as usize);
-        let ch = map.channels();
-        let mut pixels: Vec<f32> = Vec::with_capacity(w * h * 3);
-        for p in map.pixels().chunks_exact(ch) {
-            for c in 0..3 {
-                let v = p[if ch == 3 { c } else { 0 }];
-                pixels.push(if v > 0.0 { v.min(1e30) } else { 0.0 });
-            }
+        let terms: Vec<Vec<(f64, f64)>> = (0..3)
+            .map(|c| {
+                let mut terms = vec![(0.0, 1.0)];
+                if let Some((strength, sigma)) = self.halation {
+                    // Red takes the halo at full strength, green at a quarter, blue none.
+                    let s = f64::from([strength, strength / 4.0, 0.0][c]);
+                    if s > 0.0 {
+                        terms = optics::halation_terms(s, sigma);
+                    }
+                }
+                if let Some((fits, pitch_mm)) = &self.kernels {
+                    terms = optics::compose(&terms, &fits[c].terms_px(*pitch_mm));
+                }
+                terms
+            })
+            .collect();
+        let filter = optics::Filter::new(map.pixels(), map.channels(), w, h, &terms);
+        Exposure {
+            map,
+            filter: Some(filter),
         }
-        if let Some((strength, sigma)) = self.halation {
-            optics::add_halo(&mut pixels, w, h, 3, 0, strength, sigma);
-            optics::add_halo(&mut pixels, w, h, 3, 1, strength / 4.0, sigma);
-        }
-        if let Some((fits, pitch_mm)) = &self.kernels {
-            for (c, fit) in fits.iter().enumerate() {
-                optics::apply_mtf(&mut pixels, w, h, 3, c, fit, *pitch_mm);
-            }
-        }
-        Cow::Owned(
-            RadianceMap::new(map.width(), map.height(), 3, pixels)
-                .unwrap_or_else(|_| unreachable!("3 samples per pixel were pushed")),
-        )
     }
 
     /// Develops one pixel of linear radiance into sRGB-encoded 16-bit values, without
@@ -448,62 +448,106 @@ fn keep_chromaticity(e: [f32; 3], l: f32, t: f32) -> [u16; 3] {
     rgb.map(|v| srgb_encode_u16(if v.is_finite() { v * norm } else { 1.0 }))
 }
 
+/// The light inside the film ([`Emulsion::expose`]): the radiance map, through the
+/// look's optics if it has any, a band of rows at a time.
+pub struct Exposure<'a> {
+    map: &'a RadianceMap,
+    filter: Option<optics::Filter<'a>>,
+}
+
+impl Exposure<'_> {
+    /// Width in pixels.
+    pub fn width(&self) -> u32 {
+        self.map.width()
+    }
+
+    /// Height in pixels.
+    pub fn height(&self) -> u32 {
+        self.map.height()
+    }
+
+    /// Calls `f` with rows `first .. first + count` (interleaved) and their channel count.
+    fn with_rows<R>(&self, first: usize, count: usize, f: impl FnOnce(&[f32], usize) -> R) -> R {
+        let width = self.map.width() as usize;
+        match &self.filter {
+            None => {
+                let ch = self.map.channels();
+                f(
+                    &self.map.pixels()[first * width * ch..(first + count) * width * ch],
+                    ch,
+                )
+            }
+            Some(filter) => {
+                let mut rows = vec![0f32; count * width * 3];
+                filter.rows(first, &mut rows);
+                f(&rows, 3)
+            }
+        }
+    }
+}
+
+/// Rows developed per task (and filtered per band of the optics).
+const DEVELOP_ROWS: usize = optics::BAND;
+
 impl Emulsion {
-    /// Develops a whole map at `depth` bits per sample (rows in parallel), the optics
-    /// included.
+    /// Develops a whole map at `depth` bits per sample (bands of rows in parallel), the
+    /// optics included.
     pub fn render(&self, map: &RadianceMap, depth: Depth) -> DisplayImage {
-        let map = self.expose(map);
-        let map = map.as_ref();
-        let ch = map.channels();
+        let exposure = self.expose(map);
         let width = map.width() as usize;
         let height = map.height() as usize;
         match depth {
             Depth::Sixteen => {
-                let rows = map.pixels().par_chunks(width * ch);
                 let mut samples = vec![0u16; width * height * 3];
-                samples
-                    .par_chunks_mut(width * 3)
-                    .zip(rows)
-                    .enumerate()
-                    .for_each(|(y, (out, row))| {
-                        for (x, (o, p)) in out
-                            .chunks_exact_mut(3)
-                            .zip(row.chunks_exact(ch))
-                            .enumerate()
-                        {
-                            o.copy_from_slice(&self.pixel_at(colour(p, ch), x, y));
-                        }
-                    });
+                self.develop(&exposure, 0, &mut samples, |v| v);
                 DisplayImage::new(map.width(), map.height(), samples)
             }
             Depth::Eight => {
                 let mut samples = vec![0u8; width * height * 3];
-                self.render_rows_8bit(map, 0, &mut samples);
+                self.render_rows_8bit(&exposure, 0, &mut samples);
                 DisplayImage::new_8bit(map.width(), map.height(), samples)
             }
         }
     }
 
-    /// Develops rows `first..first + out.len()/(3·width)` of `map` into 8-bit RGB `out`
-    /// (rows in parallel): the unit the streaming JPEG writer pulls. `map` is the light
-    /// inside the film: pass it through [`Emulsion::expose`] first.
-    pub fn render_rows_8bit(&self, map: &RadianceMap, first: usize, out: &mut [u8]) {
-        let ch = map.channels();
-        let width = map.width() as usize;
-        let rows = out.len() / (width * 3);
-        let input = &map.pixels()[first * width * ch..(first + rows) * width * ch];
-        out.par_chunks_mut(width * 3)
-            .zip(input.par_chunks(width * ch))
+    /// Develops rows `first..first + out.len()/(3·width)` of the exposure into 8-bit RGB
+    /// `out` (bands of rows in parallel): the unit the streaming JPEG writer pulls.
+    pub fn render_rows_8bit(&self, exposure: &Exposure<'_>, first: usize, out: &mut [u8]) {
+        self.develop(exposure, first, out, to_8bit);
+    }
+
+    /// Develops rows from `first` into RGB `out`, each 16-bit value through `convert`.
+    fn develop<T: Send + Copy>(
+        &self,
+        exposure: &Exposure<'_>,
+        first: usize,
+        out: &mut [T],
+        convert: impl Fn(u16) -> T + Sync,
+    ) {
+        let width = exposure.width() as usize;
+        out.par_chunks_mut(width * 3 * DEVELOP_ROWS)
             .enumerate()
-            .for_each(|(i, (out, row))| {
-                for (x, (o, p)) in out
-                    .chunks_exact_mut(3)
-                    .zip(row.chunks_exact(ch))
-                    .enumerate()
-                {
-                    let v = self.pixel_at(colour(p, ch), x, first + i);
-                    o.copy_from_slice(&[to_8bit(v[0]), to_8bit(v[1]), to_8bit(v[2])]);
-                }
+            .for_each(|(band, out)| {
+                let y0 = first + band * DEVELOP_ROWS;
+                let count = out.len() / (width * 3);
+                exposure.with_rows(y0, count, |rows, ch| {
+                    for (i, (out, row)) in out
+                        .chunks_exact_mut(width * 3)
+                        .zip(rows.chunks_exact(width * ch))
+                        .enumerate()
+                    {
+                        for (x, (o, p)) in out
+                            .chunks_exact_mut(3)
+                            .zip(row.chunks_exact(ch))
+                            .enumerate()
+                        {
+                            let v = self.pixel_at(colour(p, ch), x, y0 + i);
+                            o[0] = convert(v[0]);
+                            o[1] = convert(v[1]);
+                            o[2] = convert(v[2]);
+                        }
+                    }
+                })
             });
     }
 }

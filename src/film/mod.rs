@@ -40,7 +40,7 @@ use std::str::FromStr;
 use serde::Deserialize;
 
 pub use emulsion::{
-    ColourMode, Emulsion, ExposureTable, Key, TABLE_MAX_ERROR_D, render, scene_key,
+    ColourMode, Emulsion, Exposure, ExposureTable, Key, TABLE_MAX_ERROR_D, render, scene_key,
 };
 pub use print::{FilterPack, Paper, PrintSetup};
 pub use stock::{Catalogue, Curve, DensityReference, Granularity, Mtf, Speed, Stock};

@@ -226,15 +226,35 @@ impl jpeg_encoder::ImageBuffer for Bands {
 /// bands of 64 rows (in parallel within the band, colour conversion included) while the
 /// single-threaded encoder consumes them, so developing hides behind encoding on a
 /// 2-core machine. Decodes to the 8-bit [`film::Emulsion::render`] within JPEG error.
-/// `map` is the light inside the film ([`film::Emulsion::expose`]).
+/// `exposure` is the light inside the film ([`film::Emulsion::expose`]).
 pub fn encode_film_jpeg(
-    map: &RadianceMap,
+    exposure: &film::Exposure<'_>,
     emulsion: &film::Emulsion,
     quality: u8,
     exif: &SourceExif,
     out: &mut impl std::io::Write,
 ) -> Result<(), String> {
-    let (w, h) = (map.width(), map.height());
+    let (w, h) = (exposure.width(), exposure.height());
+    stream_jpeg(
+        w,
+        h,
+        |first, rgb| emulsion.render_rows_8bit(exposure, first, rgb),
+        quality,
+        exif,
+        out,
+    )
+}
+
+/// Encodes a JPEG of `w × h` whose 8-bit RGB rows `develop(first, rows)` fills, a band
+/// of 64 rows at a time on a thread of its own while the encoder consumes the bands.
+fn stream_jpeg(
+    w: u32,
+    h: u32,
+    develop: impl Fn(usize, &mut [u8]) + Sync,
+    quality: u8,
+    exif: &SourceExif,
+    out: &mut impl std::io::Write,
+) -> Result<(), String> {
     let width = u16::try_from(w).map_err(|_| "JPEG is limited to 65535 pixels wide")?;
     let height = u16::try_from(h).map_err(|_| "JPEG is limited to 65535 pixels high")?;
     let mut encoder = jpeg_encoder::Encoder::new(out, quality);
@@ -248,12 +268,13 @@ pub fn encode_film_jpeg(
         .map_err(|e| e.to_string())?;
     let (sender, receiver) = std::sync::mpsc::sync_channel::<Vec<u8>>(4);
     let w = w as usize;
+    let develop = &develop;
     std::thread::scope(|scope| {
         scope.spawn(move || {
             for first in (0..h as usize).step_by(BAND_ROWS) {
                 let rows = BAND_ROWS.min(h as usize - first);
                 let mut rgb = vec![0u8; rows * w * 3];
-                emulsion.render_rows_8bit(map, first, &mut rgb);
+                develop(first, &mut rgb);
                 let mut planar = vec![0u8; rows * w * 3];
                 planar
                     .par_chunks_mut(w * 3)
@@ -283,8 +304,8 @@ pub fn encode_film_jpeg(
     })
 }
 
-/// Renders `look` and encodes it in `format`; film looks to JPEG take the streaming path
-/// ([`encode_film_jpeg`]).
+/// Renders `look` and encodes it in `format`; to JPEG, film looks and tone maps are
+/// developed band by band while the encoder runs ([`encode_film_jpeg`]).
 pub fn encode_look(
     map: &RadianceMap,
     look: &Look,
@@ -297,10 +318,20 @@ pub fn encode_look(
         format: format!("{format:?}"),
         reason,
     };
-    if let (Look::Film { .. }, Format::Jpeg { quality }) = (look, format) {
-        let emulsion = look.emulsion(map)?;
-        let exposed = emulsion.expose(map);
-        return encode_film_jpeg(&exposed, &emulsion, quality, exif, out).map_err(encode_error);
+    match (look, format) {
+        (Look::Film { .. }, Format::Jpeg { quality }) => {
+            let emulsion = look.emulsion(map)?;
+            let exposure = emulsion.expose(map);
+            return encode_film_jpeg(&exposure, &emulsion, quality, exif, out)
+                .map_err(encode_error);
+        }
+        (Look::Tonemap(op), Format::Jpeg { quality }) => {
+            let tone = op.prepare(map);
+            let develop = |first: usize, rgb: &mut [u8]| tone.render_rows_8bit(map, first, rgb);
+            return stream_jpeg(map.width(), map.height(), develop, quality, exif, out)
+                .map_err(encode_error);
+        }
+        _ => {}
     }
     let image = look.render(map, format.depth())?;
     encode(&image, format, exif, out).map_err(encode_error)

@@ -100,7 +100,14 @@ fn streaming_jpeg_decodes_to_the_developed_image() {
     .unwrap();
     let reference = emulsion.render(&map, Depth::Eight);
     let mut streamed = Vec::new();
-    encode_film_jpeg(&map, &emulsion, 95, &exif(), &mut streamed).unwrap();
+    encode_film_jpeg(
+        &emulsion.expose(&map),
+        &emulsion,
+        95,
+        &exif(),
+        &mut streamed,
+    )
+    .unwrap();
     let mut whole = Vec::new();
     encode(
         &reference,
