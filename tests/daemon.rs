@@ -1002,11 +1002,12 @@ fn the_memory_budget_rejects_what_cannot_fit_and_runs_the_rest_in_turn() {
             notes: Vec::new(),
         })
     };
-    // Each bracket: 1000 × 700 px × (2 × 3 frames × 3 B + 48 B) = 46.2 MB; two do not
-    // fit in 64 MB. The grey PNG: 2000 × 1000 × (2 × 1 + 48) = 100 MB, never fits.
+    // Each bracket (`daemon::job_bytes`): 1400 × 1000 px × (3 frames × 3 B + 3 B + 26 B)
+    // + 18 × 64 × 1400 B of JPEG bands = 54.8 MB; two do not fit in 64 MB. The grey PNG:
+    // 2500 × 1000 × (1 + 1 + 26) + 18 × 64 × 2500 = 72.9 MB, never fits.
     let shots = |model: &str, second: u32| {
         let shots = demo::aeb(model, None, second);
-        demo::jpegs(1000, 700, &shots, u64::from(second))
+        demo::jpegs(1400, 1000, &shots, u64::from(second))
             .unwrap()
             .into_iter()
             .enumerate()
@@ -1017,7 +1018,7 @@ fn the_memory_budget_rejects_what_cannot_fit_and_runs_the_rest_in_turn() {
     let mut rig = Rig::start(&[("daemon", "memory_mb = 64")], Arc::new(lab), |root| {
         put(&root.join("ingest"), &one);
         put(&root.join("ingest"), &two);
-        image::GrayImage::new(2000, 1000)
+        image::GrayImage::new(2500, 1000)
             .save(root.join("ingest/huge.png"))
             .unwrap();
     });
@@ -1037,7 +1038,7 @@ fn the_memory_budget_rejects_what_cannot_fit_and_runs_the_rest_in_turn() {
     assert_eq!(r.len(), 1, "{r:?}");
     assert_eq!(r[0].0, "huge.png");
     assert!(
-        r[0].1.contains("100 MB") && r[0].1.contains("memory_mb = 64"),
+        r[0].1.contains("73 MB") && r[0].1.contains("memory_mb = 64"),
         "{r:?}"
     );
 }

@@ -138,28 +138,26 @@ pub struct Footprint {
     pub bytes_per_pixel: u32,
 }
 
-/// Bytes per pixel of a job beside its decoded frames: the radiance map and its weight
-/// sums (f32 RGB each, 12 + 12), one rendering at a time in f32 RGB and its 8-bit image
-/// (12 + 3), and the EXR's half-float copy (6): 45, rounded up to 48.
-pub const WORKING_BYTES_PER_PIXEL: u64 = 48;
-
 /// The memory a job needs, in bytes, for frames `f_i` of `w_i × h_i` pixels and `b_i`
-/// bytes per decoded pixel:
+/// bytes per decoded pixel: each frame's decoded size, once more the largest (a decoder's
+/// buffer beside the converted frame while it decodes), and the darkroom's working set
+/// for an RGB map of the largest frame with looks ([`crate::darkroom::working_memory_bytes`]):
 ///
-/// `Σ_i w_i·h_i·2·b_i + max_i(w_i·h_i)·48`
+/// `Σ_i w_i·h_i·b_i + max_i(w_i·h_i·b_i) + (4·3 + 2·3 + 8)·P + 18·64·w`, `P = max_i w_i·h_i`
 ///
-/// Each frame is counted twice (the decoder's buffer and the converted frame coexist
-/// briefly, and all frames stay decoded through the merge); the 48 bytes per pixel are
-/// [`WORKING_BYTES_PER_PIXEL`]. A three-frame bracket of 45 MP 8-bit JPEGs:
-/// `45e6·(2·3·3 + 48) ≈ 2.97e9` bytes.
+/// It does not depend on the configured looks (one or more are assumed), so a reload
+/// cannot change what a running job was counted as. A three-frame bracket of 45 MP 8-bit
+/// JPEGs: `45e6·(3·3 + 3 + 26) ≈ 1.7e9` bytes.
 pub fn job_bytes(frames: &[Footprint]) -> u64 {
     let pixels = |f: &Footprint| u64::from(f.width) * u64::from(f.height);
-    let decoded: u64 = frames
-        .iter()
-        .map(|f| pixels(f) * 2 * u64::from(f.bytes_per_pixel))
-        .sum();
-    let largest = frames.iter().map(pixels).max().unwrap_or(0);
-    decoded + largest * WORKING_BYTES_PER_PIXEL
+    let decoded = |f: &Footprint| pixels(f) * u64::from(f.bytes_per_pixel);
+    let Some(largest) = frames.iter().max_by_key(|f| pixels(f)) else {
+        return 0;
+    };
+    let transient = frames.iter().map(decoded).max().unwrap_or(0);
+    frames.iter().map(decoded).sum::<u64>()
+        + transient
+        + crate::darkroom::working_memory_bytes(largest.width, largest.height, 3, 1)
 }
 
 /// A file that could not be read (permission denied, I/O error), waiting to be retried.

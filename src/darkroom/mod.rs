@@ -418,14 +418,22 @@ pub fn job_memory_bytes(
     bytes_per_sample: usize,
     looks: usize,
 ) -> u64 {
+    let samples = u64::from(width) * u64::from(height) * channels as u64;
+    frames as u64 * samples * bytes_per_sample as u64
+        + working_memory_bytes(width, height, channels, looks)
+}
+
+/// The part of [`job_memory_bytes`] that does not grow with the frames: the radiance map,
+/// the EXR in memory, one look's working set and the JPEG bands, for a
+/// `width × height × channels` map: `4·S + 2·S + (looks > 0 ? 8·P : 0) + 18·64·width`.
+pub fn working_memory_bytes(width: u32, height: u32, channels: usize, looks: usize) -> u64 {
     let pixels = u64::from(width) * u64::from(height);
     let samples = pixels * channels as u64;
-    let decoded = frames as u64 * samples * bytes_per_sample as u64;
     let map = 4 * samples;
     let exr = 2 * samples;
     let look = if looks > 0 { 8 * pixels } else { 0 };
     let bands = 18 * 64 * u64::from(width);
-    decoded + map + exr + look + bands
+    map + exr + look + bands
 }
 
 /// One frame's radiance estimate, `E = g(B)` per sample: the frame's own range, no
