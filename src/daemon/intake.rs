@@ -253,12 +253,14 @@ fn link_reason(path: &Path) -> String {
     }
 }
 
-/// Opens a file for reading without following a final symbolic link.
+/// Opens a file for reading without following a final symbolic link, and without
+/// waiting for a writer should it have been swapped for a FIFO (`O_NONBLOCK` changes
+/// nothing for a regular file).
 fn open_no_follow(path: &Path) -> std::io::Result<std::fs::File> {
     use std::os::unix::fs::OpenOptionsExt;
     std::fs::OpenOptions::new()
         .read(true)
-        .custom_flags(libc::O_NOFOLLOW)
+        .custom_flags(libc::O_NOFOLLOW | libc::O_NONBLOCK)
         .open(path)
 }
 
@@ -440,6 +442,19 @@ mod tests {
         std::fs::write(&empty, b"").unwrap();
         assert!(matches!(probe(&empty), Probe::Rejected(_, r) if r.contains("empty")));
         assert!(matches!(probe(&dir.path().join("none.jpg")), Probe::Gone));
+        let fifo = dir.path().join("e.jpg");
+        assert!(
+            std::process::Command::new("mkfifo")
+                .arg(&fifo)
+                .status()
+                .unwrap()
+                .success()
+        );
+        let p = probe(&fifo);
+        assert!(
+            matches!(&p, Probe::Rejected(_, r) if r.contains("not a regular file")),
+            "{p:?}"
+        );
         let link = dir.path().join("d.jpg");
         std::os::unix::fs::symlink(&good, &link).unwrap();
         let p = probe(&link);
