@@ -484,13 +484,13 @@ fn decode_raw(path: &Path, bytes: &[u8], limits: Limits) -> Result<LoadedFrame, 
     })
 }
 
-/// For a file named as a camera raw (see [`crate::raw::RAW_EXTENSIONS`]): its metadata and
-/// sensor size `(width, height)`, read without decoding the pixels, or why the raw cannot
-/// be taken (unsupported camera, damaged file). `None` for every other file, and always
-/// without the `raw` feature.
+/// A raw's metadata and sensor size `(width, height)`, or why it cannot be taken.
 pub type RawProbe = Result<(Metadata, (u32, u32)), FrameError>;
 
-/// See [`RawProbe`].
+/// For a file named as a camera raw (see [`crate::raw::RAW_EXTENSIONS`]): its metadata and
+/// sensor size, read without decoding the pixels, or why the raw cannot be taken
+/// (unsupported camera, damaged file). `None` for every other file, and always without
+/// the `raw` feature.
 pub fn probe_raw(path: &Path, bytes: &[u8]) -> Option<RawProbe> {
     #[cfg(feature = "raw")]
     if crate::raw::is_raw_extension(path) {
@@ -562,21 +562,21 @@ fn capture_time(text: &str) -> Option<metadata::CaptureTime> {
     let [year, month, day, hour, minute, second] = digits[..] else {
         return None;
     };
-    ((1..=12).contains(&month)
-        && (1..=31).contains(&day)
-        && hour < 24
-        && minute < 60
-        && second < 61)
-        .then_some(metadata::CaptureTime {
-            year: u16::try_from(year).ok()?,
-            month: month as u8,
-            day: day as u8,
-            hour: hour as u8,
-            minute: minute as u8,
-            second: second as u8,
+    let small = |v: u32| u8::try_from(v).ok();
+    let (year, month, day) = (u16::try_from(year).ok()?, small(month)?, small(day)?);
+    let (hour, minute, second) = (small(hour)?, small(minute)?, small(second)?);
+    metadata::is_real_date(year, month, day, hour, minute, second).then_some(
+        metadata::CaptureTime {
+            year,
+            month,
+            day,
+            hour,
+            minute,
+            second,
             nanos: None,
             offset_minutes: None,
-        })
+        },
+    )
 }
 
 /// Walks the JPEG marker structure (segment lengths, then entropy-coded scans) and
@@ -652,4 +652,25 @@ fn extension_mismatch(path: &Path, format: image::ImageFormat) -> Option<String>
             format_name(format)
         )
     })
+}
+
+#[cfg(all(test, feature = "raw"))]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn a_raw_capture_time_is_a_real_date_or_none() {
+        let t = capture_time("2026:03:14 09:26:53").unwrap();
+        assert_eq!((t.year, t.month, t.day, t.second), (2026, 3, 14, 53));
+        for placeholder in [
+            "0000:00:00 00:00:00",
+            "9999:12:31 23:59:59",
+            "2026:02:30 12:00:00",
+            "2026:04:31 12:00:00",
+            "2026:01:01 24:00:00",
+            "99999:01:01 00:00:00",
+        ] {
+            assert_eq!(capture_time(placeholder), None, "{placeholder}");
+        }
+    }
 }

@@ -391,12 +391,7 @@ impl TagReader<'_> {
             ));
             return None;
         }
-        let valid = (1..=9998).contains(&dt.year)
-            && (1..=12).contains(&dt.month)
-            && (1..=days_in_month(dt.year, dt.month)).contains(&dt.day)
-            && dt.hour < 24
-            && dt.minute < 60
-            && dt.second <= 60;
+        let valid = is_real_date(dt.year, dt.month, dt.day, dt.hour, dt.minute, dt.second);
         if !valid {
             self.warnings.push(format!(
                 "EXIF DateTimeOriginal {:?} is not a real date: capture time unknown",
@@ -465,6 +460,18 @@ impl TagReader<'_> {
 }
 
 /// Days in `month` of `year` (proleptic Gregorian).
+/// Whether a recorded date-time is a real one: year 1..=9998 (0000 and 9999 are
+/// placeholders cameras write), a day that exists in its month, a time of day (a leap
+/// second allowed).
+pub fn is_real_date(year: u16, month: u8, day: u8, hour: u8, minute: u8, second: u8) -> bool {
+    (1..=9998).contains(&year)
+        && (1..=12).contains(&month)
+        && (1..=days_in_month(year, month)).contains(&day)
+        && hour < 24
+        && minute < 60
+        && second <= 60
+}
+
 fn days_in_month(year: u16, month: u8) -> u8 {
     match month {
         2 if year.is_multiple_of(4) && (!year.is_multiple_of(100) || year.is_multiple_of(400)) => {

@@ -418,7 +418,8 @@ pub fn filter(plane: &[f32], width: usize, height: usize, terms: &[(f64, f64)]) 
 /// of `r` decimated pixels; the levels are summed from the top down, each upsampled by 2
 /// (bilinear: a triangle of variance `4ᵏ/6` px² from level `k`) into the one below, and
 /// level 1 is upsampled into the full-resolution band. `r` makes the variances add to
-/// σ² (`level_variance`) and is at least [`COARSE_MIN_SIGMA`]. Setting up reads the image
+/// σ² (`level_variance`) and is at least [`COARSE_MIN_SIGMA`] ([`LEVEL_ONE_MIN_SIGMA`] at
+/// level 1). Setting up reads the image
 /// once per layer that has wide terms (half-resolution and smaller planes stay); a band
 /// reads its rows and the kernels' reach around them. The error against the direct sum
 /// of sampled Gaussians ([`filter_direct`]) is measured by `cargo bench --bench

@@ -2,12 +2,11 @@
 //!
 //! Bayer sensors use PPG, Patterned Pixel Grouping (Chuan-kai Lin): green is interpolated
 //! along the direction of the smaller gradient, then red and blue from colour
-//! differences to it, so edges keep their sharpness and zipper artefacts stay small; it
-//! is what dcraw offers as its "-q 2" and what darktable called PPG for years.
-//! X-Trans sensors use rawler's bilinear interpolation over the 6×6 pattern: rawler 0.8's
-//! Markesteijn demosaicker overflows an index while building its lookup table (a panic
-//! where overflow checks are on), so it is not used. Both work on floating point, so the merged radiance (values above the
-//! longest frame's clipping point) is interpolated without being clipped first.
+//! differences to it, so edges keep their sharpness and zipper artefacts stay small (dcraw's
+//! "-q 2"). X-Trans sensors use rawler's bilinear interpolation over the 6×6 pattern
+//! (rawler 0.8's Markesteijn demosaicker panics on an index overflow). Both work on
+//! floating point, so the merged radiance (values above the longest frame's clipping
+//! point) is interpolated without being clipped first.
 
 use rawler::cfa::{CFA, PlaneColor};
 use rawler::imgop::sensor::Demosaic;

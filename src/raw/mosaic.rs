@@ -14,7 +14,7 @@
 //! Var x_k = (a·E·r_k + σ²) / r_k²,     w_k = 1 / Var x_k,     E = Σ w_k x_k / Σ w_k
 //! ```
 //!
-//! over the frames whose sample is not clipped (`s_k ≥` [`CLIPPED`]),
+//! over the frames whose sample is not clipped (clipped: `s_k ≥` [`CLIPPED`]),
 //! channel by channel as the CFA lays them out. `E` in the variance is not known before
 //! the merge: a first pass takes `E₀ = Σ s_k / Σ r_k` over the unclipped frames (the
 //! estimate under shot noise alone), the second pass weighs with `E₀` (Granados et al.,

@@ -125,7 +125,7 @@ impl Look {
 }
 
 impl Look {
-    /// The emulsion of a film look set up for `map` (its key and size); `None` for a
+    /// The emulsion of a film look set up for `map` (its key and size); an error for a
     /// tone map.
     pub fn emulsion(&self, map: &RadianceMap) -> Result<film::Emulsion, RenderingError> {
         match self {
