@@ -140,6 +140,10 @@ pub const STAGE_PREFIX: &str = ".filmback-stage-";
 /// Name of the marker written into a staging folder once every file in it is complete.
 const COMPLETE: &str = ".complete";
 
+/// Sub-folder of a staging folder holding hard links to the files a set replaces, so a
+/// failed publication can put them back.
+const PREVIOUS: &str = ".previous";
+
 /// The staging folder of a set `key` (e.g. a bracket id) in `dir`.
 pub fn stage_folder(dir: &Path, key: &str) -> PathBuf {
     dir.join(format!("{STAGE_PREFIX}{key}"))
@@ -166,8 +170,9 @@ fn staged(stage: &Path) -> io::Result<Vec<PathBuf>> {
 
 /// Publishes every file of the staging folder `stage` into `dir` (its parent) as one
 /// set, replacing files of the same names, and removes the folder. Returns the published
-/// paths, sorted. On error nothing of the set is visible in `dir` (files it replaced are
-/// gone) and the staging folder is removed.
+/// paths, sorted. On error nothing of the set is visible in `dir`: the files it had
+/// replaced are put back (from hard links taken before the renames; on a file system
+/// without hard links they are gone) and the staging folder is removed.
 pub fn publish_set(stage: &Path, dir: &Path) -> Result<Vec<PathBuf>, PublishError> {
     let result = publish_staged(stage, dir);
     let _ = fs::remove_dir_all(stage);
@@ -189,13 +194,26 @@ fn publish_staged(stage: &Path, dir: &Path) -> Result<Vec<PathBuf>, PublishError
         .and_then(|h| h.sync_all())
         .map_err(io_err(stage))?;
     sync_folder(stage);
+    // Hard links to the files the set replaces (best effort: without them an undo
+    // removes the new files but cannot restore the old ones).
+    let previous = stage.join(PREVIOUS);
+    let name = |f: &Path| f.file_name().expect("read_dir names files").to_owned();
+    if fs::create_dir(&previous).is_ok() {
+        for from in &files {
+            let to = dir.join(name(from));
+            if fs::symlink_metadata(&to).is_ok_and(|m| m.is_file()) {
+                let _ = fs::hard_link(&to, previous.join(name(from)));
+            }
+        }
+    }
     let mut moved: Vec<(PathBuf, PathBuf)> = Vec::with_capacity(files.len());
     for from in &files {
-        let to = dir.join(from.file_name().expect("read_dir names files"));
+        let to = dir.join(name(from));
         if let Err(source) = fs::rename(from, &to) {
-            // Undo: the set is not visible at all.
+            // Undo: the set is not visible at all, and what it replaced is back.
             for (back_from, back_to) in moved.iter().rev() {
                 let _ = fs::rename(back_to, back_from);
+                let _ = fs::rename(previous.join(name(back_from)), back_to);
             }
             let _ = fs::remove_file(stage.join(COMPLETE));
             sync_folder(dir);
@@ -227,7 +245,8 @@ pub fn recover_sets(dir: &Path) -> Vec<Recovered> {
             .file_name()
             .and_then(|n| n.to_str())
             .is_some_and(|n| n.starts_with(STAGE_PREFIX));
-        if !is_stage || !stage.is_dir() {
+        let is_folder = fs::symlink_metadata(&stage).is_ok_and(|m| m.is_dir());
+        if !is_stage || !is_folder {
             continue;
         }
         if stage.join(COMPLETE).is_file() {
@@ -305,6 +324,44 @@ mod tests {
         let published = publish_set(&stage, out).unwrap();
         assert_eq!(published, [out.join("x.exr"), out.join("x.look.jpg")]);
         assert!(!stage.exists());
+    }
+
+    #[test]
+    fn a_failed_set_puts_back_the_files_it_replaced() {
+        let dir = tempfile::tempdir().unwrap();
+        let out = dir.path();
+        fs::write(out.join("a.exr"), b"old exr").unwrap();
+        fs::write(out.join("a.velvia50.jpg"), b"old jpeg").unwrap();
+        let stage = stage_folder(out, "b2");
+        fs::create_dir(&stage).unwrap();
+        publish(&stage.join("a.exr"), b"new exr", Overwrite::Replace).unwrap();
+        publish(
+            &stage.join("a.velvia50.jpg"),
+            b"new jpeg",
+            Overwrite::Replace,
+        )
+        .unwrap();
+        publish(&stage.join("a.zz.jpg"), b"new", Overwrite::Replace).unwrap();
+        // The last name is taken by a folder: its rename fails after two replaced files.
+        fs::create_dir(out.join("a.zz.jpg")).unwrap();
+        assert!(publish_set(&stage, out).is_err());
+        assert_eq!(fs::read(out.join("a.exr")).unwrap(), b"old exr");
+        assert_eq!(fs::read(out.join("a.velvia50.jpg")).unwrap(), b"old jpeg");
+        assert!(!stage.exists());
+    }
+
+    #[test]
+    fn a_stage_reached_through_a_link_is_not_published() {
+        let dir = tempfile::tempdir().unwrap();
+        let (out, elsewhere) = (dir.path().join("out"), dir.path().join("elsewhere"));
+        fs::create_dir_all(&out).unwrap();
+        fs::create_dir_all(&elsewhere).unwrap();
+        fs::write(elsewhere.join("secret.txt"), b"x").unwrap();
+        fs::write(elsewhere.join(COMPLETE), b"").unwrap();
+        std::os::unix::fs::symlink(&elsewhere, stage_folder(&out, "evil")).unwrap();
+        assert!(recover_sets(&out).is_empty());
+        assert!(!out.join("secret.txt").exists());
+        assert!(elsewhere.join("secret.txt").exists());
     }
 
     #[test]
