@@ -266,7 +266,7 @@ fn open_no_follow(path: &Path) -> std::io::Result<std::fs::File> {
 
 /// Reads a settled file: EXIF (camera, exposure, capture time) and the image header
 /// (format and dimensions; the pixels are decoded later, by the developer).
-pub(crate) fn probe(path: &Path) -> Probe {
+pub(crate) fn probe(path: &Path, watch: &Watch) -> Probe {
     use std::io::Read;
     let before = match identify(path) {
         Ok(i) => i,
@@ -321,7 +321,7 @@ pub(crate) fn probe(path: &Path) -> Probe {
         Some(Err(e)) => return Probe::Rejected(before, e.to_string()),
         None => {}
     }
-    if let Some(raw) = raw_companion(path) {
+    if let Some(raw) = raw_companion(path, watch) {
         return Probe::Rejected(
             before,
             format!(
@@ -359,8 +359,9 @@ pub(crate) fn probe(path: &Path) -> Probe {
 }
 
 /// The raw beside `path` with the same stem (`x.jpg` and `x.CR2` are one capture taken as
-/// RAW+JPEG), when filmback reads raws and there is one.
-fn raw_companion(path: &Path) -> Option<PathBuf> {
+/// RAW+JPEG), when filmback reads raws and the watch takes that raw (its extension is in
+/// `[watch] extensions`); otherwise the JPEG is the frame.
+fn raw_companion(path: &Path, watch: &Watch) -> Option<PathBuf> {
     #[cfg(feature = "raw")]
     {
         let stem = path.file_stem()?;
@@ -368,11 +369,18 @@ fn raw_companion(path: &Path) -> Option<PathBuf> {
             .ok()?
             .filter_map(Result::ok)
             .map(|e| e.path())
-            .find(|p| p != path && p.file_stem() == Some(stem) && crate::raw::is_raw_extension(p))
+            .find(|p| {
+                p != path
+                    && p.file_stem() == Some(stem)
+                    && crate::raw::is_raw_extension(p)
+                    && p.file_name()
+                        .and_then(|n| n.to_str())
+                        .is_some_and(|n| watch.takes(n))
+            })
     }
     #[cfg(not(feature = "raw"))]
     {
-        let _ = path;
+        let _ = (path, watch);
         None
     }
 }
@@ -402,7 +410,29 @@ fn capture(before: Input, meta: metadata::Metadata, footprint: Footprint, bytes:
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::daemon::config::Config;
     use crate::synthetic::demo;
+
+    #[cfg(feature = "raw")]
+    #[test]
+    fn a_jpeg_beside_its_raw_is_set_aside_only_when_the_raw_is_taken() {
+        let dir = tempfile::tempdir().unwrap();
+        let shots = demo::aeb("Body", None, 1);
+        let jpeg = demo::jpegs(96, 64, &shots, 3).unwrap().remove(0);
+        let path = dir.path().join("IMG_1.jpg");
+        std::fs::write(&path, &jpeg).unwrap();
+        std::fs::write(dir.path().join("IMG_1.CR2"), b"raw bytes").unwrap();
+        let mut watch = Config::defaults().watch;
+        assert!(
+            matches!(probe(&path, &watch), Probe::Rejected(_, r) if r.contains("RAW+JPEG")),
+            "the default extensions take the raw"
+        );
+        watch.extensions.retain(|e| e != "cr2");
+        assert!(
+            matches!(probe(&path, &watch), Probe::Frame(..)),
+            "a raw the watch does not take leaves the JPEG as the frame"
+        );
+    }
 
     #[test]
     fn truncated_jpeg_is_incomplete() {
@@ -422,7 +452,7 @@ mod tests {
         let jpeg = demo::jpegs(96, 64, &shots, 3).unwrap().remove(2);
         let good = dir.path().join("a.jpg");
         std::fs::write(&good, &jpeg).unwrap();
-        match probe(&good) {
+        match probe(&good, &Config::defaults().watch) {
             Probe::Frame(c, fp, _) => {
                 assert_eq!((fp.width, fp.height, fp.bytes_per_pixel), (96, 64, 3));
                 assert_eq!(c.camera.serial.as_deref(), Some("9"));
@@ -433,15 +463,20 @@ mod tests {
         }
         let cut = dir.path().join("b.jpg");
         std::fs::write(&cut, &jpeg[..jpeg.len() / 2]).unwrap();
-        let p = probe(&cut);
+        let p = probe(&cut, &Config::defaults().watch);
         assert!(
             matches!(&p, Probe::Rejected(_, r) if r.contains("truncated")),
             "{p:?}"
         );
         let empty = dir.path().join("c.jpg");
         std::fs::write(&empty, b"").unwrap();
-        assert!(matches!(probe(&empty), Probe::Rejected(_, r) if r.contains("empty")));
-        assert!(matches!(probe(&dir.path().join("none.jpg")), Probe::Gone));
+        assert!(
+            matches!(probe(&empty, &Config::defaults().watch), Probe::Rejected(_, r) if r.contains("empty"))
+        );
+        assert!(matches!(
+            probe(&dir.path().join("none.jpg"), &Config::defaults().watch),
+            Probe::Gone
+        ));
         let fifo = dir.path().join("e.jpg");
         assert!(
             std::process::Command::new("mkfifo")
@@ -450,14 +485,14 @@ mod tests {
                 .unwrap()
                 .success()
         );
-        let p = probe(&fifo);
+        let p = probe(&fifo, &Config::defaults().watch);
         assert!(
             matches!(&p, Probe::Rejected(_, r) if r.contains("not a regular file")),
             "{p:?}"
         );
         let link = dir.path().join("d.jpg");
         std::os::unix::fs::symlink(&good, &link).unwrap();
-        let p = probe(&link);
+        let p = probe(&link, &Config::defaults().watch);
         assert!(
             matches!(&p, Probe::Rejected(i, r) if r.contains("not followed") && i.path == link),
             "{p:?}"

@@ -222,11 +222,12 @@ impl State {
 
     /// Probes settled files (off the async threads) and feeds the grouper.
     pub(super) async fn take(&mut self, ready: Vec<PathBuf>) -> Result<(), DaemonError> {
+        let watch = self.config.watch.clone();
         let probed = tokio::task::spawn_blocking(move || {
             ready
                 .into_iter()
                 .map(|p| {
-                    let r = intake::probe(&p);
+                    let r = intake::probe(&p, &watch);
                     (p, r)
                 })
                 .collect::<Vec<_>>()
@@ -366,11 +367,12 @@ impl State {
                     .iter()
                     .any(|(p, d)| *p == c.input.path && *d == Some(digest))
         };
+        let watch = self.config.watch.clone();
         let probed = tokio::task::spawn_blocking(move || {
             others
                 .into_iter()
                 .map(|p| {
-                    let r = intake::probe(&p);
+                    let r = intake::probe(&p, &watch);
                     (p, r)
                 })
                 .collect::<Vec<_>>()
