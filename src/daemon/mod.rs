@@ -107,6 +107,9 @@ struct Work {
     attempts: u32,
     /// The earlier bracket or single this one replaces (a re-shot frame, `redo`).
     supersedes: Option<Superseded>,
+    /// Bytes of the memory budget counted for it while it develops (released exactly when
+    /// it finishes, whatever changed meanwhile).
+    reserved: u64,
 }
 
 impl Work {
@@ -115,6 +118,7 @@ impl Work {
             closed,
             attempts: 0,
             supersedes: None,
+            reserved: 0,
         }
     }
 }

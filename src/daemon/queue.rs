@@ -17,7 +17,7 @@ use super::{
 impl State {
     pub(super) fn dispatch(&mut self) -> Result<(), DaemonError> {
         while !self.stopping && self.in_flight.len() < self.config.daemon.jobs {
-            let Some(work) = self.queue.pop_front() else {
+            let Some(mut work) = self.queue.pop_front() else {
                 break;
             };
             // The memory budget: a job starts when its estimate fits beside those
@@ -91,6 +91,7 @@ impl State {
             };
             let lab = Arc::clone(&self.lab);
             self.in_use += need;
+            work.reserved = need;
             self.in_flight.spawn_blocking(move || {
                 let t = Instant::now();
                 let result =
@@ -155,7 +156,7 @@ impl State {
     /// Takes a job's outcome: journal and cache on success; on a bad frame, reject it and
     /// requeue the rest; retry output failures with back-off; record other failures.
     pub(super) fn finish(&mut self, (work, result, took): Outcome) -> Result<(), DaemonError> {
-        self.in_use = self.in_use.saturating_sub(self.job_bytes(&work.closed));
+        self.in_use = self.in_use.saturating_sub(work.reserved);
         match result {
             Ok(processed) => self.developed(&work, &processed, took)?,
             Err(JobError::Frame { path, reason }) => self.frame_failed(&work, &path, reason)?,

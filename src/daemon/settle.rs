@@ -413,6 +413,7 @@ impl State {
         self.queue.push_back(Work {
             closed,
             attempts: 0,
+            reserved: 0,
             supersedes: Some(Superseded {
                 stem,
                 outputs: outputs.clone(),
