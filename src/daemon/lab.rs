@@ -114,6 +114,17 @@ where
     }
 }
 
+/// A staging folder, removed when this is dropped: a development that fails, or panics
+/// (the queue catches the panic), leaves no hidden folder of partial outputs in `out/`.
+/// After [`atomic::publish_set`] the folder is already gone.
+struct Staging(PathBuf);
+
+impl Drop for Staging {
+    fn drop(&mut self) {
+        let _ = std::fs::remove_dir_all(&self.0);
+    }
+}
+
 /// The real lab (see the module docs).
 #[derive(Debug, Clone, Copy, Default)]
 pub struct DarkroomLab;
@@ -195,11 +206,11 @@ impl Lab for DarkroomLab {
             path: stage.clone(),
             reason: e.to_string(),
         })?;
+        let _staging = Staging(stage.clone());
         let developed = Self::develop(job, &frames, &looks, &exif, &stage);
         let developed = match developed {
             Ok(d) => d,
             Err(e) => {
-                let _ = std::fs::remove_dir_all(&stage);
                 return Err(match e {
                     JobError::Output { path, reason } => JobError::Output {
                         path: path

@@ -246,11 +246,16 @@ impl Options {
     pub fn parse<'a>(items: impl IntoIterator<Item = &'a str>) -> Result<Options, String> {
         let mut o = Options::default();
         let mut labels = Vec::new();
+        let mut seen: Vec<&str> = Vec::new();
         for item in items {
             let (name, value) = match item.split_once('=') {
                 Some((n, v)) => (n, Some(v)),
                 None => (item, None),
             };
+            if seen.contains(&name) {
+                return Err(format!("+{name} is given twice"));
+            }
+            seen.push(name);
             let number = |v: Option<&str>, lo: f64, hi: f64| -> Result<f64, String> {
                 let v = v.ok_or_else(|| format!("{name} needs a value ({name}=…)"))?;
                 let x: f64 = v.parse().map_err(|_| format!("{name}={v}: not a number"))?;
@@ -566,6 +571,8 @@ mod tests {
             "portra400+cc=10q",
             "portra400+print=9",
             "velvia50+mtf=2",
+            "velvia50+grain+grain=2",
+            "portra400+print=1+print=-1",
         ] {
             assert!(bad.parse::<Request>().is_err(), "{bad}");
         }
