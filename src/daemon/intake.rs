@@ -265,8 +265,10 @@ fn open_no_follow(path: &Path) -> std::io::Result<std::fs::File> {
 }
 
 /// Reads a settled file: EXIF (camera, exposure, capture time) and the image header
-/// (format and dimensions; the pixels are decoded later, by the developer).
-pub(crate) fn probe(path: &Path, watch: &Watch) -> Probe {
+/// (format and dimensions; the pixels are decoded later, by the developer). A file of
+/// more than `max_bytes` (the memory budget: a frame never holds less than its file) is
+/// rejected without being read.
+pub(crate) fn probe(path: &Path, watch: &Watch, max_bytes: u64) -> Probe {
     use std::io::Read;
     let before = match identify(path) {
         Ok(i) => i,
@@ -286,9 +288,20 @@ pub(crate) fn probe(path: &Path, watch: &Watch) -> Probe {
     if std::fs::symlink_metadata(path).is_ok_and(|m| m.file_type().is_symlink()) {
         return Probe::Rejected(before, link_reason(path));
     }
-    let read = open_no_follow(path).and_then(|mut f| {
+    if before.size > max_bytes {
+        let reason = format!(
+            "a {} MB file is larger than the memory budget ([daemon] memory_mb = {}): it could never be developed",
+            before.size.div_ceil(1_000_000),
+            max_bytes / 1_000_000
+        );
+        return Probe::Rejected(before, reason);
+    }
+    // At most one byte more than allowed: a file still growing shows as changed below.
+    let read = open_no_follow(path).and_then(|f| {
         let mut bytes = Vec::new();
-        f.read_to_end(&mut bytes).map(|_| bytes)
+        f.take(max_bytes.saturating_add(1))
+            .read_to_end(&mut bytes)
+            .map(|_| bytes)
     });
     let bytes = match read {
         Ok(b) => b,
@@ -424,12 +437,12 @@ mod tests {
         std::fs::write(dir.path().join("IMG_1.CR2"), b"raw bytes").unwrap();
         let mut watch = Config::defaults().watch;
         assert!(
-            matches!(probe(&path, &watch), Probe::Rejected(_, r) if r.contains("RAW+JPEG")),
+            matches!(probe(&path, &watch, u64::MAX), Probe::Rejected(_, r) if r.contains("RAW+JPEG")),
             "the default extensions take the raw"
         );
         watch.extensions.retain(|e| e != "cr2");
         assert!(
-            matches!(probe(&path, &watch), Probe::Frame(..)),
+            matches!(probe(&path, &watch, u64::MAX), Probe::Frame(..)),
             "a raw the watch does not take leaves the JPEG as the frame"
         );
     }
@@ -452,7 +465,7 @@ mod tests {
         let jpeg = demo::jpegs(96, 64, &shots, 3).unwrap().remove(2);
         let good = dir.path().join("a.jpg");
         std::fs::write(&good, &jpeg).unwrap();
-        match probe(&good, &Config::defaults().watch) {
+        match probe(&good, &Config::defaults().watch, u64::MAX) {
             Probe::Frame(c, fp, _) => {
                 assert_eq!((fp.width, fp.height, fp.bytes_per_pixel), (96, 64, 3));
                 assert_eq!(c.camera.serial.as_deref(), Some("9"));
@@ -461,9 +474,15 @@ mod tests {
             }
             other => panic!("{other:?}"),
         }
+        // Larger than the budget: refused before it is read.
+        let small = jpeg.len() as u64 - 1;
+        assert!(matches!(
+            probe(&good, &Config::defaults().watch, small),
+            Probe::Rejected(_, r) if r.contains("larger than the memory budget")
+        ));
         let cut = dir.path().join("b.jpg");
         std::fs::write(&cut, &jpeg[..jpeg.len() / 2]).unwrap();
-        let p = probe(&cut, &Config::defaults().watch);
+        let p = probe(&cut, &Config::defaults().watch, u64::MAX);
         assert!(
             matches!(&p, Probe::Rejected(_, r) if r.contains("truncated")),
             "{p:?}"
@@ -471,10 +490,14 @@ mod tests {
         let empty = dir.path().join("c.jpg");
         std::fs::write(&empty, b"").unwrap();
         assert!(
-            matches!(probe(&empty, &Config::defaults().watch), Probe::Rejected(_, r) if r.contains("empty"))
+            matches!(probe(&empty, &Config::defaults().watch, u64::MAX), Probe::Rejected(_, r) if r.contains("empty"))
         );
         assert!(matches!(
-            probe(&dir.path().join("none.jpg"), &Config::defaults().watch),
+            probe(
+                &dir.path().join("none.jpg"),
+                &Config::defaults().watch,
+                u64::MAX
+            ),
             Probe::Gone
         ));
         let fifo = dir.path().join("e.jpg");
@@ -485,14 +508,14 @@ mod tests {
                 .unwrap()
                 .success()
         );
-        let p = probe(&fifo, &Config::defaults().watch);
+        let p = probe(&fifo, &Config::defaults().watch, u64::MAX);
         assert!(
             matches!(&p, Probe::Rejected(_, r) if r.contains("not a regular file")),
             "{p:?}"
         );
         let link = dir.path().join("d.jpg");
         std::os::unix::fs::symlink(&good, &link).unwrap();
-        let p = probe(&link, &Config::defaults().watch);
+        let p = probe(&link, &Config::defaults().watch, u64::MAX);
         assert!(
             matches!(&p, Probe::Rejected(i, r) if r.contains("not followed") && i.path == link),
             "{p:?}"

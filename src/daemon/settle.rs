@@ -223,11 +223,12 @@ impl State {
     /// Probes settled files (off the async threads) and feeds the grouper.
     pub(super) async fn take(&mut self, ready: Vec<PathBuf>) -> Result<(), DaemonError> {
         let watch = self.config.watch.clone();
+        let max_bytes = self.config.daemon.memory_mb.saturating_mul(1_000_000);
         let probed = tokio::task::spawn_blocking(move || {
             ready
                 .into_iter()
                 .map(|p| {
-                    let r = intake::probe(&p, &watch);
+                    let r = intake::probe(&p, &watch, max_bytes);
                     (p, r)
                 })
                 .collect::<Vec<_>>()
@@ -368,11 +369,12 @@ impl State {
                     .any(|(p, d)| *p == c.input.path && *d == Some(digest))
         };
         let watch = self.config.watch.clone();
+        let max_bytes = self.config.daemon.memory_mb.saturating_mul(1_000_000);
         let probed = tokio::task::spawn_blocking(move || {
             others
                 .into_iter()
                 .map(|p| {
-                    let r = intake::probe(&p, &watch);
+                    let r = intake::probe(&p, &watch, max_bytes);
                     (p, r)
                 })
                 .collect::<Vec<_>>()
