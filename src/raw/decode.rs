@@ -137,6 +137,16 @@ fn decode_unguarded(path: &Path, bytes: &[u8], max_pixels: u64) -> Result<RawMos
     }
     drop(header);
     let image = decoder.raw_image(&source, &params, false).map_err(failed)?;
+    // The decoded image again: a file whose header understates its size is refused before
+    // anything larger (the demosaicked map) is made of it.
+    if (image.width as u64).saturating_mul(image.height as u64) > max_pixels {
+        return Err(RawError::TooLarge {
+            path: path.to_path_buf(),
+            width: image.width,
+            height: image.height,
+            max_pixels,
+        });
+    }
     let exif = decoder.raw_metadata(&source, &params).map(|m| m.exif).ok();
     let camera = format!("{} {}", image.clean_make, image.clean_model)
         .trim()
