@@ -220,21 +220,26 @@ impl State {
         ready
     }
 
-    /// Probes settled files (off the async threads) and feeds the grouper.
-    pub(super) async fn take(&mut self, ready: Vec<PathBuf>) -> Result<(), DaemonError> {
+    /// Probes files off the async threads, under the watch's rules and the memory budget.
+    async fn probe_all(&self, paths: Vec<PathBuf>) -> Vec<(PathBuf, Probe)> {
         let watch = self.config.watch.clone();
         let max_bytes = self.config.daemon.memory_mb.saturating_mul(1_000_000);
-        let probed = tokio::task::spawn_blocking(move || {
-            ready
+        tokio::task::spawn_blocking(move || {
+            paths
                 .into_iter()
                 .map(|p| {
                     let r = intake::probe(&p, &watch, max_bytes);
                     (p, r)
                 })
-                .collect::<Vec<_>>()
+                .collect()
         })
         .await
-        .expect("probing does not panic");
+        .expect("probing does not panic")
+    }
+
+    /// Probes settled files (off the async threads) and feeds the grouper.
+    pub(super) async fn take(&mut self, ready: Vec<PathBuf>) -> Result<(), DaemonError> {
+        let probed = self.probe_all(ready).await;
         let mut frames = Vec::new();
         for (path, probe) in probed {
             if !matches!(probe, Probe::Unreadable(_)) {
@@ -368,19 +373,7 @@ impl State {
                     .iter()
                     .any(|(p, d)| *p == c.input.path && *d == Some(digest))
         };
-        let watch = self.config.watch.clone();
-        let max_bytes = self.config.daemon.memory_mb.saturating_mul(1_000_000);
-        let probed = tokio::task::spawn_blocking(move || {
-            others
-                .into_iter()
-                .map(|p| {
-                    let r = intake::probe(&p, &watch, max_bytes);
-                    (p, r)
-                })
-                .collect::<Vec<_>>()
-        })
-        .await
-        .expect("probing does not panic");
+        let probed = self.probe_all(others).await;
         let mut frames = new;
         let mut found = Vec::new();
         for (path, probe) in probed {
