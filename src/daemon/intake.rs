@@ -256,7 +256,7 @@ fn link_reason(path: &Path) -> String {
 /// Opens a file for reading without following a final symbolic link, and without
 /// waiting for a writer should it have been swapped for a FIFO (`O_NONBLOCK` changes
 /// nothing for a regular file).
-fn open_no_follow(path: &Path) -> std::io::Result<std::fs::File> {
+pub(crate) fn open_no_follow(path: &Path) -> std::io::Result<std::fs::File> {
     use std::os::unix::fs::OpenOptionsExt;
     std::fs::OpenOptions::new()
         .read(true)

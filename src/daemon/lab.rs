@@ -196,7 +196,12 @@ impl Lab for DarkroomLab {
         .map_err(|e| JobError::Bracket(format!("preset: {e}")))?;
         // The renderings carry the first frame's EXIF (camera, lens, exposure, date,
         // artist, copyright); a frame whose file vanished since decoding carries none.
-        let exif = std::fs::read(&job.frames[0].input.path)
+        // Opened without following a link, as the intake does.
+        let exif = crate::daemon::intake::open_no_follow(&job.frames[0].input.path)
+            .and_then(|mut f| {
+                let mut bytes = Vec::new();
+                std::io::Read::read_to_end(&mut f, &mut bytes).map(|_| bytes)
+            })
             .map(|bytes| SourceExif::from_frame_bytes(&bytes))
             .unwrap_or_default();
         // The outputs are written into a staging folder and published as one set.
