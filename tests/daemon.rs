@@ -484,15 +484,21 @@ fn interleaved_cameras_and_repeated_exposure() {
     assert_eq!(journaled_brackets(&state), ["a-1", "b-1", "x-1", "y-2"]);
 }
 
-#[test]
-fn output_write_error_is_retried_and_the_daemon_stays_alive() {
+/// The real lab, counting the jobs it is given.
+fn counting_darkroom() -> (Arc<AtomicUsize>, Arc<dyn Lab>) {
     let calls = Arc::new(AtomicUsize::new(0));
     let counted = Arc::clone(&calls);
     let lab = move |job: &Job| -> Result<Processed, JobError> {
         counted.fetch_add(1, Ordering::SeqCst);
         DarkroomLab.process(job)
     };
-    let mut rig = Rig::start(&[], Arc::new(lab), |root| {
+    (calls, Arc::new(lab))
+}
+
+#[test]
+fn output_write_error_is_retried_and_the_daemon_stays_alive() {
+    let (calls, lab) = counting_darkroom();
+    let mut rig = Rig::start(&[], lab, |root| {
         // The EXR's name is occupied by a folder: publishing fails with a real I/O error
         // (as on a full or read-only file system) until the folder goes away.
         std::fs::create_dir_all(root.join("out/e-1.exr")).unwrap();
@@ -948,13 +954,8 @@ fn an_out_folder_reachable_from_ingest_through_a_link_is_refused() {
 
 #[test]
 fn a_brackets_outputs_appear_together_or_not_at_all() {
-    let calls = Arc::new(AtomicUsize::new(0));
-    let counted = Arc::clone(&calls);
-    let lab = move |job: &Job| -> Result<Processed, JobError> {
-        counted.fetch_add(1, Ordering::SeqCst);
-        DarkroomLab.process(job)
-    };
-    let mut rig = Rig::start(&[], Arc::new(lab), |root| {
+    let (calls, lab) = counting_darkroom();
+    let mut rig = Rig::start(&[], lab, |root| {
         // The rendering's name is occupied (as by a full disk for its last file): the
         // EXR, written fine, must not be visible alone.
         std::fs::create_dir_all(root.join("out/s-1.linear.jpg")).unwrap();

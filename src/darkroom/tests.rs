@@ -19,6 +19,19 @@ fn loaded(name: &str, frame: Frame) -> LoadedFrame {
     }
 }
 
+/// The response `policy` chooses for a noiseless 8-bit pair of scene `seed` through
+/// `curve`, exposed 1 and 4.
+fn choose_for_pair(curve: ResponseCurve, seed: u64, policy: ResponsePolicy) -> ChosenResponse {
+    let truth = scene(240, 160, seed);
+    let sensor = Sensor::noiseless(curve, BitDepth::Eight);
+    let frames = [
+        loaded("a.png", expose(&truth, 1.0, &sensor)),
+        loaded("b.png", expose(&truth, 4.0, &sensor)),
+    ];
+    let bracket = bracket(&frames, &[1.0, 4.0]);
+    choose_response(&bracket, RatioSource::Argument, policy, &mut Stages::new()).unwrap()
+}
+
 /// 1/60, 1/60, 1/15: the middle pair is a duplicate; the fit must take the pair that
 /// differs, not fail on a ratio of 1.
 #[test]
@@ -82,19 +95,11 @@ fn three_exposures_are_fitted_from_every_frame() {
 /// itself is still reported (the daemon decides whether the cache learns from it).
 #[test]
 fn a_fit_below_min_confidence_uses_the_fallback() {
-    let truth = scene(240, 160, 4);
-    let sensor = Sensor::noiseless(ResponseCurve::Srgb, BitDepth::Eight);
-    let frames = [
-        loaded("a.png", expose(&truth, 1.0, &sensor)),
-        loaded("b.png", expose(&truth, 4.0, &sensor)),
-    ];
-    let bracket = bracket(&frames, &[1.0, 4.0]);
     let policy = ResponsePolicy::Fit {
         fallback: Some(GivenResponse::standard(3)),
         min_confidence: 1.01,
     };
-    let chosen =
-        choose_response(&bracket, RatioSource::Argument, policy, &mut Stages::new()).unwrap();
+    let chosen = choose_for_pair(ResponseCurve::Srgb, 4, policy);
     assert_eq!(chosen.source, Source::Standard);
     assert!(chosen.fit.is_some());
     assert!(chosen.notes[0].contains("confidence"), "{:?}", chosen.notes);
@@ -105,19 +110,11 @@ fn a_fit_below_min_confidence_uses_the_fallback() {
 /// S curve are not explained by sRGB.
 #[test]
 fn a_fallback_the_bracket_contradicts_is_not_used() {
-    let truth = scene(240, 160, 4);
-    let sensor = Sensor::noiseless(ResponseCurve::FilmS, BitDepth::Eight);
-    let frames = [
-        loaded("a.png", expose(&truth, 1.0, &sensor)),
-        loaded("b.png", expose(&truth, 4.0, &sensor)),
-    ];
-    let bracket = bracket(&frames, &[1.0, 4.0]);
     let policy = ResponsePolicy::Fit {
         fallback: Some(GivenResponse::standard(3)),
         min_confidence: 1.01,
     };
-    let chosen =
-        choose_response(&bracket, RatioSource::Argument, policy, &mut Stages::new()).unwrap();
+    let chosen = choose_for_pair(ResponseCurve::FilmS, 4, policy);
     assert_eq!(chosen.source, Source::Fitted, "{:?}", chosen.notes);
     assert!(
         chosen.notes[0].contains("contradicts"),
@@ -131,14 +128,7 @@ fn a_fallback_the_bracket_contradicts_is_not_used() {
 /// cached curve that agrees with the bracket is refined as before.
 #[test]
 fn a_good_fit_that_contradicts_the_cached_curve_is_flagged() {
-    let truth = scene(240, 160, 6);
     let develop = |curve: ResponseCurve| {
-        let sensor = Sensor::noiseless(curve, BitDepth::Eight);
-        let frames = [
-            loaded("a.png", expose(&truth, 1.0, &sensor)),
-            loaded("b.png", expose(&truth, 4.0, &sensor)),
-        ];
-        let bracket = bracket(&frames, &[1.0, 4.0]);
         let cached = GivenResponse {
             source: Source::Cached,
             label: "cached curve of Body (5 bracket(s))".to_string(),
@@ -148,7 +138,7 @@ fn a_good_fit_that_contradicts_the_cached_curve_is_flagged() {
             fallback: Some(cached),
             min_confidence: 0.0,
         };
-        choose_response(&bracket, RatioSource::Argument, policy, &mut Stages::new()).unwrap()
+        choose_for_pair(curve, 6, policy)
     };
     let other = develop(ResponseCurve::FilmS);
     assert_eq!(other.source, Source::Fitted);

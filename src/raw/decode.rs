@@ -125,28 +125,25 @@ fn decode_unguarded(path: &Path, bytes: &[u8], max_pixels: u64) -> Result<RawMos
     let failed = |error: RawlerError| failed(path, error);
     let source = RawSource::new_from_slice(bytes);
     let params = RawDecodeParams::default();
+    let within_limit = |width: usize, height: usize| {
+        if (width as u64).saturating_mul(height as u64) > max_pixels {
+            return Err(RawError::TooLarge {
+                path: path.to_path_buf(),
+                width,
+                height,
+                max_pixels,
+            });
+        }
+        Ok(())
+    };
     let decoder = rawler::get_decoder(&source).map_err(failed)?;
     let header = decoder.raw_image(&source, &params, true).map_err(failed)?;
-    if (header.width as u64).saturating_mul(header.height as u64) > max_pixels {
-        return Err(RawError::TooLarge {
-            path: path.to_path_buf(),
-            width: header.width,
-            height: header.height,
-            max_pixels,
-        });
-    }
+    within_limit(header.width, header.height)?;
     drop(header);
     let image = decoder.raw_image(&source, &params, false).map_err(failed)?;
     // The decoded image again: a file whose header understates its size is refused before
     // anything larger (the demosaicked map) is made of it.
-    if (image.width as u64).saturating_mul(image.height as u64) > max_pixels {
-        return Err(RawError::TooLarge {
-            path: path.to_path_buf(),
-            width: image.width,
-            height: image.height,
-            max_pixels,
-        });
-    }
+    within_limit(image.width, image.height)?;
     let exif = decoder.raw_metadata(&source, &params).map(|m| m.exif).ok();
     let camera = format!("{} {}", image.clean_make, image.clean_model)
         .trim()
