@@ -540,6 +540,17 @@ def median_rms(rows, m):
     return f'{np.median(v):.2f}' if v else '–'
 
 
+def spearman(rows):
+    """Rank correlation of confidence with the excess RMS over the all-frame curve (an
+    honest confidence correlates negatively); NaN for fewer than three channels."""
+    if len(rows) < 3:
+        return float('nan')
+    rank = lambda v: np.argsort(np.argsort(v)).astype(float)
+    a = rank(np.array([r['confidence'] for r in rows]))
+    b = rank(np.array([r['rms2'] - r['rmsall'] for r in rows]))
+    return float(np.corrcoef(a, b)[0, 1])
+
+
 def confidence_rows(b):
     """Per pair and channel: (confidence, RMS two-frame, RMS all-frame)."""
     out = []
@@ -638,15 +649,16 @@ def report(brackets, args):
           f'"really worse" = its RMS over that pair\'s triples exceeds filmback-all\'s on the same '
           f'samples by > {WORSE_DN:g} DN). Targets: flagged low (< {LOW}) really worse >= 60 %, '
           'not flagged really worse <= 10 %.\n')
-    print('| bracket | channels | flagged low | of which really worse | not flagged | of which really worse |')
-    print('|---|---|---|---|---|---|')
+    print('| bracket | channels | flagged low | of which really worse | not flagged '
+          '| of which really worse | rank corr. confidence vs excess |')
+    print('|---|---|---|---|---|---|---|')
     for name, bs in groups:
         rows = [r for b in bs for r in confidence_rows(b)]
         low = [r for r in rows if r['confidence'] < LOW]
         high = [r for r in rows if not r['confidence'] < LOW]
         worse = lambda rs: sum(r['rms2'] - r['rmsall'] > WORSE_DN for r in rs)
         print(f"| {name} | {len(rows)} | {len(low)} | {pct((worse(low), len(low)))} | {len(high)} "
-              f"| {pct((worse(high), len(high)))} |")
+              f"| {pct((worse(high), len(high)))} | {spearman(rows):+.2f} |")
     print()
     print('Two-frame fits, per channel R G B (confidence; RMS DN of filmback-2 / filmback-all over the '
           "pair's triples):\n")
