@@ -415,6 +415,92 @@ fn calibrate_command(args: &[&std::ffi::OsStr]) -> std::process::Output {
 }
 
 #[test]
+fn command_fits_three_frames_jointly_from_exif_or_given_exposures() {
+    let dir = tempfile::tempdir().unwrap();
+    let frames = bracket_of(
+        &scene(),
+        &sensor(ResponseCurve::Srgb, BitDepth::Eight),
+        3,
+        4.0,
+    );
+    let paths: Vec<_> = (0..3)
+        .map(|k| dir.path().join(format!("f{k}.png")))
+        .collect();
+    for ((frame, exposure), path) in frames.iter().zip(&paths) {
+        write_frame(path, frame, Some(exposure / 60.0));
+    }
+    // Given in no particular order: the report lists them by exposure.
+    let args = [&paths[2], &paths[0], &paths[1]].map(|p| p.as_os_str());
+    let mut with_json = args.to_vec();
+    with_json.push(std::ffi::OsStr::new("--json"));
+    let out = calibrate_command(&with_json);
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let json: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
+    assert!(
+        (json["ratio"].as_f64().unwrap() - 16.0).abs() < 1e-6,
+        "{json}"
+    );
+    let listed: Vec<&str> = json["frames"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|f| f["path"].as_str().unwrap())
+        .collect();
+    let expected: Vec<String> = paths.iter().map(|p| p.display().to_string()).collect();
+    assert_eq!(listed, expected);
+    let fitted = |json: &serde_json::Value| -> Vec<f64> {
+        json["channels"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .map(|ch| ch["inverse_response"][128].as_f64().unwrap())
+            .collect()
+    };
+    let true_mid = ResponseCurve::Srgb.inverse(128.0 / 255.0);
+    for g in fitted(&json) {
+        assert!(
+            (g / true_mid).log2().abs() < 0.1,
+            "g(128) {g} against {true_mid}"
+        );
+    }
+
+    // The same frames without EXIF: the exposures must be given, one per frame.
+    let bare: Vec<_> = (0..3)
+        .map(|k| dir.path().join(format!("bare{k}.png")))
+        .collect();
+    for ((frame, _), path) in frames.iter().zip(&bare) {
+        write_frame(path, frame, None);
+    }
+    let bare_args: Vec<&std::ffi::OsStr> = bare.iter().map(|p| p.as_os_str()).collect();
+    let out = calibrate_command(&bare_args);
+    assert!(!out.status.success());
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert!(
+        stderr.contains("no EXIF exposure") && stderr.contains("bare0.png"),
+        "{stderr}"
+    );
+    let mut given = bare_args.clone();
+    given.extend(["--times", "1/64,1/16,1/4", "--json"].map(std::ffi::OsStr::new));
+    let out = calibrate_command(&given);
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let again: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
+    assert_eq!(again["ratio_source"], "argument");
+    assert_eq!(fitted(&again), fitted(&json));
+    let mut short = bare_args.clone();
+    short.extend(["--times", "1,4"].map(std::ffi::OsStr::new));
+    let out = calibrate_command(&short);
+    assert!(String::from_utf8_lossy(&out.stderr).contains("2 exposure times for 3 frames"));
+}
+
+#[test]
 fn command_prints_the_json_contract_and_writes_toml_and_png() {
     let dir = tempfile::tempdir().unwrap();
     let (dark, bright) = pair(&scene(), &sensor(ResponseCurve::Srgb, BitDepth::Eight), 4.0);

@@ -1,7 +1,9 @@
-//! `filmback calibrate FRAME FRAME [--ratio R] [--degree auto|N] [--stride N] [--json]
-//! [--plot FILE.png] [-o response.toml]`: the camera's inverse response from two exposures.
+//! `filmback calibrate FRAME FRAME [FRAME…] [--ratio R | --times T,T,…] [--degree
+//! auto|N] [--stride N] [--json] [--plot FILE.png] [-o response.toml]`: the camera's
+//! inverse response from two exposures, or from every frame of a bracket jointly (the
+//! curve `merge` and the daemon fit for a bracket of more than two exposures).
 
-use std::path::{Path, PathBuf};
+use std::path::PathBuf;
 use std::process::ExitCode;
 
 use anyhow::{Context, bail};
@@ -13,16 +15,24 @@ use serde_json::{Value, json};
 
 pub(crate) mod plot;
 
+use super::merge::parse_time;
+
 /// Arguments of `filmback calibrate`.
 #[derive(Debug, clap::Args)]
 pub struct Args {
-    /// Two exposures of the same scene, in any order (sorted by exposure).
-    #[arg(required = true, num_args = 2)]
+    /// Two or more exposures of the same scene, in any order (sorted by exposure). More
+    /// than two are fitted jointly: every two frames adjacent in exposure give equations.
+    #[arg(required = true, num_args = 2..)]
     frames: Vec<PathBuf>,
-    /// Exposure ratio bright/dark (> 1); overrides EXIF. Without it and without EXIF the
-    /// ratio is estimated (see `ratio_prior` in the output).
-    #[arg(long)]
+    /// Exposure ratio bright/dark (> 1) of two frames; overrides EXIF. Without it and
+    /// without EXIF the ratio is estimated (see `ratio_prior` in the output).
+    #[arg(long, conflicts_with = "times")]
     ratio: Option<f64>,
+    /// Exposure times in seconds, one per frame in command-line order, all at one
+    /// aperture and ISO (fractions like 1/60 are accepted); override EXIF. More than two
+    /// frames need these or EXIF exposures.
+    #[arg(long, value_delimiter = ',', value_name = "T,T,…")]
+    times: Vec<String>,
     /// Model: `auto` (a cubic spline whose smoothness the data choose) or one polynomial
     /// of degree 1..=16 (the report's model was degree 6).
     #[arg(long, default_value = "auto", value_parser = parse_degree)]
@@ -33,7 +43,8 @@ pub struct Args {
     /// Print JSON instead of a table.
     #[arg(long)]
     json: bool,
-    /// Draw histograms, cumulative histograms, τ and g per channel into this PNG.
+    /// Draw histograms, cumulative histograms, τ and g per channel into this PNG (more
+    /// than two frames: g per channel).
     #[arg(long, value_name = "FILE.png")]
     plot: Option<PathBuf>,
     /// Save the response as a versioned TOML file (read by `merge` and the daemon).
@@ -102,6 +113,29 @@ pub fn run(args: Args) -> anyhow::Result<ExitCode> {
         .iter()
         .map(|l| l.metadata.exposure.relative())
         .collect();
+    if !args.times.is_empty() && args.times.len() != loaded.len() {
+        bail!(
+            "--times gives {} exposure times for {} frames: give one per frame, in the order given",
+            args.times.len(),
+            loaded.len()
+        );
+    }
+    let times = args
+        .times
+        .iter()
+        .zip(&loaded)
+        .map(|(t, l)| {
+            parse_time(t).with_context(|| format!("--times value for {}", l.path.display()))
+        })
+        .collect::<anyhow::Result<Vec<f64>>>()?;
+    if loaded.len() > 2 {
+        return run_bracket(&args, &loaded, &hists, &exif, times);
+    }
+    let (exif, given_source) = if times.is_empty() {
+        (exif, RatioSource::Exif)
+    } else {
+        (times.into_iter().map(Some).collect(), RatioSource::Argument)
+    };
     let (dark, ratio) = match (args.ratio, exif[0], exif[1]) {
         (Some(r), ..) => {
             if !(r.is_finite() && r > 1.0) {
@@ -114,13 +148,13 @@ pub fn run(args: Args) -> anyhow::Result<ExitCode> {
             (dark, Ratio::Known(r, RatioSource::Argument))
         }
         (None, Some(a), Some(b)) if a == b => bail!(
-            "{} and {} have the same EXIF exposure (t·S/N² = {a}): give --ratio if they differ",
+            "{} and {} have the same exposure ({a}): give --ratio if they differ",
             loaded[0].path.display(),
             loaded[1].path.display()
         ),
         (None, Some(a), Some(b)) => {
             let dark = usize::from(b < a);
-            (dark, Ratio::Known(a.max(b) / a.min(b), RatioSource::Exif))
+            (dark, Ratio::Known(a.max(b) / a.min(b), given_source))
         }
         _ => (
             usize::from(mean_brightness(&hists[1]) < mean_brightness(&hists[0])),
@@ -142,11 +176,74 @@ pub fn run(args: Args) -> anyhow::Result<ExitCode> {
     if let Some(path) = &args.plot {
         plot::write(path, &hists[dark], &hists[bright], &calibration)?;
     }
-    let report = report(&calibration, &loaded[dark].path, &loaded[bright].path);
-    let text = if args.json {
-        serde_json::to_string_pretty(&report)? + "\n"
+    let mut report = report(&calibration);
+    report["dark"] = json!(loaded[dark].path.display().to_string());
+    report["bright"] = json!(loaded[bright].path.display().to_string());
+    print_report(&report, args.json)
+}
+
+/// More than two frames: one joint fit over every two frames adjacent in exposure
+/// ([`response::calibrate_bracket`]), with the exposures from `--times` or EXIF.
+fn run_bracket(
+    args: &Args,
+    loaded: &[LoadedFrame],
+    hists: &[Histogram],
+    exif: &[Option<f64>],
+    times: Vec<f64>,
+) -> anyhow::Result<ExitCode> {
+    if args.ratio.is_some() {
+        bail!(
+            "--ratio is for two frames: give --times T,T,… for {} frames",
+            loaded.len()
+        );
+    }
+    let (exposures, source) = if times.is_empty() {
+        let mut exposures = Vec::with_capacity(loaded.len());
+        for (l, e) in loaded.iter().zip(exif) {
+            let Some(e) = e else {
+                bail!(
+                    "{}: no EXIF exposure (time, aperture, ISO); give --times T,T,… for every frame",
+                    l.path.display()
+                );
+            };
+            exposures.push(*e);
+        }
+        (exposures, RatioSource::Exif)
     } else {
-        table(&report)
+        (times, RatioSource::Argument)
+    };
+    let frames: Vec<(&Histogram, f64)> = hists.iter().zip(exposures.iter().copied()).collect();
+    let calibration = response::calibrate_bracket(&frames, source, args.degree)
+        .with_context(|| format!("calibrating the {} frames jointly", loaded.len()))?;
+    if let Some(path) = &args.output {
+        response::save(path, &calibration.record(), Overwrite::Replace)?;
+    }
+    if let Some(path) = &args.plot {
+        let title = format!("joint fit of {} frames", loaded.len());
+        plot::write_response(path, &calibration.response, &title)?;
+    }
+    let mut order: Vec<usize> = (0..loaded.len()).collect();
+    order.sort_by(|&a, &b| exposures[a].total_cmp(&exposures[b]));
+    let darkest = exposures[order[0]];
+    let mut report = report(&calibration);
+    report["frames"] = order
+        .iter()
+        .map(|&k| {
+            json!({
+                "path": loaded[k].path.display().to_string(),
+                "exposure": exposures[k] / darkest,
+            })
+        })
+        .collect();
+    print_report(&report, args.json)
+}
+
+/// Prints the report as JSON or as a table.
+fn print_report(report: &Value, json: bool) -> anyhow::Result<ExitCode> {
+    let text = if json {
+        serde_json::to_string_pretty(report)? + "\n"
+    } else {
+        table(report)
     };
     // A closed pipe (`| head`) is not worth a panic.
     let _ = std::io::Write::write_all(&mut std::io::stdout().lock(), text.as_bytes());
@@ -158,8 +255,9 @@ fn number(x: f64) -> Value {
     if x.is_finite() { json!(x) } else { Value::Null }
 }
 
-/// The `--json` report: the ratio, and per channel the curve summary and its confidence.
-fn report(cal: &Calibration, dark: &Path, bright: &Path) -> Value {
+/// The `--json` report: the ratio, and per channel the curve summary and its confidence
+/// (the caller adds which frames: `dark` and `bright`, or `frames`).
+fn report(cal: &Calibration) -> Value {
     let channels: Vec<Value> = cal
         .channels
         .iter()
@@ -199,8 +297,6 @@ fn report(cal: &Calibration, dark: &Path, bright: &Path) -> Value {
             "g(0.5) = {PRIOR_MID_GREY:.4} as on the sRGB curve (g and the ratio trade off as g^k, ratio^k)"
         )),
         "ratio_range": cal.ratio_range().map(|(lo, hi)| [lo, hi]),
-        "dark": dark.display().to_string(),
-        "bright": bright.display().to_string(),
         "channels": channels,
     })
 }
@@ -208,11 +304,26 @@ fn report(cal: &Calibration, dark: &Path, bright: &Path) -> Value {
 fn table(r: &Value) -> String {
     use std::fmt::Write;
     let mut out = String::new();
+    if let Some(frames) = r["frames"].as_array() {
+        for f in frames {
+            let _ = writeln!(
+                out,
+                "frame {}  exposure ×{:.4}",
+                f["path"].as_str().unwrap_or("?"),
+                f["exposure"].as_f64().unwrap_or(f64::NAN)
+            );
+        }
+    } else {
+        let _ = writeln!(
+            out,
+            "dark {}  bright {}",
+            r["dark"].as_str().unwrap_or("?"),
+            r["bright"].as_str().unwrap_or("?")
+        );
+    }
     let _ = writeln!(
         out,
-        "dark {}  bright {}\nratio {:.4} ({}){}",
-        r["dark"].as_str().unwrap_or("?"),
-        r["bright"].as_str().unwrap_or("?"),
+        "ratio {:.4} ({}){}",
         r["ratio"].as_f64().unwrap_or(f64::NAN),
         r["ratio_source"].as_str().unwrap_or("?"),
         r["ratio_prior"]

@@ -238,7 +238,7 @@ fn ms(d: Duration) -> f64 {
     (d.as_secs_f64() * 1e4).round() / 10.0
 }
 
-fn parse_time(text: &str) -> anyhow::Result<f64> {
+pub(crate) fn parse_time(text: &str) -> anyhow::Result<f64> {
     let text = text.trim();
     let value = match text.split_once('/') {
         Some((n, d)) => n.trim().parse::<f64>()? / d.trim().parse::<f64>()?,
