@@ -109,9 +109,9 @@ pub struct Watch {
     pub poll: Duration,
     /// Periodic full rescan; `None` disables it.
     pub rescan: Option<Duration>,
-    /// Watch sub-folders too.
+    /// Watch sub-folders too (see [`Watch::descends`]).
     pub recursive: bool,
-    /// Size and mtime must be stable this long.
+    /// Size, mtime, change time and inode must be stable this long.
     pub settle: Duration,
     /// Temporary-name patterns (`*` wildcard).
     pub ignore: Vec<String>,
