@@ -415,6 +415,27 @@ fn raw_plus_jpeg_in_sibling_folders_jpeg_first_gives_one_bracket_from_the_raws()
     assert_eq!(seen, expected);
 }
 
+/// A body seen shooting RAW+JPEG then shoots JPEG only: its JPEGs wait the bracket gap
+/// for a raw that never comes, then are frames; nothing is lost or rejected.
+#[cfg(feature = "raw")]
+#[test]
+fn jpegs_of_a_raw_plus_jpeg_body_without_raws_are_frames_after_the_gap() {
+    let mut rig = Rig::start(&[], Arc::new(DarkroomLab), |_| {});
+    let jpegs = aeb("Raw Body", 10, "r");
+    let raws = raw_aeb("Raw Body", 10, "r");
+    for (raw, jpeg) in raws.iter().zip(&jpegs) {
+        put(&rig.ingest(), std::slice::from_ref(raw));
+        put(&rig.ingest(), std::slice::from_ref(jpeg));
+    }
+    expect_outputs(&rig.out(), &bracket_outputs(&["r-1"]), T);
+    put(&rig.ingest(), &aeb("Raw Body", 30, "j"));
+    expect_outputs(&rig.out(), &bracket_outputs(&["r-1", "j-1"]), T);
+    let state = rig.state();
+    let summary = rig.stop();
+    assert_eq!((summary.finished, summary.rejected), (2, 0));
+    assert_eq!(journaled_brackets(&state), ["j-1", "r-1"]);
+}
+
 /// gphoto2, Capture One, macOS and Windows leave files beside the frames: none of them is
 /// a frame or a reject, and Capture One's folder is not descended into, even with an empty
 /// `ignore` list.
