@@ -76,6 +76,7 @@ fn capture(path: &Path, bytes: &[u8]) -> Capture {
         },
         exposure: m.exposure.relative(),
         time_s: m.captured_at.map_or(0.0, |t| t.local_seconds()),
+        companion: None,
     }
 }
 

@@ -899,3 +899,134 @@ fn every_command_exits_quietly_when_its_reader_goes_away() {
         assert_ne!(out.status.code(), Some(101), "{args:?} panicked");
     }
 }
+
+// ---------------------------------------------------------------------------------------
+// `filmback hook`: gphoto2's --hook-script
+// ---------------------------------------------------------------------------------------
+
+/// Runs `filmback hook --ingest INGEST` in `cwd` as gphoto2 runs its hook script: with
+/// `ACTION` and, when given, `ARGUMENT` in the environment.
+fn hook(cwd: &Path, ingest: &Path, action: &str, argument: Option<&str>) -> std::process::Output {
+    let mut cmd = filmback();
+    cmd.current_dir(cwd)
+        .arg("hook")
+        .arg("--ingest")
+        .arg(ingest)
+        .env_remove("ARGUMENT")
+        .env("ACTION", action);
+    if let Some(a) = argument {
+        cmd.env("ARGUMENT", a);
+    }
+    cmd.output().expect("run filmback hook")
+}
+
+fn names_in(dir: &Path) -> Vec<String> {
+    let mut names: Vec<String> = std::fs::read_dir(dir)
+        .unwrap()
+        .map(|e| e.unwrap().file_name().to_string_lossy().into_owned())
+        .collect();
+    names.sort();
+    names
+}
+
+#[test]
+fn hook_moves_a_download_into_ingest_and_ignores_other_actions() {
+    let dir = tempfile::tempdir().unwrap();
+    let (cwd, ingest) = (dir.path().join("gphoto2"), dir.path().join("ingest"));
+    std::fs::create_dir_all(&cwd).unwrap();
+    std::fs::create_dir_all(&ingest).unwrap();
+    write(&cwd, "IMG_0001.CR2", b"raw bytes");
+    for action in ["init", "start", "stop"] {
+        let out = hook(&cwd, &ingest, action, None);
+        assert!(out.status.success(), "{action}: {out:?}");
+    }
+    assert!(names_in(&ingest).is_empty(), "only download moves files");
+    // gphoto2 passes the file as it named it: relative to its working folder.
+    let out = hook(&cwd, &ingest, "download", Some("IMG_0001.CR2"));
+    assert!(out.status.success(), "{out:?}");
+    assert_eq!(names_in(&ingest), ["IMG_0001.CR2"]);
+    assert_eq!(
+        std::fs::read(ingest.join("IMG_0001.CR2")).unwrap(),
+        b"raw bytes"
+    );
+    assert!(names_in(&cwd).is_empty(), "moved, not copied");
+    // Without ACTION it says what it is for.
+    let out = filmback()
+        .args(["hook", "--ingest"])
+        .arg(&ingest)
+        .env_remove("ACTION")
+        .output()
+        .unwrap();
+    assert!(!out.status.success());
+    assert!(String::from_utf8_lossy(&out.stderr).contains("--hook-script"));
+}
+
+#[test]
+fn hook_never_replaces_a_frame_and_leaves_the_download_in_place() {
+    let dir = tempfile::tempdir().unwrap();
+    let (cwd, ingest) = (dir.path().join("gphoto2"), dir.path().join("ingest"));
+    std::fs::create_dir_all(&cwd).unwrap();
+    std::fs::create_dir_all(&ingest).unwrap();
+    let source = write(&cwd, "IMG_0002.JPG", b"new capture");
+    write(&ingest, "IMG_0002.JPG", b"earlier capture");
+    let out = hook(&cwd, &ingest, "download", Some(source.to_str().unwrap()));
+    assert_eq!(out.status.code(), Some(1), "{out:?}");
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert!(
+        stderr.contains(&ingest.join("IMG_0002.JPG").display().to_string())
+            && stderr.contains(&source.display().to_string())
+            && stderr.contains("already exists"),
+        "{stderr}"
+    );
+    assert_eq!(std::fs::read(&source).unwrap(), b"new capture");
+    assert_eq!(
+        std::fs::read(ingest.join("IMG_0002.JPG")).unwrap(),
+        b"earlier capture"
+    );
+    assert_eq!(names_in(&ingest), ["IMG_0002.JPG"], "no staging file left");
+}
+
+/// Across file systems (a tmpfs under /dev/shm against the test folder): copied to a
+/// hidden staging name, synced, published, the source removed; the capture-time mtime
+/// gphoto2 set is kept. Skipped where no second file system is writable.
+#[test]
+fn hook_copies_across_file_systems_through_a_hidden_staging_name() {
+    use std::os::unix::fs::MetadataExt;
+    let dir = tempfile::tempdir().unwrap();
+    let ingest = dir.path().join("ingest");
+    std::fs::create_dir_all(&ingest).unwrap();
+    let Ok(other) = tempfile::tempdir_in("/dev/shm") else {
+        eprintln!("skipped: /dev/shm is not writable");
+        return;
+    };
+    let dev = |p: &Path| std::fs::metadata(p).unwrap().dev();
+    if dev(other.path()) == dev(&ingest) {
+        eprintln!("skipped: /dev/shm is on the same file system");
+        return;
+    }
+    let bytes: Vec<u8> = (0..300_000u32).map(|i| (i % 251) as u8).collect();
+    let source = write(other.path(), "IMG_0003.NEF", &bytes);
+    let captured =
+        std::time::SystemTime::UNIX_EPOCH + std::time::Duration::from_secs(1_700_000_000);
+    std::fs::File::options()
+        .write(true)
+        .open(&source)
+        .unwrap()
+        .set_modified(captured)
+        .unwrap();
+    let out = hook(
+        other.path(),
+        &ingest,
+        "download",
+        Some(source.to_str().unwrap()),
+    );
+    assert!(out.status.success(), "{out:?}");
+    assert_eq!(names_in(&ingest), ["IMG_0003.NEF"]);
+    let target = ingest.join("IMG_0003.NEF");
+    assert_eq!(std::fs::read(&target).unwrap(), bytes);
+    assert_eq!(
+        std::fs::metadata(&target).unwrap().modified().unwrap(),
+        captured
+    );
+    assert!(!source.exists(), "the download moved");
+}

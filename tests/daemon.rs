@@ -317,8 +317,47 @@ fn raw_only_bracket_gives_one_exr_and_the_looks() {
     assert!(rejected(&state).is_empty(), "{:?}", rejected(&state));
 }
 
-/// RAW+JPEG: each capture arrives as `r-k.dng` and `r-k.jpg`; the raws make the one
-/// bracket, the JPEGs are set aside as their companions, never a second bracket.
+/// Each frame a lab was given, by file name, with its companion's file name.
+#[cfg(feature = "raw")]
+type FramesSeen = Arc<std::sync::Mutex<Vec<(String, Option<String>)>>>;
+
+/// The real lab, recording each job's frames with their companions.
+#[cfg(feature = "raw")]
+fn companion_recording_darkroom() -> (FramesSeen, Arc<dyn Lab>) {
+    let seen = Arc::new(std::sync::Mutex::new(Vec::new()));
+    let record = Arc::clone(&seen);
+    let name = |p: &Path| p.file_name().unwrap().to_string_lossy().into_owned();
+    let lab = move |job: &Job| -> Result<Processed, JobError> {
+        record.lock().unwrap().extend(job.frames.iter().map(|f| {
+            (
+                name(&f.input.path),
+                f.companion.as_ref().map(|c| name(&c.path)),
+            )
+        }));
+        DarkroomLab.process(job)
+    };
+    (seen, Arc::new(lab))
+}
+
+/// Checks a RAW+JPEG bracket's journal: one bracket of the three raws, no file rejected
+/// (the JPEGs are companions, not rejects).
+#[cfg(feature = "raw")]
+fn assert_one_raw_bracket(state: &Path) {
+    assert_eq!(journaled_brackets(state), ["r-1"]);
+    let rejected = rejected(state);
+    assert!(rejected.is_empty(), "{rejected:?}");
+    let entries = journal::read(state).unwrap();
+    let inputs: Vec<String> = entries
+        .iter()
+        .flat_map(Entry::inputs)
+        .map(|i| i.path.file_name().unwrap().to_string_lossy().into_owned())
+        .collect();
+    assert_eq!(inputs, ["r-1.dng", "r-2.dng", "r-3.dng"]);
+}
+
+/// RAW+JPEG, the raw first: each capture arrives as `r-k.dng` then `r-k.jpg` in one
+/// folder; the raws make the one bracket, the JPEGs are set aside as their companions
+/// (never a second bracket, never a reject).
 #[cfg(feature = "raw")]
 #[test]
 fn raw_plus_jpeg_gives_one_bracket_from_the_raws() {
@@ -332,16 +371,178 @@ fn raw_plus_jpeg_gives_one_bracket_from_the_raws() {
     expect_outputs(&rig.out(), &bracket_outputs(&["r-1"]), T);
     let state = rig.state();
     let summary = rig.stop();
-    assert_eq!(summary.finished, 1);
-    assert_eq!(journaled_brackets(&state), ["r-1"]);
-    let rejected = rejected(&state);
-    assert_eq!(rejected.len(), 3, "{rejected:?}");
-    assert!(
-        rejected
-            .iter()
-            .all(|(name, why)| name.ends_with(".jpg") && why.contains("RAW+JPEG")),
-        "{rejected:?}"
+    assert_eq!((summary.finished, summary.rejected), (1, 0));
+    assert_one_raw_bracket(&state);
+}
+
+/// RAW+JPEG in sibling folders (`RAW/r-k.dng`, `JPG/r-k.jpg`), the JPEG first and
+/// settled before its raw arrives: the first JPEG gives way to its raw in the open
+/// bracket, the later ones wait for theirs (the body is known to shoot RAW+JPEG); one
+/// EXR from the raws, and the lab is told each raw's JPEG.
+#[cfg(feature = "raw")]
+#[test]
+fn raw_plus_jpeg_in_sibling_folders_jpeg_first_gives_one_bracket_from_the_raws() {
+    let (seen, lab) = companion_recording_darkroom();
+    let mut rig = Rig::start(
+        &[
+            ("watch", "recursive = true"),
+            ("bracket", "max_gap_s = 4.0"),
+        ],
+        lab,
+        |root| {
+            std::fs::create_dir_all(root.join("ingest/RAW")).unwrap();
+            std::fs::create_dir_all(root.join("ingest/JPG")).unwrap();
+        },
     );
+    let jpegs = aeb("Raw Body", 10, "r");
+    let raws = raw_aeb("Raw Body", 10, "r");
+    for (raw, jpeg) in raws.iter().zip(&jpegs) {
+        put(&rig.ingest().join("JPG"), std::slice::from_ref(jpeg));
+        // Settle time 150 ms: the JPEG is taken before its raw appears.
+        std::thread::sleep(Duration::from_millis(600));
+        put(&rig.ingest().join("RAW"), std::slice::from_ref(raw));
+        std::thread::sleep(Duration::from_millis(300));
+    }
+    expect_outputs(&rig.out(), &bracket_outputs(&["r-1"]), T);
+    let state = rig.state();
+    let summary = rig.stop();
+    assert_eq!((summary.finished, summary.rejected), (1, 0));
+    assert_one_raw_bracket(&state);
+    let seen = seen.lock().unwrap().clone();
+    let expected: Vec<(String, Option<String>)> = (1..=3)
+        .map(|k| (format!("r-{k}.dng"), Some(format!("r-{k}.jpg"))))
+        .collect();
+    assert_eq!(seen, expected);
+}
+
+/// A body seen shooting RAW+JPEG then shoots JPEG only: its JPEGs wait the bracket gap
+/// for a raw that never comes, then are frames; nothing is lost or rejected.
+#[cfg(feature = "raw")]
+#[test]
+fn jpegs_of_a_raw_plus_jpeg_body_without_raws_are_frames_after_the_gap() {
+    let mut rig = Rig::start(&[], Arc::new(DarkroomLab), |_| {});
+    let jpegs = aeb("Raw Body", 10, "r");
+    let raws = raw_aeb("Raw Body", 10, "r");
+    for (raw, jpeg) in raws.iter().zip(&jpegs) {
+        put(&rig.ingest(), std::slice::from_ref(raw));
+        put(&rig.ingest(), std::slice::from_ref(jpeg));
+    }
+    expect_outputs(&rig.out(), &bracket_outputs(&["r-1"]), T);
+    put(&rig.ingest(), &aeb("Raw Body", 30, "j"));
+    expect_outputs(&rig.out(), &bracket_outputs(&["r-1", "j-1"]), T);
+    let state = rig.state();
+    let summary = rig.stop();
+    assert_eq!((summary.finished, summary.rejected), (2, 0));
+    assert_eq!(journaled_brackets(&state), ["j-1", "r-1"]);
+}
+
+/// gphoto2, Capture One, macOS and Windows leave files beside the frames: none of them is
+/// a frame or a reject, and Capture One's folder is not descended into, even with an empty
+/// `ignore` list.
+#[test]
+fn tethering_tools_litter_is_neither_a_frame_nor_a_reject() {
+    let mut rig = Rig::start(
+        &[("watch", "recursive = true"), ("watch", "ignore = []")],
+        Arc::new(DarkroomLab),
+        |root| {
+            let ingest = root.join("ingest");
+            let c1 = ingest.join("CaptureOne");
+            std::fs::create_dir_all(c1.join("Settings153")).unwrap();
+            std::fs::create_dir_all(c1.join("Cache/Proxies")).unwrap();
+            std::fs::write(c1.join("Settings153/t-1.jpg.cos"), b"<xml/>").unwrap();
+            std::fs::write(c1.join("Settings153/t-1.jpg.comask"), b"mask").unwrap();
+            std::fs::write(c1.join("Cache/Proxies/t-1.jpg.cop"), b"preview").unwrap();
+            // A name the extension test takes, inside the tool's folder.
+            std::fs::write(c1.join("Cache/Proxies/t-1.jpg"), b"not a frame").unwrap();
+            for (name, bytes) in [
+                ("._t-1.jpg", &b"AppleDouble"[..]),
+                (".DS_Store", b"Bud1"),
+                ("Thumbs.db", b"thumbs"),
+                ("t-1.xmp", b"<x:xmpmeta/>"),
+                ("t-1.jpg.xmp", b"<x:xmpmeta/>"),
+                ("tmpfileQ3xZ9a", b"half a download"),
+                ("t-9.jpg.part", b"partial"),
+                ("t-9.jpg.crdownload", b"partial"),
+                ("t-9.jpg.tmp", b"partial"),
+            ] {
+                std::fs::write(ingest.join(name), bytes).unwrap();
+            }
+        },
+    );
+    put(&rig.ingest(), &aeb("Body A", 10, "t"));
+    expect_outputs(&rig.out(), &bracket_outputs(&["t-1"]), T);
+    let state = rig.state();
+    let summary = rig.stop();
+    assert_eq!((summary.finished, summary.rejected), (1, 0));
+    assert!(rejected(&state).is_empty(), "{:?}", rejected(&state));
+    assert_eq!(journaled_brackets(&state), ["t-1"]);
+}
+
+/// gphoto2 across file systems: the frame is copied under its final name in pieces, and
+/// its mtime is the capture time (an hour ago) all along. It is taken only once complete.
+#[test]
+fn a_file_written_in_pieces_with_an_old_mtime_is_taken_only_when_complete() {
+    let mut rig = Rig::start(
+        &[("watch", "settle_ms = 400")],
+        Arc::new(DarkroomLab),
+        |_| {},
+    );
+    let frames = aeb("Body A", 10, "g");
+    put(&rig.ingest(), &frames[..2]);
+    let (name, bytes) = &frames[2];
+    let past = std::time::SystemTime::now() - Duration::from_secs(3600);
+    let mut f = std::fs::File::create(rig.ingest().join(name)).unwrap();
+    for chunk in bytes.chunks(bytes.len().div_ceil(12)) {
+        f.write_all(chunk).unwrap();
+        f.set_modified(past).unwrap();
+        std::thread::sleep(Duration::from_millis(150));
+    }
+    drop(f);
+    expect_outputs(&rig.out(), &bracket_outputs(&["g-1"]), T);
+    let state = rig.state();
+    rig.stop();
+    assert!(rejected(&state).is_empty(), "{:?}", rejected(&state));
+    let entries = journal::read(&state).unwrap();
+    assert!(
+        matches!(&entries[..], [Entry::Bracket { inputs, .. }] if inputs.len() == 3),
+        "{entries:?}"
+    );
+}
+
+/// digiCamControl: the file appears whole, then its EXIF is rewritten in place just after.
+/// The second version is the one developed, and only once.
+#[test]
+fn exif_rewritten_just_after_the_file_appears_develops_the_second_version_once() {
+    let (calls, lab) = counting_darkroom();
+    let mut rig = Rig::start(&[("watch", "settle_ms = 300")], lab, |_| {});
+    let frames = aeb("Body A", 10, "d");
+    put(&rig.ingest(), &frames[..2]);
+    // The first version carries another capture time (30 s later: not of this bracket).
+    let (name, second) = &frames[2];
+    let first = &aeb("Body A", 40, "d")[2].1;
+    std::fs::write(rig.ingest().join(name), first).unwrap();
+    std::thread::sleep(Duration::from_millis(100));
+    std::fs::write(rig.ingest().join(name), second).unwrap();
+    expect_outputs(&rig.out(), &bracket_outputs(&["d-1"]), T);
+    let state = rig.state();
+    rig.stop();
+    assert_eq!(calls.load(Ordering::SeqCst), 1, "developed once");
+    let entries = journal::read(&state).unwrap();
+    match &entries[..] {
+        [
+            Entry::Bracket {
+                inputs, digests, ..
+            },
+        ] => {
+            assert_eq!(inputs.len(), 3);
+            assert_eq!(
+                digests[2],
+                journal::content_digest(second),
+                "the second version"
+            );
+        }
+        other => panic!("{other:?}"),
+    }
 }
 
 #[test]

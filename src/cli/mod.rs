@@ -10,6 +10,7 @@ mod calibrate;
 mod canvas;
 mod check_config;
 mod films;
+mod hook;
 mod inspect;
 mod looks;
 mod merge;
@@ -48,6 +49,8 @@ enum Command {
     CheckConfig(check_config::Args),
     /// The per-camera response cache: list, show, reset.
     Cache(cache::Args),
+    /// gphoto2 hook script: hand each finished download to the ingest folder atomically.
+    Hook(hook::Args),
 }
 
 /// Exit status when the reader of standard output went away (`filmback … | head -1`):
@@ -104,6 +107,7 @@ pub fn main() -> ExitCode {
         Command::Redo(args) => redo::run(args),
         Command::CheckConfig(args) => check_config::run(args),
         Command::Cache(args) => cache::run(args),
+        Command::Hook(args) => hook::run(args),
     };
     match result {
         Ok(code) => code,

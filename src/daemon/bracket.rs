@@ -75,6 +75,10 @@ pub struct Capture {
     pub exposure: Option<f64>,
     /// Capture time in seconds (EXIF, camera clock), or arrival time when EXIF has none.
     pub time_s: f64,
+    /// For a raw shot RAW+JPEG: the camera's JPEG (or PNG, TIFF) of the same capture, as
+    /// it was when the daemon set it aside. It is not a frame (the raw is merged); a lab
+    /// may read it beside the raw, e.g. to measure the body's JPEG response.
+    pub companion: Option<Input>,
 }
 
 impl Capture {
@@ -126,6 +130,14 @@ impl Closed {
     pub fn frames(&self) -> Vec<&Capture> {
         match self {
             Closed::Bracket(b) => b.frames.iter().collect(),
+            Closed::Single(c, _) => vec![c],
+        }
+    }
+
+    /// The frames, in capture order, to amend (e.g. with their companions).
+    pub fn frames_mut(&mut self) -> Vec<&mut Capture> {
+        match self {
+            Closed::Bracket(b) => b.frames.iter_mut().collect(),
             Closed::Single(c, _) => vec![c],
         }
     }
@@ -283,6 +295,23 @@ impl Grouper {
             .collect()
     }
 
+    /// Takes the frame at `path` out of its open group (its raw arrived: the JPEG of a
+    /// RAW+JPEG capture is not a frame of its own); `None` when no open group holds it.
+    pub fn withdraw(&mut self, path: &std::path::Path) -> Option<Capture> {
+        let (camera, at) = self.open.iter().find_map(|(camera, open)| {
+            open.frames
+                .iter()
+                .position(|c| c.input.path == path)
+                .map(|at| (camera.clone(), at))
+        })?;
+        let open = self.open.get_mut(&camera).expect("found above");
+        let capture = open.frames.remove(at);
+        if open.frames.is_empty() {
+            self.open.remove(&camera);
+        }
+        Some(capture)
+    }
+
     /// Restarts the gap clock of every open group: called while the daemon is not taking
     /// new files (queue full), so a bracket is not closed early for lack of frames that
     /// are in fact waiting on disk.
@@ -305,6 +334,7 @@ fn close(camera: CameraId, mut frames: Vec<Capture>) -> Closed {
 mod tests {
     use super::*;
     use crate::daemon::config::Singles;
+    use std::path::Path;
 
     fn rules(size: usize) -> BracketRules {
         BracketRules {
@@ -333,6 +363,7 @@ mod tests {
             camera: camera.clone(),
             exposure: Some(2f64.powf(ev)),
             time_s: t,
+            companion: None,
         }
     }
 
@@ -427,6 +458,24 @@ mod tests {
         g.postpone(11.5);
         assert!(g.expire(13.0).is_empty());
         assert_eq!(g.expire(13.6).len(), 1);
+    }
+
+    #[test]
+    fn a_withdrawn_frame_leaves_its_group_and_an_empty_group_goes() {
+        let c = cam("EOS R5");
+        let mut g = Grouper::new(rules(3));
+        g.push(shot("a", &c, 0.0, 0.0), 0.0);
+        g.push(shot("b", &c, 1.0, 0.2), 0.1);
+        let a = g.withdraw(Path::new("/in/a.jpg")).expect("a is open");
+        assert_eq!(a, shot("a", &c, 0.0, 0.0));
+        assert!(g.withdraw(Path::new("/in/a.jpg")).is_none());
+        assert_eq!(g.waiting(), 1);
+        assert!(g.withdraw(Path::new("/in/b.jpg")).is_some());
+        assert_eq!(g.waiting(), 0);
+        assert!(
+            g.expire(100.0).is_empty(),
+            "no empty group is left to close"
+        );
     }
 
     #[test]

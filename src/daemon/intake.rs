@@ -7,11 +7,12 @@
 //! opened with `O_NOFOLLOW`, so a file swapped for a link after the check is refused too.
 //! The ingest folder itself may be a link (the operator's choice in the configuration).
 
+use std::collections::HashMap;
 use std::io::Cursor;
 use std::path::{Path, PathBuf};
 use std::time::UNIX_EPOCH;
 
-use notify::event::{AccessKind, AccessMode, ModifyKind, RenameMode};
+use notify::event::{AccessKind, AccessMode};
 use notify::{EventKind, RecursiveMode, Watcher};
 use tokio::sync::mpsc::UnboundedSender;
 
@@ -25,8 +26,8 @@ use crate::metadata;
 /// What the watcher reports to the daemon loop.
 #[derive(Debug)]
 pub(crate) enum Notice {
-    /// Something happened to this file; `closed` when its writer just closed it.
-    File { path: PathBuf, closed: bool },
+    /// Something happened to this file (created, written, closed, renamed into place).
+    File(PathBuf),
     /// Events may have been lost (queue overflow): rescan the folder.
     Rescan,
 }
@@ -41,29 +42,23 @@ pub(crate) fn watch(
     tx: UnboundedSender<Notice>,
 ) -> Result<ActiveWatcher, String> {
     let takes = cfg.clone();
+    let root = dir.to_path_buf();
     let handler = move |res: notify::Result<notify::Event>| match res {
         Ok(event) => {
             if event.need_rescan() {
                 let _ = tx.send(Notice::Rescan);
             }
-            // Complete: its writer closed it, or it was renamed into place (the
-            // write-to-temporary-then-rename convention of tethering tools and copiers).
-            let closed = matches!(
+            // Reads are no news; a writer closing the file is (its last size).
+            let written = matches!(
                 event.kind,
                 EventKind::Access(AccessKind::Close(AccessMode::Write))
-                    | EventKind::Modify(ModifyKind::Name(RenameMode::To | RenameMode::Both))
             );
-            if matches!(event.kind, EventKind::Access(_)) && !closed {
+            if matches!(event.kind, EventKind::Access(_)) && !written {
                 return;
             }
             for path in event.paths {
-                // Any name the file system allows: matched on its lossy text, kept whole.
-                let name = path
-                    .file_name()
-                    .map(|n| n.to_string_lossy())
-                    .unwrap_or_default();
-                if takes.takes(&name) {
-                    let _ = tx.send(Notice::File { path, closed });
+                if takes.takes_path(&root, &path) {
+                    let _ = tx.send(Notice::File(path));
                 }
             }
         }
@@ -114,7 +109,8 @@ pub(crate) fn watch(
 }
 
 /// Every file (or link, to be refused) under `dir` whose name is taken (sorted;
-/// sub-folders when `recursive`, never through a link). A missing folder is an empty list.
+/// sub-folders when `recursive`, except hidden and tools' folders ([`Watch::descends`]),
+/// never through a link). A missing folder is an empty list.
 pub(crate) fn scan(cfg: &Watch, dir: &Path) -> Vec<PathBuf> {
     let mut found = Vec::new();
     let mut folders = vec![dir.to_path_buf()];
@@ -130,7 +126,7 @@ pub(crate) fn scan(cfg: &Watch, dir: &Path) -> Vec<PathBuf> {
             let name = entry.file_name();
             let name = name.to_string_lossy();
             if kind.is_dir() {
-                if cfg.recursive && !name.starts_with('.') {
+                if cfg.descends(&name) {
                     folders.push(path);
                 }
             } else if cfg.takes(&name) {
@@ -180,6 +176,37 @@ pub(crate) fn identify(path: &Path) -> std::io::Result<Input> {
         return Err(std::io::Error::other("not a regular file"));
     }
     stamp(path, &meta)
+}
+
+/// What settling watches of a file: its journal identity, and what changes with any
+/// write, `utime` or replacement even when the writer sets the mtime back (gphoto2 sets
+/// it to the capture time): the inode's change time (`ctime`, set by the kernel's clock)
+/// and the device and inode numbers.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub(crate) struct Observed {
+    /// Path, size, mtime.
+    pub input: Input,
+    /// `ctime` in nanoseconds since the Unix epoch.
+    changed_ns: i64,
+    /// `(st_dev, st_ino)`.
+    inode: (u64, u64),
+}
+
+/// [`identify`] with the change time and the inode (see [`Observed`]).
+pub(crate) fn observe(path: &Path) -> std::io::Result<Observed> {
+    use std::os::unix::fs::MetadataExt;
+    let meta = std::fs::symlink_metadata(path)?;
+    if !meta.is_file() && !meta.file_type().is_symlink() {
+        return Err(std::io::Error::other("not a regular file"));
+    }
+    Ok(Observed {
+        input: stamp(path, &meta)?,
+        changed_ns: meta
+            .ctime()
+            .saturating_mul(1_000_000_000)
+            .saturating_add(meta.ctime_nsec()),
+        inode: (meta.dev(), meta.ino()),
+    })
 }
 
 fn stamp(path: &Path, meta: &std::fs::Metadata) -> std::io::Result<Input> {
@@ -268,7 +295,7 @@ pub(crate) fn open_no_follow(path: &Path) -> std::io::Result<std::fs::File> {
 /// (format and dimensions; the pixels are decoded later, by the developer). A file of
 /// more than `max_bytes` (the memory budget: a frame never holds less than its file) is
 /// rejected without being read.
-pub(crate) fn probe(path: &Path, watch: &Watch, max_bytes: u64) -> Probe {
+pub(crate) fn probe(path: &Path, max_bytes: u64) -> Probe {
     use std::io::Read;
     let before = match identify(path) {
         Ok(i) => i,
@@ -334,15 +361,6 @@ pub(crate) fn probe(path: &Path, watch: &Watch, max_bytes: u64) -> Probe {
         Some(Err(e)) => return Probe::Rejected(before, e.to_string()),
         None => {}
     }
-    if let Some(raw) = raw_companion(path, watch) {
-        return Probe::Rejected(
-            before,
-            format!(
-                "the JPEG/PNG/TIFF of a RAW+JPEG capture: its raw {} is the frame merged",
-                raw.display()
-            ),
-        );
-    }
     let header = image::ImageReader::new(Cursor::new(&bytes))
         .with_guessed_format()
         .map_err(|e| e.to_string())
@@ -371,30 +389,93 @@ pub(crate) fn probe(path: &Path, watch: &Watch, max_bytes: u64) -> Probe {
     }
 }
 
-/// The raw beside `path` with the same stem (`x.jpg` and `x.CR2` are one capture taken as
-/// RAW+JPEG), when filmback reads raws and the watch takes that raw (its extension is in
-/// `[watch] extensions`); otherwise the JPEG is the frame.
-fn raw_companion(path: &Path, watch: &Watch) -> Option<PathBuf> {
+/// The index of the stems of the files in the ingest folder, kept as they are noticed:
+/// the two files of one RAW+JPEG capture are found without listing any folder.
+///
+/// Two files are one capture when their stems are equal ignoring case (`IMG_1.CR2` and
+/// `img_1.jpg`), one is a raw and the other not, and they are in the same folder or in
+/// sibling folders (`RAW/IMG_1.CR2` and `JPG/IMG_1.JPG`, a common tool setting). Lookups
+/// cost `O(k)` for the `k` files of one stem.
+#[derive(Debug, Default)]
+pub(crate) struct Stems {
+    by_stem: HashMap<String, Vec<PathBuf>>,
+}
+
+impl Stems {
+    fn key(path: &Path) -> Option<String> {
+        path.file_stem().map(|s| s.to_string_lossy().to_lowercase())
+    }
+
+    /// Notes a file noticed in the ingest folder.
+    pub(crate) fn insert(&mut self, path: &Path) {
+        let Some(key) = Self::key(path) else {
+            return;
+        };
+        let files = self.by_stem.entry(key).or_default();
+        if !files.iter().any(|p| p == path) {
+            files.push(path.to_path_buf());
+        }
+    }
+
+    /// Forgets a file that is gone.
+    pub(crate) fn remove(&mut self, path: &Path) {
+        let Some(key) = Self::key(path) else {
+            return;
+        };
+        if let Some(files) = self.by_stem.get_mut(&key) {
+            files.retain(|p| p != path);
+            if files.is_empty() {
+                self.by_stem.remove(&key);
+            }
+        }
+    }
+
+    /// Forgets everything (before a full scan rebuilds it).
+    pub(crate) fn clear(&mut self) {
+        self.by_stem.clear();
+    }
+
+    /// The other files of `path`'s capture: same stem, same or sibling folder.
+    fn partners<'a>(&'a self, path: &'a Path) -> impl Iterator<Item = &'a PathBuf> + 'a {
+        let folder = path.parent();
+        let above = folder.and_then(Path::parent);
+        Self::key(path)
+            .and_then(|k| self.by_stem.get(&k))
+            .into_iter()
+            .flatten()
+            .filter(move |p| {
+                p.as_path() != path
+                    && (p.parent() == folder || p.parent().and_then(Path::parent) == above)
+            })
+    }
+
+    /// The raw of the capture whose JPEG (PNG, TIFF) is `path`, when there is one.
+    pub(crate) fn raw_of(&self, path: &Path) -> Option<PathBuf> {
+        if is_raw(path) {
+            return None;
+        }
+        self.partners(path).find(|p| is_raw(p)).cloned()
+    }
+
+    /// The JPEG (PNG, TIFF) of the capture whose raw is `path`, when there is one.
+    pub(crate) fn companion_of(&self, path: &Path) -> Option<PathBuf> {
+        if !is_raw(path) {
+            return None;
+        }
+        self.partners(path).find(|p| !is_raw(p)).cloned()
+    }
+}
+
+/// True for a camera raw's name, when filmback reads raws.
+pub(crate) fn is_raw(path: &Path) -> bool {
     #[cfg(feature = "raw")]
     {
-        let stem = path.file_stem()?;
-        std::fs::read_dir(path.parent()?)
-            .ok()?
-            .filter_map(Result::ok)
-            .map(|e| e.path())
-            .find(|p| {
-                p != path
-                    && p.file_stem() == Some(stem)
-                    && crate::raw::is_raw_extension(p)
-                    && p.file_name()
-                        .and_then(|n| n.to_str())
-                        .is_some_and(|n| watch.takes(n))
-            })
+        crate::raw::is_raw_extension(path)
     }
     #[cfg(not(feature = "raw"))]
     {
-        let _ = (path, watch);
-        None
+        let _ = path;
+        false
     }
 }
 
@@ -414,6 +495,7 @@ fn capture(before: Input, meta: metadata::Metadata, footprint: Footprint, bytes:
             exposure: meta.exposure.relative(),
             time_s,
             input: before,
+            companion: None,
         },
         footprint,
         journal::content_digest(bytes),
@@ -423,28 +505,47 @@ fn capture(before: Input, meta: metadata::Metadata, footprint: Footprint, bytes:
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::daemon::config::Config;
     use crate::synthetic::demo;
 
     #[cfg(feature = "raw")]
     #[test]
-    fn a_jpeg_beside_its_raw_is_set_aside_only_when_the_raw_is_taken() {
-        let dir = tempfile::tempdir().unwrap();
-        let shots = demo::aeb("Body", None, 1);
-        let jpeg = demo::jpegs(96, 64, &shots, 3).unwrap().remove(0);
-        let path = dir.path().join("IMG_1.jpg");
-        std::fs::write(&path, &jpeg).unwrap();
-        std::fs::write(dir.path().join("IMG_1.CR2"), b"raw bytes").unwrap();
-        let mut watch = Config::defaults().watch;
-        assert!(
-            matches!(probe(&path, &watch, u64::MAX), Probe::Rejected(_, r) if r.contains("RAW+JPEG")),
-            "the default extensions take the raw"
+    fn the_stem_index_pairs_raw_and_jpeg_in_one_or_sibling_folders() {
+        let mut stems = Stems::default();
+        for p in [
+            "/in/IMG_1.CR2",
+            "/in/img_1.jpg",
+            "/in/RAW/IMG_2.CR2",
+            "/in/JPG/IMG_2.JPG",
+            "/in/a/b/IMG_3.NEF",
+            "/in/c/IMG_3.jpg",
+            "/in/IMG_4.jpg",
+        ] {
+            stems.insert(Path::new(p));
+        }
+        let raw = |stems: &Stems, p: &str| stems.raw_of(Path::new(p));
+        let jpeg = |stems: &Stems, p: &str| stems.companion_of(Path::new(p));
+        assert_eq!(raw(&stems, "/in/img_1.jpg"), Some("/in/IMG_1.CR2".into()));
+        assert_eq!(jpeg(&stems, "/in/IMG_1.CR2"), Some("/in/img_1.jpg".into()));
+        assert_eq!(
+            raw(&stems, "/in/JPG/IMG_2.JPG"),
+            Some("/in/RAW/IMG_2.CR2".into())
         );
-        watch.extensions.retain(|e| e != "cr2");
-        assert!(
-            matches!(probe(&path, &watch, u64::MAX), Probe::Frame(..)),
-            "a raw the watch does not take leaves the JPEG as the frame"
+        assert_eq!(
+            jpeg(&stems, "/in/RAW/IMG_2.CR2"),
+            Some("/in/JPG/IMG_2.JPG".into())
         );
+        // Not siblings (a deeper folder): two captures that share a counter.
+        assert_eq!(raw(&stems, "/in/c/IMG_3.jpg"), None);
+        assert_eq!(raw(&stems, "/in/IMG_4.jpg"), None);
+        assert_eq!(
+            raw(&stems, "/in/IMG_1.CR2"),
+            None,
+            "a raw has no raw partner"
+        );
+        stems.remove(Path::new("/in/IMG_1.CR2"));
+        assert_eq!(raw(&stems, "/in/img_1.jpg"), None);
+        stems.clear();
+        assert_eq!(raw(&stems, "/in/JPG/IMG_2.JPG"), None);
     }
 
     #[test]
@@ -465,7 +566,7 @@ mod tests {
         let jpeg = demo::jpegs(96, 64, &shots, 3).unwrap().remove(2);
         let good = dir.path().join("a.jpg");
         std::fs::write(&good, &jpeg).unwrap();
-        match probe(&good, &Config::defaults().watch, u64::MAX) {
+        match probe(&good, u64::MAX) {
             Probe::Frame(c, fp, _) => {
                 assert_eq!((fp.width, fp.height, fp.bytes_per_pixel), (96, 64, 3));
                 assert_eq!(c.camera.serial.as_deref(), Some("9"));
@@ -477,27 +578,21 @@ mod tests {
         // Larger than the budget: refused before it is read.
         let small = jpeg.len() as u64 - 1;
         assert!(matches!(
-            probe(&good, &Config::defaults().watch, small),
+            probe(&good, small),
             Probe::Rejected(_, r) if r.contains("larger than the memory budget")
         ));
         let cut = dir.path().join("b.jpg");
         std::fs::write(&cut, &jpeg[..jpeg.len() / 2]).unwrap();
-        let p = probe(&cut, &Config::defaults().watch, u64::MAX);
+        let p = probe(&cut, u64::MAX);
         assert!(
             matches!(&p, Probe::Rejected(_, r) if r.contains("truncated")),
             "{p:?}"
         );
         let empty = dir.path().join("c.jpg");
         std::fs::write(&empty, b"").unwrap();
-        assert!(
-            matches!(probe(&empty, &Config::defaults().watch, u64::MAX), Probe::Rejected(_, r) if r.contains("empty"))
-        );
+        assert!(matches!(probe(&empty, u64::MAX), Probe::Rejected(_, r) if r.contains("empty")));
         assert!(matches!(
-            probe(
-                &dir.path().join("none.jpg"),
-                &Config::defaults().watch,
-                u64::MAX
-            ),
+            probe(&dir.path().join("none.jpg"), u64::MAX),
             Probe::Gone
         ));
         let fifo = dir.path().join("e.jpg");
@@ -508,14 +603,14 @@ mod tests {
                 .unwrap()
                 .success()
         );
-        let p = probe(&fifo, &Config::defaults().watch, u64::MAX);
+        let p = probe(&fifo, u64::MAX);
         assert!(
             matches!(&p, Probe::Rejected(_, r) if r.contains("not a regular file")),
             "{p:?}"
         );
         let link = dir.path().join("d.jpg");
         std::os::unix::fs::symlink(&good, &link).unwrap();
-        let p = probe(&link, &Config::defaults().watch, u64::MAX);
+        let p = probe(&link, u64::MAX);
         assert!(
             matches!(&p, Probe::Rejected(i, r) if r.contains("not followed") && i.path == link),
             "{p:?}"

@@ -8,9 +8,10 @@
 //!
 //! One async task owns all state (candidates, grouper, queue, journal, cache); pixel
 //! work runs on blocking threads through the [`Lab`] boundary, at most `jobs` at a
-//! time. A file is taken once its writer closed it or its size and mtime were stable for
-//! `settle_ms`. When the queue is full, files simply stay on disk as candidates, and
-//! nothing is dropped. Memory is bounded twice: by `jobs` developing brackets, and by the
+//! time. A file is taken once its size, mtime, change time and inode were unchanged for
+//! `settle_ms` on the daemon's clock (never judged by its mtime, which tethering tools set
+//! to the capture time). When the queue is full, files simply stay on disk as candidates,
+//! and nothing is dropped. Memory is bounded twice: by `jobs` developing brackets, and by the
 //! `memory_mb` budget their estimates ([`job_bytes`]) must fit in.
 //!
 //! Errors split as in any service: [`DaemonError`] is fatal (folders cannot be created,
@@ -31,7 +32,7 @@ mod status;
 use std::collections::{HashMap, HashSet, VecDeque};
 use std::path::{Path, PathBuf};
 use std::sync::Arc;
-use std::time::{Duration, Instant, SystemTime};
+use std::time::{Duration, Instant};
 
 use tokio::sync::mpsc;
 use tokio::task::JoinSet;
@@ -177,9 +178,16 @@ struct Unreadable {
 #[derive(Debug)]
 struct Candidate {
     first_seen: Instant,
-    seen: Option<Input>,
+    seen: Option<intake::Observed>,
     stable_since: Instant,
-    closed: bool,
+}
+
+/// The JPEG of a body that shoots RAW+JPEG, settled before its raw: it waits for the raw
+/// (see [`settle`]) and becomes a frame of its own only if none comes.
+#[derive(Debug)]
+struct Held {
+    capture: bracket::Capture,
+    since: Instant,
 }
 
 type Outcome = (Work, Result<Processed, JobError>, Duration);
@@ -200,6 +208,16 @@ struct State {
     last_rescan: Instant,
     last_redo: Instant,
     candidates: HashMap<PathBuf, Candidate>,
+    /// The stems of the files noticed in ingest (RAW+JPEG pairing).
+    stems: intake::Stems,
+    /// JPEGs of RAW+JPEG captures set aside: as they were then, and their raw.
+    companions: HashMap<PathBuf, (Input, PathBuf)>,
+    /// The same pairs by raw: the JPEG set aside beside it.
+    companion_of_raw: HashMap<PathBuf, Input>,
+    /// Bodies seen shooting RAW+JPEG in this run: their JPEGs wait for a raw.
+    pairing_bodies: HashSet<bracket::CameraId>,
+    /// JPEGs of those bodies waiting for their raw.
+    held: HashMap<PathBuf, Held>,
     /// Files whose last read failed transiently, with their back-off.
     unreadable: HashMap<PathBuf, Unreadable>,
     /// Decoded sizes of the frames taken (for the memory budget).
@@ -273,6 +291,11 @@ pub async fn run(
         last_rescan: now,
         last_redo: now,
         candidates: HashMap::new(),
+        stems: intake::Stems::default(),
+        companions: HashMap::new(),
+        companion_of_raw: HashMap::new(),
+        pairing_bodies: HashSet::new(),
+        held: HashMap::new(),
         unreadable: HashMap::new(),
         footprints: HashMap::new(),
         digests: HashMap::new(),
@@ -408,12 +431,6 @@ fn folder_id(dir: &Path) -> Option<(u64, u64)> {
         .ok()
         .filter(std::fs::Metadata::is_dir)
         .map(|m| (m.dev(), m.ino()))
-}
-
-fn wall_seconds() -> f64 {
-    SystemTime::now()
-        .duration_since(SystemTime::UNIX_EPOCH)
-        .map_or(0.0, |d| d.as_secs_f64())
 }
 
 impl State {

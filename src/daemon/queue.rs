@@ -60,6 +60,12 @@ impl State {
                 self.release(&work.closed);
                 continue;
             }
+            // The JPEGs set aside beside raws, as they have settled by now.
+            for frame in work.closed.frames_mut() {
+                if frame.companion.is_none() {
+                    frame.companion = self.companion_of_raw.get(&frame.input.path).cloned();
+                }
+            }
             let camera = work.closed.camera().clone();
             let preset = self
                 .config
@@ -340,7 +346,8 @@ impl State {
         Ok(())
     }
 
-    /// Moves finished inputs to the archive folder, when configured.
+    /// Moves finished inputs to the archive folder, when configured, with the JPEGs set
+    /// aside beside their raws.
     pub(super) fn archive(&self, closed: &Closed) {
         let Some(dir) = &self.config.folders.archive else {
             return;
@@ -349,12 +356,16 @@ impl State {
             warn!(archive = %dir.display(), error = %e, "cannot create archive folder");
             return;
         }
-        for c in closed.frames() {
-            let Some(name) = c.input.path.file_name() else {
+        let files = closed
+            .frames()
+            .into_iter()
+            .flat_map(|c| std::iter::once(&c.input).chain(c.companion.as_ref()));
+        for input in files {
+            let Some(name) = input.path.file_name() else {
                 continue;
             };
-            if let Err(e) = std::fs::rename(&c.input.path, dir.join(name)) {
-                warn!(file = %c.input.path.display(), error = %e, "cannot archive input");
+            if let Err(e) = std::fs::rename(&input.path, dir.join(name)) {
+                warn!(file = %input.path.display(), error = %e, "cannot archive input");
             }
         }
     }

@@ -1,5 +1,28 @@
 //! Watching and settling: files noticed in the ingest folder become candidates, settled
 //! candidates are probed (EXIF, header) and fed to the grouper in capture-time order.
+//!
+//! **Settling** trusts no single signal of the writer: a candidate is taken once what
+//! [`intake::observe`] reads of it (size, mtime, `ctime`, device and inode) has not changed
+//! for `settle` on the daemon's monotonic clock. Not its mtime (gphoto2 sets it to the
+//! capture time, in the past, and across file systems copies under the final name), not
+//! a writer closing it (digiCamControl copies non-atomically and may rewrite the EXIF just
+//! after): a rewrite, a `utime` or a replacement changes `ctime` or the inode and restarts
+//! the wait. The probe then checks the content (a JPEG ends with its end-of-image marker,
+//! a raw's header decodes; a raw whose pixels do not decode is rejected by the lab and
+//! taken again if it changes).
+//!
+//! **RAW+JPEG**: the two files of one capture (same stem, one a raw, same or sibling
+//! folder; [`intake::Stems`], an index kept as files are noticed) are one frame, the raw.
+//! A JPEG whose raw has been noticed (even while it is still being written) is set aside
+//! unread; the raw's [`Capture::companion`] names it. A JPEG that settles first:
+//! - of a body already seen shooting RAW+JPEG in this run, it waits for its raw up to the
+//!   bracket gap `max_gap_s` (the raw of the same capture comes well within the gap to
+//!   the next frame), holding its body's open bracket meanwhile; then it is a frame.
+//! - of any other body, it is a frame at once; should its raw arrive while its bracket is
+//!   still open, the raw takes its place (and the body is learnt).
+//!
+//! A raw rejected (unsupported camera, bad data) gives its JPEG back: the JPEG is then
+//! the frame.
 
 use std::path::{Path, PathBuf};
 use std::time::{Duration, Instant};
@@ -10,8 +33,8 @@ use super::bracket::{Alone, Bracket, Capture, Closed, Input};
 use super::intake::{self, Notice, Probe};
 use super::journal::{self, Entry};
 use super::{
-    Candidate, DaemonError, MAX_RETRY, REDO_FOLDER, State, Superseded, Unreadable, WRITER_PATIENCE,
-    Work, folder_id, job_bytes, wall_seconds,
+    Candidate, DaemonError, Held, MAX_RETRY, REDO_FOLDER, State, Superseded, Unreadable,
+    WRITER_PATIENCE, Work, folder_id, job_bytes,
 };
 use crate::atomic;
 
@@ -47,15 +70,32 @@ impl State {
         self.rescan();
     }
 
+    /// Lists the ingest folder again; the stem index is rebuilt from the listing (files
+    /// gone since are forgotten).
     pub(super) fn rescan(&mut self) {
         self.last_rescan = Instant::now();
+        self.stems.clear();
         for path in intake::scan(&self.config.watch, &self.config.folders.ingest) {
-            self.consider(path, false);
+            self.consider(path);
         }
     }
 
-    pub(super) fn consider(&mut self, path: PathBuf, closed: bool) {
+    pub(super) fn consider(&mut self, path: PathBuf) {
+        // Reached through a linked folder (a watcher that followed it): not in ingest.
+        if intake::through_link(&self.config.folders.ingest, &path) {
+            tracing::debug!(file = %path.display(), "reached through a link; not followed");
+            return;
+        }
+        self.stems.insert(&path);
         if self.taken.contains(&path) {
+            return;
+        }
+        // A JPEG set aside beside its raw, unchanged since.
+        if self
+            .companions
+            .get(&path)
+            .is_some_and(|(input, _)| intake::identify(&path).is_ok_and(|i| i == *input))
+        {
             return;
         }
         // Waiting out its back-off after a read error (see `unreadable`).
@@ -66,23 +106,79 @@ impl State {
         {
             return;
         }
-        // Reached through a linked folder (a watcher that followed it): not in ingest.
-        if intake::through_link(&self.config.folders.ingest, &path) {
-            tracing::debug!(file = %path.display(), "reached through a link; not followed");
-            return;
-        }
-        let cand = self.candidates.entry(path).or_insert(Candidate {
+        self.candidates.entry(path).or_insert(Candidate {
             first_seen: Instant::now(),
             seen: None,
             stable_since: Instant::now(),
-            closed: false,
         });
-        cand.closed |= closed;
+    }
+
+    /// The raw of the capture whose JPEG (PNG, TIFF) is `path`, when it is one the daemon
+    /// takes: on disk, under a name and in a folder the watch takes, and not rejected.
+    fn pairing_raw(&self, path: &Path) -> Option<PathBuf> {
+        let raw = self.stems.raw_of(path)?;
+        if !self
+            .config
+            .watch
+            .takes_path(&self.config.folders.ingest, &raw)
+        {
+            return None;
+        }
+        let id = intake::identify(&raw).ok()?;
+        let rejected = self.journal.is_settled(&id) && self.journal.developed(&raw).is_none();
+        (!rejected).then_some(raw)
+    }
+
+    /// Sets the JPEG at `jpeg` aside as the companion of `raw`: not a frame, never read
+    /// again while it stays as it is.
+    fn set_aside(&mut self, jpeg: PathBuf, raw: PathBuf) {
+        let Ok(input) = intake::identify(&jpeg) else {
+            return;
+        };
+        info!(file = %jpeg.display(), raw = %raw.display(), "the JPEG of a RAW+JPEG capture: set aside beside its raw");
+        self.taken.remove(&jpeg);
+        self.footprints.remove(&jpeg);
+        self.digests.remove(&jpeg);
+        self.held.remove(&jpeg);
+        self.companion_of_raw.insert(raw.clone(), input.clone());
+        self.companions.insert(jpeg, (input, raw));
+    }
+
+    /// A raw that cannot be a frame gives its JPEG back: that is considered as a frame.
+    pub(super) fn unpair(&mut self, raw: &Path) {
+        if let Some(input) = self.companion_of_raw.remove(raw) {
+            self.companions.remove(&input.path);
+            info!(file = %input.path.display(), raw = %raw.display(), "its raw was rejected: the JPEG is the frame");
+            self.consider(input.path);
+        }
+    }
+
+    /// Held JPEGs: set aside once their raw is noticed, frames once they waited the
+    /// bracket gap without one.
+    fn release_held(&mut self) {
+        let hold = Duration::from_secs_f64(self.config.bracket.max_gap_s.max(0.0));
+        let mut paths: Vec<PathBuf> = self.held.keys().cloned().collect();
+        paths.sort();
+        let now = self.now_s();
+        for path in paths {
+            if let Some(raw) = self.pairing_raw(&path) {
+                self.set_aside(path, raw);
+                continue;
+            }
+            if self.held[&path].since.elapsed() < hold {
+                continue;
+            }
+            let held = self.held.remove(&path).expect("listed above");
+            info!(file = %path.display(), "no raw came for this JPEG: it is the frame");
+            for closed in self.grouper.push(held.capture, now) {
+                self.queue.push_back(Work::new(closed));
+            }
+        }
     }
 
     pub(super) fn notice(&mut self, notice: Notice) {
         match notice {
-            Notice::File { path, closed } => self.consider(path, closed),
+            Notice::File(path) => self.consider(path),
             Notice::Rescan => {
                 warn!("file events may have been lost; rescanning the ingest folder");
                 self.rescan();
@@ -109,15 +205,17 @@ impl State {
             if !ready.is_empty() {
                 self.take(ready).await?;
             }
+            self.release_held();
         }
         let now = self.now_s();
         // A frame still being written (or waiting on disk behind a full queue) may belong
         // to an open bracket: its gap clock starts when intake has caught up. A writer
         // stuck for over a minute no longer holds brackets open.
-        let writing = self
-            .candidates
-            .values()
-            .any(|c| c.first_seen.elapsed() < WRITER_PATIENCE)
+        let writing = !self.held.is_empty()
+            || self
+                .candidates
+                .values()
+                .any(|c| c.first_seen.elapsed() < WRITER_PATIENCE)
             || self
                 .unreadable
                 .values()
@@ -142,7 +240,7 @@ impl State {
             .map(|(p, _)| p.clone())
             .collect();
         for path in again {
-            self.consider(path, true);
+            self.consider(path);
         }
         if let Some(interval) = self.watchdog
             && self.last_watchdog.elapsed() >= interval / 2
@@ -153,15 +251,14 @@ impl State {
         Ok(())
     }
 
-    /// Candidates whose writer closed them or whose size and mtime were stable for
-    /// `settle`. Nothing is taken while the queue is full (back-pressure).
+    /// Candidates whose size, mtime, change time and inode were unchanged for `settle`
+    /// (see the module docs). Nothing is taken while the queue is full (back-pressure).
     pub(super) fn settle(&mut self) -> Vec<PathBuf> {
         let room = self.config.daemon.queue.saturating_sub(self.queue.len());
         if room == 0 {
             return Vec::new();
         }
         let settle = self.config.watch.settle;
-        let wall_ns = (wall_seconds() * 1e9) as i64;
         let mut ready = Vec::new();
         let mut gone = Vec::new();
         let mut paths: Vec<&PathBuf> = self.candidates.keys().collect();
@@ -174,8 +271,8 @@ impl State {
                 break;
             }
             let cand = self.candidates.get_mut(&path).expect("listed above");
-            let id = match intake::identify(&path) {
-                Ok(id) => id,
+            let seen = match intake::observe(&path) {
+                Ok(seen) => seen,
                 Err(e) if e.kind() == std::io::ErrorKind::NotFound => {
                     gone.push(path);
                     continue;
@@ -186,22 +283,22 @@ impl State {
                     continue;
                 }
             };
-            if self.journal.is_settled(&id) {
+            if self.journal.is_settled(&seen.input) {
                 gone.push(path);
                 continue;
             }
-            if cand.seen.as_ref() != Some(&id) {
-                cand.seen = Some(id.clone());
+            if cand.seen.as_ref() != Some(&seen) {
+                cand.seen = Some(seen);
                 cand.stable_since = Instant::now();
-            }
-            let untouched_for =
-                Duration::from_nanos(wall_ns.saturating_sub(id.modified_ns).max(0) as u64);
-            if cand.closed || cand.stable_since.elapsed() >= settle || untouched_for >= settle {
+            } else if cand.stable_since.elapsed() >= settle {
                 ready.push(path);
             }
         }
         for p in &gone {
             self.candidates.remove(p);
+            if std::fs::symlink_metadata(p).is_err() {
+                self.stems.remove(p);
+            }
         }
         // Complete frames wait while another is still settling (for at most
         // WRITER_PATIENCE): it may be an earlier frame of the same bracket (a copy racing
@@ -220,15 +317,14 @@ impl State {
         ready
     }
 
-    /// Probes files off the async threads, under the watch's rules and the memory budget.
+    /// Probes files off the async threads, under the memory budget.
     async fn probe_all(&self, paths: Vec<PathBuf>) -> Vec<(PathBuf, Probe)> {
-        let watch = self.config.watch.clone();
         let max_bytes = self.config.daemon.memory_mb.saturating_mul(1_000_000);
         tokio::task::spawn_blocking(move || {
             paths
                 .into_iter()
                 .map(|p| {
-                    let r = intake::probe(&p, &watch, max_bytes);
+                    let r = intake::probe(&p, max_bytes);
                     (p, r)
                 })
                 .collect()
@@ -239,7 +335,15 @@ impl State {
 
     /// Probes settled files (off the async threads) and feeds the grouper.
     pub(super) async fn take(&mut self, ready: Vec<PathBuf>) -> Result<(), DaemonError> {
-        let probed = self.probe_all(ready).await;
+        // The JPEG of a RAW+JPEG capture whose raw is known is not even read.
+        let mut read = Vec::with_capacity(ready.len());
+        for path in ready {
+            match self.pairing_raw(&path) {
+                Some(raw) => self.set_aside(path, raw),
+                None => read.push(path),
+            }
+        }
+        let probed = self.probe_all(read).await;
         let mut frames = Vec::new();
         for (path, probe) in probed {
             if !matches!(probe, Probe::Unreadable(_)) {
@@ -270,7 +374,7 @@ impl State {
                     }
                 }
                 Probe::Unreadable(reason) => self.unreadable_for_now(path, reason),
-                Probe::Changed => self.consider(path, false),
+                Probe::Changed => self.consider(path),
                 Probe::Gone => {}
             }
         }
@@ -322,7 +426,27 @@ impl State {
         });
         let now = self.now_s();
         for c in frames {
-            tracing::debug!(file = %c.input.path.display(), time_s = c.time_s, "frame taken");
+            let path = c.input.path.clone();
+            if let Some(jpeg) = self.stems.companion_of(&path) {
+                // A raw with a JPEG beside it: its body shoots RAW+JPEG, and a JPEG of
+                // this capture that went ahead of its raw gives way.
+                self.pairing_bodies.insert(c.camera.clone());
+                if self.held.contains_key(&jpeg) || self.grouper.withdraw(&jpeg).is_some() {
+                    self.set_aside(jpeg, path.clone());
+                }
+            } else if !intake::is_raw(&path) && self.pairing_bodies.contains(&c.camera) {
+                tracing::debug!(file = %path.display(), "a JPEG of a RAW+JPEG body: waiting for its raw");
+                self.taken.insert(path);
+                self.held.insert(
+                    c.input.path.clone(),
+                    Held {
+                        capture: c,
+                        since: Instant::now(),
+                    },
+                );
+                continue;
+            }
+            tracing::debug!(file = %path.display(), time_s = c.time_s, "frame taken");
             self.taken.insert(c.input.path.clone());
             for closed in self.grouper.push(c, now) {
                 self.queue.push_back(Work::new(closed));
@@ -483,11 +607,13 @@ impl State {
         self.taken.remove(&input.path);
         self.footprints.remove(&input.path);
         self.summary.rejected += 1;
+        let path = input.path.clone();
         self.journal.record(Entry::Rejected {
             input,
             reason,
             at: journal::unix_now(),
         })?;
+        self.unpair(&path);
         Ok(())
     }
 }

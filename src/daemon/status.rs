@@ -79,7 +79,7 @@ impl State {
             out: self.config.folders.out.clone(),
             watching: self.watcher.is_some(),
             settling: self.candidates.len(),
-            grouping: self.grouper.waiting(),
+            grouping: self.grouper.waiting() + self.held.len(),
             queued: self.queue.len(),
             in_flight: self.in_flight.len(),
             retrying: self.retries.len() + self.unreadable.len(),

@@ -109,9 +109,9 @@ pub struct Watch {
     pub poll: Duration,
     /// Periodic full rescan; `None` disables it.
     pub rescan: Option<Duration>,
-    /// Watch sub-folders too.
+    /// Watch sub-folders too (see [`Watch::descends`]).
     pub recursive: bool,
-    /// Size and mtime must be stable this long.
+    /// Size, mtime, change time and inode must be stable this long.
     pub settle: Duration,
     /// Temporary-name patterns (`*` wildcard).
     pub ignore: Vec<String>,
@@ -344,11 +344,20 @@ pub fn glob_match(pattern: &str, name: &str) -> bool {
     p[pi..].iter().all(|&c| c == '*')
 }
 
+/// Folders the tethering tools keep their own files in, beside the frames: never
+/// descended into, whatever `[watch] ignore` says. Capture One keeps `CaptureOne/` in
+/// every image folder (settings `.cos`, previews `.cop`, thumbnails `.cot`, masks
+/// `.comask`, caches).
+pub const TOOL_FOLDERS: &[&str] = &["CaptureOne"];
+
 impl Watch {
-    /// Whether a file name is a frame to take: not a temporary name, with an accepted
-    /// extension. (Files written by [`crate::atomic`] are temporary names too.)
+    /// Whether a file name is a frame to take: not hidden, not a temporary name, with an
+    /// accepted extension. Hidden names (a leading `.`: macOS `.DS_Store` and `._*`
+    /// AppleDouble files, the staging names of [`crate::atomic`] and `filmback hook`) are
+    /// never frames, whatever `ignore` says; sidecars (`x.xmp`, `x.cr2.xmp`, `.cos`,
+    /// `Thumbs.db`) and gphoto2's `tmpfileXXXXXX` fail the extension test.
     pub fn takes(&self, name: &str) -> bool {
-        if self.ignore.iter().any(|p| glob_match(p, name)) {
+        if name.starts_with('.') || self.ignore.iter().any(|p| glob_match(p, name)) {
             return false;
         }
         let ext = Path::new(name)
@@ -356,6 +365,32 @@ impl Watch {
             .and_then(|e| e.to_str())
             .map(str::to_ascii_lowercase);
         ext.is_some_and(|e| self.extensions.contains(&e))
+    }
+
+    /// Whether a sub-folder named `name` is descended into (when `recursive`): not hidden,
+    /// not one of the [`TOOL_FOLDERS`].
+    pub fn descends(&self, name: &str) -> bool {
+        self.recursive
+            && !name.starts_with('.')
+            && !TOOL_FOLDERS.iter().any(|f| f.eq_ignore_ascii_case(name))
+    }
+
+    /// Whether the file at `path`, below the ingest folder `root`, is a frame to take: its
+    /// name is taken ([`Watch::takes`]) and every folder between `root` and it is
+    /// descended into ([`Watch::descends`]). A path not below `root` is judged by its name.
+    pub fn takes_path(&self, root: &Path, path: &Path) -> bool {
+        let name = path
+            .file_name()
+            .map(|n| n.to_string_lossy())
+            .unwrap_or_default();
+        if !self.takes(&name) {
+            return false;
+        }
+        let Some(rest) = path.parent().and_then(|p| p.strip_prefix(root).ok()) else {
+            return true;
+        };
+        rest.components()
+            .all(|c| self.descends(&c.as_os_str().to_string_lossy()))
     }
 }
 

@@ -163,6 +163,45 @@ fn temporary_names_are_ignored() {
 }
 
 #[test]
+fn tethering_tools_litter_is_never_a_frame_even_with_an_empty_ignore_list() {
+    let mut w = Config::defaults().watch;
+    w.ignore.clear();
+    w.recursive = true;
+    for name in [
+        "tmpfileAb3xQz",
+        "IMG_1.xmp",
+        "IMG_1.CR2.xmp",
+        "IMG_1.cos",
+        "IMG_1.cop",
+        "IMG_1.cot",
+        "IMG_1.comask",
+        ".DS_Store",
+        "._IMG_1.jpg",
+        "Thumbs.db",
+        "IMG_1.jpg.part",
+        "IMG_1.jpg.crdownload",
+        "IMG_1.jpg.tmp",
+        ".IMG_1.CR2.filmback-tmp-7",
+    ] {
+        assert!(!w.takes(name), "{name}");
+    }
+    let root = Path::new("/in");
+    assert!(w.takes_path(root, Path::new("/in/RAW/IMG_1.CR2")));
+    assert!(w.takes_path(root, Path::new("/in/IMG_1.JPG")));
+    for path in [
+        "/in/CaptureOne/Cache/Proxies/IMG_1.jpg",
+        "/in/Session/captureone/IMG_1.jpg",
+        "/in/.thumbs/IMG_1.jpg",
+        "/in/RAW/._IMG_1.CR2",
+    ] {
+        assert!(!w.takes_path(root, Path::new(path)), "{path}");
+    }
+    w.recursive = false;
+    assert!(!w.takes_path(root, Path::new("/in/RAW/IMG_1.CR2")));
+    assert!(w.takes_path(root, Path::new("/in/IMG_1.CR2")));
+}
+
+#[test]
 fn glob() {
     assert!(glob_match("*.tmp", "a.tmp"));
     assert!(glob_match("*.tmp", ".tmp"));
