@@ -546,6 +546,18 @@ fn exif_rewritten_just_after_the_file_appears_develops_the_second_version_once()
 }
 
 #[test]
+fn a_frame_its_writer_closed_is_taken_without_the_whole_settle_window() {
+    // A minute of settling for files nobody says are finished; frames written and closed
+    // (or renamed into place) are taken a quarter of a second after the close.
+    let (calls, lab) = counting_darkroom();
+    let mut rig = Rig::start(&[("watch", "settle_ms = 60000")], lab, |_| {});
+    put(&rig.ingest(), &aeb("Body A", 10, "c"));
+    expect_outputs(&rig.out(), &bracket_outputs(&["c-1"]), T);
+    rig.stop();
+    assert_eq!(calls.load(Ordering::SeqCst), 1);
+}
+
+#[test]
 fn slow_writer_is_taken_only_when_complete() {
     let mut rig = Rig::start(
         &[("watch", "settle_ms = 400")],

@@ -12,7 +12,7 @@ use std::io::Cursor;
 use std::path::{Path, PathBuf};
 use std::time::UNIX_EPOCH;
 
-use notify::event::{AccessKind, AccessMode};
+use notify::event::{AccessKind, AccessMode, ModifyKind, RenameMode};
 use notify::{EventKind, RecursiveMode, Watcher};
 use tokio::sync::mpsc::UnboundedSender;
 
@@ -26,8 +26,9 @@ use crate::metadata;
 /// What the watcher reports to the daemon loop.
 #[derive(Debug)]
 pub(crate) enum Notice {
-    /// Something happened to this file (created, written, closed, renamed into place).
-    File(PathBuf),
+    /// Something happened to this file (created, written); `finished` when its writer
+    /// closed it or it was renamed into place.
+    File { path: PathBuf, finished: bool },
     /// Events may have been lost (queue overflow): rescan the folder.
     Rescan,
 }
@@ -48,17 +49,19 @@ pub(crate) fn watch(
             if event.need_rescan() {
                 let _ = tx.send(Notice::Rescan);
             }
-            // Reads are no news; a writer closing the file is (its last size).
-            let written = matches!(
+            // Reads are no news; a writer closing the file is (its last size), and so is
+            // a rename into place (the write-to-temporary-then-rename convention).
+            let finished = matches!(
                 event.kind,
                 EventKind::Access(AccessKind::Close(AccessMode::Write))
+                    | EventKind::Modify(ModifyKind::Name(RenameMode::To | RenameMode::Both))
             );
-            if matches!(event.kind, EventKind::Access(_)) && !written {
+            if matches!(event.kind, EventKind::Access(_)) && !finished {
                 return;
             }
             for path in event.paths {
                 if takes.takes_path(&root, &path) {
-                    let _ = tx.send(Notice::File(path));
+                    let _ = tx.send(Notice::File { path, finished });
                 }
             }
         }

@@ -180,7 +180,15 @@ struct Candidate {
     first_seen: Instant,
     seen: Option<intake::Observed>,
     stable_since: Instant,
+    /// Its writer closed it or it was renamed into place: the state first observed after
+    /// that notice (`None` until settling has looked) and since when it has held.
+    finished: Option<(Option<intake::Observed>, Instant)>,
 }
+
+/// How long a file must stay unchanged after its writer closed it or it was renamed into
+/// place (at most `settle`): a rewrite just after the close (digiCamControl's EXIF)
+/// restarts the wait; one later than this is a new version, developed again by content.
+const FINISHED_QUIET: Duration = Duration::from_millis(250);
 
 /// The JPEG of a body that shoots RAW+JPEG, settled before its raw: it waits for the raw
 /// (see [`settle`]) and becomes a frame of its own only if none comes.

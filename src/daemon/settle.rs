@@ -3,11 +3,13 @@
 //!
 //! **Settling** trusts no single signal of the writer: a candidate is taken once what
 //! [`intake::observe`] reads of it (size, mtime, `ctime`, device and inode) has not changed
-//! for `settle` on the daemon's monotonic clock. Not its mtime (gphoto2 sets it to the
-//! capture time, in the past, and across file systems copies under the final name), not
-//! a writer closing it (digiCamControl copies non-atomically and may rewrite the EXIF just
-//! after): a rewrite, a `utime` or a replacement changes `ctime` or the inode and restarts
-//! the wait. The probe then checks the content (a JPEG ends with its end-of-image marker,
+//! for `settle` on the daemon's monotonic clock, or for [`FINISHED_QUIET`] (250 ms, at most
+//! `settle`) after its writer closed it or it was renamed into place. Never by its mtime
+//! (gphoto2 sets it to the capture time, in the past, and across file systems copies
+//! under the final name); a rewrite just after the close (digiCamControl copies
+//! non-atomically and may rewrite the EXIF), a `utime` or a replacement changes `ctime` or
+//! the inode and restarts the wait; a later rewrite is a new version of the frame, and
+//! its bracket is developed again (the journal compares contents). The probe then checks the content (a JPEG ends with its end-of-image marker,
 //! a raw's header decodes; a raw whose pixels do not decode is rejected by the lab and
 //! taken again if it changes).
 //!
@@ -33,8 +35,8 @@ use super::bracket::{Alone, Bracket, Capture, Closed, Input};
 use super::intake::{self, Notice, Probe};
 use super::journal::{self, Entry};
 use super::{
-    Candidate, DaemonError, Held, MAX_RETRY, REDO_FOLDER, State, Superseded, Unreadable,
-    WRITER_PATIENCE, Work, folder_id, job_bytes,
+    Candidate, DaemonError, FINISHED_QUIET, Held, MAX_RETRY, REDO_FOLDER, State, Superseded,
+    Unreadable, WRITER_PATIENCE, Work, folder_id, job_bytes,
 };
 use crate::atomic;
 
@@ -76,11 +78,13 @@ impl State {
         self.last_rescan = Instant::now();
         self.stems.clear();
         for path in intake::scan(&self.config.watch, &self.config.folders.ingest) {
-            self.consider(path);
+            self.consider(path, false);
         }
     }
 
-    pub(super) fn consider(&mut self, path: PathBuf) {
+    /// Makes `path` a candidate (again); `finished` when its writer just closed it or it
+    /// was renamed into place.
+    pub(super) fn consider(&mut self, path: PathBuf, finished: bool) {
         // Reached through a linked folder (a watcher that followed it): not in ingest.
         if intake::through_link(&self.config.folders.ingest, &path) {
             tracing::debug!(file = %path.display(), "reached through a link; not followed");
@@ -106,11 +110,15 @@ impl State {
         {
             return;
         }
-        self.candidates.entry(path).or_insert(Candidate {
+        let cand = self.candidates.entry(path).or_insert(Candidate {
             first_seen: Instant::now(),
             seen: None,
             stable_since: Instant::now(),
+            finished: None,
         });
+        if finished {
+            cand.finished = Some((None, Instant::now()));
+        }
     }
 
     /// The raw of the capture whose JPEG (PNG, TIFF) is `path`, when it is one the daemon
@@ -149,7 +157,7 @@ impl State {
         if let Some(input) = self.companion_of_raw.remove(raw) {
             self.companions.remove(&input.path);
             info!(file = %input.path.display(), raw = %raw.display(), "its raw was rejected: the JPEG is the frame");
-            self.consider(input.path);
+            self.consider(input.path, false);
         }
     }
 
@@ -178,7 +186,7 @@ impl State {
 
     pub(super) fn notice(&mut self, notice: Notice) {
         match notice {
-            Notice::File(path) => self.consider(path),
+            Notice::File { path, finished } => self.consider(path, finished),
             Notice::Rescan => {
                 warn!("file events may have been lost; rescanning the ingest folder");
                 self.rescan();
@@ -240,7 +248,7 @@ impl State {
             .map(|(p, _)| p.clone())
             .collect();
         for path in again {
-            self.consider(path);
+            self.consider(path, false);
         }
         if let Some(interval) = self.watchdog
             && self.last_watchdog.elapsed() >= interval / 2
@@ -251,14 +259,16 @@ impl State {
         Ok(())
     }
 
-    /// Candidates whose size, mtime, change time and inode were unchanged for `settle`
-    /// (see the module docs). Nothing is taken while the queue is full (back-pressure).
+    /// Candidates whose size, mtime, change time and inode were unchanged for `settle`, or
+    /// for [`FINISHED_QUIET`] since their writer closed them (see the module docs).
+    /// Nothing is taken while the queue is full (back-pressure).
     pub(super) fn settle(&mut self) -> Vec<PathBuf> {
         let room = self.config.daemon.queue.saturating_sub(self.queue.len());
         if room == 0 {
             return Vec::new();
         }
         let settle = self.config.watch.settle;
+        let quiet = settle.min(FINISHED_QUIET);
         let mut ready = Vec::new();
         let mut gone = Vec::new();
         let mut paths: Vec<&PathBuf> = self.candidates.keys().collect();
@@ -287,10 +297,25 @@ impl State {
                 gone.push(path);
                 continue;
             }
+            // Since the close: unchanged for `quiet`, or changed (the fast way is off
+            // until the writer closes it again).
+            let finished = match &mut cand.finished {
+                Some((first @ None, since)) => {
+                    *first = Some(seen.clone());
+                    *since = Instant::now();
+                    false
+                }
+                Some((Some(first), since)) if *first == seen => since.elapsed() >= quiet,
+                Some(_) => {
+                    cand.finished = None;
+                    false
+                }
+                None => false,
+            };
             if cand.seen.as_ref() != Some(&seen) {
                 cand.seen = Some(seen);
                 cand.stable_since = Instant::now();
-            } else if cand.stable_since.elapsed() >= settle {
+            } else if finished || cand.stable_since.elapsed() >= settle {
                 ready.push(path);
             }
         }
@@ -374,7 +399,7 @@ impl State {
                     }
                 }
                 Probe::Unreadable(reason) => self.unreadable_for_now(path, reason),
-                Probe::Changed => self.consider(path),
+                Probe::Changed => self.consider(path, false),
                 Probe::Gone => {}
             }
         }
