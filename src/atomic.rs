@@ -137,6 +137,66 @@ pub fn publish(path: &Path, bytes: &[u8], overwrite: Overwrite) -> Result<(), Pu
 /// Prefix of the hidden staging folders of [`publish_set`] (`.filmback-stage-<key>`).
 pub const STAGE_PREFIX: &str = ".filmback-stage-";
 
+/// Moves the finished file `source` into `dir` under its own name, whole or not at all,
+/// never replacing a file there ([`PublishError::Exists`], `source` left in place). On
+/// one file system it is a hard link under the new name and then the old name removed (a
+/// rename that cannot replace); across file systems (or where links are refused) it is a
+/// copy published as by [`publish_with`] with [`Overwrite::Refuse`], keeping `source`'s
+/// mtime, and then `source` removed. Returns the new path.
+pub fn move_into(source: &Path, dir: &Path) -> Result<PathBuf, PublishError> {
+    let io_err = |path: &Path| {
+        let path = path.to_path_buf();
+        move |source| PublishError::Io { path, source }
+    };
+    let meta = fs::symlink_metadata(source).map_err(io_err(source))?;
+    if !meta.is_file() {
+        return Err(PublishError::Content {
+            path: source.to_path_buf(),
+            reason: "not a regular file".to_string(),
+        });
+    }
+    let Some(name) = source.file_name() else {
+        return Err(PublishError::Content {
+            path: source.to_path_buf(),
+            reason: "no file name".to_string(),
+        });
+    };
+    let target = dir.join(name);
+    if fs::symlink_metadata(&target).is_ok() {
+        return Err(PublishError::Exists { path: target });
+    }
+    match fs::hard_link(source, &target) {
+        Ok(()) => sync_folder(dir),
+        Err(e) if e.kind() == io::ErrorKind::AlreadyExists => {
+            return Err(PublishError::Exists { path: target });
+        }
+        Err(e) if cannot_link(&e) => {
+            let mut from = File::open(source).map_err(io_err(source))?;
+            publish_with(&target, Overwrite::Refuse, |w| {
+                io::copy(&mut from, w).map_err(|e| format!("copying {}: {e}", source.display()))?;
+                w.flush().map_err(|e| e.to_string())?;
+                if let Ok(mtime) = meta.modified() {
+                    w.get_ref().set_modified(mtime).map_err(|e| e.to_string())?;
+                }
+                Ok(())
+            })?;
+        }
+        Err(e) => return Err(io_err(&target)(e)),
+    }
+    fs::remove_file(source).map_err(io_err(source))?;
+    Ok(target)
+}
+
+/// Why a hard link cannot be made: another file system, or one without hard links (FAT,
+/// exFAT, some network shares).
+fn cannot_link(e: &io::Error) -> bool {
+    e.kind() == io::ErrorKind::CrossesDevices
+        || e.kind() == io::ErrorKind::Unsupported
+        || e.raw_os_error().is_some_and(|c| {
+            [libc::EXDEV, libc::EPERM, libc::EOPNOTSUPP, libc::EMLINK].contains(&c)
+        })
+}
+
 /// Name of the marker written into a staging folder once every file in it is complete.
 const COMPLETE: &str = ".complete";
 
