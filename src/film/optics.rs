@@ -210,7 +210,8 @@ fn kernel(sigma: f64, reach: f64) -> Vec<f32> {
 }
 
 /// The largest mass of a full-resolution kernel's outer taps that is dropped, both sides
-/// together (see [`trimmed`]).
+/// together: a kernel loses its outermost pairs of taps while their summed mass stays
+/// within this, and is renormalised.
 pub const TRIM: f32 = 1e-3;
 
 /// A sampled kernel without its outermost pairs of taps while their mass (both sides,
