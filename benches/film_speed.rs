@@ -200,6 +200,10 @@ fn main() {
         ms(start.elapsed())
     );
     let catalogue = Catalogue::builtin().expect("built-in stocks");
+    if std::env::args().any(|a| a == "looks") {
+        looks_alone(&map, &catalogue);
+        return;
+    }
     if std::env::args().any(|a| a == "tonemaps") {
         tone_maps(&map);
         return;
@@ -334,6 +338,58 @@ fn main() {
 
     tone_maps(&map);
     peer(&map, ours_q95);
+}
+
+/// Each look alone on the 24 MP map, as `render_all` makes it (key, developing streamed
+/// into a q92 JPEG, the daemon's default), against the JPEG encoder alone on the same
+/// look's 8-bit image, in the same run: the difference is what the look itself costs
+/// (issue 16's target: at most 150 ms plus its encoder). `cargo bench --bench film_speed
+/// -- looks` runs only this part.
+fn looks_alone(map: &RadianceMap, catalogue: &Catalogue) {
+    let exif = SourceExif::default();
+    let format = Format::Jpeg { quality: 92 };
+    let mut looks: Vec<(String, Look)> = catalogue
+        .stocks()
+        .iter()
+        .map(|stock| {
+            let look = Look::Film {
+                stock: Box::new(stock.clone()),
+                exposure: 1.0,
+                colour: ColourMode::PerLayer,
+                key: Key::LogAverage,
+                options: Box::default(),
+            };
+            (stock.id.clone(), look)
+        })
+        .collect();
+    for name in ["linear", "histogram", "histogram-naive"] {
+        let op = filmback::tonemap::Operator::parse(name).expect("known operator");
+        looks.push((name.to_string(), Look::Tonemap(op)));
+    }
+    println!("each look alone, 24 MP → JPEG q92 (ms, best of {RUNS}):");
+    println!(
+        "  {:<16} {:>9} {:>12} {:>12}",
+        "look", "look+JPEG", "JPEG alone", "difference"
+    );
+    for (name, look) in &looks {
+        let (t_all, _) = best(|| {
+            let mut out = Vec::with_capacity(8 << 20);
+            rendering::encode_look(map, look, format, &exif, &mut out).expect("encodes");
+            out.len()
+        });
+        let image = look.render(map, Depth::Eight).expect("renders");
+        let (t_jpeg, _) = best(|| {
+            let mut out = Vec::with_capacity(8 << 20);
+            rendering::encode(&image, format, &exif, &mut out).expect("encodes");
+            out.len()
+        });
+        println!(
+            "  {name:<16} {:>9.1} {:>12.1} {:>+12.1}",
+            ms(t_all),
+            ms(t_jpeg),
+            ms(t_all) - ms(t_jpeg)
+        );
+    }
 }
 
 /// The tone maps (no knob of their own beyond the operator): map → encoded JPEG q92, the

@@ -193,11 +193,14 @@ impl DensityTable {
     }
 }
 
-/// What grain needs: the layers' densities and display values by density.
+/// What grain needs: the layers' densities with their grain's σ, and display values by
+/// density.
 #[derive(Debug, Clone)]
 struct Grained {
     grain: Grain,
-    density: [ExposureTable<f32>; 3],
+    /// `[D, σ_px(D)]` by exposure: the density and the grain's standard deviation there,
+    /// both at the bucket's centre (σ's error is `|dσ/dD|` times the density's).
+    density: [ExposureTable<[f32; 2]>; 3],
     from_density: [DensityTable; 3],
 }
 
@@ -296,7 +299,12 @@ impl Emulsion {
                         id: stock.id.clone(),
                         reason: "its data sheet gives no RMS granularity, so +grain cannot be modelled (Kodak gives only a Print Grain Index for colour negatives)".into(),
                     })?;
-                let density = [0, 1, 2].map(|c| ExposureTable::new(stock.layer(c), |d| d as f32));
+                let density = [0, 1, 2].map(|c| {
+                    ExposureTable::new(stock.layer(c), |d| {
+                        let d = d as f32;
+                        [d, grain.sigma(c, d)]
+                    })
+                });
                 let from_density = [0, 1, 2].map(|c| {
                     let curve = stock.layer(c);
                     DensityTable::new(curve.d_min() - 1.0, curve.d_max() + 1.0, |d| {
@@ -402,16 +410,18 @@ impl Emulsion {
             return self.pixel(e);
         };
         match self.mode {
-            ColourMode::PerLayer | ColourMode::NeutralGrey => [0, 1, 2].map(|c| {
-                let d = g.density[c].get(e[c] * self.scale[c]);
-                let d = g.grain.apply(c, d, x, y);
-                let t = &g.from_density[c];
-                t.display[t.index(d)]
-            }),
+            ColourMode::PerLayer | ColourMode::NeutralGrey => {
+                let n = g.grain.normals(x, y);
+                [0, 1, 2].map(|c| {
+                    let [d, sigma] = g.density[c].get(e[c] * self.scale[c]);
+                    let t = &g.from_density[c];
+                    t.display[t.index(d + sigma * n[c])]
+                })
+            }
             ColourMode::Luminance => {
                 let (e, l) = luminance_of(e);
-                let d = g.density[1].get(l * self.scale[1]);
-                let d = g.grain.apply(1, d, x, y);
+                let [d, sigma] = g.density[1].get(l * self.scale[1]);
+                let d = d + sigma * g.grain.normals(x, y)[1];
                 let t = &g.from_density[1];
                 keep_chromaticity(e, l, t.linear[t.index(d)])
             }
@@ -477,13 +487,18 @@ impl Exposure<'_> {
                     ch,
                 )
             }
-            Some(filter) => {
-                let mut rows = vec![0f32; count * width * 3];
-                filter.rows(first, &mut rows);
-                f(&rows, 3)
-            }
+            Some(filter) => FILTERED.with_borrow_mut(|rows| {
+                rows.resize(count * width * 3, 0.0);
+                filter.rows(first, rows);
+                f(rows, 3)
+            }),
         }
     }
+}
+
+thread_local! {
+    /// A band of filtered rows, per thread (kept between bands).
+    static FILTERED: std::cell::RefCell<Vec<f32>> = std::cell::RefCell::default();
 }
 
 /// Rows developed per task (and filtered per band of the optics).

@@ -209,47 +209,126 @@ fn kernel(sigma: f64, reach: f64) -> Vec<f32> {
     k.iter().map(|v| (v / total) as f32).collect()
 }
 
-/// One channel of an interleaved image, read row by row as light: NaN and values ≤ 0
-/// are 0, values above 10³⁰ (and +∞) are 10³⁰.
-struct Source<'a> {
-    pixels: &'a [f32],
-    channels: usize,
-    channel: usize,
-    width: usize,
-    height: usize,
+/// The largest mass of a full-resolution kernel's outer taps that is dropped, both sides
+/// together: a kernel loses its outermost pairs of taps while their summed mass stays
+/// within this, and is renormalised.
+pub const TRIM: f32 = 1e-3;
+
+/// A sampled kernel without its outermost pairs of taps while their mass (both sides,
+/// summed from the outside in) is at most [`TRIM`], renormalised: a term of σ = 0.25 px
+/// (1.5 µm at 6 µm pixels, outer taps 3.4·10⁻⁴ each) becomes the identity, one of
+/// σ = 0.5 px loses its taps at ±2 (2.6·10⁻⁴ each). The filtered value moves by at most
+/// `|w|·2·TRIM` of the local light (both axes), 0.05 % for a weight of 0.25.
+fn trimmed(mut k: Vec<f32>) -> Vec<f32> {
+    let mut dropped = 0.0;
+    while k.len() > 1 {
+        let outer = k[0] + k[k.len() - 1];
+        if dropped + outer > TRIM {
+            break;
+        }
+        dropped += outer;
+        k.pop();
+        k.remove(0);
+    }
+    let total: f32 = k.iter().sum();
+    k.iter().map(|v| v / total).collect()
 }
 
-impl Source<'_> {
-    /// Row `y` (clamped to the image) into `out`.
-    fn row(&self, y: isize, out: &mut [f32]) {
+/// A sample read as light: NaN and values ≤ 0 are 0, values above 10³⁰ (and +∞) 10³⁰.
+#[inline]
+fn light(v: f32) -> f32 {
+    // `max` takes the number of a NaN pair, so NaN is 0 (`clamp` would keep the NaN).
+    let lit = v.max(0.0);
+    lit.min(1e30)
+}
+
+/// A plane and its size; rows outside it read as the nearest border row.
+#[derive(Debug)]
+struct Plane {
+    width: usize,
+    height: usize,
+    values: Vec<f32>,
+}
+
+impl Plane {
+    fn row(&self, y: isize) -> &[f32] {
         let y = y.clamp(0, self.height as isize - 1) as usize;
-        let row =
-            &self.pixels[y * self.width * self.channels..(y + 1) * self.width * self.channels];
-        for (o, p) in out.iter_mut().zip(row.chunks_exact(self.channels)) {
-            let v = p[self.channel];
-            *o = if v > 0.0 { v.min(1e30) } else { 0.0 };
-        }
+        &self.values[y * self.width..(y + 1) * self.width]
     }
 }
 
-/// One channel's filter, prepared: the identity's weight, the full-resolution kernels
-/// and the wide terms summed on the half-resolution plane.
+/// Adds `Σₜ wₜ·(kₜ ∗ P)` at one row to `out`, each `kₜ` a symmetric kernel applied down
+/// then across (edges repeat the border pixel); `line(d)` is the row `d` rows from the
+/// output's, `column` a row of scratch. Each kernel's weight is folded into its down pass.
+fn add_separable<'p>(
+    line: impl Fn(isize) -> &'p [f32],
+    terms: &[(f32, Vec<f32>)],
+    column: &mut Vec<f32>,
+    out: &mut [f32],
+) {
+    column.resize(out.len(), 0.0);
+    for (w, k) in terms {
+        let r = (k.len() / 2) as isize;
+        for (c, &v) in column.iter_mut().zip(line(-r)) {
+            *c = w * k[0] * v;
+        }
+        for (j, &kj) in k.iter().enumerate().skip(1) {
+            let kw = w * kj;
+            for (c, &v) in column.iter_mut().zip(line(j as isize - r)) {
+                *c += kw * v;
+            }
+        }
+        add_across(column, k, out);
+    }
+}
+
+/// Adds `row` through the symmetric kernel `k` across to `out`, edges repeating the
+/// border pixel: the interior as one pass per tap over slices, the `r` pixels at each
+/// end clamped.
+fn add_across(row: &[f32], k: &[f32], out: &mut [f32]) {
+    let n = row.len();
+    let r = k.len() / 2;
+    let edge = |x: usize| -> f32 {
+        k.iter()
+            .enumerate()
+            .map(|(j, &kj)| kj * row[(x + j).saturating_sub(r).min(n - 1)])
+            .sum()
+    };
+    if n <= 2 * r {
+        for (x, o) in out.iter_mut().enumerate() {
+            *o += edge(x);
+        }
+        return;
+    }
+    for (j, &kj) in k.iter().enumerate() {
+        for (o, &v) in out[r..n - r].iter_mut().zip(&row[j..j + n - 2 * r]) {
+            *o += kj * v;
+        }
+    }
+    for x in (0..r).chain(n - r..n) {
+        out[x] += edge(x);
+    }
+}
+
+/// One layer's filter, prepared: the identity's weight, the full-resolution kernels and
+/// the wide terms summed on the half-resolution plane.
 struct Plan {
     identity: f32,
     fine: Vec<(f32, Vec<f32>)>,
-    /// Width, height and values of the half-resolution sum of the wide terms.
-    coarse: Option<(usize, usize, Vec<f32>)>,
+    /// The half-resolution sum of the wide terms.
+    coarse: Option<Plane>,
 }
 
 impl Plan {
-    fn new(source: &Source<'_>, terms: &[(f64, f64)]) -> Plan {
+    /// `level_one` is the layer's plane of 2 × 2 means, given when a term is wide.
+    fn new(level_one: Option<Plane>, terms: &[(f64, f64)]) -> Plan {
         let mut plan = Plan {
             identity: 0.0,
             fine: Vec::new(),
             coarse: None,
         };
-        let mut pyramid: Vec<(usize, usize, Vec<f32>)> = Vec::new();
-        let mut sums: Vec<Option<Vec<f32>>> = Vec::new();
+        // Per level: the kernels blurred there.
+        let mut wide: Vec<Vec<(f32, Vec<f32>)>> = Vec::new();
         for &(s, w) in terms {
             if s < 1e-3 {
                 plan.identity += w as f32;
@@ -257,114 +336,123 @@ impl Plan {
             }
             let l = level(s) as usize;
             if l == 0 {
-                plan.fine.push((w as f32, kernel(s, 3.0)));
+                let k = trimmed(kernel(s, 3.0));
+                if k.len() == 1 {
+                    plan.identity += w as f32;
+                } else {
+                    plan.fine.push((w as f32, k));
+                }
                 continue;
             }
-            while pyramid.len() < l {
-                let next = match pyramid.last() {
-                    None => halve_source(source),
-                    Some((lw, lh, p)) => halve(p, *lw, *lh),
-                };
-                pyramid.push(next);
-                sums.push(None);
+            if wide.len() < l {
+                wide.resize_with(l, Vec::new);
             }
-            let (lw, lh, low) = &pyramid[l - 1];
             let f2 = 4f64.powi(l as i32);
             let r = ((s * s - level_variance(l as u32)) / f2).max(0.0).sqrt();
-            let k = kernel(r, 3.0);
-            let blurred = fir_columns(&fir_rows(low, *lw, &k), *lw, *lh, &k);
-            let sum = sums[l - 1].get_or_insert_with(|| vec![0f32; lw * lh]);
-            for (a, b) in sum.iter_mut().zip(&blurred) {
-                *a += w as f32 * b;
-            }
+            wide[l - 1].push((w as f32, kernel(r, 3.0)));
         }
-        // Collapse the levels: each upsampled by 2 into the one below, down to level 1.
+        let Some(level_one) = level_one.filter(|_| !wide.is_empty()) else {
+            return plan;
+        };
+        let mut pyramid = vec![level_one];
+        while pyramid.len() < wide.len() {
+            let next = halve(pyramid.last().expect("level one"));
+            pyramid.push(next);
+        }
+        // Each level's terms in one pass of rows, then the levels collapsed from the top
+        // down, each upsampled by 2 into the one below, down to level 1.
+        let mut sums: Vec<Option<Plane>> = pyramid
+            .iter()
+            .zip(&wide)
+            .map(|(p, terms)| (!terms.is_empty()).then(|| blur(p, terms)))
+            .collect();
         for l in (1..sums.len()).rev() {
             if let Some(upper) = sums[l].take() {
-                let (uw, uh, _) = pyramid[l];
-                let (lw, lh, _) = pyramid[l - 1];
-                let lower = sums[l - 1].get_or_insert_with(|| vec![0f32; lw * lh]);
-                let mut mixed = vec![0f32; uw];
-                for (y, row) in lower.chunks_exact_mut(lw).enumerate() {
-                    mix_rows(&upper, uw, uh, y, &mut mixed);
-                    upsample_row_add(&mixed, row);
-                }
+                let (lw, lh) = (pyramid[l - 1].width, pyramid[l - 1].height);
+                let lower = sums[l - 1].get_or_insert_with(|| Plane {
+                    width: lw,
+                    height: lh,
+                    values: vec![0f32; lw * lh],
+                });
+                lower.values.par_chunks_mut(lw).enumerate().for_each_init(
+                    || vec![0f32; upper.width],
+                    |mixed, (y, row)| {
+                        mix_rows(&upper, y, mixed);
+                        upsample_row_add(mixed, row);
+                    },
+                );
             }
         }
-        if let Some(Some(sum)) = sums.into_iter().next() {
-            let (lw, lh, _) = pyramid[0];
-            plan.coarse = Some((lw, lh, sum));
-        }
+        plan.coarse = sums.into_iter().next().flatten();
         plan
     }
 
-    /// Rows `y0 .. y0 + acc.len()/width` of the filtered channel into `acc`.
-    fn band(&self, source: &Source<'_>, y0: usize, acc: &mut [f32], scratch: &mut Scratch) {
-        let width = source.width;
-        let rows = acc.len() / width;
-        let reach = self
-            .fine
+    /// Reach of the full-resolution kernels, rows.
+    fn reach(&self) -> usize {
+        self.fine
             .iter()
             .map(|(_, k)| k.len() / 2)
             .max()
-            .unwrap_or(0);
-        let lines = &mut scratch.lines;
-        lines.resize((rows + 2 * reach) * width, 0.0);
-        for (i, line) in lines.chunks_exact_mut(width).enumerate() {
-            source.row(y0 as isize + i as isize - reach as isize, line);
-        }
-        for (a, &p) in acc
-            .iter_mut()
-            .zip(&lines[reach * width..(reach + rows) * width])
-        {
-            *a = self.identity * p;
-        }
-        for (w, k) in &self.fine {
-            let r = k.len() / 2;
-            let tmp = &mut scratch.tmp;
-            tmp.resize((rows + 2 * r) * width, 0.0);
-            let first = (reach - r) * width;
-            for (t, line) in tmp
-                .chunks_exact_mut(width)
-                .zip(lines[first..].chunks_exact(width))
+            .unwrap_or(0)
+    }
+
+    /// Rows `y0 .. y0 + acc.len()/width` of the filtered layer into `acc`; `lines`
+    /// holds the layer's rows from `y0 − reach` (clamped to the image), `reach` rows
+    /// beyond the band on each side.
+    fn band(
+        &self,
+        lines: &[f32],
+        width: usize,
+        reach: usize,
+        y0: usize,
+        acc: &mut [f32],
+        scratch: &mut Rows,
+    ) {
+        for (i, a) in acc.chunks_exact_mut(width).enumerate() {
+            let centre = reach + i;
+            for (a, &p) in a
+                .iter_mut()
+                .zip(&lines[centre * width..(centre + 1) * width])
             {
-                row_fir(line, k, &mut scratch.padded, t);
+                *a = self.identity * p;
             }
-            for (i, a) in acc.chunks_exact_mut(width).enumerate() {
-                for (j, &kj) in k.iter().enumerate() {
-                    let kw = w * kj;
-                    for (v, &t) in a.iter_mut().zip(&tmp[(i + j) * width..(i + j + 1) * width]) {
-                        *v += kw * t;
-                    }
-                }
-            }
-        }
-        if let Some((lw, lh, plane)) = &self.coarse {
-            let mixed = &mut scratch.low_row;
-            mixed.resize(*lw, 0.0);
-            for (i, a) in acc.chunks_exact_mut(width).enumerate() {
-                mix_rows(plane, *lw, *lh, y0 + i, mixed);
-                upsample_row_add(mixed, a);
+            let line = |d: isize| {
+                let l = (centre as isize + d) as usize;
+                &lines[l * width..(l + 1) * width]
+            };
+            add_separable(line, &self.fine, &mut scratch.column, a);
+            if let Some(plane) = &self.coarse {
+                scratch.low_row.resize(plane.width, 0.0);
+                mix_rows(plane, y0 + i, &mut scratch.low_row);
+                upsample_row_add(&scratch.low_row, a);
             }
         }
+    }
+}
+
+/// The sum `Σₜ wₜ·(kₜ ∗ P)` of a plane's terms, rows in parallel.
+fn blur(plane: &Plane, terms: &[(f32, Vec<f32>)]) -> Plane {
+    let mut values = vec![0f32; plane.width * plane.height];
+    values
+        .par_chunks_mut(plane.width)
+        .enumerate()
+        .for_each_init(Vec::new, |column, (y, row)| {
+            add_separable(|d| plane.row(y as isize + d), terms, column, row);
+        });
+    Plane {
+        width: plane.width,
+        height: plane.height,
+        values,
     }
 }
 
 /// Row `y` of a plane upsampled by 2 vertically (bilinear, sample `j` centred on row
 /// `2j + ½`): `¼·row(j−1) + ¾·row(j)` for even `y = 2j`, `¾·row(j) + ¼·row(j+1)` for odd,
 /// rows clamped to the plane.
-fn mix_rows(plane: &[f32], width: usize, height: usize, y: usize, out: &mut [f32]) {
-    let j = y / 2;
-    let (a, b) = if y.is_multiple_of(2) {
-        (j.saturating_sub(1), j)
-    } else {
-        ((j + 1).min(height - 1), j)
-    };
-    let (ra, rb) = (
-        &plane[a * width..(a + 1) * width],
-        &plane[b * width..(b + 1) * width],
-    );
-    for ((o, &p), &q) in out.iter_mut().zip(ra).zip(rb) {
+fn mix_rows(plane: &Plane, y: usize, out: &mut [f32]) {
+    let j = (y / 2) as isize;
+    let other = if y.is_multiple_of(2) { j - 1 } else { j + 1 };
+    for ((o, &p), &q) in out.iter_mut().zip(plane.row(other)).zip(plane.row(j)) {
         *o = 0.25 * p + 0.75 * q;
     }
 }
@@ -374,21 +462,35 @@ fn mix_rows(plane: &[f32], width: usize, height: usize, y: usize, out: &mut [f32
 fn upsample_row_add(low: &[f32], out: &mut [f32]) {
     let n = low.len();
     let at = |i: usize| low[i.min(n - 1)];
-    for (i, pair) in out.chunks_mut(2).enumerate() {
+    let edge = |i: usize, pair: &mut [f32]| {
         let centre = 0.75 * low[i];
         pair[0] += centre + 0.25 * low[i.saturating_sub(1)];
         if let Some(odd) = pair.get_mut(1) {
             *odd += centre + 0.25 * at(i + 1);
         }
+    };
+    if n < 3 {
+        for (i, pair) in out.chunks_mut(2).enumerate() {
+            edge(i, pair);
+        }
+        return;
     }
+    // The interior (i = 1 .. n − 2) without clamping, then the two ends.
+    for (pair, w) in out[2..2 * n - 2].chunks_exact_mut(2).zip(low.windows(3)) {
+        let centre = 0.75 * w[1];
+        pair[0] += centre + 0.25 * w[0];
+        pair[1] += centre + 0.25 * w[2];
+    }
+    edge(0, &mut out[0..2]);
+    edge(n - 1, &mut out[2 * n - 2..]);
 }
 
 /// Per-thread buffers of the band pass.
 #[derive(Default)]
-struct Scratch {
-    lines: Vec<f32>,
-    tmp: Vec<f32>,
-    padded: Vec<f32>,
+struct Rows {
+    /// Per layer, the band's rows and the kernels' reach around them, as light.
+    lines: Vec<Vec<f32>>,
+    column: Vec<f32>,
     low_row: Vec<f32>,
     acc: Vec<f32>,
 }
@@ -412,25 +514,31 @@ pub fn filter(plane: &[f32], width: usize, height: usize, terms: &[(f64, f64)]) 
 /// border pixel.
 ///
 /// A term whose σ is below about 1.9 px (level 0, see `level`) is a sampled separable
-/// kernel of radius ⌈3σ⌉ at full resolution. A wider term is computed on the plane
+/// kernel of radius ⌈3σ⌉ at full resolution, applied down then across, one output row at
+/// a time. A wider term is computed on the plane
 /// decimated by `F = 2^L` (means of 2 × 2 blocks, `L` times: the mean of `F × F`
 /// blocks, variance `(F² − 1)/12` px² per axis) and blurred there by a sampled Gaussian
 /// of `r` decimated pixels; the levels are summed from the top down, each upsampled by 2
 /// (bilinear: a triangle of variance `4ᵏ/6` px² from level `k`) into the one below, and
 /// level 1 is upsampled into the full-resolution band. `r` makes the variances add to
 /// σ² (`level_variance`) and is at least [`COARSE_MIN_SIGMA`] ([`LEVEL_ONE_MIN_SIGMA`] at
-/// level 1). Setting up reads the image
-/// once per layer that has wide terms (half-resolution and smaller planes stay); a band
-/// reads its rows and the kernels' reach around them. The error against the direct sum
+/// level 1). Setting up reads the image once (all layers' half-resolution planes in one
+/// pass; they and the smaller planes stay); a band reads its rows and the kernels' reach
+/// around them, once for all layers. The error against the direct sum
 /// of sampled Gaussians ([`filter_direct`]) is measured by `cargo bench --bench
 /// film_speed` as the PSNR of the rendering (see `docs/film.md`).
 pub struct Filter<'a> {
-    sources: Vec<Source<'a>>,
+    pixels: &'a [f32],
+    channels: usize,
+    width: usize,
+    height: usize,
     plans: Vec<Plan>,
+    /// The widest full-resolution kernel's reach, rows.
+    reach: usize,
 }
 
 thread_local! {
-    static SCRATCH: std::cell::RefCell<Scratch> = std::cell::RefCell::default();
+    static SCRATCH: std::cell::RefCell<Rows> = std::cell::RefCell::default();
 }
 
 impl<'a> Filter<'a> {
@@ -443,39 +551,89 @@ impl<'a> Filter<'a> {
         height: usize,
         terms: &[Vec<(f64, f64)>],
     ) -> Filter<'a> {
-        let sources: Vec<Source<'a>> = (0..terms.len())
-            .map(|c| Source {
-                pixels,
-                channels,
-                channel: if channels == 1 { 0 } else { c },
-                width,
-                height,
-            })
-            .collect();
-        let plans = sources
-            .par_iter()
+        let wide = terms
+            .iter()
+            .flatten()
+            .any(|&(s, _)| s >= 1e-3 && level(s) > 0);
+        let level_one: Vec<Option<Plane>> = if wide {
+            halve_layers(pixels, channels, width, height, terms.len())
+                .into_iter()
+                .map(Some)
+                .collect()
+        } else {
+            terms.iter().map(|_| None).collect()
+        };
+        let plans: Vec<Plan> = level_one
+            .into_par_iter()
             .zip(terms)
-            .map(|(s, t)| Plan::new(s, t))
+            .map(|(l, t)| Plan::new(l, t))
             .collect();
-        Filter { sources, plans }
+        let reach = plans.iter().map(Plan::reach).max().unwrap_or(0);
+        Filter {
+            pixels,
+            channels,
+            width,
+            height,
+            plans,
+            reach,
+        }
     }
 
     /// Filtered rows `first ..` into `out` (whole interleaved rows, as many channels as
     /// filters).
     pub fn rows(&self, first: usize, out: &mut [f32]) {
         let layers = self.plans.len();
-        let width = self.sources[0].width;
+        let (width, channels, reach) = (self.width, self.channels, self.reach);
         let rows = out.len() / (width * layers);
+        let count = rows + 2 * reach;
+        let planes = if channels == 1 { 1 } else { layers };
         SCRATCH.with_borrow_mut(|scratch| {
-            for (c, (plan, source)) in self.plans.iter().zip(&self.sources).enumerate() {
-                let mut acc = std::mem::take(&mut scratch.acc);
-                acc.resize(rows * width, 0.0);
-                plan.band(source, first, &mut acc, scratch);
+            scratch.lines.resize_with(planes, Vec::new);
+            for line in &mut scratch.lines {
+                line.resize(count * width, 0.0);
+            }
+            for i in 0..count {
+                let y = (first as isize + i as isize - reach as isize)
+                    .clamp(0, self.height as isize - 1) as usize;
+                let source = &self.pixels[y * width * channels..(y + 1) * width * channels];
+                let row = i * width..(i + 1) * width;
+                if let [r, g, b] = &mut scratch.lines[..]
+                    && channels == 3
+                {
+                    // One pass over the interleaved row for the three layers.
+                    for (((r, g), b), p) in r[row.clone()]
+                        .iter_mut()
+                        .zip(&mut g[row.clone()])
+                        .zip(&mut b[row])
+                        .zip(source.chunks_exact(3))
+                    {
+                        *r = light(p[0]);
+                        *g = light(p[1]);
+                        *b = light(p[2]);
+                    }
+                    continue;
+                }
+                for (c, line) in scratch.lines.iter_mut().enumerate() {
+                    for (o, p) in line[row.clone()]
+                        .iter_mut()
+                        .zip(source.chunks_exact(channels))
+                    {
+                        *o = light(p[c]);
+                    }
+                }
+            }
+            let mut acc = std::mem::take(&mut scratch.acc);
+            let lines = std::mem::take(&mut scratch.lines);
+            acc.resize(rows * width, 0.0);
+            for (c, plan) in self.plans.iter().enumerate() {
+                let layer = &lines[c.min(planes - 1)];
+                plan.band(layer, width, reach, first, &mut acc, scratch);
                 for (o, v) in out.chunks_exact_mut(layers).zip(&acc) {
                     o[c] = v.max(0.0);
                 }
-                scratch.acc = acc;
             }
+            scratch.acc = acc;
+            scratch.lines = lines;
         });
     }
 }
@@ -501,41 +659,69 @@ pub fn filter_direct(plane: &[f32], width: usize, height: usize, terms: &[(f64, 
     acc
 }
 
-/// The first level of the pyramid: means of 2 × 2 blocks of the source (an odd last
-/// row or column averages what it has).
-fn halve_source(source: &Source<'_>) -> (usize, usize, Vec<f32>) {
-    let (width, height) = (source.width, source.height);
+/// The first level of the pyramid of each of `layers` layers of an interleaved image
+/// (a grey image feeds every layer): means of 2 × 2 blocks of the samples read as light
+/// (an odd last row or column averages what it has), in one pass over the image.
+fn halve_layers(
+    pixels: &[f32],
+    channels: usize,
+    width: usize,
+    height: usize,
+    layers: usize,
+) -> Vec<Plane> {
     let (lw, lh) = (width.div_ceil(2), height.div_ceil(2));
-    let mut low = vec![0f32; lw * lh];
-    low.par_chunks_mut(lw).enumerate().for_each_init(
-        || (vec![0f32; width], vec![0f32; width]),
-        |(a, b), (j, out)| {
-            source.row(2 * j as isize, a);
-            let n = if 2 * j + 1 < height { 2 } else { 1 };
-            if n == 2 {
-                source.row(2 * j as isize + 1, b);
-                for (x, y) in a.iter_mut().zip(b.iter()) {
-                    *x += y;
+    let stride = width * channels;
+    // A grey image is halved once and shared by every layer.
+    let computed = if channels == 1 { 1 } else { layers };
+    let mut planes: Vec<Vec<f32>> = (0..computed).map(|_| vec![0f32; lw * lh]).collect();
+    let mut rows: Vec<Vec<&mut [f32]>> = (0..lh).map(|_| Vec::with_capacity(computed)).collect();
+    for plane in &mut planes {
+        for (row, chunk) in rows.iter_mut().zip(plane.chunks_exact_mut(lw)) {
+            row.push(chunk);
+        }
+    }
+    rows.into_par_iter().enumerate().for_each_init(
+        || vec![0f32; stride],
+        |sum, (j, mut outs)| {
+            let top = 2 * j * stride;
+            for (s, &v) in sum.iter_mut().zip(&pixels[top..top + stride]) {
+                *s = light(v);
+            }
+            let rows = if 2 * j + 1 < height { 2 } else { 1 };
+            if rows == 2 {
+                for (s, &v) in sum.iter_mut().zip(&pixels[top + stride..top + 2 * stride]) {
+                    *s += light(v);
                 }
             }
-            for (o, pair) in out.iter_mut().zip(a.chunks(2)) {
-                *o = pair.iter().sum::<f32>() / (pair.len() * n) as f32;
+            for (c, out) in outs.iter_mut().enumerate() {
+                for (i, o) in out.iter_mut().enumerate() {
+                    let left = 2 * i * channels + c;
+                    *o = if 2 * i + 1 < width {
+                        (sum[left] + sum[left + channels]) / (2 * rows) as f32
+                    } else {
+                        sum[left] / rows as f32
+                    };
+                }
             }
         },
     );
-    (lw, lh, low)
+    while planes.len() < layers {
+        planes.push(planes[0].clone());
+    }
+    planes
+        .into_iter()
+        .map(|values| Plane {
+            width: lw,
+            height: lh,
+            values,
+        })
+        .collect()
 }
 
 /// The next level of the pyramid: means of 2 × 2 blocks of a plane.
-fn halve(plane: &[f32], width: usize, height: usize) -> (usize, usize, Vec<f32>) {
-    let source = Source {
-        pixels: plane,
-        channels: 1,
-        channel: 0,
-        width,
-        height,
-    };
-    halve_source(&source)
+fn halve(plane: &Plane) -> Plane {
+    let mut planes = halve_layers(&plane.values, 1, plane.width, plane.height, 1);
+    planes.pop().expect("one layer")
 }
 
 /// One row through a symmetric kernel, edges repeating the border pixel.

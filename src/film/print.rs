@@ -30,6 +30,7 @@
 
 use std::path::Path;
 use std::str::FromStr;
+use std::sync::LazyLock;
 
 use serde::Deserialize;
 
@@ -78,6 +79,18 @@ const BUILTIN: [(&str, &str); 2] = [
     ),
 ];
 
+/// The built-in papers, parsed and validated once per process (every look that prints a
+/// negative asks for its paper).
+static BUILTIN_PAPERS: LazyLock<Vec<Paper>> = LazyLock::new(|| {
+    BUILTIN
+        .iter()
+        .map(|(name, text)| {
+            Paper::from_toml(text, Path::new(name))
+                .unwrap_or_else(|e| panic!("built-in paper {name} is invalid: {e}"))
+        })
+        .collect()
+});
+
 /// The default paper's id: Kodak Endura Premier, the general-purpose RA-4 paper.
 pub const DEFAULT_PAPER: &str = "endura-premier";
 
@@ -105,29 +118,22 @@ impl Paper {
 
     /// The built-in papers.
     pub fn builtin() -> Vec<Paper> {
-        BUILTIN
-            .iter()
-            .map(|(name, text)| {
-                Paper::from_toml(text, Path::new(name))
-                    .unwrap_or_else(|e| panic!("built-in paper {name} is invalid: {e}"))
-            })
-            .collect()
+        BUILTIN_PAPERS.clone()
     }
 
     /// The built-in paper with that id.
     pub fn get(id: &str) -> Result<Paper, FilmError> {
-        let papers = Paper::builtin();
-        let known = papers
+        BUILTIN_PAPERS
             .iter()
-            .map(|p| p.id.as_str())
-            .collect::<Vec<_>>()
-            .join(", ");
-        papers
-            .into_iter()
             .find(|p| p.id == id)
+            .cloned()
             .ok_or_else(|| FilmError::UnknownPaper {
                 id: id.to_string(),
-                known,
+                known: BUILTIN_PAPERS
+                    .iter()
+                    .map(|p| p.id.as_str())
+                    .collect::<Vec<_>>()
+                    .join(", "),
             })
     }
 
