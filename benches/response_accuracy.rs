@@ -3,7 +3,8 @@
 //!
 //! `cargo bench --bench response_accuracy [-- --quick] [--ratio R] [--encoding lossless|jpeg|16]
 //! [--scene KIND[,KIND]] [--curves all|tune|report] [--every N] [--size WxH] [--curve NAME]
-//! [--frames N] [--seed N] [--per-curve]`
+//! [--frames N] [--seed N] [--per-curve] [--noise-free] [--fits-only] [--features FILE]
+//! [--fit-confidence FILE[,FILE]]`
 //!
 //! `--quick` takes every tenth DoRF curve (`--every N`: every N-th); `--ratio` and
 //! `--encoding` restrict the sweep to one ratio or one encoding; `--scene` to some scene
@@ -14,6 +15,18 @@
 //! (default 7; colours, positions, textures); `--size` renders smaller scenes for quick runs. `--frames N`
 //! (N ≥ 3) renders a bracket of N frames `γ` apart (exposures `γ^(k − (N−1)/2)`), fits it
 //! jointly (`calibrate_bracket`) and compares with each adjacent pair fitted alone.
+//! `--ratio` and `--encoding` (`lossless`, `jpeg` = q95, `jpeg90`, `16`) take comma lists.
+//!
+//! **Confidence.** Every run ends with a reliability table: per channel of every DoRF fit,
+//! by confidence band, the share really bad (scale error > 0.05 stop or shape error > 0.1
+//! stop) and the share worse than the sRGB inverse (own error, both `g(1) = 1`);
+//! `--noise-free` also fits the same frames rendered without noise and counts channels
+//! flagged low whose noise-free fit is good. `--features FILE` appends each channel's
+//! [`ChannelFit::features`](filmback::response::ChannelFit::features) and outcome to a
+//! CSV; `--fit-confidence FILES` refits the logistic model
+//! (`filmback::response::fit::CONFIDENCE_MODEL`) on such files and prints it with its
+//! reliability there. `--fits-only` skips the merges and a bracket's single pairs (for
+//! collecting features quickly).
 //!
 //! Each scene kind (`filmback::synthetic::SceneKind`, default 1024×768) is exposed at `1/√γ` and `√γ` through a
 //! known curve `f` (gamma 2.2, sRGB, film S, strong toe, and the DoRF curves of
@@ -38,12 +51,14 @@ use filmback::histogram::Histogram;
 use filmback::merge::{self, BracketFrame, MergeOptions};
 use filmback::metadata::{Camera, CaptureTime, Exposure};
 use filmback::radiance::RadianceMap;
+use filmback::response::fit::{FEATURES, logistic_confidence};
 use filmback::response::{
     Calibration, Degree, InverseResponse, Ratio, RatioSource, calibrate, calibrate_bracket,
 };
 use filmback::synthetic::{
     self, Encoding as FileEncoding, ResponseCurve as Curve, SceneKind, Sensor, Shot, measure,
 };
+use nalgebra::{DMatrix, DVector};
 
 const RATIOS: [f64; 7] = [1.25, 2.0, 4.0, 8.0, 16.0, 64.0, 256.0];
 const WIDTH: u32 = 1024;
@@ -70,8 +85,16 @@ fn merged_error(truth: &RadianceMap, frames: &[(&Frame, f64)], g: &InverseRespon
 const NOISE_16: f64 = 64.0;
 
 fn dorf_curves() -> Vec<(String, Curve)> {
-    let path = Path::new(env!("CARGO_MANIFEST_DIR"))
-        .join("../shared/testdata/response-curves/dorf-even.csv");
+    // `../shared` of the repository, or of its parent for a git worktree in a folder.
+    let root = Path::new(env!("CARGO_MANIFEST_DIR"));
+    let path = ["..", "../.."]
+        .iter()
+        .map(|up| {
+            root.join(up)
+                .join("shared/testdata/response-curves/dorf-even.csv")
+        })
+        .find(|p| p.exists())
+        .unwrap_or_else(|| root.join("../shared/testdata/response-curves/dorf-even.csv"));
     match synthetic::dorf_curves(&path) {
         Ok(curves) => curves,
         Err(e) => {
@@ -85,6 +108,7 @@ fn dorf_curves() -> Vec<(String, Curve)> {
 enum Encoding {
     Lossless8,
     Jpeg95,
+    Jpeg90,
     Sixteen,
 }
 
@@ -93,7 +117,26 @@ impl Encoding {
         match self {
             Encoding::Lossless8 => "8-bit lossless",
             Encoding::Jpeg95 => "8-bit JPEG q95",
+            Encoding::Jpeg90 => "8-bit JPEG q90",
             Encoding::Sixteen => "16-bit",
+        }
+    }
+
+    fn parse(name: &str) -> Encoding {
+        match name {
+            "lossless" => Encoding::Lossless8,
+            "jpeg" | "jpeg95" => Encoding::Jpeg95,
+            "jpeg90" => Encoding::Jpeg90,
+            "16" => Encoding::Sixteen,
+            other => panic!("--encoding takes lossless, jpeg, jpeg90 or 16, not {other}"),
+        }
+    }
+
+    fn jpeg_quality(self) -> Option<u8> {
+        match self {
+            Encoding::Jpeg95 => Some(95),
+            Encoding::Jpeg90 => Some(90),
+            _ => None,
         }
     }
 }
@@ -107,6 +150,7 @@ fn expose(
     curve: &Curve,
     enc: Encoding,
     seed: u64,
+    noisy: bool,
 ) -> (Frame, Option<Vec<u8>>) {
     let sensor = Sensor {
         curve: curve.clone(),
@@ -115,10 +159,10 @@ fn expose(
         } else {
             BitDepth::Eight
         },
-        read_noise_dn: if enc == Encoding::Sixteen {
-            NOISE_16
-        } else {
-            1.0
+        read_noise_dn: match (noisy, enc) {
+            (false, _) => 0.0,
+            (true, Encoding::Sixteen) => NOISE_16,
+            (true, _) => 1.0,
         },
         full_well_electrons: None,
         seed,
@@ -148,9 +192,9 @@ fn expose(
             let bytes = synthetic::encode(&frame, &shot, FileEncoding::Png).unwrap();
             (frame, Some(bytes))
         }
-        Encoding::Jpeg95 => {
-            let bytes =
-                synthetic::encode(&frame, &shot, FileEncoding::Jpeg { quality: 95 }).unwrap();
+        Encoding::Jpeg95 | Encoding::Jpeg90 => {
+            let quality = enc.jpeg_quality().unwrap_or(95);
+            let bytes = synthetic::encode(&frame, &shot, FileEncoding::Jpeg { quality }).unwrap();
             let decoded = frame::decode(Path::new("synthetic.jpg"), &bytes, Limits::default())
                 .unwrap()
                 .frame;
@@ -268,17 +312,35 @@ fn main() {
     if let Some(name) = &only {
         curves.retain(|(n, _)| n == name);
     }
+    if let Some(files) = arg("--fit-confidence") {
+        fit_confidence(&files);
+        return;
+    }
     let ratios: Vec<f64> = match arg("--ratio") {
-        Some(r) => vec![r.parse().expect("--ratio takes a number")],
+        Some(r) => r
+            .split(',')
+            .map(|r| r.parse().expect("--ratio takes numbers"))
+            .collect(),
         None => RATIOS.to_vec(),
     };
-    let encodings: Vec<Encoding> = match arg("--encoding").as_deref() {
-        Some("lossless") => vec![Encoding::Lossless8],
-        Some("jpeg") => vec![Encoding::Jpeg95],
-        Some("16") => vec![Encoding::Sixteen],
-        Some(other) => panic!("--encoding takes lossless, jpeg or 16, not {other}"),
+    let encodings: Vec<Encoding> = match arg("--encoding") {
+        Some(list) => list.split(',').map(Encoding::parse).collect(),
         None => vec![Encoding::Lossless8, Encoding::Jpeg95, Encoding::Sixteen],
     };
+    let noise_free = args.iter().any(|a| a == "--noise-free");
+    // Only the fits and their curve errors: no merges, no single pairs of a bracket.
+    let fits_only = args.iter().any(|a| a == "--fits-only");
+    let has_dorf = curves.iter().any(|(n, _)| n.starts_with("dorf-"));
+    let features_out = arg("--features");
+    let mut records: Vec<ChannelRecord> = Vec::new();
+    let mut features_file = features_out.map(|path| {
+        std::fs::OpenOptions::new()
+            .create(true)
+            .append(true)
+            .open(&path)
+            .unwrap_or_else(|e| panic!("{path}: {e}"))
+    });
+    let srgb = InverseResponse::srgb(3, 1024);
     let py = peer_python();
     if py.is_none() {
         eprintln!("(OpenCV peer unavailable: comparison skipped)");
@@ -304,7 +366,7 @@ fn main() {
                     let rendered: Vec<(Frame, Option<Vec<u8>>)> = exposures
                         .iter()
                         .enumerate()
-                        .map(|(k, &e)| expose(&radiance, e, curve, enc, seed + 50 * k as u64))
+                        .map(|(k, &e)| expose(&radiance, e, curve, enc, seed + 50 * k as u64, true))
                         .collect();
                     let histograms: Vec<Histogram> = rendered
                         .iter()
@@ -336,7 +398,7 @@ fn main() {
                                 .fold(1.0, f64::min),
                         )
                     };
-                    let pairs: Vec<Option<(f64, f64)>> = if frame_count > 2 {
+                    let pairs: Vec<Option<(f64, f64)>> = if frame_count > 2 && !fits_only {
                         (0..frame_count - 1)
                             .map(|i| pair_fit(i).ok().map(|c| summary(&c)))
                             .collect()
@@ -354,7 +416,11 @@ fn main() {
                         .map(|r| &r.0)
                         .zip(exposures.iter().copied())
                         .collect();
-                    let merge_true = merged_error(&radiance, &frames, &g_true).unwrap_or(f64::NAN);
+                    let merge_true = if fits_only {
+                        f64::NAN
+                    } else {
+                        merged_error(&radiance, &frames, &g_true).unwrap_or(f64::NAN)
+                    };
                     let mut outcome = Outcome {
                         curve: name.clone(),
                         scene: kind,
@@ -372,6 +438,73 @@ fn main() {
                         failed: None,
                         peer_index: None,
                     };
+                    // The same frames without noise, fitted the same way: is a good fit
+                    // possible from them at all?
+                    let noise_free_good: Option<Vec<bool>> = noise_free.then(|| {
+                        let clean: Vec<Histogram> = exposures
+                            .iter()
+                            .enumerate()
+                            .map(|(k, &e)| {
+                                let f =
+                                    expose(&radiance, e, curve, enc, seed + 50 * k as u64, false).0;
+                                Histogram::of_frame(&f, 1)
+                            })
+                            .collect();
+                        let cal = if frame_count > 2 {
+                            let frames: Vec<(&Histogram, f64)> =
+                                clean.iter().zip(exposures.iter().copied()).collect();
+                            calibrate_bracket(&frames, RatioSource::Argument, Degree::Auto)
+                        } else {
+                            calibrate(
+                                &clean[0],
+                                &clean[1],
+                                Ratio::Known(ratio, RatioSource::Argument),
+                                Degree::Auto,
+                            )
+                        };
+                        match cal {
+                            Ok(cal) => measure::response_errors(&cal.response, curve)
+                                .iter()
+                                .zip(&cal.channels)
+                                .map(|(e, ch)| ch.borrowed_from.is_none() && good(e))
+                                .collect(),
+                            Err(_) => vec![false; 3],
+                        }
+                    });
+                    if let Ok(cal) = &result
+                        && (!has_dorf || name.starts_with("dorf-"))
+                    {
+                        let srgb_errors = measure::response_errors(&srgb, curve);
+                        for (c, (ch, e)) in cal
+                            .channels
+                            .iter()
+                            .zip(measure::response_errors(&cal.response, curve))
+                            .enumerate()
+                        {
+                            records.push(ChannelRecord {
+                                scene: kind.name().to_string(),
+                                curve: name.clone(),
+                                enc: enc.name().to_string(),
+                                ratio,
+                                frames: frame_count,
+                                channel: c,
+                                borrowed: ch.borrowed_from.is_some(),
+                                features: ch.fit.features(),
+                                coverage: ch.fit.coverage,
+                                confidence: ch.fit.confidence,
+                                scale: e.scale,
+                                shape: e.shape,
+                                own: e.own,
+                                srgb_own: srgb_errors[c.min(srgb_errors.len() - 1)].own,
+                                noise_free_good: noise_free_good.as_ref().map(|g| g[c]),
+                            });
+                            if let Some(file) = &mut features_file {
+                                use std::io::Write;
+                                let line = records.last().map(ChannelRecord::to_csv);
+                                writeln!(file, "{}", line.unwrap_or_default()).unwrap();
+                            }
+                        }
+                    }
                     match result {
                         Ok(cal) => {
                             if only.is_some() {
@@ -409,8 +542,10 @@ fn main() {
                             outcome.scale = measure::scale_errors(&cal.response, curve)
                                 .into_iter()
                                 .fold(0.0, |a: f64, s| a.max(s.abs()));
-                            outcome.gap = merged_error(&radiance, &frames, &cal.response)
-                                .map_or(f64::NAN, |e| e - merge_true);
+                            if !fits_only {
+                                outcome.gap = merged_error(&radiance, &frames, &cal.response)
+                                    .map_or(f64::NAN, |e| e - merge_true);
+                            }
                             outcome.confidence = cal
                                 .channels
                                 .iter()
@@ -425,8 +560,8 @@ fn main() {
                         }
                         Err(e) => outcome.failed = Some(e.to_string()),
                     }
-                    if py.is_some() && enc != Encoding::Sixteen && frame_count == 2 {
-                        let ext = if enc == Encoding::Jpeg95 {
+                    if py.is_some() && enc != Encoding::Sixteen && frame_count == 2 && !fits_only {
+                        let ext = if enc.jpeg_quality().is_some() {
                             "jpg"
                         } else {
                             "png"
@@ -448,6 +583,10 @@ fn main() {
         }
     }
     let ours_s = started.elapsed().as_secs_f64();
+    println!("## Reliability of the confidence (per channel)");
+    println!();
+    reliability(&records);
+    println!();
     let peer_curves: Vec<Vec<Vec<f64>>> = match &py {
         Some(py) => {
             let manifest = dir.path().join("cases.json");
@@ -709,4 +848,265 @@ fn main() {
             o.failed.as_deref().unwrap_or("")
         );
     }
+}
+
+/// Good: scale error ≤ 0.05 stop and shape error ≤ 0.1 stop (what the confidence predicts).
+fn good(e: &measure::CurveError) -> bool {
+    e.scale.abs() <= 0.05 && e.shape <= 0.1
+}
+
+/// One channel of one fit: what the fit knew and how it came out.
+struct ChannelRecord {
+    scene: String,
+    curve: String,
+    enc: String,
+    ratio: f64,
+    frames: usize,
+    channel: usize,
+    borrowed: bool,
+    features: [f64; FEATURES],
+    coverage: f64,
+    confidence: f64,
+    scale: f64,
+    shape: f64,
+    own: f64,
+    /// The own error of the sRGB inverse against the same true curve.
+    srgb_own: f64,
+    /// Whether the same frames without noise give a good fit of this channel.
+    noise_free_good: Option<bool>,
+}
+
+impl ChannelRecord {
+    fn bad(&self) -> bool {
+        !(self.scale.abs() <= 0.05 && self.shape <= 0.1)
+    }
+
+    fn worse_than_srgb(&self) -> bool {
+        // NaN (a failed curve) counts as worse.
+        !matches!(
+            self.own.partial_cmp(&self.srgb_own),
+            Some(std::cmp::Ordering::Less | std::cmp::Ordering::Equal)
+        )
+    }
+
+    fn to_csv(&self) -> String {
+        let mut v = vec![
+            self.scene.clone(),
+            self.curve.clone(),
+            self.enc.clone(),
+            self.ratio.to_string(),
+            self.frames.to_string(),
+            self.channel.to_string(),
+            u8::from(self.borrowed).to_string(),
+        ];
+        v.extend(self.features.iter().map(|x| format!("{x:.6}")));
+        v.extend(
+            [
+                self.coverage,
+                self.confidence,
+                self.scale,
+                self.shape,
+                self.own,
+                self.srgb_own,
+            ]
+            .iter()
+            .map(|x| format!("{x:.6}")),
+        );
+        v.push(match self.noise_free_good {
+            None => "-".into(),
+            Some(g) => u8::from(g).to_string(),
+        });
+        v.join(",")
+    }
+
+    fn from_csv(line: &str) -> Option<ChannelRecord> {
+        let f: Vec<&str> = line.split(',').collect();
+        if f.len() != 7 + FEATURES + 7 {
+            return None;
+        }
+        let num = |i: usize| f[i].parse::<f64>().ok();
+        let mut features = [0.0; FEATURES];
+        for (k, x) in features.iter_mut().enumerate() {
+            *x = num(7 + k)?;
+        }
+        let o = 7 + FEATURES + 1;
+        Some(ChannelRecord {
+            scene: f[0].into(),
+            curve: f[1].into(),
+            enc: f[2].into(),
+            ratio: num(3)?,
+            frames: f[4].parse().ok()?,
+            channel: f[5].parse().ok()?,
+            borrowed: f[6] == "1",
+            features,
+            coverage: num(o - 1)?,
+            confidence: num(o)?,
+            scale: num(o + 1)?,
+            shape: num(o + 2)?,
+            own: num(o + 3)?,
+            srgb_own: num(o + 4)?,
+            noise_free_good: match f[o + 5] {
+                "1" => Some(true),
+                "0" => Some(false),
+                _ => None,
+            },
+        })
+    }
+}
+
+/// Prints the reliability table of `records`: per confidence band, how many channels,
+/// the share really bad (scale > 0.05 or shape > 0.1 stop), the share worse than the sRGB
+/// inverse (own error), and per encoding and number of frames the three checks.
+fn reliability(records: &[ChannelRecord]) {
+    const BANDS: [(f64, f64); 6] = [
+        (0.0, 0.1),
+        (0.1, 0.3),
+        (0.3, 0.5),
+        (0.5, 0.7),
+        (0.7, 0.9),
+        (0.9, 1.01),
+    ];
+    let share = |n: usize, of: usize| {
+        if of == 0 {
+            "-".to_string()
+        } else {
+            format!("{:.1} %", 100.0 * n as f64 / of as f64)
+        }
+    };
+    let mut groups: Vec<(String, usize)> = Vec::new();
+    for r in records {
+        if !groups.iter().any(|g| g.0 == r.enc && g.1 == r.frames) {
+            groups.push((r.enc.clone(), r.frames));
+        }
+    }
+    println!(
+        "Per channel; bad = scale error > 0.05 stop or shape error > 0.1 stop; worse than sRGB = own error above the sRGB inverse's (both g(1) = 1)."
+    );
+    println!();
+    println!(
+        "| encoding | frames | confidence | channels | bad | worse than sRGB | noise-free fit good |"
+    );
+    println!("|---|---|---|---|---|---|---|");
+    for (enc, frames) in &groups {
+        let set: Vec<&ChannelRecord> = records
+            .iter()
+            .filter(|r| &r.enc == enc && r.frames == *frames)
+            .collect();
+        for (lo, hi) in BANDS {
+            let band: Vec<&&ChannelRecord> = set
+                .iter()
+                .filter(|r| r.confidence >= lo && r.confidence < hi)
+                .collect();
+            let clean: Vec<bool> = band.iter().filter_map(|r| r.noise_free_good).collect();
+            println!(
+                "| {enc} | {frames} | {lo:.1}–{:.1} | {} | {} | {} | {} |",
+                hi.min(1.0),
+                band.len(),
+                share(band.iter().filter(|r| r.bad()).count(), band.len()),
+                share(
+                    band.iter().filter(|r| r.worse_than_srgb()).count(),
+                    band.len()
+                ),
+                share(clean.iter().filter(|g| **g).count(), clean.len()),
+            );
+        }
+    }
+    println!();
+    println!(
+        "| encoding | frames | channels | confident (≥ 0.5) | confident and bad | low (< 0.5) | low and worse than sRGB | low and bad | low where the noise-free fit is good | bad (all) |"
+    );
+    println!("|---|---|---|---|---|---|---|---|---|---|");
+    for (enc, frames) in &groups {
+        let set: Vec<&ChannelRecord> = records
+            .iter()
+            .filter(|r| &r.enc == enc && r.frames == *frames)
+            .collect();
+        let (sure, low): (Vec<&&ChannelRecord>, Vec<&&ChannelRecord>) =
+            set.iter().partition(|r| r.confidence >= 0.5);
+        let low_clean = low
+            .iter()
+            .filter(|r| r.noise_free_good == Some(true))
+            .count();
+        println!(
+            "| {enc} | {frames} | {} | {} | {} | {} | {} | {} | {} | {} |",
+            set.len(),
+            sure.len(),
+            share(sure.iter().filter(|r| r.bad()).count(), sure.len()),
+            low.len(),
+            share(
+                low.iter().filter(|r| r.worse_than_srgb()).count(),
+                low.len()
+            ),
+            share(low.iter().filter(|r| r.bad()).count(), low.len()),
+            if low.iter().any(|r| r.noise_free_good.is_some()) {
+                low_clean.to_string()
+            } else {
+                "-".into()
+            },
+            share(set.iter().filter(|r| r.bad()).count(), set.len()),
+        );
+    }
+}
+
+/// Fits the logistic confidence model (`filmback::response::fit::CONFIDENCE_MODEL`) by
+/// maximum likelihood (Newton's method, a small ridge) to the records of the CSV `files`
+/// (comma separated, written by `--features`), outcome "good", borrowed channels left
+/// out; prints the coefficients and the reliability of the refitted model (times the
+/// coverage, as the library applies it) on the same records.
+fn fit_confidence(files: &str) {
+    let mut records: Vec<ChannelRecord> = files
+        .split(',')
+        .flat_map(|f| {
+            std::fs::read_to_string(f)
+                .unwrap_or_else(|e| panic!("{f}: {e}"))
+                .lines()
+                .filter_map(ChannelRecord::from_csv)
+                .collect::<Vec<_>>()
+        })
+        .filter(|r| !r.borrowed && r.features.iter().all(|x| x.is_finite()))
+        .collect();
+    let k = FEATURES + 1;
+    let row = |r: &ChannelRecord| {
+        let mut x = vec![1.0];
+        x.extend(r.features);
+        x
+    };
+    let mut beta = DVector::<f64>::zeros(k);
+    for _ in 0..50 {
+        let mut hessian = DMatrix::<f64>::identity(k, k) * 1e-3;
+        let mut gradient = -&beta * 1e-3;
+        for r in &records {
+            let x = DVector::from_vec(row(r));
+            let p = 1.0 / (1.0 + (-x.dot(&beta)).exp());
+            let y = if r.bad() { 0.0 } else { 1.0 };
+            gradient += &x * (y - p);
+            hessian += &x * x.transpose() * (p * (1.0 - p)).max(1e-9);
+        }
+        let step = hessian
+            .lu()
+            .solve(&gradient)
+            .expect("Hessian is positive definite");
+        beta += &step;
+        if step.norm() < 1e-9 {
+            break;
+        }
+    }
+    println!(
+        "CONFIDENCE_MODEL (fitted on {} channels, {} bad): [{}]",
+        records.len(),
+        records.iter().filter(|r| r.bad()).count(),
+        beta.iter()
+            .map(|b| format!("{b:.3}"))
+            .collect::<Vec<_>>()
+            .join(", ")
+    );
+    let beta: [f64; FEATURES + 1] = std::array::from_fn(|i| beta[i]);
+    for r in &mut records {
+        // As the library applies it: capped by the predicted error, times the coverage.
+        let predicted = r.features[1].exp() - 0.001;
+        let cap = 1.0 / (1.0 + (predicted / 0.2).powi(2));
+        r.confidence = r.coverage * logistic_confidence(&beta, &r.features).min(cap);
+    }
+    println!();
+    reliability(&records);
 }

@@ -668,3 +668,66 @@ fn histogram_inversion_agrees_with_colour_hdri_on_frobisher() {
     eprintln!("largest difference: {worst:.3} levels");
     assert!(worst <= 1.0, "{worst}");
 }
+
+/// The confidence means what it says on pairs it was not tuned on (the built-in curves
+/// and two power laws, not DoRF; scenes at another seed): among channels at confidence
+/// ≥ 0.5 few are bad (scale error > 0.05 stop or shape error > 0.1 stop), and a channel
+/// whose fit from the same frames without noise is good is not flagged low.
+#[test]
+fn confidence_is_calibrated_on_held_out_pairs() {
+    use filmback::synthetic::SceneKind;
+    let curves = [
+        ResponseCurve::Gamma(1.8),
+        ResponseCurve::Gamma(2.6),
+        ResponseCurve::Srgb,
+        ResponseCurve::FilmS,
+        ResponseCurve::StrongToe,
+    ];
+    let good = |e: &measure::CurveError| e.scale.abs() <= 0.05 && e.shape <= 0.1;
+    let (mut confident, mut confident_bad, mut low_but_clean) = (0, 0, Vec::new());
+    for kind in [
+        SceneKind::Procedural,
+        SceneKind::Studio,
+        SceneKind::FlatPatches,
+    ] {
+        let scene = kind.render(256, 192, 43);
+        for curve in &curves {
+            for ratio in [2.0, 4.0, 8.0] {
+                let noisy = sensor(curve.clone(), BitDepth::Eight);
+                let clean = Sensor::noiseless(curve.clone(), BitDepth::Eight);
+                let (dark, bright) = pair(&scene, &noisy, ratio);
+                let cal = run(&dark, &bright, ratio, Degree::Auto).unwrap();
+                let (dark, bright) = pair(&scene, &clean, ratio);
+                let reference = run(&dark, &bright, ratio, Degree::Auto).unwrap();
+                let errors = measure::response_errors(&cal.response, curve);
+                let clean_errors = measure::response_errors(&reference.response, curve);
+                for c in 0..3 {
+                    let confidence = cal.channels[c].fit.confidence;
+                    if confidence >= 0.5 {
+                        confident += 1;
+                        if !good(&errors[c]) {
+                            confident_bad += 1;
+                            eprintln!(
+                                "confident and bad: {kind:?} {curve:?} {ratio} {c}: {:?} {confidence:.2}",
+                                errors[c]
+                            );
+                        }
+                    } else if good(&clean_errors[c]) && good(&errors[c]) {
+                        low_but_clean.push(format!(
+                            "{kind:?} {curve:?} ratio {ratio} channel {c}: {confidence:.2}"
+                        ));
+                    }
+                }
+            }
+        }
+    }
+    eprintln!(
+        "{confident} confident channels, {confident_bad} bad; low but good: {low_but_clean:?}"
+    );
+    assert!(confident >= 90, "{confident} of 135 channels confident");
+    assert!(
+        confident_bad * 50 <= confident,
+        "{confident_bad} of {confident}"
+    );
+    assert!(low_but_clean.len() <= 3, "{low_but_clean:?}");
+}

@@ -170,7 +170,20 @@ pub struct ChannelFit {
     pub predicted_error: f64,
     /// Fraction of the tones 16/255..239/255 inside [`ChannelFit::covered`].
     pub coverage: f64,
-    /// `coverage / (1 + (predicted_error / 0.05)²)`, in `[0, 1]`; below 0.5 is "low".
+    /// Weighted misfit per degree of freedom, `χ² / (m − p_eff)` (dimensionless): about
+    /// 1 when the equations scatter as the histograms' noise model says (bin width, pixel
+    /// count, 1 DN), larger when the frames disagree beyond it (a codec, a wrong ratio).
+    pub misfit: f64,
+    /// `ln γ` of the equations (the smallest of a bracket's pairs).
+    pub log_ratio: f64,
+    /// How much of the curve is extrapolated above the brightest tone the equations
+    /// reached, `−log₂ g(b_hi)` in stops: `g(1) = 1` anchors the whole channel through
+    /// this span, so its error is the channel's scale error.
+    pub top_span: f64,
+    /// The probability that the channel is good (scale error ≤ 0.05 stop and shape error
+    /// ≤ 0.1 stop): the logistic model [`CONFIDENCE_MODEL`] of [`ChannelFit::features`],
+    /// capped where the predicted error reaches 0.2 stop and times [`ChannelFit::coverage`]
+    /// (see [`ChannelFit::features`]); in `[0, 1]`, below 0.5 is "low".
     pub confidence: f64,
 }
 
@@ -240,6 +253,46 @@ impl ChannelFit {
         let x = b.clamp(self.log_floor.exp(), 1.0).ln();
         self.basis().slope(&self.coefficients, x)
     }
+
+    /// What the fit knows about its own error, the inputs of [`CONFIDENCE_MODEL`]:
+    ///
+    /// 1. `ln(top_span + 0.01)`: the extrapolated span above the brightest tone (stops),
+    ///    which sets the scale error;
+    /// 2. `ln(predicted_error + 0.001)`: the covariance's standard error of `log₂ g`;
+    /// 3. `ln(max(misfit, 0.1))`: the misfit relative to the noise model;
+    /// 4. `ln ln γ`, `γ` clamped to 2..=16, the ratios the model was fitted on (small
+    ///    ratios leave the chain ambiguity loose, large ones few shared tones).
+    pub fn features(&self) -> [f64; FEATURES] {
+        [
+            (self.top_span.max(0.0) + 0.01).ln(),
+            (self.predicted_error.min(1e6) + 0.001).ln(),
+            self.misfit.max(0.1).ln(),
+            self.log_ratio.clamp(2f64.ln(), 16f64.ln()).ln(),
+        ]
+    }
+}
+
+/// Number of [`ChannelFit::features`].
+pub const FEATURES: usize = 4;
+
+/// The logistic model of the confidence: `p = 1 / (1 + exp(−(β₀ + Σ_k β_k·x_k)))` with
+/// `x` the [`ChannelFit::features`] and `β = CONFIDENCE_MODEL`, the probability that
+/// the channel is good (scale error ≤ 0.05 stop and shape error ≤ 0.1 stop). Fitted by
+/// maximum likelihood on the tuning split of `benches/response_accuracy.rs` (DoRF
+/// records ≡ 0 mod 4, every fourth of them, scenes at seed 7, every scene kind, 512×384,
+/// 8-bit lossless, JPEG q95 and 16-bit at ratios 2–16 and 3-frame brackets at ratio 4,
+/// lossless and JPEG q90); `--fit-confidence` refits it, and docs/accuracy.md gives its
+/// reliability on the report split. Every coefficient but the ratio's is negative: a
+/// longer extrapolation, a larger predicted error, a larger misfit make a bad channel
+/// likelier. The confidence is `p·coverage`: the tuning scenes almost always cover the
+/// codes 16..239, so the model has not seen what an uncovered curve does.
+pub const CONFIDENCE_MODEL: [f64; FEATURES + 1] = [-5.119, -0.919, -0.565, -0.845, 0.288];
+
+/// The confidence of features `x` under the logistic model `beta` (see
+/// [`CONFIDENCE_MODEL`]).
+pub fn logistic_confidence(beta: &[f64; FEATURES + 1], x: &[f64; FEATURES]) -> f64 {
+    let z = beta[0] + beta[1..].iter().zip(x).map(|(b, x)| b * x).sum::<f64>();
+    1.0 / (1.0 + (-z).exp())
 }
 
 /// Unweighted design: row `i` is `R(ln τ_i) − R(ln b_i)` of pair `i` (see [`Basis::ramps`]).
@@ -576,6 +629,10 @@ pub fn fit(pairs: &[TonePair], log_ratio: f64, degree: Degree) -> Result<Channel
 /// information of `N − 1` independent (adjacent) pairs, so the covariance behind the
 /// predicted error is scaled by `k/(N − 1)` when `k` is larger (1 for adjacent pairs).
 /// The smoothness floor follows the smallest ratio, whose ripples are the shortest.
+/// After the first fits, each set's weights are divided by `√max(1, χ̄²_set / χ̄²_best)`
+/// (`χ̄²` the mean squared weighted residual of a set's equations against the joint
+/// curve, `best` the smallest over sets): a pair that disagrees with the others counts
+/// as noisier, not as evidence against them.
 pub fn fit_joint(
     sets: &[(&[TonePair], f64)],
     frames: usize,
@@ -594,13 +651,14 @@ pub fn fit_joint(
     if backwards * 2 > total {
         return Err(FitError::Swapped);
     }
-    let mut equations: Vec<(TonePair, f64)> = sets
+    let mut equations: Vec<(TonePair, f64, usize)> = sets
         .iter()
-        .flat_map(|(pairs, log_ratio)| {
+        .enumerate()
+        .flat_map(|(set, (pairs, log_ratio))| {
             pairs
                 .iter()
                 .filter(|p| p.dark > 0.0 && p.bright > p.dark && p.bright.is_finite())
-                .map(move |p| (*p, *log_ratio))
+                .map(move |p| (*p, *log_ratio, set))
         })
         .collect();
     if sets.len() > 1 {
@@ -608,7 +666,9 @@ pub fn fit_joint(
         // their dark tone (one set is already in tone order).
         equations.sort_by(|a, b| a.0.dark.total_cmp(&b.0.dark));
     }
-    let (pairs, log_ratios): (Vec<TonePair>, Vec<f64>) = equations.into_iter().unzip();
+    let pairs: Vec<TonePair> = equations.iter().map(|e| e.0).collect();
+    let log_ratios: Vec<f64> = equations.iter().map(|e| e.1).collect();
+    let set_of: Vec<usize> = equations.iter().map(|e| e.2).collect();
     let ripple_log_ratio = log_ratios.iter().copied().fold(f64::INFINITY, f64::min);
     let dependence = sets.len() as f64 / frames.saturating_sub(1).max(1) as f64;
     let m = pairs.len();
@@ -658,6 +718,31 @@ pub fn fit_joint(
         problem.penalty = curvature(&problem.basis, Some(&|x| previous.log_slope(x.exp())));
         smoothing = problem.choose_smoothing();
     }
+    if sets.len() > 1 {
+        // Each frame pair's own scatter: a pair whose equations misfit the joint curve
+        // more than the best-fitting pair's (a codec's ringing in one frame, a frame that
+        // does not follow its listed time) has its variance scaled by the ratio of the two
+        // mean squared weighted residuals, so it cannot pull the curve of the others.
+        let joint = finish(&problem, smoothing.chosen, log_floor, (darkest, brightest));
+        let mut scatter = vec![(0.0, 0usize); sets.len()];
+        for (i, p) in pairs.iter().enumerate() {
+            let r = problem.sqrt_w[i]
+                * (joint.log_g(p.bright) - joint.log_g(p.dark) - problem.log_ratios[i]);
+            scatter[set_of[i]].0 += r * r;
+            scatter[set_of[i]].1 += 1;
+        }
+        let mean = |s: &(f64, usize)| s.0 / s.1.max(1) as f64;
+        let best = scatter
+            .iter()
+            .filter(|s| s.1 > 0)
+            .map(mean)
+            .fold(f64::INFINITY, f64::min)
+            .max(f64::MIN_POSITIVE);
+        for (w, &set) in problem.sqrt_w.iter_mut().zip(&set_of) {
+            *w /= (mean(&scatter[set]) / best).max(1.0).sqrt();
+        }
+        smoothing = problem.choose_smoothing();
+    }
     let mut fit = finish(&problem, smoothing.chosen, log_floor, (darkest, brightest));
     if smoothing.best != smoothing.chosen {
         // The data cannot choose between the two curves: their difference is part of
@@ -674,7 +759,7 @@ pub fn fit_joint(
             / count)
             .sqrt();
         fit.predicted_error = fit.predicted_error.hypot(spread);
-        fit.confidence = confidence(fit.coverage, fit.predicted_error);
+        fit.confidence = confidence(&fit);
     }
     check_degenerate(&fit)?;
     Ok(fit)
@@ -770,7 +855,8 @@ fn finish(problem: &Problem, lambda: f64, log_floor: f64, covered: (f64, f64)) -
     let (lo, hi) = (covered.0, covered.1.min(1.0));
     let coverage =
         ((hi.min(239.0 / 255.0) - lo.max(16.0 / 255.0)) / (223.0 / 255.0)).clamp(0.0, 1.0);
-    ChannelFit {
+    let dof = (m as f64 - effective_parameters).max(1.0);
+    let mut fit = ChannelFit {
         degree: problem.basis.degree(),
         knots: problem.basis.interior().to_vec(),
         smoothing: lambda / problem.total_weight().max(f64::MIN_POSITIVE),
@@ -783,14 +869,27 @@ fn finish(problem: &Problem, lambda: f64, log_floor: f64, covered: (f64, f64)) -
         condition,
         predicted_error,
         coverage,
-        confidence: confidence(coverage, predicted_error),
-    }
+        misfit: chi2 / dof,
+        log_ratio: problem.ripple_log_ratio,
+        top_span: 0.0,
+        confidence: 0.0,
+    };
+    fit.top_span = (-fit.log_g(hi) / std::f64::consts::LN_2).max(0.0);
+    fit.confidence = confidence(&fit);
+    fit
 }
 
-/// `coverage / (1 + (predicted_error / 0.05 stop)²)`; 0 for an undetermined curve.
-fn confidence(coverage: f64, predicted_error: f64) -> f64 {
-    if predicted_error.is_finite() {
-        coverage / (1.0 + (predicted_error / 0.05).powi(2))
+/// `coverage · min(p, 1 / (1 + (predicted_error / 0.2 stop)²))` with `p` the
+/// [`logistic_confidence`] of the fit's features under [`CONFIDENCE_MODEL`]: the second
+/// term caps it where the covariance alone puts the curve's standard error at twice the
+/// 0.1-stop tolerance or beyond, outside the errors the model was fitted on (it is 0.5
+/// at 0.2 stop and above 0.9 below 0.06, so it rarely binds inside them). 0 for an
+/// undetermined curve (no free increment, or a non-finite feature).
+fn confidence(fit: &ChannelFit) -> f64 {
+    let x = fit.features();
+    if fit.predicted_error.is_finite() && x.iter().all(|v| v.is_finite()) {
+        let precision = 1.0 / (1.0 + (fit.predicted_error / 0.2).powi(2));
+        fit.coverage * logistic_confidence(&CONFIDENCE_MODEL, &x).min(precision)
     } else {
         0.0
     }
@@ -900,6 +999,29 @@ mod tests {
             "{}",
             auto.effective_parameters
         );
+    }
+
+    #[test]
+    fn confidence_is_the_logistic_model_of_the_features_times_the_coverage() {
+        let good = fit(&power_pairs(2.2, 4.0), 4f64.ln(), Degree::Auto).unwrap();
+        let p = logistic_confidence(&CONFIDENCE_MODEL, &good.features());
+        let cap = 1.0 / (1.0 + (good.predicted_error / 0.2).powi(2));
+        assert!((good.confidence - good.coverage * p.min(cap)).abs() < 1e-12);
+        assert!(good.confidence > 0.8, "{good:?}");
+        // A longer extrapolation above the brightest tone, a larger predicted error and
+        // equations scattering ten times beyond their noise: a channel to distrust.
+        let bad = ChannelFit {
+            top_span: 0.3,
+            predicted_error: 0.05,
+            misfit: 10.0,
+            ..good.clone()
+        };
+        assert!(confidence(&bad) < 0.1, "{}", confidence(&bad));
+        let uncovered = ChannelFit {
+            coverage: 0.4,
+            ..good.clone()
+        };
+        assert!(confidence(&uncovered) < 0.5);
     }
 
     #[test]
