@@ -434,3 +434,32 @@ fn measure_companions(
         }
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// The companion is the JPEG of the same stem in the same folder, in any case of its
+    /// extension; another stem or folder is not, nor is a link.
+    #[test]
+    fn the_companion_jpeg_has_the_raws_stem_and_folder() {
+        let dir = tempfile::tempdir().unwrap();
+        let d = dir.path();
+        std::fs::create_dir(d.join("sub")).unwrap();
+        for name in [
+            "a.dng",
+            "a.JPG",
+            "b.cr2",
+            "b.jpeg.xmp",
+            "sub/b.jpg",
+            "c.nef",
+        ] {
+            std::fs::write(d.join(name), b"x").unwrap();
+        }
+        #[cfg(unix)]
+        std::os::unix::fs::symlink(d.join("a.JPG"), d.join("c.jpg")).unwrap();
+        assert_eq!(companion_jpeg(&d.join("a.dng")), Some(d.join("a.JPG")));
+        assert_eq!(companion_jpeg(&d.join("b.cr2")), None);
+        assert_eq!(companion_jpeg(&d.join("c.nef")), None);
+    }
+}
