@@ -123,6 +123,7 @@ fn main() {
         format: Format::Jpeg { quality: 90 },
         exif: &exif,
         overwrite: Overwrite::Replace,
+        luminance_calibration: 1.0,
     };
     let mut full = Duration::MAX;
     let mut stages = Vec::new();

@@ -18,6 +18,33 @@
 //! (about 0.18 for a normally exposed long frame with an sRGB-like response), and the
 //! brightest representable value is `e_ref / e_min`, the bracket's total ratio.
 //!
+//! # Absolute scale
+//!
+//! The merge itself returns the relative scale above. [`exposure_scale`] turns it into a
+//! scale anchored to the frames' EXIF exposure, so that equal scene luminance gives equal
+//! values across brackets, settings and bodies. A frame of f-number `N`, exposure time `t`
+//! (s) and ISO speed `S` receives the focal-plane exposure `H = q·L·t/N²` (lux·s) from a
+//! scene luminance `L` (cd/m²), with `q = 0.65` ([`LENS_Q`], ISO 12232 and ISO 2720: lens
+//! transmittance, vignetting and the cos⁴ falloff at a typical field angle). ISO 12232's
+//! saturation-based speed `S = 78/H_sat` places saturation, `g(B) = 1`, at
+//! `H_sat = 78/S`, so the luminance of a sample is
+//!
+//! ```text
+//! L = g(B) · (78/q) · N²/(t·S) = 120 · g(B) · N²/(t·S)  cd/m²          (nominal)
+//! ```
+//!
+//! the value written (times an optional calibration factor `c`, [`Scale::Luminance`]).
+//! A reflected-light meter with `K = 12.5 cd·s/m²` (ISO 2720) calls the luminance
+//! `L_m = K·N²/(t·S)` average, so a correctly metered average area reads
+//! `g = 12.5/120 = 0.104` of saturation, while ISO 12232 derives its 78 from an 18 % grey
+//! with √2 of headroom, `g = 0.18/√2 = 0.127`: the two conventions differ by 0.3 stop,
+//! and the saturation one is used because `g(B) = 1` is saturation by construction of
+//! `g` (JPEG white, or the raw's clipping point). Bodies do not all rate their ISO
+//! against the same saturation point (a camera JPEG's white is not its raw's clipping
+//! point), so the nominal value may be off by a constant per body, up to about half a
+//! stop: that constant is what the calibration `c` corrects (shoot a grey card, read its
+//! luminance `L_card` on a spot meter, and set `c = L_card / value read`).
+//!
 //! # Weights
 //!
 //! Both weights are exactly zero at the codes that mean "clipped" (0 and the largest
@@ -209,6 +236,126 @@ impl Merged {
     pub fn ratio(&self) -> f64 {
         self.exposures[self.exposures.len() - 1] / self.exposures[0]
     }
+}
+
+/// Lens transmittance and vignetting factor `q` of `H = q·L·t/N²` (ISO 12232).
+pub const LENS_Q: f64 = 0.65;
+
+/// ISO 12232's saturation-based speed constant: `S = 78/H_sat` (lux·s).
+pub const SATURATION_SPEED: f64 = 78.0;
+
+/// The reflected-light meter constant `K` of ISO 2720, cd·s/m².
+pub const METER_K: f64 = 12.5;
+
+/// Which scale a radiance map carries (see the module docs).
+#[derive(Debug, Clone, PartialEq)]
+pub enum Scale {
+    /// Luminance: `value = c · (78/q) · g(B) · N²/(t·S)` cd/m², anchored to the EXIF
+    /// exposure; `calibration` is `c` (1: nominal, uncalibrated).
+    Luminance {
+        /// The calibration factor `c`.
+        calibration: f64,
+    },
+    /// Relative: 1.0 = `B = 1` in the longest exposure; `reason` says why no EXIF anchor.
+    Relative {
+        /// Why the frames could not be anchored.
+        reason: String,
+    },
+}
+
+impl Default for Scale {
+    fn default() -> Scale {
+        Scale::Relative {
+            reason: "no exposure given".to_string(),
+        }
+    }
+}
+
+impl Scale {
+    /// cd/m² of the value 1.0 (OpenEXR's `whiteLuminance`), when the scale is luminance.
+    pub fn white_luminance(&self) -> Option<f64> {
+        match self {
+            Scale::Luminance { .. } => Some(1.0),
+            Scale::Relative { .. } => None,
+        }
+    }
+
+    /// The convention in one line, for the EXR header and reports.
+    pub fn describe(&self) -> String {
+        match self {
+            Scale::Luminance { calibration } if *calibration == 1.0 => {
+                "luminance in cd/m2, nominal (uncalibrated): value = 120 * g(B) * N^2/(t*S) \
+                 (ISO 12232 saturation speed, q = 0.65)"
+                    .to_string()
+            }
+            Scale::Luminance { calibration } => format!(
+                "luminance in cd/m2, calibrated: value = {calibration} * 120 * g(B) * N^2/(t*S) \
+                 (ISO 12232 saturation speed, q = 0.65, calibration factor {calibration})"
+            ),
+            Scale::Relative { reason } => format!(
+                "relative: value = g(B_k) * e_longest / e_k, weighted over frames; \
+                 1.0 = B=1 in the longest exposure (not anchored to the exposure: {reason})"
+            ),
+        }
+    }
+
+    /// `"luminance"`, `"luminance-calibrated"` or `"relative"`.
+    pub fn kind(&self) -> &'static str {
+        match self {
+            Scale::Luminance { calibration } if *calibration == 1.0 => "luminance",
+            Scale::Luminance { .. } => "luminance-calibrated",
+            Scale::Relative { .. } => "relative",
+        }
+    }
+}
+
+/// The scale of a merge of frames with EXIF `exif` (per frame, any order) merged with
+/// relative exposures `relative` (same order; the merge's 1.0 is `B = 1` at the largest),
+/// and the factor that takes the merge's values to it: `c · 120 / a_ref` with
+/// `a_ref = t·S/N²` of the longest frame (see the module docs).
+///
+/// The frames are anchored when every one's EXIF has time, f-number and ISO and the
+/// relative exposures are proportional to `t·S/N²` within 1 % (they are when they came
+/// from EXIF; exposures given another way must agree with it). Otherwise the scale stays
+/// relative (factor 1) and says why. `calibration` must be positive and finite.
+pub fn exposure_scale(
+    exif: &[crate::metadata::Exposure],
+    relative: &[f64],
+    calibration: f64,
+) -> (Scale, f64) {
+    let relative_scale = |reason: String| (Scale::Relative { reason }, 1.0);
+    if exif.len() != relative.len() || exif.is_empty() {
+        return relative_scale("no frames".to_string());
+    }
+    let mut absolute = Vec::with_capacity(exif.len());
+    for (k, e) in exif.iter().enumerate() {
+        match e.relative() {
+            Some(a) if a.is_finite() && a > 0.0 => absolute.push(a),
+            _ => {
+                return relative_scale(format!(
+                    "frame {} lacks the EXIF exposure time, f-number or ISO",
+                    k + 1
+                ));
+            }
+        }
+    }
+    let longest = (0..relative.len())
+        .max_by(|&a, &b| relative[a].total_cmp(&relative[b]))
+        .expect("not empty");
+    let lambda = relative[longest] / absolute[longest];
+    if let Some(k) = (0..relative.len())
+        .find(|&k| (relative[k] / (lambda * absolute[k]) - 1.0).abs() > SAME_EXPOSURE)
+    {
+        return relative_scale(format!(
+            "the exposure used for frame {} is not in proportion to its EXIF t*S/N^2",
+            k + 1
+        ));
+    }
+    if !(calibration.is_finite() && calibration > 0.0) {
+        return relative_scale(format!("calibration {calibration} is not positive"));
+    }
+    let factor = calibration * SATURATION_SPEED / LENS_Q / absolute[longest];
+    (Scale::Luminance { calibration }, factor)
 }
 
 /// Exposures closer than this relative difference count as equal (1/3 stop is 26 %).
@@ -726,6 +873,13 @@ impl<'a> PairMerge<'a> {
     /// Ratio of the longer to the shorter exposure.
     pub fn ratio(&self) -> f64 {
         self.exposures[1] / self.exposures[0]
+    }
+
+    /// Multiplies every value by `factor` (a change of scale, see [`exposure_scale`]).
+    pub fn scale_by(&mut self, factor: f32) {
+        for v in &mut self.table.value {
+            *v *= factor;
+        }
     }
 
     /// Evaluates every sample into a [`RadianceMap`] (rows in parallel).

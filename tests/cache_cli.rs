@@ -34,6 +34,7 @@ fn state_with_entry(dir: &Path, channels: usize) {
             weight: 2.5,
             brackets: 3,
             updated: 1_700_000_000,
+            measured: None,
         })
         .unwrap();
 }
@@ -182,4 +183,36 @@ fn show_plot_into_a_missing_folder_names_the_path() {
     assert!(stderr.contains("cannot write"), "{stderr}");
     assert!(!png.exists());
     assert!(!png.parent().unwrap().exists());
+}
+
+/// `cache show` of a body with a curve measured from RAW+JPEG prints it with its source
+/// and coverage, and how far the recovered curve is from it, in stops per channel.
+#[test]
+fn show_compares_the_measured_curve_with_the_recovered_one() {
+    use filmback::response::{MeasuredResponse, stops_apart};
+    let dir = tempfile::tempdir().unwrap();
+    state_with_entry(dir.path(), 3);
+    let g: Vec<f64> = (0..256).map(|k| (f64::from(k) / 255.0).powf(2.0)).collect();
+    let measured = MeasuredResponse {
+        response: InverseResponse::from_samples(vec![g; 3]).unwrap(),
+        coverage: vec![0.9, 0.95, 0.8],
+        codes: vec![(2, 251); 3],
+        samples: 10_000,
+        captures: 1,
+    };
+    ResponseCache::new(dir.path())
+        .put_measured(&camera(), &measured, 1_700_000_100)
+        .unwrap();
+    let out = cache(dir.path(), &["show".as_ref(), "r5".as_ref()]);
+    assert_success(&out);
+    let text = String::from_utf8_lossy(&out.stdout);
+    assert!(text.contains("measured from raw"), "{text}");
+    assert!(text.contains("recovered from histograms"), "{text}");
+    assert!(text.contains("coverage  90 %, 95 %, 80 %"), "{text}");
+    let apart = stops_apart(&InverseResponse::srgb(3, 1024), &measured.response);
+    for (c, (rms, max)) in apart.iter().enumerate() {
+        let line = format!("channel {c}: RMS {rms:.3} stops, max {max:.3} stops");
+        assert!(text.contains(&line), "{line} missing in {text}");
+    }
+    assert!(apart[0].0 > 0.05, "sRGB and gamma 2 differ");
 }

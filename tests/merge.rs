@@ -913,3 +913,193 @@ fn cli_png16_writes_sixteen_bit_renderings() {
     assert!(values.len() > 256, "{} distinct red values", values.len());
     assert_eq!(files_in(&out), ["b.exr", "b.linear.png"]);
 }
+
+/// Merges a JPEG pair of `truth` shot at times `times` (f/`n`, ISO `s`) through the CLI
+/// (`--srgb`, float EXR) and returns the EXR's RGB values and layer attributes. The
+/// sensor receives `k · t·S/N²` of the scene (`k` fixed), as a real camera would.
+fn exif_pair_exr(
+    dir: &Path,
+    name: &str,
+    truth: &RadianceMap,
+    (times, n, s): (&[f64], f64, f64),
+    extra: &[&str],
+) -> (Vec<f32>, exr::prelude::LayerAttributes) {
+    use exr::prelude::{ReadChannels, ReadLayers};
+    use filmback::metadata::CaptureTime;
+    use filmback::synthetic::{Encoding, Shot, write};
+    let camera = Camera {
+        make: Some("Filmback".into()),
+        model: Some("Synthetic One".into()),
+        serial: None,
+        lens: None,
+    };
+    let first = CaptureTime {
+        year: 2026,
+        month: 11,
+        day: 24,
+        hour: 12,
+        minute: 0,
+        second: 0,
+        nanos: None,
+        offset_minutes: None,
+    };
+    let shots = filmback::synthetic::Shot::series(&camera, first, times, n, s, 0.5);
+    let sensor = Sensor::noiseless(ResponseCurve::Srgb, BitDepth::Eight);
+    let mut paths = Vec::new();
+    for (k, shot) in shots.iter().enumerate() {
+        let shot: &Shot = shot;
+        let frame = expose(truth, SCALE_K * shot.exposure.relative().unwrap(), &sensor);
+        let path = dir.join(format!("{name}{k}.jpg"));
+        write(&path, &frame, shot, Encoding::Jpeg { quality: 100 }).unwrap();
+        paths.push(path);
+    }
+    let out = dir.join(format!("out-{name}"));
+    let o = filmback()
+        .arg("merge")
+        .args(&paths)
+        .arg("-o")
+        .arg(&out)
+        .args(["--srgb", "--exr", "float"])
+        .args(extra)
+        .output()
+        .unwrap();
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let image = exr::prelude::read()
+        .no_deep_data()
+        .largest_resolution_level()
+        .all_channels()
+        .first_valid_layer()
+        .all_attributes()
+        .from_file(out.join(format!("{name}0.exr")))
+        .unwrap();
+    let channel = |c: &str| -> Vec<f32> {
+        let name = exr::prelude::Text::from(c);
+        image
+            .layer_data
+            .channel_data
+            .list
+            .iter()
+            .find(|ch| ch.name == name)
+            .unwrap()
+            .sample_data
+            .values_as_f32()
+            .collect()
+    };
+    let (r, g, b) = (channel("R"), channel("G"), channel("B"));
+    let rgb = (0..r.len()).flat_map(|i| [r[i], g[i], b[i]]).collect();
+    (rgb, image.layer_data.attributes.clone())
+}
+
+/// `k` of [`exif_pair_exr`]: at 1/100 s, f/8, ISO 100 mid-grey (0.18) lands at 0.18 of
+/// the sensor's white.
+const SCALE_K: f64 = 1.0 / (0.01 * 100.0 / 64.0);
+
+/// Equal scene luminance gives equal values across settings: the same scene shot as JPEG
+/// pairs at 1/100 + 1/25 s, f/8, ISO 100; at the same times, f/5.6, ISO 200 (two stops
+/// more signal); and at 1/200 + 1/50 s, f/8, ISO 100 (one stop less) merges to the same
+/// values, 120·g·N²/(t·S) cd/m² (`merge::exposure_scale`), and the header says so.
+#[test]
+fn exif_anchored_scale_is_the_same_across_settings() {
+    use exr::prelude::{AttributeValue, Text};
+    let dir = tempfile::tempdir().unwrap();
+    let truth = scene(96, 64, 21);
+    let (a, attrs) = exif_pair_exr(dir.path(), "a", &truth, (&[0.01, 0.04], 8.0, 100.0), &[]);
+    let (b, _) = exif_pair_exr(dir.path(), "b", &truth, (&[0.01, 0.04], 5.6, 200.0), &[]);
+    let (c, _) = exif_pair_exr(dir.path(), "c", &truth, (&[0.005, 0.02], 8.0, 100.0), &[]);
+    // Expected: the sensor saw k·(t·S/N²)·x, so g = k·(t·S/N²)·x and the value is
+    // 120·k·x whatever the settings.
+    let expect: Vec<f64> = truth
+        .pixels()
+        .iter()
+        .map(|&x| 120.0 * SCALE_K * f64::from(x))
+        .collect();
+    let median_error = |v: &[f32]| {
+        let mut e: Vec<f64> = v
+            .iter()
+            .zip(&expect)
+            // Scene 0.02..0.2: within the range every pair covers unclipped.
+            .filter(|&(_, &t)| t > 150.0 && t < 1500.0)
+            .map(|(&v, &t)| (f64::from(v) / t - 1.0).abs())
+            .collect();
+        e.sort_by(f64::total_cmp);
+        e[e.len() / 2]
+    };
+    for (name, v) in [("a", &a), ("b", &b), ("c", &c)] {
+        let err = median_error(v);
+        println!("{name}: median error against 120·k·x: {:.3} %", 100.0 * err);
+        assert!(err < 0.02, "{name}: {err}");
+    }
+    let text = |name: &str| match attrs.other.get(&Text::from(name)) {
+        Some(AttributeValue::Text(t)) => t.to_string(),
+        other => panic!("{name}: {other:?}"),
+    };
+    assert_eq!(text("filmbackScaleKind"), "luminance");
+    assert!(
+        text("filmbackScale").contains("cd/m2"),
+        "{}",
+        text("filmbackScale")
+    );
+    assert_eq!(attrs.white_luminance, Some(1.0));
+
+    // A calibration factor multiplies the values and is stated.
+    let (d, attrs) = exif_pair_exr(
+        dir.path(),
+        "d",
+        &truth,
+        (&[0.01, 0.04], 8.0, 100.0),
+        &["--luminance-calibration", "2"],
+    );
+    let ratio: Vec<f64> = d
+        .iter()
+        .zip(&a)
+        .filter(|&(_, &x)| x > 1.0)
+        .map(|(&y, &x)| f64::from(y) / f64::from(x))
+        .collect();
+    assert!(ratio.iter().all(|r| (r - 2.0).abs() < 1e-5));
+    let kind = attrs.other.get(&Text::from("filmbackScaleKind"));
+    assert_eq!(
+        kind,
+        Some(&AttributeValue::Text(Text::from("luminance-calibrated")))
+    );
+}
+
+/// Frames without EXIF keep the relative scale (1.0 = white in the longest frame), with
+/// a warning, and the header says which scale it carries.
+#[test]
+fn frames_without_exif_keep_the_relative_scale_and_say_so() {
+    use exr::prelude::{AttributeValue, ReadChannels, ReadLayers, Text};
+    let dir = tempfile::tempdir().unwrap();
+    let (a, b) = pair(dir.path());
+    let out = dir.path().join("out");
+    let o = merge_pair(&a, &b, &out, &["--srgb", "--json"]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let report: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
+    assert_eq!(report["scale"]["kind"], "relative", "{report}");
+    assert!(
+        report["warnings"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .any(|w| w.as_str().unwrap().contains("relative scale")),
+        "{report}"
+    );
+    let exr_path = std::fs::read_dir(&out)
+        .unwrap()
+        .map(|e| e.unwrap().path())
+        .find(|p| p.extension().is_some_and(|e| e == "exr"))
+        .unwrap();
+    let image = exr::prelude::read()
+        .no_deep_data()
+        .largest_resolution_level()
+        .all_channels()
+        .first_valid_layer()
+        .all_attributes()
+        .from_file(exr_path)
+        .unwrap();
+    let attrs = &image.layer_data.attributes;
+    assert_eq!(
+        attrs.other.get(&Text::from("filmbackScaleKind")),
+        Some(&AttributeValue::Text(Text::from("relative")))
+    );
+    assert_eq!(attrs.white_luminance, None);
+}

@@ -4,7 +4,10 @@
 use std::path::PathBuf;
 use std::process::ExitCode;
 
-use filmback::daemon::cache::{CachedResponse, ResponseCache};
+use filmback::daemon::cache::{
+    CachedResponse, MEASURED_SOURCE, MeasuredCurve, RECOVERED_SOURCE, ResponseCache,
+};
+use filmback::response::stops_apart;
 
 use super::calibrate::plot;
 
@@ -49,11 +52,15 @@ pub fn run(args: Args) -> anyhow::Result<ExitCode> {
             for e in entries {
                 match e {
                     Ok(c) => println!(
-                        "{}\t{} brackets\tweight {:.2}\t{} channel(s)",
+                        "{}\t{} brackets\tweight {:.2}\t{} channel(s){}",
                         c.camera,
                         c.brackets,
                         c.weight,
-                        c.response.channels()
+                        c.response.channels(),
+                        c.measured.as_ref().map_or(String::new(), |m| format!(
+                            "\tmeasured from raw ({} capture(s))",
+                            m.captures
+                        ))
                     ),
                     Err(e) => println!("unusable entry: {e}"),
                 }
@@ -66,6 +73,7 @@ pub fn run(args: Args) -> anyhow::Result<ExitCode> {
             }
             println!("camera    {}", c.camera);
             println!("file      {}", cache.path_for(&c.camera).display());
+            println!("source    {RECOVERED_SOURCE}");
             println!("brackets  {}", c.brackets);
             println!("weight    {:.3}", c.weight);
             println!("updated   {} (Unix seconds)", c.updated);
@@ -86,6 +94,9 @@ pub fn run(args: Args) -> anyhow::Result<ExitCode> {
                 }
                 println!();
             }
+            if let Some(m) = &c.measured {
+                show_measured(&c, m);
+            }
         }
         Action::Reset { camera } => {
             let who = cache.reset(&camera)?;
@@ -93,6 +104,45 @@ pub fn run(args: Args) -> anyhow::Result<ExitCode> {
         }
     }
     Ok(ExitCode::SUCCESS)
+}
+
+/// The measured curve of `cache show` and how far the recovered one is from it, in stops
+/// per channel.
+fn show_measured(c: &CachedResponse, m: &MeasuredCurve) {
+    println!();
+    println!("measured  {MEASURED_SOURCE}");
+    println!("captures  {}", m.captures);
+    println!("updated   {} (Unix seconds)", m.updated);
+    let coverage: Vec<String> = m
+        .coverage
+        .iter()
+        .map(|f| format!("{:.0} %", 100.0 * f))
+        .collect();
+    println!(
+        "coverage  {} of codes 1..254 per channel",
+        coverage.join(", ")
+    );
+    print!("B     ");
+    for ch in 0..m.response.channels() {
+        print!("  g_{ch}(B)  ");
+    }
+    println!();
+    for i in 0..=10 {
+        let b = f64::from(i) / 10.0;
+        print!("{b:.1}   ");
+        for ch in 0..m.response.channels() {
+            print!("  {:.5}  ", m.response.eval(ch, b));
+        }
+        println!();
+    }
+    if c.brackets == 0 {
+        println!("recovered curve: none yet (no bracket has been fitted)");
+        return;
+    }
+    println!("recovered against measured, |log2(g_recovered/g_measured)| over codes 8..254:");
+    for (ch, (rms, max)) in stops_apart(&c.response, &m.response).iter().enumerate() {
+        println!("  channel {ch}: RMS {rms:.3} stops, max {max:.3} stops");
+    }
 }
 
 /// The figure title of `cache show --plot`: camera, brackets folded in, and weight.

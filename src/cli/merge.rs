@@ -14,7 +14,7 @@ use clap::ValueEnum;
 use filmback::atomic::Overwrite;
 use filmback::darkroom::{self, GivenResponse, Prints, ResponsePolicy, Source};
 use filmback::frame::{self, Limits, LoadedFrame, Samples};
-use filmback::hdr_output::{ExrCompression, ExrOptions, Overflow, SampleFormat};
+use filmback::hdr_output::{ExrCompression, ExrOptions, Overflow, Primaries, SampleFormat};
 use filmback::merge::{MergeOptions, Weighting};
 use filmback::metadata::Exposure;
 use filmback::rendering::SourceExif;
@@ -60,6 +60,14 @@ pub struct Args {
     /// Values above half's 65504: scale the image by a power of two, or clamp.
     #[arg(long, value_enum, default_value_t = HalfOverflow::Scale)]
     overflow: HalfOverflow,
+    /// RGB primaries of the OpenEXR file (the renderings stay Rec. 709 / sRGB): rec709,
+    /// ap0 (ACES2065-1) or ap1 (ACEScg).
+    #[arg(long, value_enum, default_value_t = PrimariesArg::Rec709)]
+    primaries: PrimariesArg,
+    /// Calibration factor of the luminance scale: values are this times the nominal
+    /// cd/m² from the EXIF exposure (grey card: its metered cd/m² over the value read).
+    #[arg(long, value_name = "FACTOR", default_value_t = 1.0, value_parser = positive)]
+    luminance_calibration: f64,
     /// Merge weight: hat (robust default) or noise-aware (lower noise, needs a good response).
     #[arg(long, value_enum, default_value_t = Weight::Hat)]
     weight: Weight,
@@ -91,6 +99,21 @@ enum CompressionArg {
     None,
     Pxr24,
     B44,
+}
+
+#[derive(Debug, Clone, Copy, ValueEnum)]
+enum PrimariesArg {
+    Rec709,
+    Ap0,
+    Ap1,
+}
+
+/// A positive finite number (the luminance calibration).
+fn positive(s: &str) -> Result<f64, String> {
+    match s.parse::<f64>() {
+        Ok(v) if v.is_finite() && v > 0.0 => Ok(v),
+        _ => Err(format!("{s:?} is not a positive number")),
+    }
 }
 
 #[derive(Debug, Clone, Copy, ValueEnum)]
@@ -138,7 +161,13 @@ pub fn run(args: Args) -> anyhow::Result<ExitCode> {
                 HalfOverflow::Scale => Overflow::Scale,
                 HalfOverflow::Clamp => Overflow::Clamp,
             },
+            primaries: match args.primaries {
+                PrimariesArg::Rec709 => Primaries::Rec709,
+                PrimariesArg::Ap0 => Primaries::Ap0,
+                PrimariesArg::Ap1 => Primaries::Ap1,
+            },
         }),
+        luminance_calibration: args.luminance_calibration,
         radiance_hdr: args.radiance_hdr,
         looks: &looks,
         format,
@@ -211,6 +240,7 @@ pub fn run(args: Args) -> anyhow::Result<ExitCode> {
             },
             "clipped": { "high": developed.clipped.0, "low": developed.clipped.1 },
             "radiance_scale": developed.exr_scale,
+            "scale": { "kind": developed.scale.kind(), "convention": developed.scale.describe() },
             "warnings": developed.warnings,
             "timings_ms": timings,
         });

@@ -12,6 +12,14 @@
 //! (IEEE rounding is monotone, and `(W+c)/(W+c)` is exactly 1). Capping `W` at
 //! [`MEMORY`] lets the curve follow a body whose processing changed (firmware, picture
 //! style) instead of freezing after many brackets.
+//!
+//! Beside that curve *recovered from histograms*, an entry may hold a curve *measured
+//! from raw*: the body's JPEG response read off RAW+JPEG captures
+//! ([`crate::response::measured`]), the latest measurement replacing the previous one.
+//! When present it is the curve the body's JPEG-only brackets are merged with. A body
+//! measured before any bracket recovered a curve has `brackets = 0`: its recovered curve
+//! is then a copy of the measured one with a negligible weight, which the first good fit
+//! replaces.
 
 use std::fs;
 use std::io;
@@ -80,6 +88,43 @@ pub struct CachedResponse {
     pub brackets: u64,
     /// Last update, Unix seconds.
     pub updated: u64,
+    /// The curve measured from RAW+JPEG captures, if any.
+    pub measured: Option<MeasuredCurve>,
+}
+
+/// A body's JPEG curve measured from raw (see the module docs).
+#[derive(Debug, Clone, PartialEq)]
+pub struct MeasuredCurve {
+    /// The curve, one sample per JPEG code.
+    pub response: InverseResponse,
+    /// Per channel, the fraction of codes 1..=254 measured.
+    pub coverage: Vec<f64>,
+    /// RAW+JPEG captures of the measurement.
+    pub captures: u64,
+    /// When it was measured, Unix seconds.
+    pub updated: u64,
+}
+
+/// What the cache file says a measured curve came from.
+pub const MEASURED_SOURCE: &str = "measured from raw (RAW+JPEG captures)";
+
+/// What the cache file says the bracket curve came from.
+pub const RECOVERED_SOURCE: &str = "recovered from histograms";
+
+/// A weight small enough that the first fit replaces the placeholder curve of a body
+/// only measured so far.
+const PLACEHOLDER_WEIGHT: f64 = 1e-9;
+
+/// The measured part of the file.
+#[derive(Debug, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+struct MeasuredFile {
+    source: String,
+    captures: u64,
+    updated: u64,
+    coverage: Vec<f64>,
+    /// Per channel, `g(k/255)`.
+    channels: Vec<Vec<f64>>,
 }
 
 /// The file layout.
@@ -91,8 +136,14 @@ struct CacheFile {
     weight: f64,
     brackets: u64,
     updated: u64,
+    /// Where `channels` came from ([`RECOVERED_SOURCE`]); absent in older files.
+    #[serde(default)]
+    source: Option<String>,
     /// Per channel, `g(i/(n−1))`.
     channels: Vec<Vec<f64>>,
+    /// The measured curve, if any.
+    #[serde(default)]
+    measured: Option<MeasuredFile>,
 }
 
 /// The cache folder of a state folder.
@@ -153,6 +204,7 @@ impl ResponseCache {
     ) -> Result<CachedResponse, CacheError> {
         let c = confidence.clamp(1e-6, 1.0);
         let old = self.get(camera)?;
+        let measured = old.as_ref().and_then(|o| o.measured.clone());
         let entry = match old.filter(|o| o.response.channels() == fit.channels()) {
             Some(old) => {
                 let w = old.weight;
@@ -180,6 +232,7 @@ impl ResponseCache {
                     weight: (w + c).min(MEMORY),
                     brackets: old.brackets + 1,
                     updated: now,
+                    measured,
                 }
             }
             None => CachedResponse {
@@ -188,6 +241,39 @@ impl ResponseCache {
                 weight: c,
                 brackets: 1,
                 updated: now,
+                measured,
+            },
+        };
+        self.put(&entry)?;
+        Ok(entry)
+    }
+
+    /// Stores `measured` as the body's measured curve (replacing an earlier one) and
+    /// publishes the entry; a body without an entry gets one (see the module docs).
+    pub fn put_measured(
+        &self,
+        camera: &CameraId,
+        measured: &crate::response::MeasuredResponse,
+        now: u64,
+    ) -> Result<CachedResponse, CacheError> {
+        let curve = MeasuredCurve {
+            response: measured.response.clone(),
+            coverage: measured.coverage.clone(),
+            captures: measured.captures,
+            updated: now,
+        };
+        let entry = match self.get(camera)? {
+            Some(old) => CachedResponse {
+                measured: Some(curve),
+                ..old
+            },
+            None => CachedResponse {
+                camera: camera.clone(),
+                response: measured.response.clone(),
+                weight: PLACEHOLDER_WEIGHT,
+                brackets: 0,
+                updated: now,
+                measured: Some(curve),
             },
         };
         self.put(&entry)?;
@@ -206,9 +292,19 @@ impl ResponseCache {
             weight: entry.weight,
             brackets: entry.brackets,
             updated: entry.updated,
+            source: Some(RECOVERED_SOURCE.to_string()),
             channels: (0..entry.response.channels())
                 .map(|c| entry.response.samples(c).to_vec())
                 .collect(),
+            measured: entry.measured.as_ref().map(|m| MeasuredFile {
+                source: MEASURED_SOURCE.to_string(),
+                captures: m.captures,
+                updated: m.updated,
+                coverage: m.coverage.clone(),
+                channels: (0..m.response.channels())
+                    .map(|c| m.response.samples(c).to_vec())
+                    .collect(),
+            }),
         };
         let text = toml::to_string(&file).map_err(|e| CacheError::Invalid {
             path: self.path_for(&entry.camera),
@@ -317,12 +413,23 @@ fn parse(path: &Path, text: &str) -> Result<CachedResponse, CacheError> {
     }
     let response =
         InverseResponse::from_samples(file.channels).map_err(|e| invalid(e.to_string()))?;
+    let measured = match file.measured {
+        Some(m) => Some(MeasuredCurve {
+            response: InverseResponse::from_samples(m.channels)
+                .map_err(|e| invalid(format!("measured curve: {e}")))?,
+            coverage: m.coverage,
+            captures: m.captures,
+            updated: m.updated,
+        }),
+        None => None,
+    };
     Ok(CachedResponse {
         camera: file.camera,
         response,
         weight: file.weight,
         brackets: file.brackets,
         updated: file.updated,
+        measured,
     })
 }
 
@@ -403,6 +510,42 @@ mod tests {
         ));
         assert_eq!(cache.reset("#1").unwrap(), body(Some("1")));
         assert_eq!(cache.list().unwrap().len(), 1);
+    }
+
+    fn measurement(p: f64) -> crate::response::MeasuredResponse {
+        let g: Vec<f64> = (0..256).map(|i| (f64::from(i) / 255.0).powf(p)).collect();
+        crate::response::MeasuredResponse {
+            response: InverseResponse::from_samples(vec![g.clone(), g.clone(), g]).unwrap(),
+            coverage: vec![0.9, 0.95, 0.8],
+            codes: vec![(3, 250); 3],
+            samples: 1000,
+            captures: 2,
+        }
+    }
+
+    /// A measured curve is stored beside the recovered one, survives later fits, and
+    /// a body measured before any fit gets a placeholder that the first fit replaces.
+    #[test]
+    fn measured_curves_are_kept_beside_the_recovered_one() {
+        let dir = tempfile::tempdir().unwrap();
+        let cache = ResponseCache::new(dir.path());
+        let cam = body(Some("7"));
+        let first = cache.put_measured(&cam, &measurement(2.2), 5).unwrap();
+        assert_eq!(first.brackets, 0);
+        let m = first.measured.clone().unwrap();
+        assert_eq!((m.captures, m.updated), (2, 5));
+        assert_eq!(cache.get(&cam).unwrap().unwrap(), first);
+        let text = fs::read_to_string(cache.path_for(&cam)).unwrap();
+        assert!(text.contains(MEASURED_SOURCE) && text.contains(RECOVERED_SOURCE));
+        // The first fit replaces the placeholder, the measured curve stays.
+        let fitted = cache.update(&cam, &power(1.0), 1.0, 6).unwrap();
+        assert!((fitted.response.eval(0, 0.5) - 0.5).abs() < 1e-6);
+        assert_eq!(fitted.measured, first.measured);
+        assert_eq!(fitted.brackets, 1);
+        // A new measurement replaces the old one, not the recovered curve.
+        let again = cache.put_measured(&cam, &measurement(2.0), 7).unwrap();
+        assert_eq!(again.response, fitted.response);
+        assert!((again.measured.unwrap().response.eval(1, 0.5) - 0.25).abs() < 1e-3);
     }
 
     #[test]

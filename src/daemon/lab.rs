@@ -11,6 +11,13 @@
 //! when the fit is weaker than `min_confidence`; `always` uses the bracket's own fit (sRGB
 //! only if no fit is possible); `never` uses the cached curve (else sRGB). A single frame
 //! is rendered through the cached curve (else sRGB), without an EXR.
+//!
+//! A body whose cache entry holds a curve measured from RAW+JPEG uses that curve for its
+//! JPEG brackets and single frames under `auto` and `never` (it is exact where a fit is
+//! an estimate); `always` still fits every bracket. When a raw frame is developed and its
+//! camera JPEG lies beside it (same folder, same stem, `.jpg`/`.jpeg` in any case), the
+//! pair measures the body's JPEG curve ([`crate::response::measured`]): the merged raw
+//! radiance, scaled to each frame's exposure, against that frame's JPEG.
 
 use std::path::{Path, PathBuf};
 use std::time::Duration;
@@ -26,8 +33,9 @@ use crate::film::{Catalogue, ColourMode, Key};
 use crate::frame::{self, Limits, LoadedFrame};
 use crate::hdr_output::ExrOptions;
 use crate::merge::MergeOptions;
+use crate::radiance::RadianceMap;
 use crate::rendering::{self, Format, Look, SourceExif};
-use crate::response::{InverseResponse, RatioSource};
+use crate::response::{InverseResponse, JpegMeter, MeasuredResponse, RatioSource};
 
 /// One unit of work: a bracket (two or more frames) or a single frame.
 #[derive(Debug, Clone)]
@@ -70,6 +78,8 @@ pub struct Processed {
     pub stages: Vec<(&'static str, Duration)>,
     /// Things worth a warning (e.g. a requested look this lab does not render).
     pub notes: Vec<String>,
+    /// The body's JPEG curve measured from the raw frames' companion JPEGs, if any.
+    pub measured: Option<MeasuredResponse>,
 }
 
 /// Why a job failed; the variant decides what the daemon does next.
@@ -142,8 +152,21 @@ impl From<DarkroomError> for JobError {
 }
 
 impl DarkroomLab {
-    /// The cached curve if it fits the frames, else the sRGB inverse.
+    /// The measured curve if the cache has one that fits the frames, else the cached
+    /// curve if it fits, else the sRGB inverse.
     fn fallback(job: &Job, channels: usize) -> GivenResponse {
+        if let Some(m) = job.cached.as_ref().and_then(|c| c.measured.as_ref())
+            && m.response.channels() == channels
+        {
+            return GivenResponse {
+                response: m.response.clone(),
+                source: Source::Cached,
+                label: format!(
+                    "measured curve of {} (raw+JPEG, {} capture(s))",
+                    job.camera, m.captures
+                ),
+            };
+        }
         match &job.cached {
             Some(c) if c.response.channels() == channels => GivenResponse {
                 response: c.response.clone(),
@@ -213,6 +236,13 @@ impl Lab for DarkroomLab {
         })?;
         let _staging = Staging(stage.clone());
         let developed = Self::develop(job, &frames, &looks, &exif, &stage);
+        let (measured, measure_notes) = match &developed {
+            Ok(d) => match &d.raw_radiance {
+                Some(map) => measure_companions(&frames, job, map),
+                None => (None, Vec::new()),
+            },
+            Err(_) => (None, Vec::new()),
+        };
         let developed = match developed {
             Ok(d) => d,
             Err(e) => {
@@ -237,6 +267,8 @@ impl Lab for DarkroomLab {
         })?;
         let mut stages = vec![("decode", decode)];
         stages.extend(developed.stages);
+        let mut notes = developed.warnings;
+        notes.extend(measure_notes);
         Ok(Processed {
             outputs,
             source: developed.response.source,
@@ -247,7 +279,8 @@ impl Lab for DarkroomLab {
                 .fit
                 .filter(|_| !developed.response.contradicts_cache),
             stages,
-            notes: developed.warnings,
+            notes,
+            measured,
         })
     }
 }
@@ -265,7 +298,10 @@ impl DarkroomLab {
         let prints = Prints {
             dir,
             stem: &job.stem,
-            exr: (preset.exr && !job.is_single()).then(ExrOptions::default),
+            exr: (preset.exr && !job.is_single()).then(|| ExrOptions {
+                primaries: preset.primaries.into(),
+                ..ExrOptions::default()
+            }),
             radiance_hdr: false,
             looks,
             format: Format::Jpeg {
@@ -275,6 +311,7 @@ impl DarkroomLab {
             // A complete file under a job's name is a leftover of an interrupted earlier
             // attempt at this same job (names are unique per bracket): replace it.
             overwrite: Overwrite::Replace,
+            luminance_calibration: preset.luminance_calibration,
         };
         let channels = frames[0].frame.channels();
         if job.is_single() {
@@ -297,8 +334,12 @@ impl DarkroomLab {
                 })
                 .collect::<Result<_, _>>()?;
             let fallback = Self::fallback(job, channels);
+            let measured = job.cached.as_ref().is_some_and(|c| c.measured.is_some());
             let policy = match preset.recalibrate {
                 Recalibrate::Never => ResponsePolicy::Use(fallback),
+                Recalibrate::Auto if measured && fallback.label.starts_with("measured") => {
+                    ResponsePolicy::Use(fallback)
+                }
                 Recalibrate::Always => ResponsePolicy::Fit {
                     fallback: Some(GivenResponse::standard(channels)),
                     min_confidence: 0.0,
@@ -317,5 +358,108 @@ impl DarkroomLab {
                 &prints,
             )?)
         }
+    }
+}
+
+/// The camera JPEG of a raw frame: the file in the raw's folder with the raw's stem and
+/// the extension `jpg` or `jpeg` (any case), not a symbolic link.
+fn companion_jpeg(raw: &Path) -> Option<PathBuf> {
+    let stem = raw.file_stem()?.to_str()?;
+    let dir = raw.parent()?;
+    let entries = std::fs::read_dir(dir).ok()?;
+    entries.filter_map(Result::ok).map(|e| e.path()).find(|p| {
+        p.file_stem().and_then(|s| s.to_str()) == Some(stem)
+            && p.extension()
+                .and_then(|e| e.to_str())
+                .is_some_and(|e| e.eq_ignore_ascii_case("jpg") || e.eq_ignore_ascii_case("jpeg"))
+            && std::fs::symlink_metadata(p).is_ok_and(|m| m.is_file())
+    })
+}
+
+/// Measures the body's JPEG curve from the raw frames of `frames` that have a companion
+/// JPEG: `map` (the developed raw radiance) times `e_k/e_max` against frame `k`'s JPEG.
+/// Returns the curve (none if no frame has a JPEG or they do not cover the codes) and
+/// notes on what could not be measured.
+fn measure_companions(
+    frames: &[LoadedFrame],
+    job: &Job,
+    map: &RadianceMap,
+) -> (Option<MeasuredResponse>, Vec<String>) {
+    let exposures: Vec<f64> = job
+        .frames
+        .iter()
+        .map(|c| c.exposure.unwrap_or(1.0))
+        .collect();
+    let longest = exposures.iter().copied().fold(0.0, f64::max);
+    let mut meter = JpegMeter::new();
+    let mut notes = Vec::new();
+    let mut pairs = 0;
+    for (f, &e) in frames.iter().zip(&exposures) {
+        if f.raw.is_none() {
+            continue;
+        }
+        let Some(jpeg) = companion_jpeg(&f.path) else {
+            continue;
+        };
+        let unit = if longest > 0.0 && frames.len() > 1 {
+            (e / longest) as f32
+        } else {
+            1.0
+        };
+        let added = frame::load(&jpeg, Limits::default())
+            .map_err(|e| e.to_string())
+            .and_then(|j| {
+                meter
+                    .add(map, unit, &j.frame, &jpeg)
+                    .map_err(|e| e.to_string())
+            });
+        match added {
+            Ok(()) => pairs += 1,
+            Err(e) => notes.push(format!(
+                "JPEG curve not measured from {}: {e}",
+                jpeg.display()
+            )),
+        }
+    }
+    if pairs == 0 {
+        return (None, notes);
+    }
+    match meter.finish() {
+        Ok(m) => (Some(m), notes),
+        Err(e) => {
+            notes.push(format!(
+                "JPEG curve not measured ({pairs} RAW+JPEG capture(s)): {e}"
+            ));
+            (None, notes)
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// The companion is the JPEG of the same stem in the same folder, in any case of its
+    /// extension; another stem or folder is not, nor is a link.
+    #[test]
+    fn the_companion_jpeg_has_the_raws_stem_and_folder() {
+        let dir = tempfile::tempdir().unwrap();
+        let d = dir.path();
+        std::fs::create_dir(d.join("sub")).unwrap();
+        for name in [
+            "a.dng",
+            "a.JPG",
+            "b.cr2",
+            "b.jpeg.xmp",
+            "sub/b.jpg",
+            "c.nef",
+        ] {
+            std::fs::write(d.join(name), b"x").unwrap();
+        }
+        #[cfg(unix)]
+        std::os::unix::fs::symlink(d.join("a.JPG"), d.join("c.jpg")).unwrap();
+        assert_eq!(companion_jpeg(&d.join("a.dng")), Some(d.join("a.JPG")));
+        assert_eq!(companion_jpeg(&d.join("b.cr2")), None);
+        assert_eq!(companion_jpeg(&d.join("c.nef")), None);
     }
 }

@@ -199,6 +199,13 @@ impl State {
         {
             warn!(error = %e, "cannot update the response cache");
         }
+        if let Some(measured) = &dev.measured
+            && let Err(e) = self
+                .cache
+                .put_measured(&camera, measured, journal::unix_now())
+        {
+            warn!(error = %e, "cannot store the measured JPEG curve in the response cache");
+        }
         for note in &dev.notes {
             warn!(bracket = %closed.stem(), "{note}");
         }

@@ -118,6 +118,8 @@ pub struct Prints<'a> {
     pub exif: &'a SourceExif,
     /// Replace existing files or refuse.
     pub overwrite: Overwrite,
+    /// The luminance calibration factor `c` of [`merge::exposure_scale`] (1: nominal).
+    pub luminance_calibration: f64,
 }
 
 impl Prints<'_> {
@@ -165,12 +167,18 @@ pub struct Developed {
     pub clipped: (u64, u64),
     /// Factor applied to the EXR's values (1 unless half overflow was scaled).
     pub exr_scale: f32,
+    /// The scale of the radiance written (luminance anchored to EXIF, or relative).
+    pub scale: merge::Scale,
     /// True when the merge ran inside the EXR encoder (no radiance buffer).
     pub fused: bool,
     /// Warnings (frame metadata, half overflow, weak fits).
     pub warnings: Vec<String>,
     /// Wall time per stage.
     pub stages: Stages,
+    /// The merged radiance of a raw bracket or frame (linear Rec. 709, on [`Self::scale`]),
+    /// kept for measuring the body's JPEG curve against its companion JPEGs
+    /// ([`crate::response::measured`]); `None` for other frames.
+    pub raw_radiance: Option<RadianceMap>,
 }
 
 /// The merged bracket: evaluated during encoding, or held as a map.
@@ -235,6 +243,19 @@ pub fn develop(
             (chosen, merged)
         }
     };
+    // Anchor the values to the EXIF exposure (see `merge`'s "Absolute scale").
+    let exif: Vec<_> = frames.iter().map(|f| f.metadata.exposure).collect();
+    let (scale, factor) = merge::exposure_scale(&exif, exposures, prints.luminance_calibration);
+    let mut merged = merged;
+    match &mut merged {
+        Radiance::Fused(p) => p.scale_by(factor as f32),
+        Radiance::Buffered(m) if factor != 1.0 => {
+            use rayon::prelude::*;
+            let f = factor as f32;
+            m.radiance.pixels_mut().par_iter_mut().for_each(|v| *v *= f);
+        }
+        Radiance::Buffered(_) => {}
+    }
     let (order, ratio, clipped) = match &merged {
         Radiance::Fused(p) => (p.order.clone(), p.ratio(), (p.clipped_high, p.clipped_low)),
         Radiance::Buffered(m) => (m.order.clone(), m.ratio(), (m.clipped_high, m.clipped_low)),
@@ -253,6 +274,7 @@ pub fn develop(
         response: chosen.summary.clone(),
         weighting,
         clipped,
+        scale: scale.clone(),
     };
     let mut warnings: Vec<String> = frames
         .iter()
@@ -264,6 +286,11 @@ pub fn develop(
         })
         .chain(chosen.notes.iter().cloned())
         .collect();
+    if let merge::Scale::Relative { reason } = &scale {
+        warnings.push(format!(
+            "radiance on the relative scale (1.0 = B=1 in the longest frame), not luminance: {reason}"
+        ));
+    }
     let (source, confidence): (&dyn RadianceSource, Option<&[f32]>) = match &merged {
         Radiance::Fused(pair) => (pair, None),
         Radiance::Buffered(m) => (&m.radiance, m.confidence.as_deref()),
@@ -299,6 +326,10 @@ pub fn develop(
         (radiance, looks)
     });
     let (mut outputs, exr_scale, exr_warnings, radiance_stages) = radiance?;
+    let raw_radiance = match merged {
+        Radiance::Buffered(m) if chosen.source == Source::Raw => Some(m.radiance),
+        _ => None,
+    };
     warnings.extend(exr_warnings);
     stages.extend(radiance_stages);
     if let Some(looks) = looks {
@@ -313,9 +344,11 @@ pub fn develop(
         ratio,
         clipped,
         exr_scale,
+        scale,
         fused,
         warnings,
         stages,
+        raw_radiance,
     })
 }
 
@@ -484,6 +517,7 @@ pub fn develop_single(
     let raw_map = raw::merge(std::slice::from_ref(frame), &[1.0], &mut stages)?;
     #[cfg(not(feature = "raw"))]
     let raw_map: Option<(ChosenResponse, merge::Merged)> = None;
+    let is_raw = raw_map.is_some();
     let (map, response) = match raw_map {
         Some((chosen, m)) => (m.radiance, chosen),
         None => {
@@ -494,6 +528,7 @@ pub fn develop_single(
         }
     };
     let outputs = print_looks(&map, prints, &mut stages)?;
+    let raw_radiance = is_raw.then_some(map);
     Ok(Developed {
         outputs,
         response,
@@ -501,6 +536,9 @@ pub fn develop_single(
         ratio: 1.0,
         clipped: (0, 0),
         exr_scale: 1.0,
+        scale: merge::Scale::Relative {
+            reason: "a single frame is rendered, not written as radiance".to_string(),
+        },
         fused: false,
         warnings: frame
             .metadata
@@ -509,6 +547,7 @@ pub fn develop_single(
             .map(|w| format!("{}: {w}", frame.path.display()))
             .collect(),
         stages,
+        raw_radiance,
     })
 }
 

@@ -5,26 +5,32 @@
 use exr::meta::attribute::Chromaticities;
 use exr::prelude::{self as x, ImageAttributes, IntegerBounds, LayerAttributes, Text, Vec2};
 
-use super::Provenance;
+use super::{Primaries, Provenance};
 
 /// Text attribute from UTF-8 (OpenEXR strings are byte strings; readers take them as UTF-8).
 pub(super) fn text(s: &str) -> Text {
     Text::from_slice_unchecked(s.as_bytes())
 }
 
-pub(super) fn image_attributes(size: Vec2<usize>) -> ImageAttributes {
+pub(super) fn image_attributes(size: Vec2<usize>, primaries: Primaries) -> ImageAttributes {
     let mut attributes = ImageAttributes::new(IntegerBounds::from_dimensions(size));
-    // ITU-R BT.709 / sRGB primaries, D65 white.
+    let [r, g, b, w] = primaries
+        .chromaticities()
+        .map(|(x, y)| Vec2(x as f32, y as f32));
     attributes.chromaticities = Some(Chromaticities {
-        red: Vec2(0.64, 0.33),
-        green: Vec2(0.30, 0.60),
-        blue: Vec2(0.15, 0.06),
-        white: Vec2(0.3127, 0.3290),
+        red: r,
+        green: g,
+        blue: b,
+        white: w,
     });
     attributes
 }
 
-pub(super) fn layer_attributes(p: &Provenance, scale: f32) -> LayerAttributes {
+pub(super) fn layer_attributes(
+    p: &Provenance,
+    scale: f32,
+    primaries: Primaries,
+) -> LayerAttributes {
     use x::AttributeValue as V;
     let mut a = LayerAttributes {
         software_name: Some(text(&format!("filmback {}", env!("CARGO_PKG_VERSION")))),
@@ -44,9 +50,15 @@ pub(super) fn layer_attributes(p: &Provenance, scale: f32) -> LayerAttributes {
         a.aperture = longest.exposure.f_number.map(|v| v as f32);
         a.iso_speed = longest.exposure.iso.map(|v| v as f32);
     }
-    a.comments = Some(text(
-        "linear relative radiance; 1.0 = brightness g^-1(1) in the longest exposure",
-    ));
+    a.comments = Some(text(match p.scale.white_luminance() {
+        Some(_) => "linear scene luminance in cd/m2 (see whiteLuminance and filmbackScale)",
+        None => "linear relative radiance; 1.0 = brightness g^-1(1) in the longest exposure",
+    }));
+    // cd/m² of RGB (1, 1, 1) in the file: the half-overflow factor divides it.
+    a.white_luminance = p
+        .scale
+        .white_luminance()
+        .map(|l| (l / f64::from(scale)) as f32);
     let mut put = |name: &str, value: V| {
         a.other.insert(text(name), value);
     };
@@ -89,12 +101,9 @@ pub(super) fn layer_attributes(p: &Provenance, scale: f32) -> LayerAttributes {
             p.clipped.0, p.clipped.1
         ))),
     );
-    put(
-        "filmbackScale",
-        V::Text(text(
-            "value = g(B_k) * e_longest / e_k, weighted over frames; 1.0 = B=1 in the longest exposure",
-        )),
-    );
+    put("filmbackScale", V::Text(text(&p.scale.describe())));
+    put("filmbackScaleKind", V::Text(text(p.scale.kind())));
+    put("colorInteropID", V::Text(text(primaries.interop_id())));
     put("filmbackRadianceScale", V::F32(scale));
     a
 }

@@ -1,16 +1,22 @@
 //! Writing a radiance map: OpenEXR (the default) or Radiance `.hdr`.
 //!
-//! Values are written as the merge made them: linear relative radiance, 1.0 = brightness
-//! `g⁻¹(1)` in the longest exposure (see `merge`). The OpenEXR header says where they came
-//! from: chromaticities (Rec.709/sRGB primaries, D65 white: filmback reads no ICC profile,
-//! and camera JPEGs are sRGB unless set otherwise), `software`, `capDate`/`utcOffset`, the
+//! Values are written on the scale the darkroom chose ([`crate::merge::Scale`]): luminance
+//! in cd/m² anchored to the EXIF exposure (then the standard `whiteLuminance` says cd/m² of
+//! RGB (1, 1, 1)), or, without usable EXIF, the merge's relative scale (1.0 = brightness
+//! `g⁻¹(1)` in the longest exposure, no `whiteLuminance`). The OpenEXR header says where
+//! they came from: chromaticities (Rec.709/sRGB primaries, D65 white by default — filmback
+//! reads no ICC profile, and camera JPEGs are sRGB unless set otherwise — or ACES AP0/AP1,
+//! see [`Primaries`]), the Color Interop Forum's `colorInteropID` string (`lin_rec709_scene`,
+//! `lin_ap0_scene`, `lin_ap1_scene`), `software`, `capDate`/`utcOffset`, the
 //! standard `cameraMake`, `cameraModel`, `cameraSerialNumber`, and the standard
 //! `expTime`/`aperture`/`isoSpeed` of the longest frame (the reference of the scale).
 //! filmback's own string attributes: `filmbackFrame<k>` (one per frame, darkest first:
 //! file, time, f-number, ISO, relative exposure), `filmbackExposureRatio` (double,
 //! `e_max/e_min`), `filmbackResponse` (the response model summary), `filmbackWeighting`,
-//! `filmbackClipped` (samples clipped in every frame), `filmbackScale` (the convention)
-//! and `filmbackRadianceScale` (float: the factor applied for half overflow, else 1).
+//! `filmbackClipped` (samples clipped in every frame), `filmbackScale` (the convention in
+//! words), `filmbackScaleKind` (`luminance`, `luminance-calibrated` or `relative`) and
+//! `filmbackRadianceScale` (float: the factor applied for half overflow, else 1; the
+//! `whiteLuminance` already accounts for it).
 //!
 //! Half (`f16`, default) keeps 10 bits of mantissa over 30 stops, ample for radiance that
 //! came from 8–16-bit frames, in half the space of `f32`. Its largest value is 65 504:
@@ -169,6 +175,74 @@ pub enum Overflow {
     Clamp,
 }
 
+/// The RGB primaries of the OpenEXR file. The merge works in linear Rec. 709 (D65);
+/// the others are converted to when the file is written (the renderings stay Rec. 709 /
+/// sRGB). With `M_P` the RGB → XYZ matrix of primaries `P` and white `W_P` (from their
+/// chromaticities, `Y_W = 1`) and the Bradford adaptation `CAT(D65 → W_P)`:
+///
+/// `rgb_P = M_P⁻¹ · CAT(D65 → W_P) · M_709 · rgb_709`
+///
+/// so a Rec. 709 neutral stays neutral (R = G = B) in every output.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub enum Primaries {
+    /// ITU-R BT.709 / sRGB primaries, D65 white (default).
+    #[default]
+    Rec709,
+    /// ACES2065-1: AP0 primaries, ACES white (x 0.32168, y 0.33767).
+    Ap0,
+    /// ACEScg: AP1 primaries, ACES white.
+    Ap1,
+}
+
+impl Primaries {
+    /// Red, green, blue and white chromaticities `(x, y)`.
+    pub fn chromaticities(self) -> [(f64, f64); 4] {
+        const ACES_WHITE: (f64, f64) = (0.32168, 0.33767);
+        match self {
+            Primaries::Rec709 => [(0.64, 0.33), (0.30, 0.60), (0.15, 0.06), (0.3127, 0.3290)],
+            Primaries::Ap0 => [(0.7347, 0.2653), (0.0, 1.0), (0.0001, -0.0770), ACES_WHITE],
+            Primaries::Ap1 => [(0.713, 0.293), (0.165, 0.830), (0.128, 0.044), ACES_WHITE],
+        }
+    }
+
+    /// The Color Interop Forum identifier of linear scene-referred data in these primaries.
+    pub fn interop_id(self) -> &'static str {
+        match self {
+            Primaries::Rec709 => "lin_rec709_scene",
+            Primaries::Ap0 => "lin_ap0_scene",
+            Primaries::Ap1 => "lin_ap1_scene",
+        }
+    }
+
+    /// The 3×3 matrix (row-major) from linear Rec. 709 to these primaries (see the type's
+    /// docs); the identity for Rec. 709.
+    pub fn matrix_from_709(self) -> [[f64; 3]; 3] {
+        use nalgebra::{Matrix3, Vector3};
+        if self == Primaries::Rec709 {
+            return [[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]];
+        }
+        let to_xyz = |p: Primaries| {
+            let c = p.chromaticities();
+            let xyz = |(x, y): (f64, f64)| Vector3::new(x / y, 1.0, (1.0 - x - y) / y);
+            let m = Matrix3::from_columns(&[xyz(c[0]), xyz(c[1]), xyz(c[2])]);
+            let white = xyz(c[3]);
+            let s = m.try_inverse().expect("primaries span XYZ") * white;
+            (m * Matrix3::from_diagonal(&s), white)
+        };
+        let bradford = Matrix3::new(
+            0.8951, 0.2664, -0.1614, -0.7502, 1.7135, 0.0367, 0.0389, -0.0685, 1.0296,
+        );
+        let (m709, d65) = to_xyz(Primaries::Rec709);
+        let (m, white) = to_xyz(self);
+        let gain = (bradford * white).component_div(&(bradford * d65));
+        let cat = bradford.try_inverse().expect("Bradford is invertible")
+            * Matrix3::from_diagonal(&gain)
+            * bradford;
+        let t = m.try_inverse().expect("primaries span XYZ") * cat * m709;
+        [0, 1, 2].map(|r| [0, 1, 2].map(|c| t[(r, c)]))
+    }
+}
+
 /// How to write the OpenEXR file.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
 pub struct ExrOptions {
@@ -178,6 +252,8 @@ pub struct ExrOptions {
     pub compression: ExrCompression,
     /// Half overflow handling (default: scale).
     pub overflow: Overflow,
+    /// RGB primaries of the file (default Rec. 709).
+    pub primaries: Primaries,
 }
 
 /// One input frame as recorded in the header.
@@ -206,6 +282,8 @@ pub struct Provenance {
     pub weighting: String,
     /// Samples clipped high / low in every frame.
     pub clipped: (u64, u64),
+    /// The scale of the values.
+    pub scale: crate::merge::Scale,
 }
 
 /// What writing did beyond the pixels.
@@ -314,14 +392,37 @@ pub fn encode_exr<W: Write + Seek, S: RadianceSource + ?Sized>(
             BlockDescription::ScanLines,
             LineOrder::Increasing,
         );
-    header.own_attributes = layer_attributes(provenance, scale);
-    header.shared_attributes = image_attributes(size);
+    let primaries = if map.channels() == 3 {
+        options.primaries
+    } else {
+        Primaries::Rec709
+    };
+    header.own_attributes = layer_attributes(provenance, scale, primaries);
+    header.shared_attributes = image_attributes(size, primaries);
+    let matrix = (primaries != Primaries::Rec709)
+        .then(|| primaries.matrix_from_709().map(|row| row.map(|v| v as f32)));
 
     // One line of one plane, scaled and clamped. The samples are pulled from the source
     // here, so a lazy merge is evaluated on the worker threads.
     let fill_line = |plane: &Plane, start: usize, line: &mut [f32]| match plane {
         Plane::Colour(c) => {
-            map.line(start, *c, line);
+            match &matrix {
+                None => map.line(start, *c, line),
+                Some(m) => {
+                    // One row of the matrix over the three Rec. 709 channels.
+                    let mut other = vec![0f32; line.len()];
+                    map.line(start, 0, line);
+                    for v in line.iter_mut() {
+                        *v *= m[*c][0];
+                    }
+                    for (k, &weight) in m[*c].iter().enumerate().skip(1) {
+                        map.line(start, k, &mut other);
+                        for (v, o) in line.iter_mut().zip(&other) {
+                            *v += weight * o;
+                        }
+                    }
+                }
+            }
             for v in line.iter_mut() {
                 *v = (*v * scale).min(limit);
             }

@@ -380,3 +380,79 @@ fn failures_leave_no_file_behind() {
     write_radiance_hdr(&hdr, Overwrite::Refuse, &map).unwrap();
     assert_eq!(std::fs::read_dir(dir.path()).unwrap().count(), 2);
 }
+
+/// Rec. 709 → ACES: a grey stays grey (the adaptation maps D65 to the ACES white), and
+/// Rec. 709 red lands on its published AP0 and AP1 values (the first column of the
+/// Bradford-adapted Rec. 709 → ACES2065-1 and → ACEScg matrices, as OpenColorIO's ACES
+/// configuration and colour-science list them).
+#[test]
+fn aces_primaries_keep_grey_and_place_red() {
+    for p in [Primaries::Rec709, Primaries::Ap0, Primaries::Ap1] {
+        let m = p.matrix_from_709();
+        for row in m {
+            let grey: f64 = row.iter().sum();
+            assert!((grey - 1.0).abs() < 1e-6, "{p:?}: grey row sums to {grey}");
+        }
+    }
+    let red = |p: Primaries| p.matrix_from_709().map(|row| row[0]);
+    let ap0 = red(Primaries::Ap0);
+    let ap1 = red(Primaries::Ap1);
+    for (got, want) in ap0.iter().zip([0.439_701, 0.089_792_3, 0.017_544]) {
+        assert!((got - want).abs() < 1e-3, "AP0 {ap0:?}");
+    }
+    for (got, want) in ap1.iter().zip([0.613_097, 0.070_194, 0.020_615]) {
+        assert!((got - want).abs() < 1e-3, "AP1 {ap1:?}");
+    }
+    assert_eq!(Primaries::Rec709.matrix_from_709()[0], [1.0, 0.0, 0.0]);
+}
+
+/// An AP1 file holds the converted values and says so: `chromaticities` are AP1's with
+/// the ACES white and `colorInteropID` is `lin_ap1_scene`; a grey pixel keeps its value.
+#[test]
+fn an_ap1_file_states_its_primaries() {
+    use exr::prelude::{AttributeValue, Text};
+    let map = RadianceMap::new(2, 1, 3, vec![0.5, 0.5, 0.5, 1.0, 0.0, 0.0]).unwrap();
+    let mut bytes = std::io::Cursor::new(Vec::new());
+    let options = ExrOptions {
+        sample: SampleFormat::Float,
+        primaries: Primaries::Ap1,
+        ..ExrOptions::default()
+    };
+    encode_exr(&mut bytes, &map, None, &Provenance::default(), options).unwrap();
+    let image = exr::prelude::read()
+        .no_deep_data()
+        .largest_resolution_level()
+        .all_channels()
+        .first_valid_layer()
+        .all_attributes()
+        .from_buffered(std::io::Cursor::new(bytes.into_inner()))
+        .unwrap();
+    let c = image.attributes.chromaticities.unwrap();
+    assert_eq!((c.red.0, c.green.1, c.white.0), (0.713, 0.830, 0.32168));
+    assert_eq!(
+        image
+            .layer_data
+            .attributes
+            .other
+            .get(&Text::from("colorInteropID")),
+        Some(&AttributeValue::Text(Text::from("lin_ap1_scene")))
+    );
+    let value = |name: &str, i: usize| -> f32 {
+        image
+            .layer_data
+            .channel_data
+            .list
+            .iter()
+            .find(|ch| ch.name == text(name))
+            .unwrap()
+            .sample_data
+            .values_as_f32()
+            .nth(i)
+            .unwrap()
+    };
+    for ch in ["R", "G", "B"] {
+        assert!((value(ch, 0) - 0.5).abs() < 1e-6, "{ch}");
+    }
+    assert!((value("R", 1) - 0.613_097).abs() < 1e-3);
+    assert!((value("B", 1) - 0.020_615).abs() < 1e-3);
+}

@@ -16,10 +16,12 @@ use crate::histogram::{Histogram, TonePair, UsableTones, tone_pairs};
 
 pub mod file;
 pub mod fit;
+pub mod measured;
 pub mod spline;
 
 pub use file::{ChannelSummary, ResponseFileError, ResponseRecord, load, save};
 pub use fit::{ChannelFit, Degree, FitError};
+pub use measured::{JpegMeter, MeasureError, MeasuredResponse, stops_apart};
 
 /// Why an inverse response is not acceptable.
 #[derive(Debug, thiserror::Error)]

@@ -165,6 +165,33 @@ pub struct Preset {
     pub recalibrate: Recalibrate,
     /// Fits below this confidence are weak.
     pub min_confidence: f64,
+    /// Calibration factor `c` of the EXR's luminance scale (1: nominal cd/m² from the
+    /// EXIF exposure; see `merge`'s "Absolute scale").
+    pub luminance_calibration: f64,
+    /// RGB primaries of the EXR.
+    pub primaries: OutputPrimaries,
+}
+
+/// The EXR's RGB primaries as the configuration names them (`primaries = "ap1"`).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum OutputPrimaries {
+    /// Rec. 709 / sRGB, D65 (default).
+    Rec709,
+    /// ACES2065-1.
+    Ap0,
+    /// ACEScg.
+    Ap1,
+}
+
+impl From<OutputPrimaries> for crate::hdr_output::Primaries {
+    fn from(p: OutputPrimaries) -> Self {
+        match p {
+            OutputPrimaries::Rec709 => crate::hdr_output::Primaries::Rec709,
+            OutputPrimaries::Ap0 => crate::hdr_output::Primaries::Ap0,
+            OutputPrimaries::Ap1 => crate::hdr_output::Primaries::Ap1,
+        }
+    }
 }
 
 /// A per-camera preset and what it matches.

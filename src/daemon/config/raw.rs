@@ -56,6 +56,13 @@ bounded!(MemoryMb, u64, 64, 16_777_216, "MB");
 bounded!(Stops, f64, -10.0, 10.0, "stops");
 bounded!(Quality, u8, 1, 100, "JPEG quality");
 bounded!(Fraction, f64, 0.0, 1.0, "confidence");
+bounded!(
+    Calibration,
+    f64,
+    0.001,
+    1000.0,
+    "luminance calibration factor"
+);
 
 /// A film stock or tone map name: lower-case letters, digits, `-` and `_`, so it can be
 /// part of an output file name.
@@ -148,6 +155,8 @@ struct RawRender {
     jpeg_quality: Option<Quality>,
     recalibrate: Option<Recalibrate>,
     min_confidence: Option<Fraction>,
+    luminance_calibration: Option<Calibration>,
+    primaries: Option<super::OutputPrimaries>,
 }
 
 #[derive(Debug, Default, Clone, Deserialize)]
@@ -163,6 +172,8 @@ struct RawPreset {
     jpeg_quality: Option<Quality>,
     recalibrate: Option<Recalibrate>,
     min_confidence: Option<Fraction>,
+    luminance_calibration: Option<Calibration>,
+    primaries: Option<super::OutputPrimaries>,
 }
 
 impl RawPreset {
@@ -175,6 +186,8 @@ impl RawPreset {
             jpeg_quality: self.jpeg_quality,
             recalibrate: self.recalibrate,
             min_confidence: self.min_confidence,
+            luminance_calibration: self.luminance_calibration,
+            primaries: self.primaries,
         }
     }
 }
@@ -309,6 +322,8 @@ fn overlay(base: &RawRender, over: &RawRender) -> RawRender {
         jpeg_quality: over.jpeg_quality.or(base.jpeg_quality),
         recalibrate: over.recalibrate.or(base.recalibrate),
         min_confidence: over.min_confidence.or(base.min_confidence),
+        luminance_calibration: over.luminance_calibration.or(base.luminance_calibration),
+        primaries: over.primaries.or(base.primaries),
     }
 }
 
@@ -330,5 +345,7 @@ fn preset(r: &RawRender) -> Preset {
         jpeg_quality: r.jpeg_quality.expect(MISSING).0,
         recalibrate: r.recalibrate.expect(MISSING),
         min_confidence: r.min_confidence.expect(MISSING).0,
+        luminance_calibration: r.luminance_calibration.expect(MISSING).0,
+        primaries: r.primaries.expect(MISSING),
     }
 }
