@@ -373,6 +373,23 @@ fn raw_plus_jpeg_gives_one_bracket_from_the_raws() {
     let summary = rig.stop();
     assert_eq!((summary.finished, summary.rejected), (1, 0));
     assert_one_raw_bracket(&state);
+    // The JPEGs are the camera's rendering of the same captures (the demo camera's sRGB
+    // curve): measured against the raws, they give the body's JPEG curve in the cache.
+    let cached = filmback::daemon::cache::ResponseCache::new(&state)
+        .find("Raw Body")
+        .unwrap();
+    let measured = cached.measured.expect("a curve measured from RAW+JPEG");
+    assert_eq!(measured.captures, 3);
+    for c in 0..3 {
+        for code in [64u32, 128, 192] {
+            let b = f64::from(code) / 255.0;
+            let stops = (measured.response.eval(c, b) / ResponseCurve::Srgb.inverse(b)).log2();
+            assert!(
+                stops.abs() < 0.25,
+                "channel {c} code {code}: {stops:+.3} stop"
+            );
+        }
+    }
 }
 
 /// RAW+JPEG in sibling folders (`RAW/r-k.dng`, `JPG/r-k.jpg`), the JPEG first and
@@ -413,6 +430,11 @@ fn raw_plus_jpeg_in_sibling_folders_jpeg_first_gives_one_bracket_from_the_raws()
         .map(|k| (format!("r-{k}.dng"), Some(format!("r-{k}.jpg"))))
         .collect();
     assert_eq!(seen, expected);
+    // The JPEGs in the sibling folder were measured against their raws.
+    let cached = filmback::daemon::cache::ResponseCache::new(&state)
+        .find("Raw Body")
+        .unwrap();
+    assert_eq!(cached.measured.map(|m| m.captures), Some(3));
 }
 
 /// A body seen shooting RAW+JPEG then shoots JPEG only: its JPEGs wait the bracket gap

@@ -361,23 +361,8 @@ impl DarkroomLab {
     }
 }
 
-/// The camera JPEG of a raw frame: the file in the raw's folder with the raw's stem and
-/// the extension `jpg` or `jpeg` (any case), not a symbolic link.
-fn companion_jpeg(raw: &Path) -> Option<PathBuf> {
-    let stem = raw.file_stem()?.to_str()?;
-    let dir = raw.parent()?;
-    let entries = std::fs::read_dir(dir).ok()?;
-    entries.filter_map(Result::ok).map(|e| e.path()).find(|p| {
-        p.file_stem().and_then(|s| s.to_str()) == Some(stem)
-            && p.extension()
-                .and_then(|e| e.to_str())
-                .is_some_and(|e| e.eq_ignore_ascii_case("jpg") || e.eq_ignore_ascii_case("jpeg"))
-            && std::fs::symlink_metadata(p).is_ok_and(|m| m.is_file())
-    })
-}
-
-/// Measures the body's JPEG curve from the raw frames of `frames` that have a companion
-/// JPEG: `map` (the developed raw radiance) times `e_k/e_max` against frame `k`'s JPEG.
+/// Measures the body's JPEG curve from the raw frames of `frames` whose capture has a
+/// companion JPEG ([`Capture::companion`]): `map` (the developed raw radiance) times `e_k/e_max` against frame `k`'s JPEG.
 /// Returns the curve (none if no frame has a JPEG or they do not cover the codes) and
 /// notes on what could not be measured.
 fn measure_companions(
@@ -394,11 +379,13 @@ fn measure_companions(
     let mut meter = JpegMeter::new();
     let mut notes = Vec::new();
     let mut pairs = 0;
-    for (f, &e) in frames.iter().zip(&exposures) {
+    for ((f, capture), &e) in frames.iter().zip(&job.frames).zip(&exposures) {
         if f.raw.is_none() {
             continue;
         }
-        let Some(jpeg) = companion_jpeg(&f.path) else {
+        // The JPEG of the same capture, paired by the intake (same stem, same or sibling
+        // folder) and settled.
+        let Some(jpeg) = capture.companion.as_ref().map(|c| &c.path) else {
             continue;
         };
         let unit = if longest > 0.0 && frames.len() > 1 {
@@ -406,11 +393,11 @@ fn measure_companions(
         } else {
             1.0
         };
-        let added = frame::load(&jpeg, Limits::default())
+        let added = frame::load(jpeg, Limits::default())
             .map_err(|e| e.to_string())
             .and_then(|j| {
                 meter
-                    .add(map, unit, &j.frame, &jpeg)
+                    .add(map, unit, &j.frame, jpeg)
                     .map_err(|e| e.to_string())
             });
         match added {
@@ -432,34 +419,5 @@ fn measure_companions(
             ));
             (None, notes)
         }
-    }
-}
-
-#[cfg(test)]
-mod tests {
-    use super::*;
-
-    /// The companion is the JPEG of the same stem in the same folder, in any case of its
-    /// extension; another stem or folder is not, nor is a link.
-    #[test]
-    fn the_companion_jpeg_has_the_raws_stem_and_folder() {
-        let dir = tempfile::tempdir().unwrap();
-        let d = dir.path();
-        std::fs::create_dir(d.join("sub")).unwrap();
-        for name in [
-            "a.dng",
-            "a.JPG",
-            "b.cr2",
-            "b.jpeg.xmp",
-            "sub/b.jpg",
-            "c.nef",
-        ] {
-            std::fs::write(d.join(name), b"x").unwrap();
-        }
-        #[cfg(unix)]
-        std::os::unix::fs::symlink(d.join("a.JPG"), d.join("c.jpg")).unwrap();
-        assert_eq!(companion_jpeg(&d.join("a.dng")), Some(d.join("a.JPG")));
-        assert_eq!(companion_jpeg(&d.join("b.cr2")), None);
-        assert_eq!(companion_jpeg(&d.join("c.nef")), None);
     }
 }
