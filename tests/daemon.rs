@@ -1414,11 +1414,15 @@ fn response_of(state: &Path, stem: &str) -> filmback::darkroom::Source {
 fn the_darkroom_fits_renders_each_cameras_looks_and_refines_the_cache() {
     use filmback::darkroom::Source;
     // Films at t = 1 stop on top of the request's own @1/2: velvia50 at t = 1. Body P's
-    // preset replaces the films and drops the tone map, and never recalibrates.
+    // preset replaces the films and drops the tone map, and never recalibrates. The
+    // demo camera's q90 JPEG brackets fit to about 0.4–0.7 per channel (the calibrated
+    // probability of a channel within 0.05 stop; docs/accuracy.md), so the bar is set
+    // under that: this test is about the cache's refinement, not about the bar.
     let mut rig = Rig::start_with(
         &[
             ("render", "films = [\"velvia50@1/2\"]"),
             ("render", "t = 1.0"),
+            ("render", "min_confidence = 0.25"),
         ],
         "[camera.\"Body P\"]\nfilms = [\"provia100f\"]\ntonemaps = []\nrecalibrate = \"never\"\n",
         Arc::new(DarkroomLab),
@@ -1442,7 +1446,7 @@ fn the_darkroom_fits_renders_each_cameras_looks_and_refines_the_cache() {
     expect_outputs(&rig.out(), &expected, T);
     let state = rig.state();
     rig.stop();
-    // Body A: a noiseless sRGB bracket at ±2 EV fits confidently, twice, and each fit
+    // Body A: a noiseless sRGB bracket at ±2 EV fits above the bar, twice, and each fit
     // is folded into its cache; Body P never fits, has no cache, and takes sRGB.
     assert_eq!(response_of(&state, "a-1"), Source::Fitted);
     assert_eq!(response_of(&state, "b-1"), Source::Fitted);
