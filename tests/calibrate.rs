@@ -381,6 +381,35 @@ fn one_saturated_channel_borrows_a_curve_with_zero_confidence() {
     );
 }
 
+/// Blue alone runs backwards (its samples exchanged between the frames, as a scan's
+/// offset in one dye can make it): blue borrows a fitted channel's curve at confidence 0
+/// and R and G keep their fits; the calibration is not refused as a whole.
+#[test]
+fn a_channel_running_backwards_borrows_while_the_others_fit() {
+    let (dark, bright) = pair(&scene(), &sensor(ResponseCurve::Srgb, BitDepth::Eight), 4.0);
+    let (Samples::Eight(d), Samples::Eight(b)) = (dark.samples(), bright.samples()) else {
+        unreachable!("8-bit frames");
+    };
+    let (mut d, mut b) = (d.clone(), b.clone());
+    for (x, y) in d.chunks_exact_mut(3).zip(b.chunks_exact_mut(3)) {
+        std::mem::swap(&mut x[2], &mut y[2]);
+    }
+    let frame = |v: Vec<u8>| Frame::new(W, H, 3, Samples::Eight(v)).unwrap();
+    let cal = run(&frame(d), &frame(b), 4.0, Degree::Auto).unwrap();
+    assert!(matches!(cal.channels[2].borrowed_from, Some("R" | "G")));
+    assert_eq!(cal.channels[2].fit.confidence, 0.0);
+    assert!(cal.channels[..2].iter().all(|c| c.borrowed_from.is_none()));
+    let errors = measure::response_errors(&cal.response, &ResponseCurve::Srgb);
+    for e in &errors[..2] {
+        assert!(
+            e.own < 0.05 && e.shape < 0.05,
+            "R/G: own {} shape {}",
+            e.own,
+            e.shape
+        );
+    }
+}
+
 #[test]
 fn swapped_frames_are_refused() {
     let (dark, bright) = pair(&scene(), &sensor(ResponseCurve::Srgb, BitDepth::Eight), 4.0);

@@ -360,7 +360,7 @@ fn table(r: &Value) -> String {
         let f = |k: &str| ch[k].as_f64().unwrap_or(f64::NAN);
         let mut note = String::new();
         if let Some(d) = ch["borrowed_from"].as_str() {
-            note = format!("  (no usable tones: curve borrowed from {d})");
+            note = format!("  (not fitted: curve borrowed from {d})");
         } else if ch["low_confidence"].as_bool() == Some(true) {
             note = "  LOW CONFIDENCE".to_string();
         }

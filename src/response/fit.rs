@@ -103,7 +103,7 @@ pub enum FitError {
     Degree(usize),
     /// The tone mapping runs the wrong way (the "bright" frame is darker).
     #[error(
-        "the brighter frame is darker than the darker one in most tones: frames or ratio swapped"
+        "its tones run backwards: the brighter frame is darker than the darker one in most of them"
     )]
     Swapped,
     /// The fitted curve falls deeper below white than any camera records

@@ -215,7 +215,12 @@ pub enum CalibrationError {
     /// No channel could be fitted.
     #[error("no channel could be calibrated: {0}")]
     NoChannel(String),
-    /// A channel's tone mapping runs backwards: frames or ratio swapped.
+    /// Every channel's tones run backwards: the frames or the ratio are swapped.
+    #[error(
+        "the brighter frame is darker than the darker one in most tones of every channel: frames or ratio swapped"
+    )]
+    Swapped,
+    /// A channel's fit was refused (a degree out of range).
     #[error("channel {channel}: {source}")]
     Channel {
         /// Channel name.
@@ -232,8 +237,9 @@ pub struct ChannelCalibration {
     pub name: &'static str,
     /// The fitted curve and its diagnostics.
     pub fit: ChannelFit,
-    /// Set when this channel had no usable tones (e.g. saturated) and took the curve of
-    /// another channel; its confidence is then 0.
+    /// Set when this channel could not be fitted (no usable tones, e.g. saturated, or
+    /// tones running backwards while other channels fit) and took the curve of another
+    /// channel; its confidence is then 0.
     pub borrowed_from: Option<&'static str>,
     /// The tone pairs the fit used (empty when borrowed).
     pub pairs: Vec<TonePair>,
@@ -315,13 +321,8 @@ pub fn calibrate(
             (c, fit::fit(&pairs, log_ratio, degree), pairs)
         })
         .collect();
-    for (c, result, _) in &fitted {
-        if let Err(source @ FitError::Swapped | source @ FitError::Degree(_)) = result {
-            return Err(CalibrationError::Channel {
-                channel: names[*c],
-                source: source.clone(),
-            });
-        }
+    if let Some(e) = refusal(fitted.iter().map(|(c, f, _)| (names[*c], f))) {
+        return Err(e);
     }
     let (ratio, ratio_source) = match ratio {
         Ratio::Known(r, source) => (r, source),
@@ -386,6 +387,27 @@ pub fn calibrate(
         })
         .collect();
     finish(ratio, ratio_source, channels)
+}
+
+/// Why a calibration is refused as a whole, from its channels' fits: a degree out of
+/// range, or tones running backwards in **every** channel (the frames or the ratio are
+/// swapped). A channel that runs backwards while others fit is a channel that cannot be
+/// fitted (a scan's offset in one dye, say): it borrows a fitted channel's curve at
+/// confidence 0, like a channel without usable tones.
+fn refusal<'a>(
+    mut fits: impl Iterator<Item = (&'static str, &'a Result<ChannelFit, FitError>)> + Clone,
+) -> Option<CalibrationError> {
+    if let Some((channel, Err(source))) = fits
+        .clone()
+        .find(|(_, f)| matches!(f, Err(FitError::Degree(_))))
+    {
+        return Some(CalibrationError::Channel {
+            channel,
+            source: source.clone(),
+        });
+    }
+    fits.all(|(_, f)| matches!(f, Err(FitError::Swapped)))
+        .then_some(CalibrationError::Swapped)
 }
 
 /// The sampled curves of `channels`, checked.
@@ -503,13 +525,8 @@ pub fn calibrate_bracket(
             (c, result, pairs, log_ratios)
         })
         .collect();
-    for (c, result, _, _) in &fitted {
-        if let Err(source @ FitError::Swapped | source @ FitError::Degree(_)) = result {
-            return Err(CalibrationError::Channel {
-                channel: names[*c],
-                source: source.clone(),
-            });
-        }
+    if let Some(e) = refusal(fitted.iter().map(|(c, f, _, _)| (names[*c], f))) {
+        return Err(e);
     }
     let donor = fitted
         .iter()
