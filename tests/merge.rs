@@ -924,7 +924,6 @@ fn exif_pair_exr(
     (times, n, s): (&[f64], f64, f64),
     extra: &[&str],
 ) -> (Vec<f32>, exr::prelude::LayerAttributes) {
-    use exr::prelude::{ReadChannels, ReadLayers};
     use filmback::metadata::CaptureTime;
     use filmback::synthetic::{Encoding, Shot, write};
     let camera = Camera {
@@ -964,30 +963,7 @@ fn exif_pair_exr(
         .output()
         .unwrap();
     assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
-    let image = exr::prelude::read()
-        .no_deep_data()
-        .largest_resolution_level()
-        .all_channels()
-        .first_valid_layer()
-        .all_attributes()
-        .from_file(out.join(format!("{name}0.exr")))
-        .unwrap();
-    let channel = |c: &str| -> Vec<f32> {
-        let name = exr::prelude::Text::from(c);
-        image
-            .layer_data
-            .channel_data
-            .list
-            .iter()
-            .find(|ch| ch.name == name)
-            .unwrap()
-            .sample_data
-            .values_as_f32()
-            .collect()
-    };
-    let (r, g, b) = (channel("R"), channel("G"), channel("B"));
-    let rgb = (0..r.len()).flat_map(|i| [r[i], g[i], b[i]]).collect();
-    (rgb, image.layer_data.attributes.clone())
+    common::read_exr(&out.join(format!("{name}0.exr")))
 }
 
 /// `k` of [`exif_pair_exr`]: at 1/100 s, f/8, ISO 100 mid-grey (0.18) lands at 0.18 of
@@ -1067,7 +1043,7 @@ fn exif_anchored_scale_is_the_same_across_settings() {
 /// a warning, and the header says which scale it carries.
 #[test]
 fn frames_without_exif_keep_the_relative_scale_and_say_so() {
-    use exr::prelude::{AttributeValue, ReadChannels, ReadLayers, Text};
+    use exr::prelude::{AttributeValue, Text};
     let dir = tempfile::tempdir().unwrap();
     let (a, b) = pair(dir.path());
     let out = dir.path().join("out");
@@ -1088,15 +1064,7 @@ fn frames_without_exif_keep_the_relative_scale_and_say_so() {
         .map(|e| e.unwrap().path())
         .find(|p| p.extension().is_some_and(|e| e == "exr"))
         .unwrap();
-    let image = exr::prelude::read()
-        .no_deep_data()
-        .largest_resolution_level()
-        .all_channels()
-        .first_valid_layer()
-        .all_attributes()
-        .from_file(exr_path)
-        .unwrap();
-    let attrs = &image.layer_data.attributes;
+    let (_, attrs) = common::read_exr(&exr_path);
     assert_eq!(
         attrs.other.get(&Text::from("filmbackScaleKind")),
         Some(&AttributeValue::Text(Text::from("relative")))

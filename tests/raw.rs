@@ -14,6 +14,9 @@ use filmback::raw::mosaic::{self, Linear, Noise, Signal};
 use filmback::raw::{self, Cfa, RawExposure, RawInfo};
 use filmback::synthetic::{self, RawSensor, Shot, demo};
 
+mod common;
+use common::filmback;
+
 const W: u32 = 240;
 const H: u32 = 160;
 
@@ -401,10 +404,6 @@ fn damaged_raws_are_errors_naming_the_file() {
     }
 }
 
-fn filmback() -> std::process::Command {
-    std::process::Command::new(env!("CARGO_BIN_EXE_filmback"))
-}
-
 /// `filmback merge` of a raw bracket: one EXR whose header says the response is
 /// "linear (raw)" and states Rec. 709 chromaticities; the JSON report says the same.
 #[test]
@@ -613,7 +612,7 @@ fn dng_bracket(
 /// `filmback merge --exr float` of `paths` into `out`: the EXR's interleaved RGB and
 /// its `filmbackScaleKind`.
 fn merged_exr(paths: &[PathBuf], out: &Path) -> (Vec<f32>, String) {
-    use exr::prelude::{AttributeValue, ReadChannels, ReadLayers, Text};
+    use exr::prelude::{AttributeValue, Text};
     let o = filmback()
         .arg("merge")
         .args(paths)
@@ -624,41 +623,12 @@ fn merged_exr(paths: &[PathBuf], out: &Path) -> (Vec<f32>, String) {
         .unwrap();
     assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
     let stem = paths[0].file_stem().unwrap().to_str().unwrap();
-    let image = exr::prelude::read()
-        .no_deep_data()
-        .largest_resolution_level()
-        .all_channels()
-        .first_valid_layer()
-        .all_attributes()
-        .from_file(out.join(format!("{stem}.exr")))
-        .unwrap();
-    let channel = |c: &str| -> Vec<f32> {
-        let name = Text::from(c);
-        image
-            .layer_data
-            .channel_data
-            .list
-            .iter()
-            .find(|ch| ch.name == name)
-            .unwrap()
-            .sample_data
-            .values_as_f32()
-            .collect()
-    };
-    let (r, g, b) = (channel("R"), channel("G"), channel("B"));
-    let kind = match image
-        .layer_data
-        .attributes
-        .other
-        .get(&Text::from("filmbackScaleKind"))
-    {
+    let (rgb, attrs) = common::read_exr(&out.join(format!("{stem}.exr")));
+    let kind = match attrs.other.get(&Text::from("filmbackScaleKind")) {
         Some(AttributeValue::Text(t)) => t.to_string(),
         other => panic!("filmbackScaleKind: {other:?}"),
     };
-    (
-        (0..r.len()).flat_map(|i| [r[i], g[i], b[i]]).collect(),
-        kind,
-    )
+    (rgb, kind)
 }
 
 /// The raw path anchors to the EXIF exposure too: the same scene as two DNG brackets,
