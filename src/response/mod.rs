@@ -17,6 +17,7 @@ use crate::histogram::{Histogram, TonePair, UsableTones, tone_pairs};
 pub mod file;
 pub mod fit;
 pub mod measured;
+pub mod pool;
 pub mod spline;
 
 pub use file::{ChannelSummary, ResponseFileError, ResponseRecord, load, save};
@@ -246,6 +247,9 @@ pub struct ChannelCalibration {
     /// `ln γ` of each entry of [`ChannelCalibration::pairs`]: one value for a pair of
     /// frames, the ratio of each frame pair for a bracket ([`calibrate_bracket`]).
     pub log_ratios: Vec<f64>,
+    /// How many of [`ChannelCalibration::pairs`] each frame pair gave, in order (they
+    /// partition the pairs; one entry for a pair of frames).
+    pub set_lengths: Vec<usize>,
 }
 
 /// The result of [`calibrate`].
@@ -370,6 +374,7 @@ pub fn calibrate(
                 fit,
                 borrowed_from: None,
                 log_ratios: vec![log_ratio; pairs.len()],
+                set_lengths: vec![pairs.len()],
                 pairs,
             },
             Err(_) => ChannelCalibration {
@@ -383,6 +388,7 @@ pub fn calibrate(
                 borrowed_from: Some(names[donor_c]),
                 pairs: Vec::new(),
                 log_ratios: Vec::new(),
+                set_lengths: Vec::new(),
             },
         })
         .collect();
@@ -496,7 +502,13 @@ pub fn calibrate_bracket(
         .filter(|w| frames[w[1]].1 > SAME_EXPOSURE * frames[w[0]].1)
         .count();
     let names = channel_names(first.channels());
-    type Fitted = (usize, Result<ChannelFit, FitError>, Vec<TonePair>, Vec<f64>);
+    type Fitted = (
+        usize,
+        Result<ChannelFit, FitError>,
+        Vec<TonePair>,
+        Vec<f64>,
+        Vec<usize>,
+    );
     let fitted: Vec<Fitted> = (0..names.len())
         .into_par_iter()
         .map(|c| {
@@ -522,32 +534,34 @@ pub fn calibrate_bracket(
                 .iter()
                 .flat_map(|(p, r)| p.iter().map(move |p| (*p, *r)))
                 .unzip();
-            (c, result, pairs, log_ratios)
+            let set_lengths = sets.iter().map(|(p, _)| p.len()).collect();
+            (c, result, pairs, log_ratios, set_lengths)
         })
         .collect();
-    if let Some(e) = refusal(fitted.iter().map(|(c, f, _, _)| (names[*c], f))) {
+    if let Some(e) = refusal(fitted.iter().map(|(c, f, ..)| (names[*c], f))) {
         return Err(e);
     }
     let donor = fitted
         .iter()
-        .filter_map(|(c, f, _, _)| f.as_ref().ok().map(|f| (*c, f.clone())))
+        .filter_map(|(c, f, ..)| f.as_ref().ok().map(|f| (*c, f.clone())))
         .max_by(|a, b| a.1.confidence.total_cmp(&b.1.confidence));
     let Some((donor_c, donor_fit)) = donor else {
         let reasons: Vec<String> = fitted
             .iter()
-            .filter_map(|(c, f, _, _)| f.as_ref().err().map(|e| format!("{}: {e}", names[*c])))
+            .filter_map(|(c, f, ..)| f.as_ref().err().map(|e| format!("{}: {e}", names[*c])))
             .collect();
         return Err(CalibrationError::NoChannel(reasons.join("; ")));
     };
     let channels = fitted
         .into_iter()
-        .map(|(c, f, pairs, log_ratios)| match f {
+        .map(|(c, f, pairs, log_ratios, set_lengths)| match f {
             Ok(fit) => ChannelCalibration {
                 name: names[c],
                 fit,
                 borrowed_from: None,
                 pairs,
                 log_ratios,
+                set_lengths,
             },
             Err(_) => ChannelCalibration {
                 name: names[c],
@@ -560,6 +574,7 @@ pub fn calibrate_bracket(
                 borrowed_from: Some(names[donor_c]),
                 pairs: Vec::new(),
                 log_ratios: Vec::new(),
+                set_lengths: Vec::new(),
             },
         })
         .collect();

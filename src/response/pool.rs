@@ -1,0 +1,232 @@
+//! A body's response from the evidence of many brackets: pooled tone pairs, one joint fit.
+//!
+//! Every bracket of one camera body constrains the same curve: its tone pairs say
+//! `g(τ(b)) = γ·g(b)` whatever the scene. One bracket covers the tones its scene holds; a
+//! body that has shot a dozen scenes has seen nearly every tone in several frame pairs,
+//! and above all the highlights close to white whose extrapolation sets a channel's scale
+//! ([`ChannelFit::top_span`](super::ChannelFit::top_span)). So the evidence is kept, not
+//! the curves: [`Evidence::of`] takes a calibration's tone pairs, frame pair by frame
+//! pair, thinned to at most [`PAIRS_PER_SET`] each; [`refit`] fits one curve per channel
+//! to the pairs of every bracket at once with [`fit::fit_joint`] (each frame pair a set,
+//! so a bracket that scatters more than the others is down-weighted, not followed).
+//!
+//! [`agreement`] says how well a curve explains one bracket's evidence: the weighted RMS
+//! of `log₂(g(τ)/(γ·g(b)))` in stops, as the darkroom's contradiction test measures it.
+
+use rayon::prelude::*;
+
+use super::fit::{self, ChannelFit, Degree, FitError};
+use super::{
+    Calibration, CalibrationError, ChannelCalibration, RatioSource, channel_names, finish,
+};
+use crate::histogram::TonePair;
+
+/// Most tone pairs kept per frame pair and channel. A frame pair of 8-bit frames gives up
+/// to ~500, one per bin edge of either frame, and neighbouring pairs rest on the same
+/// pixels; an even selection by tone keeps what the set says about the curve's shape
+/// (a spline of ten pieces) at a quarter of the storage.
+pub const PAIRS_PER_SET: usize = 128;
+
+/// The tone pairs of one frame pair of one channel and their `ln γ`.
+#[derive(Debug, Clone, PartialEq)]
+pub struct PairSet {
+    /// `ln(e_bright / e_dark)` of the frame pair.
+    pub log_ratio: f64,
+    /// The pairs, in order of the dark tone.
+    pub pairs: Vec<TonePair>,
+}
+
+/// What one bracket says about its body's response (see the module docs).
+#[derive(Debug, Clone, PartialEq)]
+pub struct Evidence {
+    /// Distinct exposures of the bracket.
+    pub frames: usize,
+    /// Per channel, the frame pairs' tone pairs (empty for a channel that borrowed
+    /// another's curve).
+    pub channels: Vec<Vec<PairSet>>,
+}
+
+impl Evidence {
+    /// The evidence of `calibration` (a pair or a bracket of `frames` distinct
+    /// exposures), each frame pair's tone pairs thinned evenly by tone to at most
+    /// [`PAIRS_PER_SET`].
+    pub fn of(calibration: &Calibration, frames: usize) -> Evidence {
+        let channels = calibration
+            .channels
+            .iter()
+            .map(|ch| {
+                let mut start = 0;
+                ch.set_lengths
+                    .iter()
+                    .map(|&len| {
+                        let end = (start + len).min(ch.pairs.len());
+                        let mut pairs = ch.pairs[start..end].to_vec();
+                        let log_ratio = ch.log_ratios.get(start).copied().unwrap_or(0.0);
+                        start = end;
+                        pairs.sort_by(|a, b| a.dark.total_cmp(&b.dark));
+                        PairSet {
+                            log_ratio,
+                            pairs: thin(&pairs, PAIRS_PER_SET),
+                        }
+                    })
+                    .filter(|s| !s.pairs.is_empty())
+                    .collect()
+            })
+            .collect();
+        Evidence {
+            frames: frames.max(2),
+            channels,
+        }
+    }
+
+    /// Frame pairs over all channels.
+    pub fn sets(&self) -> usize {
+        self.channels.iter().map(Vec::len).sum()
+    }
+}
+
+/// At most `n` of `pairs`, evenly spaced by index (both ends kept).
+fn thin(pairs: &[TonePair], n: usize) -> Vec<TonePair> {
+    if pairs.len() <= n {
+        return pairs.to_vec();
+    }
+    (0..n)
+        .map(|k| pairs[(k * (pairs.len() - 1) + (n - 1) / 2) / (n - 1)])
+        .collect()
+}
+
+/// One curve per channel fitted to the evidence of every bracket in `pool` at once (see
+/// the module docs). The sets rest on `1 + Σ (frames − 1)` independent exposures' worth
+/// of histograms. A channel without evidence borrows the most confident channel's curve
+/// at confidence 0, as in [`super::calibrate`]. The result's `ratio` is the widest
+/// bracket's span.
+pub fn refit(pool: &[&Evidence], degree: Degree) -> Result<Calibration, CalibrationError> {
+    let Some(first) = pool.first() else {
+        return Err(CalibrationError::NoChannel("no brackets pooled".into()));
+    };
+    let channels = first.channels.len();
+    if let Some(e) = pool.iter().find(|e| e.channels.len() != channels) {
+        return Err(CalibrationError::Mismatch(format!(
+            "pooled brackets of {channels} and {} channels",
+            e.channels.len()
+        )));
+    }
+    let exposures = 1 + pool.iter().map(|e| e.frames - 1).sum::<usize>();
+    let names = channel_names(channels);
+    let fitted: Vec<(Result<ChannelFit, FitError>, Vec<&PairSet>)> = (0..channels)
+        .into_par_iter()
+        .map(|c| {
+            let sets: Vec<&PairSet> = pool.iter().flat_map(|e| &e.channels[c]).collect();
+            let borrowed: Vec<(&[TonePair], f64)> = sets
+                .iter()
+                .map(|s| (s.pairs.as_slice(), s.log_ratio))
+                .collect();
+            let result = if borrowed.is_empty() {
+                Err(FitError::TooFewTones(0))
+            } else {
+                fit::fit_joint(&borrowed, exposures, degree)
+            };
+            (result, sets)
+        })
+        .collect();
+    let donor = fitted
+        .iter()
+        .enumerate()
+        .filter_map(|(c, (f, _))| f.as_ref().ok().map(|f| (c, f.clone())))
+        .max_by(|a, b| a.1.confidence.total_cmp(&b.1.confidence));
+    let Some((donor_c, donor_fit)) = donor else {
+        let reasons: Vec<String> = fitted
+            .iter()
+            .enumerate()
+            .filter_map(|(c, (f, _))| f.as_ref().err().map(|e| format!("{}: {e}", names[c])))
+            .collect();
+        return Err(CalibrationError::NoChannel(reasons.join("; ")));
+    };
+    let calibrated = fitted
+        .into_iter()
+        .enumerate()
+        .map(|(c, (f, sets))| match f {
+            Ok(fit) => ChannelCalibration {
+                name: names[c],
+                fit,
+                borrowed_from: None,
+                pairs: sets.iter().flat_map(|s| s.pairs.iter().copied()).collect(),
+                log_ratios: sets
+                    .iter()
+                    .flat_map(|s| std::iter::repeat_n(s.log_ratio, s.pairs.len()))
+                    .collect(),
+                set_lengths: sets.iter().map(|s| s.pairs.len()).collect(),
+            },
+            Err(_) => ChannelCalibration {
+                name: names[c],
+                fit: ChannelFit {
+                    equations: 0,
+                    coverage: 0.0,
+                    confidence: 0.0,
+                    ..donor_fit.clone()
+                },
+                borrowed_from: Some(names[donor_c]),
+                pairs: Vec::new(),
+                log_ratios: Vec::new(),
+                set_lengths: Vec::new(),
+            },
+        })
+        .collect();
+    let span = pool
+        .iter()
+        .flat_map(|e| e.channels.iter().flatten())
+        .map(|s| s.log_ratio)
+        .fold(0.0, f64::max);
+    finish(span.exp().max(1.0), RatioSource::Exif, calibrated)
+}
+
+/// How far `g` is from explaining `evidence`: the RMS over its tone pairs of
+/// `log₂(g(τ)/(γ·g(b)))`, stops (pairs where `g` is 0 skipped; no pairs gives 0).
+pub fn agreement(evidence: &Evidence, g: &super::InverseResponse) -> f64 {
+    let (mut sum, mut n) = (0.0, 0usize);
+    for (c, sets) in evidence.channels.iter().enumerate() {
+        let c = c.min(g.channels().saturating_sub(1));
+        for set in sets {
+            for p in &set.pairs {
+                let (lo, hi) = (g.eval(c, p.dark), g.eval(c, p.bright));
+                if lo > 0.0 && hi > 0.0 {
+                    sum += ((hi / lo).ln() - set.log_ratio).powi(2);
+                    n += 1;
+                }
+            }
+        }
+    }
+    if n == 0 {
+        0.0
+    } else {
+        (sum / n as f64).sqrt() / std::f64::consts::LN_2
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn thinning_keeps_both_ends_and_spreads_evenly() {
+        let pairs: Vec<TonePair> = (0..500)
+            .map(|i| TonePair {
+                dark: f64::from(i) / 1000.0,
+                bright: f64::from(i) / 500.0,
+                sigma_dark: 0.001,
+                sigma_bright: 0.001,
+                quantile: f64::from(i) / 500.0,
+            })
+            .collect();
+        let kept = thin(&pairs, 128);
+        assert_eq!(kept.len(), 128);
+        assert_eq!(kept[0], pairs[0]);
+        assert_eq!(kept[127], pairs[499]);
+        let gaps: Vec<f64> = kept.windows(2).map(|w| w[1].dark - w[0].dark).collect();
+        let (lo, hi) = gaps
+            .iter()
+            .fold((f64::INFINITY, 0.0f64), |(l, h), &g| (l.min(g), h.max(g)));
+        assert!(hi - lo <= 0.0011, "{lo} {hi}");
+        assert_eq!(thin(&pairs[..10], 128).len(), 10);
+    }
+}
