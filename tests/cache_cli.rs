@@ -31,9 +31,11 @@ fn state_with_entry(dir: &Path, channels: usize) {
         .put(&CachedResponse {
             camera: camera(),
             response: InverseResponse::srgb(channels, 1024),
-            weight: 2.5,
+            confidence: vec![0.8; channels],
             brackets: 3,
             updated: 1_700_000_000,
+            pool: Vec::new(),
+            dissent: Vec::new(),
             measured: None,
         })
         .unwrap();
@@ -215,4 +217,77 @@ fn show_compares_the_measured_curve_with_the_recovered_one() {
         assert!(text.contains(&line), "{line} missing in {text}");
     }
     assert!(apart[0].0 > 0.05, "sRGB and gamma 2 differ");
+}
+
+/// `cache show` of a pooled body says how many brackets the curve rests on, how sure it
+/// is per channel, and for each pooled bracket and dissent how far its own fit and the
+/// body's curve are from its tone pairs.
+#[test]
+fn show_lists_the_pooled_brackets_and_the_dissents() {
+    use filmback::daemon::cache::PooledBracket;
+    use filmback::histogram::TonePair;
+    use filmback::response::pool::{Evidence, PairSet};
+    let dir = tempfile::tempdir().unwrap();
+    state_with_entry(dir.path(), 3);
+    // Tone pairs of an sRGB body at ratio 4, from the curve itself.
+    let srgb = InverseResponse::srgb(3, 1024);
+    let pairs: Vec<TonePair> = (10..120)
+        .map(|k| {
+            let dark = f64::from(k) / 255.0;
+            let target = 4.0 * srgb.eval(0, dark);
+            let bright = (0..=4096)
+                .map(|i| f64::from(i) / 4096.0)
+                .find(|&b| srgb.eval(0, b) >= target)
+                .unwrap_or(1.0);
+            TonePair {
+                dark,
+                bright,
+                sigma_dark: 0.002,
+                sigma_bright: 0.002,
+                quantile: dark,
+            }
+        })
+        .collect();
+    let bracket = |name: &str| PooledBracket {
+        name: name.to_string(),
+        at: 1_700_000_000,
+        own_confidence: 0.75,
+        own_misfit: 0.01,
+        evidence: Evidence {
+            frames: 2,
+            channels: vec![
+                vec![PairSet {
+                    log_ratio: 4f64.ln(),
+                    pairs: pairs.clone()
+                }];
+                3
+            ],
+        },
+    };
+    let cache_dir = ResponseCache::new(dir.path());
+    let mut entry = cache_dir.find("r5").unwrap();
+    entry.pool = vec![bracket("IMG_0001"), bracket("IMG_0004")];
+    entry.dissent = vec![bracket("IMG_0009")];
+    cache_dir.put(&entry).unwrap();
+    let out = cache(dir.path(), &["show".as_ref(), "r5".as_ref()]);
+    assert_success(&out);
+    let text = String::from_utf8_lossy(&out.stdout);
+    assert!(text.contains("pooled    2 "), "{text}");
+    assert!(text.contains("confidence R 0.80, G 0.80, B 0.80"), "{text}");
+    assert!(text.contains("1 of 3 in a row"), "{text}");
+    for name in ["IMG_0001", "IMG_0004", "IMG_0009"] {
+        let line = text
+            .lines()
+            .find(|l| l.trim_start().starts_with(name))
+            .unwrap_or_else(|| panic!("{name} missing in {text}"));
+        // Own confidence, own misfit, and the body's sRGB curve on sRGB tone pairs: the
+        // last is the 8-bit search's rounding, far under a hundredth of a stop.
+        let cells: Vec<&str> = line.split_whitespace().collect();
+        assert_eq!(cells[2..4], ["0.75", "0.010"], "{line}");
+        let body: f64 = cells[4].parse().unwrap();
+        assert!(body < 0.01, "{line}");
+    }
+    let list = cache(dir.path(), &["list".as_ref()]);
+    let text = String::from_utf8_lossy(&list.stdout);
+    assert!(text.contains("pool of 2, confidence 0.80"), "{text}");
 }

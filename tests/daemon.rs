@@ -1234,6 +1234,8 @@ fn the_memory_budget_rejects_what_cannot_fit_and_runs_the_rest_in_turn() {
             outputs: Vec::new(),
             source: filmback::darkroom::Source::Standard,
             fit: None,
+            pooling: None,
+            contradicts_cache: false,
             stages: Vec::new(),
             notes: Vec::new(),
             measured: None,
@@ -1343,10 +1345,14 @@ fn frame_failing_in_development_is_rejected_and_the_rest_regrouped() {
 
 #[test]
 fn good_fits_refine_the_camera_cache_and_later_brackets_receive_it() {
+    use filmback::darkroom::Pooling;
+    use filmback::histogram::TonePair;
     use filmback::response::InverseResponse;
+    use filmback::response::pool::{Evidence, PairSet};
     let seen_cached = Arc::new(AtomicUsize::new(0));
     let seen = Arc::clone(&seen_cached);
-    // A lab that "fits" a gamma-2.2 curve with confidence 0.9.
+    // A lab whose fits say gamma 2.2 at confidence 0.9, with the tone pairs of such a
+    // body at ratio 4 as evidence.
     let lab = move |job: &Job| -> Result<Processed, JobError> {
         if job.cached.is_some() {
             seen.fetch_add(1, Ordering::SeqCst);
@@ -1354,6 +1360,32 @@ fn good_fits_refine_the_camera_cache_and_later_brackets_receive_it() {
         let mut dev = DarkroomLab.process(job)?;
         let g: Vec<f64> = (0..65).map(|i| (f64::from(i) / 64.0).powf(2.2)).collect();
         dev.fit = Some((InverseResponse::from_samples(vec![g; 3]).unwrap(), 0.9));
+        let step = 4f64.powf(1.0 / 2.2);
+        let set = PairSet {
+            log_ratio: 4f64.ln(),
+            pairs: (0..50)
+                .map(|i| {
+                    let dark = 0.02 + 0.5 * f64::from(i) / 50.0;
+                    TonePair {
+                        dark,
+                        bright: dark * step,
+                        sigma_dark: 0.002,
+                        sigma_bright: 0.002,
+                        quantile: f64::from(i) / 50.0,
+                    }
+                })
+                .collect(),
+        };
+        dev.pooling = Some(Pooling {
+            evidence: Evidence {
+                frames: 2,
+                channels: vec![vec![set]; 3],
+            },
+            own_misfit: 0.0,
+            own_confidence: vec![0.9; 3],
+            pooled: None,
+        });
+        dev.contradicts_cache = false;
         Ok(dev)
     };
     let mut rig = Rig::start(&[], Arc::new(lab), |_| {});
@@ -1370,8 +1402,8 @@ fn good_fits_refine_the_camera_cache_and_later_brackets_receive_it() {
     );
     let cache = filmback::daemon::cache::ResponseCache::new(&state);
     let entry = cache.find("Body F").unwrap();
-    assert_eq!(entry.brackets, 2);
-    assert!((entry.weight - 1.8).abs() < 1e-12);
+    assert_eq!((entry.brackets, entry.pool.len()), (2, 2));
+    assert_eq!(entry.min_confidence(), Some(0.9));
     assert!((entry.response.eval(0, 0.5) - 0.5f64.powf(2.2)).abs() < 1e-9);
     let out = Command::new(env!("CARGO_BIN_EXE_filmback"))
         .args(["cache", "list", "--state"])
@@ -1446,14 +1478,16 @@ fn the_darkroom_fits_renders_each_cameras_looks_and_refines_the_cache() {
     expect_outputs(&rig.out(), &expected, T);
     let state = rig.state();
     rig.stop();
-    // Body A: a noiseless sRGB bracket at ±2 EV fits above the bar, twice, and each fit
-    // is folded into its cache; Body P never fits, has no cache, and takes sRGB.
+    // Body A: a noiseless sRGB bracket at ±2 EV fits above the bar and starts the body's
+    // pool; the second is merged with one fit over both brackets' tone pairs. Body P
+    // never fits, has no cache, and takes sRGB.
     assert_eq!(response_of(&state, "a-1"), Source::Fitted);
-    assert_eq!(response_of(&state, "b-1"), Source::Fitted);
+    assert_eq!(response_of(&state, "b-1"), Source::Pooled);
     assert_eq!(response_of(&state, "p-1"), Source::Standard);
     let cache = filmback::daemon::cache::ResponseCache::new(&state);
     let entry = cache.find("Body A").unwrap();
-    assert_eq!(entry.brackets, 2);
+    assert_eq!((entry.brackets, entry.pool.len()), (2, 2));
+    assert!(entry.min_confidence().is_some_and(|c| c > 0.0));
     // The frames were rendered through sRGB: the cached curve is close to its inverse.
     let srgb_mid = ((0.5f64 + 0.055) / 1.055).powf(2.4);
     let g_mid = entry.response.eval(1, 0.5);

@@ -5,9 +5,10 @@ use std::path::PathBuf;
 use std::process::ExitCode;
 
 use filmback::daemon::cache::{
-    CachedResponse, MEASURED_SOURCE, MeasuredCurve, RECOVERED_SOURCE, ResponseCache,
+    CachedResponse, DISSENTS_TO_REPLACE, MEASURED_SOURCE, MeasuredCurve, PooledBracket,
+    RECOVERED_SOURCE, ResponseCache,
 };
-use filmback::response::stops_apart;
+use filmback::response::{pool, stops_apart};
 
 use super::calibrate::plot;
 
@@ -52,10 +53,13 @@ pub fn run(args: Args) -> anyhow::Result<ExitCode> {
             for e in entries {
                 match e {
                     Ok(c) => println!(
-                        "{}\t{} brackets\tweight {:.2}\t{} channel(s){}",
+                        "{}\t{} brackets\t{}\t{} channel(s){}",
                         c.camera,
                         c.brackets,
-                        c.weight,
+                        c.min_confidence().map_or_else(
+                            || "confidence unknown".to_string(),
+                            |v| format!("pool of {}, confidence {v:.2}", c.pool.len())
+                        ),
                         c.response.channels(),
                         c.measured.as_ref().map_or(String::new(), |m| format!(
                             "\tmeasured from raw ({} capture(s))",
@@ -74,8 +78,12 @@ pub fn run(args: Args) -> anyhow::Result<ExitCode> {
             println!("camera    {}", c.camera);
             println!("file      {}", cache.path_for(&c.camera).display());
             println!("source    {RECOVERED_SOURCE}");
-            println!("brackets  {}", c.brackets);
-            println!("weight    {:.3}", c.weight);
+            println!("brackets  {} folded in", c.brackets);
+            println!(
+                "pooled    {} (the curve is one fit over their tone pairs)",
+                c.pool.len()
+            );
+            println!("confidence {}", confidences(&c.confidence));
             println!("updated   {} (Unix seconds)", c.updated);
             println!("samples   {} per channel", c.response.samples(0).len());
             if let Some(path) = &plot {
@@ -94,6 +102,7 @@ pub fn run(args: Args) -> anyhow::Result<ExitCode> {
                 }
                 println!();
             }
+            show_pool(&c);
             if let Some(m) = &c.measured {
                 show_measured(&c, m);
             }
@@ -104,6 +113,62 @@ pub fn run(args: Args) -> anyhow::Result<ExitCode> {
         }
     }
     Ok(ExitCode::SUCCESS)
+}
+
+/// Per channel, `R 0.81, G 0.77, B 0.70`; `unknown` when not stored.
+fn confidences(c: &[f64]) -> String {
+    if c.is_empty() {
+        return "unknown (an entry from before pooling)".to_string();
+    }
+    let names: &[&str] = if c.len() == 1 {
+        &["Y"]
+    } else {
+        &["R", "G", "B"]
+    };
+    names
+        .iter()
+        .zip(c)
+        .map(|(n, v)| format!("{n} {v:.2}"))
+        .collect::<Vec<_>>()
+        .join(", ")
+}
+
+/// The pooled and dissenting brackets of `cache show`, each with how far the body's
+/// curve and its own fit are from its tone pairs.
+fn show_pool(c: &CachedResponse) {
+    let row = |b: &PooledBracket| {
+        println!(
+            "  {:<24} {:>12}  {:>6} {:>6.3} {:>6.3}",
+            b.name,
+            b.at,
+            format!("{:.2}", b.own_confidence),
+            b.own_misfit,
+            pool::agreement(&b.evidence, &c.response)
+        );
+    };
+    let header = || {
+        println!(
+            "  {:<24} {:>12}  {:>6} {:>6} {:>6}",
+            "bracket", "at (Unix s)", "conf.", "own", "body"
+        );
+    };
+    if !c.pool.is_empty() {
+        println!();
+        println!(
+            "pooled brackets, oldest first (own fit's confidence; RMS stops by which its own fit and the body's curve miss its tone pairs):"
+        );
+        header();
+        c.pool.iter().for_each(row);
+    }
+    if !c.dissent.is_empty() {
+        println!();
+        println!(
+            "contradicting brackets kept aside ({} of {DISSENTS_TO_REPLACE} in a row that agree with one another replace the pool):",
+            c.dissent.len()
+        );
+        header();
+        c.dissent.iter().for_each(row);
+    }
 }
 
 /// The measured curve of `cache show` and how far the recovered one is from it, in stops
@@ -145,15 +210,19 @@ fn show_measured(c: &CachedResponse, m: &MeasuredCurve) {
     }
 }
 
-/// The figure title of `cache show --plot`: camera, brackets folded in, and weight.
+/// The figure title of `cache show --plot`: camera, brackets pooled, and confidence.
 fn plot_title(c: &CachedResponse) -> String {
-    let brackets = if c.brackets == 1 {
+    let brackets = if c.pool.len() == 1 {
         "BRACKET"
     } else {
         "BRACKETS"
     };
+    let confidence = c
+        .min_confidence()
+        .map_or_else(String::new, |v| format!(", CONFIDENCE {v:.2}"));
     format!(
-        "CACHED G(B) OF {}: {} {brackets}, WEIGHT {:.2}",
-        c.camera, c.brackets, c.weight
+        "CACHED G(B) OF {}: {} {brackets} POOLED{confidence}",
+        c.camera,
+        c.pool.len()
     )
 }

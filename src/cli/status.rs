@@ -72,7 +72,7 @@ pub fn run(args: Args) -> anyhow::Result<ExitCode> {
         .list()?
         .into_iter()
         .map(|r| match r {
-            Ok(c) => json!({"camera": c.camera.to_string(), "brackets": c.brackets, "weight": c.weight, "updated": c.updated}),
+            Ok(c) => json!({"camera": c.camera.to_string(), "brackets": c.brackets, "pooled": c.pool.len(), "confidence": c.min_confidence(), "updated": c.updated}),
             Err(e) => json!({"error": e.to_string()}),
         })
         .collect();
@@ -136,10 +136,13 @@ pub fn run(args: Args) -> anyhow::Result<ExitCode> {
         match c.get("error") {
             Some(e) => println!("  unusable: {}", e.as_str().unwrap_or("")),
             None => println!(
-                "  {} ({} brackets, weight {:.2})",
+                "  {} ({} brackets, {} pooled, confidence {})",
                 c["camera"].as_str().unwrap_or(""),
                 c["brackets"],
-                c["weight"].as_f64().unwrap_or(0.0)
+                c["pooled"],
+                c["confidence"]
+                    .as_f64()
+                    .map_or_else(|| "unknown".to_string(), |v| format!("{v:.2}"))
             ),
         }
     }

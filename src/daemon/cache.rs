@@ -3,15 +3,20 @@
 //!
 //! A bracket whose own fit is weak (γ near 1, little overlap, low confidence), or whose
 //! preset says `recalibrate = "never"`, is merged with its body's cached curve. Good fits
-//! refine the cache by a confidence-weighted running mean, sample by sample:
+//! **pool their evidence**: the entry keeps the thinned tone pairs of the body's latest
+//! good brackets ([`PooledBracket`], at most [`POOL_BRACKETS`] brackets and
+//! [`POOL_SETS`] frame pairs per channel, the oldest dropped first), and its curve is one
+//! joint fit over all of them ([`crate::response::pool`]), made by the darkroom when it
+//! merges a bracket that agrees with the pool. With two jobs of one body in flight at
+//! once, each refits the pool as it was when it started, so the stored curve may lack
+//! the other's bracket until the next refit; the stored evidence never does.
 //!
-//! `g_new(B) = (W·g_old(B) + c·g_fit(B)) / (W + c)`, then `W ← min(W + c, MEMORY)`,
-//!
-//! with `c ∈ (0, 1]` the fit's confidence and `W` the accumulated weight (dimensionless).
-//! A weighted mean of non-decreasing curves with `g(0)=0, g(1)=1` keeps both properties
-//! (IEEE rounding is monotone, and `(W+c)/(W+c)` is exactly 1). Capping `W` at
-//! [`MEMORY`] lets the curve follow a body whose processing changed (firmware, picture
-//! style) instead of freezing after many brackets.
+//! A good bracket that the cached curve explains worse than its own fit by more than
+//! [`CONTRADICTION_STOPS`] (a picture style or setting changed) is not pooled: it is kept
+//! aside as a *dissent*. [`DISSENTS_TO_REPLACE`] dissents in a row that one joint fit
+//! explains (each within [`CONTRADICTION_STOPS`] of its own fit) replace the pool: the
+//! body's processing has changed and the cache follows it. A bracket that agrees with the
+//! pool clears the dissents.
 //!
 //! Beside that curve *recovered from histograms*, an entry may hold a curve *measured
 //! from raw*: the body's JPEG response read off RAW+JPEG captures
@@ -29,13 +34,24 @@ use serde::{Deserialize, Serialize};
 
 use crate::atomic::{self, Overwrite};
 use crate::daemon::bracket::CameraId;
-use crate::response::InverseResponse;
+use crate::darkroom::CONTRADICTION_STOPS;
+use crate::histogram::TonePair;
+use crate::response::pool::{self, Evidence, PairSet};
+use crate::response::{Degree, InverseResponse};
 
-/// Version written into each cache file; files of another version are refused.
-pub const VERSION: u32 = 1;
+/// Version written into each cache file. Version 1 files (a running mean, no evidence)
+/// are read as a curve without evidence, which the first pooled bracket replaces; other
+/// versions are refused.
+pub const VERSION: u32 = 2;
 
-/// Largest accumulated weight `W` (about twenty good brackets' worth).
-pub const MEMORY: f64 = 20.0;
+/// Most brackets a body's pool keeps.
+pub const POOL_BRACKETS: usize = 16;
+
+/// Most frame pairs per channel a body's pool keeps (a 9-frame bracket gives 8).
+pub const POOL_SETS: usize = 48;
+
+/// Dissenting brackets in a row that replace a body's pool (see the module docs).
+pub const DISSENTS_TO_REPLACE: usize = 3;
 
 /// Why the cache cannot be read or written.
 #[derive(Debug, thiserror::Error)]
@@ -82,14 +98,50 @@ pub struct CachedResponse {
     pub camera: CameraId,
     /// The curve.
     pub response: InverseResponse,
-    /// Accumulated weight `W` (see module docs).
-    pub weight: f64,
-    /// Brackets that contributed.
+    /// Per channel, the curve's confidence in `[0, 1]` (empty when unknown: a version-1
+    /// entry, or a placeholder).
+    pub confidence: Vec<f64>,
+    /// Good brackets folded in since the entry began (the pool keeps the latest).
     pub brackets: u64,
     /// Last update, Unix seconds.
     pub updated: u64,
+    /// The evidence of the latest good brackets, oldest first.
+    pub pool: Vec<PooledBracket>,
+    /// Good brackets in a row that contradicted the pool, oldest first.
+    pub dissent: Vec<PooledBracket>,
     /// The curve measured from RAW+JPEG captures, if any.
     pub measured: Option<MeasuredCurve>,
+}
+
+/// One good bracket's evidence in a body's pool.
+#[derive(Debug, Clone, PartialEq)]
+pub struct PooledBracket {
+    /// The bracket's output name.
+    pub name: String,
+    /// When it was developed, Unix seconds.
+    pub at: u64,
+    /// Its own fit's confidence (lowest channel).
+    pub own_confidence: f64,
+    /// How far its own fit is from its evidence, RMS stops ([`pool::agreement`]).
+    pub own_misfit: f64,
+    /// The thinned tone pairs.
+    pub evidence: Evidence,
+}
+
+impl CachedResponse {
+    /// The lowest channel confidence, if known.
+    pub fn min_confidence(&self) -> Option<f64> {
+        self.confidence.iter().copied().reduce(f64::min)
+    }
+}
+
+/// What [`ResponseCache::dissent`] did.
+#[derive(Debug, Clone, PartialEq)]
+pub enum Dissent {
+    /// The bracket was kept aside; this many dissents are now in a row.
+    Kept(usize),
+    /// The dissents replaced the pool (the body's processing changed).
+    Replaced,
 }
 
 /// A body's JPEG curve measured from raw (see the module docs).
@@ -111,10 +163,6 @@ pub const MEASURED_SOURCE: &str = "measured from raw (RAW+JPEG captures)";
 /// What the cache file says the bracket curve came from.
 pub const RECOVERED_SOURCE: &str = "recovered from histograms";
 
-/// A weight small enough that the first fit replaces the placeholder curve of a body
-/// only measured so far.
-const PLACEHOLDER_WEIGHT: f64 = 1e-9;
-
 /// The measured part of the file.
 #[derive(Debug, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
@@ -127,23 +175,177 @@ struct MeasuredFile {
     channels: Vec<Vec<f64>>,
 }
 
+/// One frame pair's tone pairs in the file: `[dark, bright, σ_dark, σ_bright, quantile]`.
+#[derive(Debug, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+struct SetFile {
+    channel: usize,
+    log_ratio: f64,
+    pairs: Vec<[f64; 5]>,
+}
+
+/// A pooled bracket in the file.
+#[derive(Debug, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+struct BracketFile {
+    name: String,
+    at: u64,
+    frames: usize,
+    own_confidence: f64,
+    own_misfit: f64,
+    sets: Vec<SetFile>,
+}
+
 /// The file layout.
 #[derive(Debug, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 struct CacheFile {
     version: u32,
     camera: CameraId,
-    weight: f64,
+    /// The running mean's weight (version 1 only).
+    #[serde(default, skip_serializing)]
+    weight: Option<f64>,
     brackets: u64,
     updated: u64,
     /// Where `channels` came from ([`RECOVERED_SOURCE`]); absent in older files.
     #[serde(default)]
     source: Option<String>,
+    /// Per channel, the curve's confidence.
+    #[serde(default)]
+    confidence: Vec<f64>,
     /// Per channel, `g(i/(n−1))`.
     channels: Vec<Vec<f64>>,
     /// The measured curve, if any.
     #[serde(default)]
     measured: Option<MeasuredFile>,
+    /// The pool's brackets, oldest first.
+    #[serde(default)]
+    pool: Vec<BracketFile>,
+    /// The dissenting brackets, oldest first.
+    #[serde(default)]
+    dissent: Vec<BracketFile>,
+}
+
+/// `v` rounded to 6 significant digits: the file's precision for tones and their
+/// standard deviations (an 8-bit code is 0.0039).
+fn round6(v: f64) -> f64 {
+    if v == 0.0 || !v.is_finite() {
+        return v;
+    }
+    let scale = 10f64.powi(5 - v.abs().log10().floor() as i32);
+    (v * scale).round() / scale
+}
+
+/// `b` at the file's precision ([`round6`]), so an entry in memory equals it read back.
+fn rounded(mut b: PooledBracket) -> PooledBracket {
+    for p in b
+        .evidence
+        .channels
+        .iter_mut()
+        .flatten()
+        .flat_map(|s| s.pairs.iter_mut())
+    {
+        p.dark = round6(p.dark);
+        p.bright = round6(p.bright);
+        p.sigma_dark = round6(p.sigma_dark);
+        p.sigma_bright = round6(p.sigma_bright);
+        p.quantile = round6(p.quantile);
+    }
+    b
+}
+
+fn bracket_file(b: &PooledBracket) -> BracketFile {
+    BracketFile {
+        name: b.name.clone(),
+        at: b.at,
+        frames: b.evidence.frames,
+        own_confidence: b.own_confidence,
+        own_misfit: b.own_misfit,
+        sets: b
+            .evidence
+            .channels
+            .iter()
+            .enumerate()
+            .flat_map(|(channel, sets)| {
+                sets.iter().map(move |s| SetFile {
+                    channel,
+                    log_ratio: s.log_ratio,
+                    pairs: s
+                        .pairs
+                        .iter()
+                        .map(|p| {
+                            [p.dark, p.bright, p.sigma_dark, p.sigma_bright, p.quantile].map(round6)
+                        })
+                        .collect(),
+                })
+            })
+            .collect(),
+    }
+}
+
+fn pooled_bracket(f: BracketFile, channels: usize) -> Result<PooledBracket, String> {
+    let mut per_channel: Vec<Vec<PairSet>> = vec![Vec::new(); channels];
+    for set in f.sets {
+        let slot = per_channel
+            .get_mut(set.channel)
+            .ok_or_else(|| format!("bracket {}: channel {} of {channels}", f.name, set.channel))?;
+        let ok = |v: f64| v.is_finite() && v >= 0.0;
+        if !(set.log_ratio.is_finite() && set.log_ratio > 0.0)
+            || set.pairs.iter().flatten().any(|&v| !ok(v))
+        {
+            return Err(format!("bracket {}: a tone pair is not usable", f.name));
+        }
+        slot.push(PairSet {
+            log_ratio: set.log_ratio,
+            pairs: set
+                .pairs
+                .iter()
+                .map(|p| TonePair {
+                    dark: p[0],
+                    bright: p[1],
+                    sigma_dark: p[2],
+                    sigma_bright: p[3],
+                    quantile: p[4],
+                })
+                .collect(),
+        });
+    }
+    if f.frames < 2 {
+        return Err(format!("bracket {}: {} frames", f.name, f.frames));
+    }
+    Ok(PooledBracket {
+        name: f.name,
+        at: f.at,
+        own_confidence: f.own_confidence,
+        own_misfit: f.own_misfit,
+        evidence: Evidence {
+            frames: f.frames,
+            channels: per_channel,
+        },
+    })
+}
+
+/// Drops the oldest brackets until at most [`POOL_BRACKETS`] remain with at most
+/// [`POOL_SETS`] frame pairs in any channel (the newest is always kept).
+fn trim(pool: &mut Vec<PooledBracket>) {
+    let most_sets = |p: &[PooledBracket]| {
+        let channels = p
+            .iter()
+            .map(|b| b.evidence.channels.len())
+            .max()
+            .unwrap_or(0);
+        (0..channels)
+            .map(|c| {
+                p.iter()
+                    .map(|b| b.evidence.channels.get(c).map_or(0, Vec::len))
+                    .sum::<usize>()
+            })
+            .max()
+            .unwrap_or(0)
+    };
+    while pool.len() > 1 && (pool.len() > POOL_BRACKETS || most_sets(pool) > POOL_SETS) {
+        pool.remove(0);
+    }
 }
 
 /// The cache folder of a state folder.
@@ -193,59 +395,96 @@ impl ResponseCache {
         }
     }
 
-    /// Folds a fit of confidence `c ∈ (0, 1]` into the body's entry (see module docs) and
-    /// publishes it. A cached curve of another channel count is replaced.
-    pub fn update(
+    /// Adds a good bracket to the body's pool (see the module docs), with `curve` and
+    /// its channels' `confidence` as the body's curve (the darkroom's refit of the pool
+    /// with this bracket, or the bracket's own fit when it starts the pool), clears the
+    /// dissents and publishes the entry. An entry of another channel count is replaced.
+    pub fn pool(
         &self,
         camera: &CameraId,
-        fit: &InverseResponse,
-        confidence: f64,
+        bracket: PooledBracket,
+        curve: &InverseResponse,
+        confidence: Vec<f64>,
         now: u64,
     ) -> Result<CachedResponse, CacheError> {
-        let c = confidence.clamp(1e-6, 1.0);
-        let old = self.get(camera)?;
-        let measured = old.as_ref().and_then(|o| o.measured.clone());
-        let entry = match old.filter(|o| o.response.channels() == fit.channels()) {
-            Some(old) => {
-                let w = old.weight;
-                let channels = (0..fit.channels())
-                    .map(|ch| {
-                        let g = old.response.samples(ch);
-                        let n = g.len();
-                        g.iter()
-                            .enumerate()
-                            .map(|(i, &g_old)| {
-                                let b = i as f64 / (n - 1) as f64;
-                                (w * g_old + c * fit.eval(ch, b)) / (w + c)
-                            })
-                            .collect()
-                    })
-                    .collect();
-                let response =
-                    InverseResponse::from_samples(channels).map_err(|e| CacheError::Invalid {
-                        path: self.path_for(camera),
-                        reason: e.to_string(),
-                    })?;
-                CachedResponse {
-                    camera: camera.clone(),
-                    response,
-                    weight: (w + c).min(MEMORY),
-                    brackets: old.brackets + 1,
-                    updated: now,
-                    measured,
-                }
+        let old = self
+            .get(camera)?
+            .filter(|o| o.response.channels() == curve.channels());
+        let (mut entry, measured) = match old {
+            Some(o) => {
+                let measured = o.measured.clone();
+                (o, measured)
             }
-            None => CachedResponse {
-                camera: camera.clone(),
-                response: fit.clone(),
-                weight: c,
-                brackets: 1,
-                updated: now,
-                measured,
-            },
+            None => (self.empty(camera, curve), None),
         };
+        entry.pool.push(rounded(bracket));
+        trim(&mut entry.pool);
+        entry.dissent.clear();
+        entry.response = curve.clone();
+        entry.confidence = confidence;
+        entry.brackets += 1;
+        entry.updated = now;
+        entry.measured = measured;
         self.put(&entry)?;
         Ok(entry)
+    }
+
+    /// Keeps a good bracket that contradicted the body's curve aside (see the module
+    /// docs); the [`DISSENTS_TO_REPLACE`]-th in a row that one joint fit explains with
+    /// the others replaces the pool. Publishes the entry.
+    pub fn dissent(
+        &self,
+        camera: &CameraId,
+        bracket: PooledBracket,
+        now: u64,
+    ) -> Result<(CachedResponse, Dissent), CacheError> {
+        let channels = bracket.evidence.channels.len();
+        let Some(mut entry) = self
+            .get(camera)?
+            .filter(|o| o.response.channels() == channels)
+        else {
+            return Err(CacheError::Invalid {
+                path: self.path_for(camera),
+                reason: "no entry of this channel count to dissent from".into(),
+            });
+        };
+        entry.dissent.push(rounded(bracket));
+        while entry.dissent.len() > DISSENTS_TO_REPLACE {
+            entry.dissent.remove(0);
+        }
+        entry.updated = now;
+        let mut outcome = Dissent::Kept(entry.dissent.len());
+        if entry.dissent.len() == DISSENTS_TO_REPLACE {
+            let evidence: Vec<&Evidence> = entry.dissent.iter().map(|b| &b.evidence).collect();
+            if let Ok(refit) = pool::refit(&evidence, Degree::Auto)
+                && entry.dissent.iter().all(|b| {
+                    pool::agreement(&b.evidence, &refit.response)
+                        <= b.own_misfit + CONTRADICTION_STOPS
+                })
+            {
+                entry.pool = std::mem::take(&mut entry.dissent);
+                entry.response = refit.response;
+                entry.confidence = refit.channels.iter().map(|c| c.fit.confidence).collect();
+                entry.brackets += DISSENTS_TO_REPLACE as u64;
+                outcome = Dissent::Replaced;
+            }
+        }
+        self.put(&entry)?;
+        Ok((entry, outcome))
+    }
+
+    /// A new entry holding `curve` and nothing else.
+    fn empty(&self, camera: &CameraId, curve: &InverseResponse) -> CachedResponse {
+        CachedResponse {
+            camera: camera.clone(),
+            response: curve.clone(),
+            confidence: Vec::new(),
+            brackets: 0,
+            updated: 0,
+            pool: Vec::new(),
+            dissent: Vec::new(),
+            measured: None,
+        }
     }
 
     /// Stores `measured` as the body's measured curve (replacing an earlier one) and
@@ -268,12 +507,9 @@ impl ResponseCache {
                 ..old
             },
             None => CachedResponse {
-                camera: camera.clone(),
-                response: measured.response.clone(),
-                weight: PLACEHOLDER_WEIGHT,
-                brackets: 0,
                 updated: now,
                 measured: Some(curve),
+                ..self.empty(camera, &measured.response)
             },
         };
         self.put(&entry)?;
@@ -289,10 +525,13 @@ impl ResponseCache {
         let file = CacheFile {
             version: VERSION,
             camera: entry.camera.clone(),
-            weight: entry.weight,
+            weight: None,
             brackets: entry.brackets,
             updated: entry.updated,
             source: Some(RECOVERED_SOURCE.to_string()),
+            confidence: entry.confidence.clone(),
+            pool: entry.pool.iter().map(bracket_file).collect(),
+            dissent: entry.dissent.iter().map(bracket_file).collect(),
             channels: (0..entry.response.channels())
                 .map(|c| entry.response.samples(c).to_vec())
                 .collect(),
@@ -402,17 +641,33 @@ fn parse(path: &Path, text: &str) -> Result<CachedResponse, CacheError> {
         reason,
     };
     let file: CacheFile = toml::from_str(text).map_err(|e| invalid(e.to_string()))?;
-    if file.version != VERSION {
+    if !(file.version == 1 || file.version == VERSION) {
         return Err(invalid(format!(
-            "version {} (this filmback reads version {VERSION}); reset it",
+            "version {} (this filmback reads versions 1 and {VERSION}); reset it",
             file.version
         )));
     }
-    if !(file.weight.is_finite() && file.weight > 0.0) {
-        return Err(invalid(format!("weight {} is not positive", file.weight)));
+    if file.version == 1 && !file.weight.is_some_and(|w| w.is_finite() && w > 0.0) {
+        return Err(invalid(format!("weight {:?} is not positive", file.weight)));
     }
     let response =
         InverseResponse::from_samples(file.channels).map_err(|e| invalid(e.to_string()))?;
+    let channels = response.channels();
+    if !(file.confidence.is_empty() || file.confidence.len() == channels)
+        || file.confidence.iter().any(|c| !(0.0..=1.0).contains(c))
+    {
+        return Err(invalid(format!(
+            "confidence {:?} does not fit {channels} channel(s)",
+            file.confidence
+        )));
+    }
+    let brackets = |list: Vec<BracketFile>| -> Result<Vec<PooledBracket>, CacheError> {
+        list.into_iter()
+            .map(|b| pooled_bracket(b, channels).map_err(invalid))
+            .collect()
+    };
+    let pool = brackets(file.pool)?;
+    let dissent = brackets(file.dissent)?;
     let measured = match file.measured {
         Some(m) => Some(MeasuredCurve {
             response: InverseResponse::from_samples(m.channels)
@@ -426,9 +681,11 @@ fn parse(path: &Path, text: &str) -> Result<CachedResponse, CacheError> {
     Ok(CachedResponse {
         camera: file.camera,
         response,
-        weight: file.weight,
+        confidence: file.confidence,
         brackets: file.brackets,
         updated: file.updated,
+        pool,
+        dissent,
         measured,
     })
 }
@@ -450,47 +707,180 @@ mod tests {
         InverseResponse::from_samples(vec![g.clone(), g.clone(), g]).unwrap()
     }
 
+    /// The evidence a body of `g = b^p` gives in a pair at ratio 4: tone pairs
+    /// `τ = 4^(1/p)·b` over the tones both frames hold.
+    fn evidence(p: f64, sets: usize) -> Evidence {
+        let step = 4f64.powf(1.0 / p);
+        let set = PairSet {
+            log_ratio: 4f64.ln(),
+            pairs: (0..200)
+                .map(|i| {
+                    let dark = 0.02 + (0.97 / step - 0.02) * f64::from(i) / 199.0;
+                    TonePair {
+                        dark,
+                        bright: dark * step,
+                        sigma_dark: 0.002,
+                        sigma_bright: 0.002,
+                        quantile: f64::from(i) / 200.0,
+                    }
+                })
+                .collect(),
+        };
+        Evidence {
+            frames: sets + 1,
+            channels: vec![vec![set; sets]; 3],
+        }
+    }
+
+    fn bracket(name: &str, p: f64, sets: usize) -> PooledBracket {
+        PooledBracket {
+            name: name.to_string(),
+            at: 1,
+            own_confidence: 0.9,
+            own_misfit: 0.0,
+            evidence: evidence(p, sets),
+        }
+    }
+
+    /// Good brackets join the pool, the newest last; past the bounds the oldest leave,
+    /// and the entry reads back as written (tones at six significant digits).
     #[test]
-    fn first_fit_is_stored_then_weighted_means_follow() {
+    fn good_brackets_pool_and_the_oldest_leave() {
         let dir = tempfile::tempdir().unwrap();
         let cache = ResponseCache::new(dir.path());
         let cam = body(Some("042"));
         assert_eq!(cache.get(&cam).unwrap(), None);
-        let first = cache.update(&cam, &power(2.0), 0.5, 10).unwrap();
-        assert_eq!(first.brackets, 1);
-        assert_eq!(first.response, power(2.0));
-        // W = 0.5; a fit of confidence 1.0 weighs twice as much:
-        // g(0.5) = (0.5·0.25 + 1.0·0.5) / 1.5.
-        let second = cache.update(&cam, &power(1.0), 1.0, 11).unwrap();
-        let expect = (0.5 * 0.25 + 0.5) / 1.5;
-        assert!((second.response.eval(1, 0.5) - expect).abs() < 1e-12);
-        assert_eq!(second.brackets, 2);
-        assert_eq!(second.weight, 1.5);
-        // Persisted exactly (TOML floats round-trip).
-        assert_eq!(cache.get(&cam).unwrap().unwrap(), second);
-        assert_eq!(second.response.eval(0, 1.0), 1.0);
+        let first = cache
+            .pool(&cam, bracket("b0", 2.2, 1), &power(2.2), vec![0.8; 3], 10)
+            .unwrap();
+        assert_eq!((first.brackets, first.pool.len()), (1, 1));
+        assert_eq!(first.min_confidence(), Some(0.8));
+        let back = cache.get(&cam).unwrap().unwrap();
+        assert_eq!(back.response, first.response);
+        let (a, b) = (&back.pool[0].evidence, &first.pool[0].evidence);
+        assert_eq!(a.channels[2][0].pairs.len(), b.channels[2][0].pairs.len());
+        let d = a.channels[2][0].pairs[7].dark / b.channels[2][0].pairs[7].dark;
+        assert!((d - 1.0).abs() < 1e-5, "{d}");
+        for k in 1..20 {
+            cache
+                .pool(
+                    &cam,
+                    bracket(&format!("b{k}"), 2.2, 1),
+                    &power(2.2),
+                    vec![0.8; 3],
+                    10,
+                )
+                .unwrap();
+        }
+        let e = cache.get(&cam).unwrap().unwrap();
+        assert_eq!((e.brackets, e.pool.len()), (20, POOL_BRACKETS));
+        assert_eq!(e.pool[0].name, "b4");
+        // Nine-frame brackets: eight frame pairs each, at most POOL_SETS per channel.
+        let e = cache
+            .pool(&cam, bracket("wide", 2.2, 8), &power(2.2), vec![0.8; 3], 11)
+            .unwrap();
+        let sets: usize = e.pool.iter().map(|b| b.evidence.channels[0].len()).sum();
+        assert!(sets <= POOL_SETS, "{sets}");
+        assert_eq!(e.pool.last().unwrap().name, "wide");
     }
 
+    /// Three dissents in a row that agree with one another replace the pool; a bracket
+    /// that agrees with the pool in between clears them.
     #[test]
-    fn weight_is_capped_so_the_curve_keeps_following() {
+    fn dissents_in_a_row_replace_the_pool() {
+        let dir = tempfile::tempdir().unwrap();
+        let cache = ResponseCache::new(dir.path());
+        let cam = body(Some("9"));
+        cache
+            .pool(&cam, bracket("old", 2.2, 1), &power(2.2), vec![0.8; 3], 1)
+            .unwrap();
+        for k in 0..2 {
+            let (e, d) = cache
+                .dissent(&cam, bracket(&format!("d{k}"), 1.4, 1), 2)
+                .unwrap();
+            assert_eq!(d, Dissent::Kept(k + 1));
+            assert_eq!(e.response, power(2.2));
+        }
+        let e = cache
+            .pool(
+                &cam,
+                bracket("agrees", 2.2, 1),
+                &power(2.2),
+                vec![0.8; 3],
+                3,
+            )
+            .unwrap();
+        assert!(e.dissent.is_empty());
+        for k in 0..2 {
+            cache
+                .dissent(&cam, bracket(&format!("n{k}"), 1.4, 1), 4)
+                .unwrap();
+        }
+        let (e, d) = cache.dissent(&cam, bracket("n2", 1.4, 1), 5).unwrap();
+        assert_eq!(d, Dissent::Replaced);
+        assert_eq!(e.pool.len(), DISSENTS_TO_REPLACE);
+        assert!(e.dissent.is_empty());
+        let g = e.response.eval(1, 0.5);
+        assert!((g.log2() - 0.5f64.powf(1.4).log2()).abs() < 0.05, "{g}");
+        assert_eq!(cache.get(&cam).unwrap().unwrap(), e);
+    }
+
+    /// Three dissents that do not agree with one another (two processings) do not replace
+    /// the pool.
+    #[test]
+    fn dissents_that_disagree_keep_the_pool() {
         let dir = tempfile::tempdir().unwrap();
         let cache = ResponseCache::new(dir.path());
         let cam = body(None);
-        for i in 0..30 {
-            cache.update(&cam, &power(2.0), 1.0, i).unwrap();
+        cache
+            .pool(&cam, bracket("old", 2.2, 1), &power(2.2), vec![0.8; 3], 1)
+            .unwrap();
+        for (k, p) in [1.4, 3.2, 1.4].into_iter().enumerate() {
+            let (e, d) = cache
+                .dissent(&cam, bracket(&format!("d{k}"), p, 1), 2)
+                .unwrap();
+            assert_eq!(d, Dissent::Kept(k + 1));
+            assert_eq!(e.pool[0].name, "old");
         }
-        let e = cache.update(&cam, &power(1.0), 1.0, 99).unwrap();
-        assert_eq!(e.weight, MEMORY);
-        let expect = (MEMORY * 0.25 + 0.5) / (MEMORY + 1.0);
-        assert!((e.response.eval(0, 0.5) - expect).abs() < 1e-12);
+    }
+
+    /// An entry of version 1 (a running mean) reads as a curve without evidence.
+    #[test]
+    fn version_one_entries_read_as_a_curve_without_evidence() {
+        let dir = tempfile::tempdir().unwrap();
+        let cache = ResponseCache::new(dir.path());
+        let cam = body(Some("1"));
+        std::fs::create_dir_all(cache.dir()).unwrap();
+        std::fs::write(
+            cache.path_for(&cam),
+            "version = 1\nweight = 2.5\nbrackets = 3\nupdated = 5\n\
+             channels = [[0.0, 0.25, 1.0], [0.0, 0.25, 1.0], [0.0, 0.25, 1.0]]\n\
+             [camera]\nmake = \"Canon\"\nmodel = \"Canon EOS R5\"\nserial = \"1\"\n",
+        )
+        .unwrap();
+        let e = cache.get(&cam).unwrap().unwrap();
+        assert_eq!((e.brackets, e.pool.len()), (3, 0));
+        assert_eq!(e.min_confidence(), None);
+        assert!((e.response.eval(0, 0.5) - 0.25).abs() < 1e-12);
     }
 
     #[test]
     fn list_find_reset() {
         let dir = tempfile::tempdir().unwrap();
         let cache = ResponseCache::new(dir.path());
-        cache.update(&body(Some("1")), &power(2.0), 1.0, 1).unwrap();
-        cache.update(&body(Some("2")), &power(2.2), 1.0, 1).unwrap();
+        let one = |serial: &str, p: f64| {
+            cache
+                .pool(
+                    &body(Some(serial)),
+                    bracket("b", p, 1),
+                    &power(p),
+                    vec![1.0; 3],
+                    1,
+                )
+                .unwrap()
+        };
+        one("1", 2.0);
+        one("2", 2.2);
         assert_eq!(cache.list().unwrap().len(), 2);
         assert!(matches!(
             cache.find("eos r5"),
@@ -538,7 +928,9 @@ mod tests {
         let text = fs::read_to_string(cache.path_for(&cam)).unwrap();
         assert!(text.contains(MEASURED_SOURCE) && text.contains(RECOVERED_SOURCE));
         // The first fit replaces the placeholder, the measured curve stays.
-        let fitted = cache.update(&cam, &power(1.0), 1.0, 6).unwrap();
+        let fitted = cache
+            .pool(&cam, bracket("b", 1.0, 1), &power(1.0), vec![1.0; 3], 6)
+            .unwrap();
         assert!((fitted.response.eval(0, 0.5) - 0.5).abs() < 1e-6);
         assert_eq!(fitted.measured, first.measured);
         assert_eq!(fitted.brackets, 1);
@@ -553,13 +945,23 @@ mod tests {
         let dir = tempfile::tempdir().unwrap();
         let cache = ResponseCache::new(dir.path());
         let cam = body(None);
-        cache.update(&cam, &power(2.0), 1.0, 1).unwrap();
+        cache
+            .pool(&cam, bracket("b", 2.0, 1), &power(2.0), vec![1.0; 3], 1)
+            .unwrap();
         let path = cache.path_for(&cam);
         let text = fs::read_to_string(&path).unwrap();
-        fs::write(&path, text.replace("version = 1", "version = 7")).unwrap();
+        fs::write(&path, text.replace("version = 2", "version = 7")).unwrap();
         let err = cache.get(&cam).unwrap_err().to_string();
         assert!(
             err.contains("canon-eos-r5.toml") && err.contains("version 7"),
+            "{err}"
+        );
+        let damaged = text.replacen("log_ratio = 1.3", "log_ratio = -1.3", 1);
+        assert_ne!(damaged, text);
+        fs::write(&path, damaged).unwrap();
+        let err = cache.get(&cam).unwrap_err().to_string();
+        assert!(
+            err.contains("canon-eos-r5.toml") && err.contains("not usable"),
             "{err}"
         );
         fs::write(&path, "version = 1\n").unwrap();

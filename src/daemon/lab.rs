@@ -28,7 +28,9 @@ use crate::atomic::{self, Overwrite, PublishError};
 use crate::daemon::bracket::{CameraId, Capture};
 use crate::daemon::cache::CachedResponse;
 use crate::daemon::config::{Preset, Recalibrate};
-use crate::darkroom::{self, DarkroomError, GivenResponse, Prints, ResponsePolicy, Source};
+use crate::darkroom::{
+    self, DarkroomError, GivenResponse, Pooling, Prints, ResponsePolicy, Source,
+};
 use crate::film::{Catalogue, ColourMode, Key};
 use crate::frame::{self, Limits, LoadedFrame};
 use crate::hdr_output::ExrOptions;
@@ -72,8 +74,13 @@ pub struct Processed {
     pub outputs: Vec<PathBuf>,
     /// Where the response came from.
     pub source: Source,
-    /// The bracket's own fit and its confidence in `(0, 1]`, to refine the cache.
+    /// The bracket's own fit and its confidence in `(0, 1]`.
     pub fit: Option<(InverseResponse, f64)>,
+    /// A good fit's evidence for the body's pool, and the pool's refit (see
+    /// [`crate::darkroom::Pooling`]).
+    pub pooling: Option<Pooling>,
+    /// True when the good fit contradicted the cached curve: its evidence is a dissent.
+    pub contradicts_cache: bool,
     /// Wall time per stage, in order (`decode`, `merge`, `exr`, …).
     pub stages: Vec<(&'static str, Duration)>,
     /// Things worth a warning (e.g. a requested look this lab does not render).
@@ -171,7 +178,14 @@ impl DarkroomLab {
             Some(c) if c.response.channels() == channels => GivenResponse {
                 response: c.response.clone(),
                 source: Source::Cached,
-                label: format!("cached curve of {} ({} bracket(s))", c.camera, c.brackets),
+                label: match c.min_confidence() {
+                    Some(conf) => format!(
+                        "cached curve of {} (pooled from {} bracket(s), confidence {conf:.2})",
+                        c.camera,
+                        c.pool.len()
+                    ),
+                    None => format!("cached curve of {} ({} bracket(s))", c.camera, c.brackets),
+                },
             },
             _ => GivenResponse::standard(channels),
         }
@@ -272,12 +286,9 @@ impl Lab for DarkroomLab {
         Ok(Processed {
             outputs,
             source: developed.response.source,
-            // A bracket that contradicts the cached curve is reported (its note), not
-            // averaged into the cache.
-            fit: developed
-                .response
-                .fit
-                .filter(|_| !developed.response.contradicts_cache),
+            fit: developed.response.fit,
+            pooling: developed.response.pooling,
+            contradicts_cache: developed.response.contradicts_cache,
             stages,
             notes,
             measured,
@@ -343,10 +354,17 @@ impl DarkroomLab {
                 Recalibrate::Always => ResponsePolicy::Fit {
                     fallback: Some(GivenResponse::standard(channels)),
                     min_confidence: 0.0,
+                    pool: Vec::new(),
                 },
                 Recalibrate::Auto => ResponsePolicy::Fit {
                     fallback: Some(fallback),
                     min_confidence: preset.min_confidence,
+                    pool: job
+                        .cached
+                        .iter()
+                        .filter(|c| c.response.channels() == channels)
+                        .flat_map(|c| c.pool.iter().map(|b| b.evidence.clone()))
+                        .collect(),
                 },
             };
             Ok(darkroom::develop(

@@ -7,12 +7,14 @@ use std::time::{Duration, Instant};
 
 use tracing::{error, info, warn};
 
-use super::bracket::{Alone, Bracket, Closed};
+use super::bracket::{Alone, Bracket, CameraId, Closed};
+use super::cache::{DISSENTS_TO_REPLACE, Dissent, PooledBracket};
 use super::config::{Recalibrate, Singles};
 use super::journal::{self, Entry};
 use super::{
     DaemonError, Job, JobError, MAX_RETRY, Outcome, Processed, State, Work, file_stem, job_bytes,
 };
+use crate::darkroom::Pooling;
 
 impl State {
     pub(super) fn dispatch(&mut self) -> Result<(), DaemonError> {
@@ -140,6 +142,45 @@ impl State {
         }
     }
 
+    /// A good bracket's evidence into the body's pool, or aside as a dissent when it
+    /// contradicted the cached curve (see [`crate::daemon::cache`]); failures are
+    /// warnings, the outputs stand.
+    fn pool(&self, camera: &CameraId, name: &str, dev: &Processed, pooling: &Pooling) {
+        let now = journal::unix_now();
+        let bracket = PooledBracket {
+            name: name.to_string(),
+            at: now,
+            own_confidence: pooling.own_confidence.iter().copied().fold(1.0, f64::min),
+            own_misfit: pooling.own_misfit,
+            evidence: pooling.evidence.clone(),
+        };
+        let result = if dev.contradicts_cache {
+            self.cache.dissent(camera, bracket, now).map(|(entry, d)| match d {
+                Dissent::Kept(n) => info!(
+                    camera = %camera,
+                    "bracket {name} contradicts the body's curve; kept aside ({n} of {DISSENTS_TO_REPLACE} in a row replace it)"
+                ),
+                Dissent::Replaced => warn!(
+                    camera = %camera,
+                    "the body's curve changed: {DISSENTS_TO_REPLACE} brackets in a row agree with each other and not with the old pool; they replace it (confidence {:.2})",
+                    entry.min_confidence().unwrap_or(0.0)
+                ),
+            })
+        } else {
+            let (curve, confidence) = match (&pooling.pooled, &dev.fit) {
+                (Some((curve, confidence)), _) => (curve, confidence.clone()),
+                (None, Some((own, _))) => (own, pooling.own_confidence.clone()),
+                (None, None) => return,
+            };
+            self.cache
+                .pool(camera, bracket, curve, confidence, now)
+                .map(|_| ())
+        };
+        if let Err(e) = result {
+            warn!(error = %e, "cannot update the response cache");
+        }
+    }
+
     pub(super) fn release(&mut self, closed: &Closed) {
         for f in closed.frames() {
             self.taken.remove(&f.input.path);
@@ -190,14 +231,10 @@ impl State {
         let preset = self
             .config
             .preset_for(camera.model.as_deref(), camera.serial.as_deref());
-        if let Some((fit, confidence)) = &dev.fit
-            && *confidence >= preset.min_confidence
-            && preset.recalibrate != Recalibrate::Never
-            && let Err(e) = self
-                .cache
-                .update(&camera, fit, *confidence, journal::unix_now())
+        if let Some(pooling) = &dev.pooling
+            && preset.recalibrate == Recalibrate::Auto
         {
-            warn!(error = %e, "cannot update the response cache");
+            self.pool(&camera, &closed.stem(), dev, pooling);
         }
         if let Some(measured) = &dev.measured
             && let Err(e) = self

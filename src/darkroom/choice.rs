@@ -13,6 +13,13 @@
 //! why — unless the bracket contradicts the fallback: if the fallback explains the tone
 //! pairs worse than the weak fit by more than 0.05 stop RMS (`log₂(g(τ)/(γ·g(b)))`), the
 //! fit is kept, with a note. [`ResponsePolicy::Use`] takes a curve as given (a response file, the cache, sRGB).
+//!
+//! **A body's pool.** A good fit (confidence at least `min_confidence`) that the cached
+//! curve does not contradict joins the evidence of the body's earlier good brackets
+//! given in the policy: one joint fit over all of them ([`response::pool::refit`]) is the
+//! curve the bracket is merged with ([`Source::Pooled`]), and the bracket's evidence is
+//! returned for the daemon to keep ([`Pooling`]). A bracket that contradicts the cached
+//! curve is merged with its own fit and its evidence returned as a dissent.
 
 use std::path::Path;
 use std::time::Instant;
@@ -20,6 +27,7 @@ use std::time::Instant;
 use super::{DarkroomError, Stages, file_name};
 use crate::histogram::Histogram;
 use crate::merge::BracketFrame;
+use crate::response::pool::{self, Evidence};
 use crate::response::{self, Calibration, Degree, InverseResponse, Ratio, RatioSource};
 
 /// Pixels per frame the calibration histograms look at (a speed knob measured in
@@ -41,6 +49,9 @@ pub enum Source {
     Standard,
     /// A camera raw: linear after the black level, clipped at the white level.
     Raw,
+    /// One fit over this bracket and the body's earlier good brackets (see the module
+    /// docs).
+    Pooled,
 }
 
 impl std::fmt::Display for Source {
@@ -51,6 +62,7 @@ impl std::fmt::Display for Source {
             Source::File => "file",
             Source::Standard => "standard (sRGB)",
             Source::Raw => "linear (raw)",
+            Source::Pooled => "pooled (this body's brackets)",
         })
     }
 }
@@ -87,6 +99,8 @@ pub enum ResponsePolicy {
         fallback: Option<GivenResponse>,
         /// The confidence a fit needs to be used.
         min_confidence: f64,
+        /// The evidence of the body's earlier good brackets (empty: none).
+        pool: Vec<Evidence>,
     },
     /// Use this curve.
     Use(GivenResponse),
@@ -112,6 +126,23 @@ pub struct ChosenResponse {
     /// its frames worse by more than [`CONTRADICTION_STOPS`] (a picture style or setting
     /// changed): the daemon reports it and keeps the cache as it was.
     pub contradicts_cache: bool,
+    /// A good fit's evidence for the body's pool, and the pool's refit if one was made.
+    pub pooling: Option<Pooling>,
+}
+
+/// What a good fit gives the body's pool (see the module docs).
+#[derive(Debug, Clone)]
+pub struct Pooling {
+    /// This bracket's tone pairs, thinned ([`Evidence::of`]).
+    pub evidence: Evidence,
+    /// How far the bracket's own fit is from explaining that evidence, RMS stops
+    /// ([`pool::agreement`]).
+    pub own_misfit: f64,
+    /// The bracket's own fit's confidence per channel.
+    pub own_confidence: Vec<f64>,
+    /// The curve refitted over the given pool and this bracket, with its channels'
+    /// confidences, when the bracket was pooled (a pool was given and agreed).
+    pub pooled: Option<(InverseResponse, Vec<f64>)>,
 }
 
 /// Chooses the response for `bracket` under `policy`; `ratio_source` says where the
@@ -122,12 +153,13 @@ pub fn choose_response(
     policy: ResponsePolicy,
     stages: &mut Stages,
 ) -> Result<ChosenResponse, DarkroomError> {
-    let (fallback, min_confidence) = match policy {
+    let (fallback, min_confidence, body_pool) = match policy {
         ResponsePolicy::Use(given) => return Ok(use_given(given, Vec::new(), None)),
         ResponsePolicy::Fit {
             fallback,
             min_confidence,
-        } => (fallback, min_confidence),
+            pool,
+        } => (fallback, min_confidence, pool),
     };
     let mut order: Vec<usize> = (0..bracket.len()).collect();
     order.sort_by(|&a, &b| bracket[a].exposure.total_cmp(&bracket[b].exposure));
@@ -273,6 +305,114 @@ pub fn choose_response(
             given.label
         ));
     }
+    let mut pooling = (confidence >= min_confidence).then(|| {
+        let evidence = Evidence::of(&calibration, sources.len());
+        let own_misfit = pool::agreement(&evidence, &calibration.response);
+        Pooling {
+            evidence,
+            own_misfit,
+            own_confidence: calibration
+                .channels
+                .iter()
+                .map(|c| c.fit.confidence)
+                .collect(),
+            pooled: None,
+        }
+    });
+    if !contradicts_cache
+        && !body_pool.is_empty()
+        && let Some(own) = pooling.take()
+    {
+        let t = Instant::now();
+        let refit = {
+            let all: Vec<&Evidence> = body_pool
+                .iter()
+                .chain(std::iter::once(&own.evidence))
+                .collect();
+            pool::refit(&all, Degree::Auto)
+        };
+        stages.push(("pool", t.elapsed()));
+        match refit {
+            Ok(pooled) => {
+                let brackets = body_pool.len() + 1;
+                return Ok(use_pooled(pooled, own, brackets, fit, report, notes));
+            }
+            Err(e) => notes.push(format!(
+                "the body's {} pooled bracket(s) with this one could not be refitted ({e}); used this bracket's own fit",
+                body_pool.len()
+            )),
+        }
+        pooling = Some(own);
+    }
+    Ok(use_own(
+        calibration,
+        confidence,
+        &pair,
+        ratio,
+        ratio_source,
+        report,
+        notes,
+        contradicts_cache,
+        pooling,
+    ))
+}
+
+/// The bracket merged with the pool's refit `pooled` over `brackets` brackets, this one
+/// included.
+fn use_pooled(
+    pooled: Calibration,
+    mut pooling: Pooling,
+    brackets: usize,
+    own_fit: Option<(InverseResponse, f64)>,
+    own_report: serde_json::Value,
+    notes: Vec<String>,
+) -> ChosenResponse {
+    let own_confidence = own_fit.as_ref().map_or(0.0, |f| f.1);
+    let confidences: Vec<f64> = pooled.channels.iter().map(|c| c.fit.confidence).collect();
+    let confidence = confidences.iter().copied().fold(f64::INFINITY, f64::min);
+    let report = serde_json::json!({
+        "source": Source::Pooled,
+        "brackets": brackets,
+        "confidence": confidence,
+        "channels": pooled.channels.iter().map(|c| serde_json::json!({
+            "name": c.name,
+            "model": c.fit.model(),
+            "covered": [c.fit.covered.0, c.fit.covered.1],
+            "residual_rms_stops": c.fit.residual_rms,
+            "confidence": c.fit.confidence,
+            "borrowed_from": c.borrowed_from,
+        })).collect::<Vec<_>>(),
+        "own_fit": own_report,
+    });
+    pooling.pooled = Some((pooled.response.clone(), confidences));
+    ChosenResponse {
+        summary: format!(
+            "pooled from {brackets} brackets of this body (this one's own fit: confidence {own_confidence:.2}); confidence {confidence:.2}"
+        ),
+        response: pooled.response,
+        source: Source::Pooled,
+        report,
+        fit: own_fit,
+        notes,
+        contradicts_cache: false,
+        pooling: Some(pooling),
+    }
+}
+
+/// The bracket merged with its own fit.
+#[allow(clippy::too_many_arguments)]
+fn use_own(
+    calibration: Calibration,
+    confidence: f64,
+    pair: &str,
+    ratio: f64,
+    ratio_source: RatioSource,
+    report: serde_json::Value,
+    mut notes: Vec<String>,
+    contradicts_cache: bool,
+    pooling: Option<Pooling>,
+) -> ChosenResponse {
+    let fit = Some((calibration.response.clone(), confidence));
     let sizes: Vec<String> = calibration
         .channels
         .iter()
@@ -288,7 +428,7 @@ pub fn choose_response(
             "low-confidence response fit ({confidence:.2}) from {pair}: check the result or give a response file"
         ));
     }
-    Ok(ChosenResponse {
+    ChosenResponse {
         response: calibration.response,
         source: Source::Fitted,
         summary: format!(
@@ -300,7 +440,8 @@ pub fn choose_response(
         fit,
         notes,
         contradicts_cache,
-    })
+        pooling,
+    }
 }
 
 /// How much worse (RMS, stops) a fallback may explain the bracket's tone pairs than the
@@ -340,5 +481,6 @@ pub(super) fn use_given(
         fit,
         notes,
         contradicts_cache: false,
+        pooling: None,
     }
 }

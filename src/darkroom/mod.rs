@@ -35,8 +35,8 @@ mod raw;
 use choice::use_given;
 
 pub use choice::{
-    CALIBRATION_PIXELS, CONTRADICTION_STOPS, ChosenResponse, GivenResponse, ResponsePolicy, Source,
-    choose_response,
+    CALIBRATION_PIXELS, CONTRADICTION_STOPS, ChosenResponse, GivenResponse, Pooling,
+    ResponsePolicy, Source, choose_response,
 };
 
 /// Why a bracket could not be developed. Each variant names the file concerned.

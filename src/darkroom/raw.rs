@@ -66,6 +66,7 @@ pub(super) fn merge(
         fit: None,
         notes: Vec::new(),
         contradicts_cache: false,
+        pooling: None,
     };
     Ok(Some((
         chosen,
