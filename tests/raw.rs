@@ -745,7 +745,7 @@ fn jpeg_curve_measured_from_raw_against_the_true_curve() {
         ResponsePolicy::Fit {
             fallback: Some(GivenResponse::standard(3)),
             min_confidence: 0.0,
-            pool: Vec::new(),
+            pool: None,
         },
         &mut Vec::new(),
     )

@@ -389,6 +389,6 @@ fn response_policy(args: &Args, channels: usize) -> anyhow::Result<ResponsePolic
     Ok(ResponsePolicy::Fit {
         fallback: None,
         min_confidence: 0.0,
-        pool: Vec::new(),
+        pool: None,
     })
 }

@@ -6,10 +6,10 @@
 //! **pool their evidence**: the entry keeps the thinned tone pairs of the body's latest
 //! good brackets ([`PooledBracket`], at most [`POOL_BRACKETS`] brackets and
 //! [`POOL_SETS`] frame pairs per channel, the oldest dropped first), and its curve is one
-//! joint fit over all of them ([`crate::response::pool`]), made by the darkroom when it
-//! merges a bracket that agrees with the pool. With two jobs of one body in flight at
-//! once, each refits the pool as it was when it started, so the stored curve may lack
-//! the other's bracket until the next refit; the stored evidence never does.
+//! joint fit over all of them ([`crate::response::pool`]), made by the lab after it
+//! publishes a good bracket that agrees with the pool. With two jobs of one body in
+//! flight at once, each refits the pool as it was when it started, so the stored curve
+//! may lack the other's bracket until the next refit; the stored evidence never does.
 //!
 //! A good bracket that the cached curve explains worse than its own fit by more than
 //! [`CONTRADICTION_STOPS`] (a picture style or setting changed) is not pooled: it is kept

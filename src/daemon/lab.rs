@@ -29,7 +29,7 @@ use crate::daemon::bracket::{CameraId, Capture};
 use crate::daemon::cache::CachedResponse;
 use crate::daemon::config::{Preset, Recalibrate};
 use crate::darkroom::{
-    self, DarkroomError, GivenResponse, Pooling, Prints, ResponsePolicy, Source,
+    self, BodyPool, DarkroomError, GivenResponse, Pooling, Prints, ResponsePolicy, Source,
 };
 use crate::film::{Catalogue, ColourMode, Key};
 use crate::frame::{self, Limits, LoadedFrame};
@@ -37,7 +37,8 @@ use crate::hdr_output::ExrOptions;
 use crate::merge::MergeOptions;
 use crate::radiance::RadianceMap;
 use crate::rendering::{self, Format, Look, SourceExif};
-use crate::response::{InverseResponse, JpegMeter, MeasuredResponse, RatioSource};
+use crate::response::pool::{self, Evidence};
+use crate::response::{Degree, InverseResponse, JpegMeter, MeasuredResponse, RatioSource};
 
 /// One unit of work: a bracket (two or more frames) or a single frame.
 #[derive(Debug, Clone)]
@@ -283,11 +284,20 @@ impl Lab for DarkroomLab {
         stages.extend(developed.stages);
         let mut notes = developed.warnings;
         notes.extend(measure_notes);
+        let mut pooling = developed.response.pooling;
+        if let Some(p) = pooling.as_mut()
+            && !developed.response.contradicts_cache
+        {
+            // After publishing: the refit is for the body's next brackets.
+            let t = std::time::Instant::now();
+            p.pooled = refit_pool(job.cached.as_ref(), p, &mut notes);
+            stages.push(("pool", t.elapsed()));
+        }
         Ok(Processed {
             outputs,
             source: developed.response.source,
             fit: developed.response.fit,
-            pooling: developed.response.pooling,
+            pooling,
             contradicts_cache: developed.response.contradicts_cache,
             stages,
             notes,
@@ -354,17 +364,21 @@ impl DarkroomLab {
                 Recalibrate::Always => ResponsePolicy::Fit {
                     fallback: Some(GivenResponse::standard(channels)),
                     min_confidence: 0.0,
-                    pool: Vec::new(),
+                    pool: None,
                 },
                 Recalibrate::Auto => ResponsePolicy::Fit {
                     fallback: Some(fallback),
                     min_confidence: preset.min_confidence,
                     pool: job
                         .cached
-                        .iter()
-                        .filter(|c| c.response.channels() == channels)
-                        .flat_map(|c| c.pool.iter().map(|b| b.evidence.clone()))
-                        .collect(),
+                        .as_ref()
+                        .filter(|c| c.response.channels() == channels && !c.pool.is_empty())
+                        .and_then(|c| {
+                            Some(BodyPool {
+                                brackets: c.pool.len(),
+                                confidence: c.min_confidence()?,
+                            })
+                        }),
                 },
             };
             Ok(darkroom::develop(
@@ -375,6 +389,37 @@ impl DarkroomLab {
                 MergeOptions::default(),
                 &prints,
             )?)
+        }
+    }
+}
+
+/// The body's pool refitted with a good bracket's evidence (its curve and channel
+/// confidences); `None` when the body has no pool yet (its curve becomes the bracket's
+/// own fit). A pool that cannot be refitted keeps its curve, with a note.
+fn refit_pool(
+    cached: Option<&CachedResponse>,
+    own: &Pooling,
+    notes: &mut Vec<String>,
+) -> Option<(InverseResponse, Vec<f64>)> {
+    let cached = cached
+        .filter(|c| !c.pool.is_empty() && c.response.channels() == own.evidence.channels.len())?;
+    let all: Vec<&Evidence> = cached
+        .pool
+        .iter()
+        .map(|b| &b.evidence)
+        .chain(std::iter::once(&own.evidence))
+        .collect();
+    match pool::refit(&all, Degree::Auto) {
+        Ok(c) => {
+            let confidence = c.channels.iter().map(|ch| ch.fit.confidence).collect();
+            Some((c.response, confidence))
+        }
+        Err(e) => {
+            notes.push(format!(
+                "the body's {} pooled bracket(s) could not be refitted with this one ({e}); its curve stays as it was",
+                cached.pool.len()
+            ));
+            Some((cached.response.clone(), cached.confidence.clone()))
         }
     }
 }

@@ -15,11 +15,13 @@
 //! fit is kept, with a note. [`ResponsePolicy::Use`] takes a curve as given (a response file, the cache, sRGB).
 //!
 //! **A body's pool.** A good fit (confidence at least `min_confidence`) that the cached
-//! curve does not contradict joins the evidence of the body's earlier good brackets
-//! given in the policy: one joint fit over all of them ([`response::pool::refit`]) is the
-//! curve the bracket is merged with ([`Source::Pooled`]), and the bracket's evidence is
-//! returned for the daemon to keep ([`Pooling`]). A bracket that contradicts the cached
-//! curve is merged with its own fit and its evidence returned as a dissent.
+//! curve does not contradict agrees with the body: when that curve is the body's pool
+//! ([`BodyPool`]: one fit over the evidence of its earlier good brackets) and is at least
+//! as confident as the bracket's own fit, the bracket is merged with it
+//! ([`Source::Pooled`]); either way its evidence is returned ([`Pooling`]) for the daemon
+//! to pool and refit after the outputs are published, off the bracket's critical path. A
+//! bracket that contradicts the cached curve is merged with its own fit and its evidence
+//! returned as a dissent.
 
 use std::path::Path;
 use std::time::Instant;
@@ -99,8 +101,8 @@ pub enum ResponsePolicy {
         fallback: Option<GivenResponse>,
         /// The confidence a fit needs to be used.
         min_confidence: f64,
-        /// The evidence of the body's earlier good brackets (empty: none).
-        pool: Vec<Evidence>,
+        /// Set when `fallback` is the body's pooled curve.
+        pool: Option<BodyPool>,
     },
     /// Use this curve.
     Use(GivenResponse),
@@ -130,6 +132,15 @@ pub struct ChosenResponse {
     pub pooling: Option<Pooling>,
 }
 
+/// The body's pooled curve behind a cached fallback (see the module docs).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct BodyPool {
+    /// Brackets the curve was fitted over.
+    pub brackets: usize,
+    /// Its lowest channel confidence.
+    pub confidence: f64,
+}
+
 /// What a good fit gives the body's pool (see the module docs).
 #[derive(Debug, Clone)]
 pub struct Pooling {
@@ -140,8 +151,8 @@ pub struct Pooling {
     pub own_misfit: f64,
     /// The bracket's own fit's confidence per channel.
     pub own_confidence: Vec<f64>,
-    /// The curve refitted over the given pool and this bracket, with its channels'
-    /// confidences, when the bracket was pooled (a pool was given and agreed).
+    /// The body's pool refitted with this bracket, with its channels' confidences (set
+    /// by the daemon after publishing; `None` from the darkroom).
     pub pooled: Option<(InverseResponse, Vec<f64>)>,
 }
 
@@ -225,7 +236,7 @@ pub fn choose_response(
         );
         (fitted, ratio, pair, vec![dark.source, bright.source])
     };
-    let (calibration, fallback) = match (fitted, fallback) {
+    let (calibration, mut fallback) = match (fitted, fallback) {
         (Ok(c), fallback) => (c, fallback),
         (Err(source), None) => {
             return Err(DarkroomError::Calibrate {
@@ -284,7 +295,7 @@ pub fn choose_response(
         }
     }
     if confidence < min_confidence
-        && let Some(given) = fallback
+        && let Some(given) = fallback.take()
     {
         // A fallback is only better than a weak fit if the bracket does not contradict it.
         let fit_misfit = misfit(&calibration, &calibration.response);
@@ -305,7 +316,7 @@ pub fn choose_response(
             given.label
         ));
     }
-    let mut pooling = (confidence >= min_confidence).then(|| {
+    let pooling = (confidence >= min_confidence).then(|| {
         let evidence = Evidence::of(&calibration, sources.len());
         let own_misfit = pool::agreement(&evidence, &calibration.response);
         Pooling {
@@ -320,29 +331,11 @@ pub fn choose_response(
         }
     });
     if !contradicts_cache
-        && !body_pool.is_empty()
-        && let Some(own) = pooling.take()
+        && let Some(body) = body_pool.filter(|b| b.confidence >= confidence)
+        && let Some(cached) = fallback.take().filter(|g| g.source == Source::Cached)
+        && pooling.is_some()
     {
-        let t = Instant::now();
-        let refit = {
-            let all: Vec<&Evidence> = body_pool
-                .iter()
-                .chain(std::iter::once(&own.evidence))
-                .collect();
-            pool::refit(&all, Degree::Auto)
-        };
-        stages.push(("pool", t.elapsed()));
-        match refit {
-            Ok(pooled) => {
-                let brackets = body_pool.len() + 1;
-                return Ok(use_pooled(pooled, own, brackets, fit, report, notes));
-            }
-            Err(e) => notes.push(format!(
-                "the body's {} pooled bracket(s) with this one could not be refitted ({e}); used this bracket's own fit",
-                body_pool.len()
-            )),
-        }
-        pooling = Some(own);
+        return Ok(use_pooled(cached, body, fit, report, notes, pooling));
     }
     Ok(use_own(
         calibration,
@@ -357,45 +350,34 @@ pub fn choose_response(
     ))
 }
 
-/// The bracket merged with the pool's refit `pooled` over `brackets` brackets, this one
-/// included.
+/// The bracket merged with the body's pooled curve `cached`, which it agrees with.
 fn use_pooled(
-    pooled: Calibration,
-    mut pooling: Pooling,
-    brackets: usize,
+    cached: GivenResponse,
+    body: BodyPool,
     own_fit: Option<(InverseResponse, f64)>,
     own_report: serde_json::Value,
     notes: Vec<String>,
+    pooling: Option<Pooling>,
 ) -> ChosenResponse {
     let own_confidence = own_fit.as_ref().map_or(0.0, |f| f.1);
-    let confidences: Vec<f64> = pooled.channels.iter().map(|c| c.fit.confidence).collect();
-    let confidence = confidences.iter().copied().fold(f64::INFINITY, f64::min);
-    let report = serde_json::json!({
-        "source": Source::Pooled,
-        "brackets": brackets,
-        "confidence": confidence,
-        "channels": pooled.channels.iter().map(|c| serde_json::json!({
-            "name": c.name,
-            "model": c.fit.model(),
-            "covered": [c.fit.covered.0, c.fit.covered.1],
-            "residual_rms_stops": c.fit.residual_rms,
-            "confidence": c.fit.confidence,
-            "borrowed_from": c.borrowed_from,
-        })).collect::<Vec<_>>(),
-        "own_fit": own_report,
-    });
-    pooling.pooled = Some((pooled.response.clone(), confidences));
     ChosenResponse {
         summary: format!(
-            "pooled from {brackets} brackets of this body (this one's own fit: confidence {own_confidence:.2}); confidence {confidence:.2}"
+            "{}; this bracket agrees with it (its own fit: confidence {own_confidence:.2})",
+            cached.label
         ),
-        response: pooled.response,
+        report: serde_json::json!({
+            "source": Source::Pooled,
+            "model": cached.label,
+            "brackets": body.brackets,
+            "confidence": body.confidence,
+            "own_fit": own_report,
+        }),
+        response: cached.response,
         source: Source::Pooled,
-        report,
         fit: own_fit,
         notes,
         contradicts_cache: false,
-        pooling: Some(pooling),
+        pooling,
     }
 }
 

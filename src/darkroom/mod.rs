@@ -35,7 +35,7 @@ mod raw;
 use choice::use_given;
 
 pub use choice::{
-    CALIBRATION_PIXELS, CONTRADICTION_STOPS, ChosenResponse, GivenResponse, Pooling,
+    BodyPool, CALIBRATION_PIXELS, CONTRADICTION_STOPS, ChosenResponse, GivenResponse, Pooling,
     ResponsePolicy, Source, choose_response,
 };
 

@@ -48,7 +48,7 @@ fn duplicate_exposures_in_the_middle_do_not_stop_the_fit() {
     let policy = ResponsePolicy::Fit {
         fallback: None,
         min_confidence: 0.0,
-        pool: Vec::new(),
+        pool: None,
     };
     let chosen = choose_response(&bracket, RatioSource::Argument, policy, &mut Stages::new())
         .expect("the distinct pair is fitted");
@@ -74,7 +74,7 @@ fn three_exposures_are_fitted_from_every_frame() {
     let policy = ResponsePolicy::Fit {
         fallback: Some(GivenResponse::standard(3)),
         min_confidence: 1.01,
-        pool: Vec::new(),
+        pool: None,
     };
     let chosen =
         choose_response(&bracket, RatioSource::Argument, policy, &mut Stages::new()).unwrap();
@@ -100,7 +100,7 @@ fn a_fit_below_min_confidence_uses_the_fallback() {
     let policy = ResponsePolicy::Fit {
         fallback: Some(GivenResponse::standard(3)),
         min_confidence: 1.01,
-        pool: Vec::new(),
+        pool: None,
     };
     let chosen = choose_for_pair(ResponseCurve::Srgb, 4, policy);
     assert_eq!(chosen.source, Source::Standard);
@@ -116,7 +116,7 @@ fn a_fallback_the_bracket_contradicts_is_not_used() {
     let policy = ResponsePolicy::Fit {
         fallback: Some(GivenResponse::standard(3)),
         min_confidence: 1.01,
-        pool: Vec::new(),
+        pool: None,
     };
     let chosen = choose_for_pair(ResponseCurve::FilmS, 4, policy);
     assert_eq!(chosen.source, Source::Fitted, "{:?}", chosen.notes);
@@ -141,7 +141,7 @@ fn a_good_fit_that_contradicts_the_cached_curve_is_flagged() {
         let policy = ResponsePolicy::Fit {
             fallback: Some(cached),
             min_confidence: 0.0,
-            pool: Vec::new(),
+            pool: None,
         };
         choose_for_pair(curve, 6, policy)
     };
@@ -161,53 +161,51 @@ fn a_good_fit_that_contradicts_the_cached_curve_is_flagged() {
     assert!(!same.contradicts_cache, "{:?}", same.notes);
 }
 
-/// A good fit that agrees with the body's cached curve is merged with one fit over the
-/// body's pool and itself; one that contradicts it keeps its own fit and hands its
-/// evidence back as a dissent, unpooled.
+/// A good fit that agrees with the body's pooled curve is merged with it when the pool
+/// is at least as confident, else with its own fit; either way its evidence comes back
+/// for the pool. One that contradicts the pool keeps its own fit, its evidence a dissent.
 #[test]
-fn a_good_fit_joins_the_bodys_pool_unless_it_contradicts_it() {
+fn a_good_fit_that_agrees_with_the_bodys_pool_is_merged_with_it() {
     let first = choose_for_pair(
         ResponseCurve::Srgb,
         6,
         ResponsePolicy::Fit {
             fallback: None,
             min_confidence: 0.0,
-            pool: Vec::new(),
+            pool: None,
         },
     );
+    assert_eq!(first.source, Source::Fitted);
     let own = first.pooling.expect("a good fit gives evidence");
-    assert!(own.pooled.is_none(), "no pool to join");
-    let policy = |pool: Vec<_>| ResponsePolicy::Fit {
-        fallback: Some(GivenResponse {
-            source: Source::Cached,
-            label: "cached curve of Body".to_string(),
-            response: first.response.clone(),
-        }),
-        min_confidence: 0.0,
-        pool,
+    assert!(own.pooled.is_none(), "the darkroom never refits the pool");
+    assert_eq!(own.own_confidence.len(), 3);
+    let body = GivenResponse {
+        source: Source::Cached,
+        label: "cached curve of Body (pooled from 5 bracket(s))".to_string(),
+        response: InverseResponse::srgb(3, 1024),
     };
-    let second = choose_for_pair(ResponseCurve::Srgb, 8, policy(vec![own.evidence.clone()]));
-    assert_eq!(second.source, Source::Pooled, "{:?}", second.notes);
-    assert!(
-        second.summary.contains("pooled from 2 brackets"),
-        "{}",
-        second.summary
-    );
-    assert_eq!(second.report["brackets"], 2);
-    let pooled = second.pooling.expect("evidence").pooled.expect("refit");
-    assert_eq!(pooled.0, second.response);
-    let srgb_mid = ((0.5f64 + 0.055) / 1.055).powf(2.4);
-    assert!((second.response.eval(1, 0.5).log2() - srgb_mid.log2()).abs() < 0.05);
-    let other = choose_for_pair(ResponseCurve::FilmS, 8, policy(vec![own.evidence]));
+    let policy = |confidence: f64| ResponsePolicy::Fit {
+        fallback: Some(body.clone()),
+        min_confidence: 0.0,
+        pool: Some(BodyPool {
+            brackets: 5,
+            confidence,
+        }),
+    };
+    let pooled = choose_for_pair(ResponseCurve::Srgb, 8, policy(1.0));
+    assert_eq!(pooled.source, Source::Pooled, "{:?}", pooled.notes);
+    assert_eq!(pooled.response, body.response);
+    assert!(pooled.summary.contains("agrees"), "{}", pooled.summary);
+    assert_eq!(pooled.report["brackets"], 5);
+    assert!(pooled.pooling.is_some());
+    // A pool less sure than the bracket's own fit: the own fit, still pooled.
+    let own_better = choose_for_pair(ResponseCurve::Srgb, 8, policy(0.0));
+    assert_eq!(own_better.source, Source::Fitted);
+    assert!(own_better.pooling.is_some() && !own_better.contradicts_cache);
+    let other = choose_for_pair(ResponseCurve::FilmS, 8, policy(1.0));
     assert_eq!(other.source, Source::Fitted);
     assert!(other.contradicts_cache, "{:?}", other.notes);
-    assert!(
-        other
-            .pooling
-            .expect("a dissent's evidence")
-            .pooled
-            .is_none()
-    );
+    assert!(other.pooling.is_some(), "a dissent's evidence");
 }
 
 #[test]
