@@ -436,6 +436,14 @@ fn tone_maps(map: &RadianceMap) {
     for name in ["linear", "histogram", "histogram-naive"] {
         let op = filmback::tonemap::Operator::parse(name).expect("known operator");
         let (t_apply, _) = best(|| op.apply(map));
+        let (t_prepare, _) = best(|| op.prepare(map));
+        let (t_exact, _) = best(|| op.prepare_exact(map));
+        println!(
+            "  {name:<16} measuring the map: streamed histogram {:>7.1} ms, direct {:>7.1} ms ({:.2}×)",
+            ms(t_prepare),
+            ms(t_exact),
+            ms(t_exact) / ms(t_prepare)
+        );
         let look = Look::Tonemap(op);
         let (t_all, bytes) = best(|| {
             let mut out = Vec::new();
