@@ -6,19 +6,18 @@ use std::io::Cursor;
 use std::path::{Path, PathBuf};
 use std::str::FromStr;
 
-use exif::{Field, In, Tag, Value};
-use rayon::prelude::*;
-
-use super::{Look, RenderingError, SourceExif};
+use super::{Look, RenderingError, SourceExif, jpeg};
 use crate::atomic::{self, Overwrite, PublishError};
 use crate::display::{Depth, DisplayImage, srgb_icc_profile};
 use crate::film;
 use crate::radiance::RadianceMap;
+use exif::{Field, In, Tag, Value};
 
 /// Output encodings.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum Format {
-    /// Baseline JPEG, 4:2:0, at this quality (1–100).
+    /// Baseline JPEG at this quality (1–100): 4:2:0 chroma below 90, 4:4:4 from 90,
+    /// restart markers between bands of rows encoded in parallel.
     Jpeg {
         /// Quality.
         quality: u8,
@@ -89,22 +88,11 @@ pub fn encode(
     match format {
         Format::Jpeg { quality } => {
             let rgb = image.to_u8();
-            let mut encoder = jpeg_encoder::Encoder::new(out, quality);
-            encoder
-                .add_icc_profile(srgb_icc_profile())
-                .map_err(|e| e.to_string())?;
-            let mut app1 = b"Exif\0\0".to_vec();
-            app1.extend_from_slice(&block);
-            encoder
-                .add_app_segment(1, app1)
-                .map_err(|e| e.to_string())?;
-            let (w16, h16) = (
-                u16::try_from(w).map_err(|_| "JPEG is limited to 65535 pixels wide")?,
-                u16::try_from(h).map_err(|_| "JPEG is limited to 65535 pixels high")?,
-            );
-            encoder
-                .encode(&rgb, w16, h16, jpeg_encoder::ColorType::Rgb)
-                .map_err(|e| e.to_string())
+            let row = w as usize * 3;
+            let copy = |first: usize, band: &mut [u8]| {
+                band.copy_from_slice(&rgb[first * row..][..band.len()]);
+            };
+            jpeg::encode_bands(w, h, quality, decorate(&block), copy, out)
         }
         Format::Png8 | Format::Png16 => {
             use image::ImageEncoder;
@@ -173,59 +161,10 @@ fn tiff16(image: &DisplayImage, exif: &SourceExif) -> Result<Vec<u8>, String> {
     Ok(out.into_inner())
 }
 
-/// Rows per band handed from the developing thread to the JPEG encoder (a multiple of the
-/// 16-row MCU of 4:2:0 JPEG).
-const BAND_ROWS: usize = 64;
-
-/// Row bands arriving from the developing thread, already in planar Y, Cb, Cr rows
-/// (`jpeg_encoder::rgb_to_ycbcr`, the encoder's own conversion), copied out row by row.
-struct Bands {
-    width: u16,
-    height: u16,
-    receiver: std::sync::mpsc::Receiver<Vec<u8>>,
-    /// (first row of the band, its rows of Y, Cb, Cr planes).
-    current: std::cell::RefCell<(usize, Vec<u8>)>,
-}
-
-impl jpeg_encoder::ImageBuffer for Bands {
-    fn get_jpeg_color_type(&self) -> jpeg_encoder::JpegColorType {
-        jpeg_encoder::JpegColorType::Ycbcr
-    }
-
-    fn width(&self) -> u16 {
-        self.width
-    }
-
-    fn height(&self) -> u16 {
-        self.height
-    }
-
-    fn fill_buffers(&self, y: u16, buffers: &mut [Vec<u8>; 4]) {
-        let w = usize::from(self.width);
-        let row_bytes = w * 3;
-        let mut current = self.current.borrow_mut();
-        let y = usize::from(y);
-        while y >= current.0 + current.1.len() / row_bytes {
-            let start = current.0 + current.1.len() / row_bytes;
-            // The developer never stops early; if it died, its panic surfaces when the
-            // scope joins it, and these rows are black meanwhile.
-            let band = self
-                .receiver
-                .recv()
-                .unwrap_or_else(|_| vec![0; row_bytes * BAND_ROWS]);
-            *current = (start, band);
-        }
-        let row = &current.1[(y - current.0) * row_bytes..][..row_bytes];
-        for (plane, buffer) in row.chunks_exact(w).zip(buffers.iter_mut()) {
-            buffer.extend_from_slice(plane);
-        }
-    }
-}
-
-/// Develops `map` through a stock and encodes it as JPEG at once: one thread develops
-/// bands of 64 rows (in parallel within the band, colour conversion included) while the
-/// single-threaded encoder consumes them, so developing hides behind encoding on a
-/// 2-core machine. Decodes to the 8-bit [`film::Emulsion::render`] within JPEG error.
+/// Develops `map` through a stock and encodes it as JPEG at once: bands of rows are
+/// developed and encoded on every core, each band by its own encoder, joined by restart
+/// markers (`rendering::jpeg`). Decodes to the 8-bit [`film::Emulsion::render`] within
+/// JPEG error.
 /// `exposure` is the light inside the film ([`film::Emulsion::expose`]).
 pub fn encode_film_jpeg(
     exposure: &film::Exposure<'_>,
@@ -245,8 +184,8 @@ pub fn encode_film_jpeg(
     )
 }
 
-/// Encodes a JPEG of `w × h` whose 8-bit RGB rows `develop(first, rows)` fills, a band
-/// of 64 rows at a time on a thread of its own while the encoder consumes the bands.
+/// Encodes a JPEG of `w × h` whose 8-bit RGB rows `develop(first, rows)` fills, bands
+/// of rows developed and encoded on every core (`rendering::jpeg`).
 fn stream_jpeg(
     w: u32,
     h: u32,
@@ -255,53 +194,21 @@ fn stream_jpeg(
     exif: &SourceExif,
     out: &mut impl std::io::Write,
 ) -> Result<(), String> {
-    let width = u16::try_from(w).map_err(|_| "JPEG is limited to 65535 pixels wide")?;
-    let height = u16::try_from(h).map_err(|_| "JPEG is limited to 65535 pixels high")?;
-    let mut encoder = jpeg_encoder::Encoder::new(out, quality);
-    encoder
-        .add_icc_profile(srgb_icc_profile())
-        .map_err(|e| e.to_string())?;
-    let mut app1 = b"Exif\0\0".to_vec();
-    app1.extend_from_slice(&exif.tiff_block()?);
-    encoder
-        .add_app_segment(1, app1)
-        .map_err(|e| e.to_string())?;
-    let (sender, receiver) = std::sync::mpsc::sync_channel::<Vec<u8>>(4);
-    let w = w as usize;
-    let develop = &develop;
-    std::thread::scope(|scope| {
-        scope.spawn(move || {
-            for first in (0..h as usize).step_by(BAND_ROWS) {
-                let rows = BAND_ROWS.min(h as usize - first);
-                let mut rgb = vec![0u8; rows * w * 3];
-                develop(first, &mut rgb);
-                let mut planar = vec![0u8; rows * w * 3];
-                planar
-                    .par_chunks_mut(w * 3)
-                    .zip(rgb.par_chunks(w * 3))
-                    .for_each(|(out, rgb)| {
-                        let (luma, chroma) = out.split_at_mut(w);
-                        let (cb, cr) = chroma.split_at_mut(w);
-                        for (i, p) in rgb.chunks_exact(3).enumerate() {
-                            let (y, b, r) = jpeg_encoder::rgb_to_ycbcr(p[0], p[1], p[2]);
-                            luma[i] = y;
-                            cb[i] = b;
-                            cr[i] = r;
-                        }
-                    });
-                if sender.send(planar).is_err() {
-                    break;
-                }
-            }
-        });
-        let bands = Bands {
-            width,
-            height,
-            receiver,
-            current: std::cell::RefCell::new((0, Vec::new())),
-        };
-        encoder.encode_image(bands).map_err(|e| e.to_string())
-    })
+    let block = exif.tiff_block()?;
+    jpeg::encode_bands(w, h, quality, decorate(&block), develop, out)
+}
+
+/// Adds the sRGB profile (APP2) and the EXIF block (APP1) to a JPEG encoder.
+fn decorate(
+    block: &[u8],
+) -> impl Fn(&mut jpeg_encoder::Encoder<&mut Vec<u8>>) -> Result<(), jpeg_encoder::EncodingError> + Sync
+{
+    move |encoder| {
+        encoder.add_icc_profile(srgb_icc_profile())?;
+        let mut app1 = b"Exif\0\0".to_vec();
+        app1.extend_from_slice(block);
+        encoder.add_app_segment(1, app1)
+    }
 }
 
 /// Renders `look` and encodes it in `format`; to JPEG, film looks and tone maps are

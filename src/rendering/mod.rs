@@ -4,9 +4,9 @@
 //! published atomically.
 //!
 //! JPEG goes through the `jpeg-encoder` crate with its `simd` feature (AVX2 DCT chosen at
-//! run time), faster than the `image` crate's encoder on the same image (`docs/film.md`),
-//! and it pulls rows from an `ImageBuffer`, so a film look is
-//! developed band by band on one core while the other encodes ([`encode_film_jpeg`]).
+//! run time), faster than the `image` crate's encoder on the same image (`docs/film.md`);
+//! bands of rows are developed and encoded on every core and joined by restart markers
+//! into one baseline file (`jpeg.rs`, [`encode_film_jpeg`]).
 //! PNG goes through `image`'s encoder, TIFF through `kamadak-exif`'s TIFF writer so that
 //! the EXIF sub-IFD (exposure, date) sits in the same file as the pixels.
 
@@ -19,6 +19,7 @@ use crate::radiance::RadianceMap;
 use crate::tonemap;
 
 mod encode;
+mod jpeg;
 mod source_exif;
 
 pub use encode::{Format, encode, encode_film_jpeg, encode_look, write};
