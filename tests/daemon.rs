@@ -438,10 +438,12 @@ fn raw_plus_jpeg_in_sibling_folders_jpeg_first_gives_one_bracket_from_the_raws()
 }
 
 /// A body seen shooting RAW+JPEG then shoots JPEG only: its JPEGs wait the bracket gap
-/// for a raw that never comes, then are frames; nothing is lost or rejected.
+/// for a raw that never comes, then are frames; nothing is lost or rejected. That
+/// JPEG-only bracket is developed with the body's curve measured from the RAW+JPEG
+/// captures (the EXR header and the journal say so), not with a fitted or standard one.
 #[cfg(feature = "raw")]
 #[test]
-fn jpegs_of_a_raw_plus_jpeg_body_without_raws_are_frames_after_the_gap() {
+fn jpegs_of_a_raw_plus_jpeg_body_are_frames_after_the_gap_with_its_measured_curve() {
     let mut rig = Rig::start(&[], Arc::new(DarkroomLab), |_| {});
     let jpegs = aeb("Raw Body", 10, "r");
     let raws = raw_aeb("Raw Body", 10, "r");
@@ -452,10 +454,28 @@ fn jpegs_of_a_raw_plus_jpeg_body_without_raws_are_frames_after_the_gap() {
     expect_outputs(&rig.out(), &bracket_outputs(&["r-1"]), T);
     put(&rig.ingest(), &aeb("Raw Body", 30, "j"));
     expect_outputs(&rig.out(), &bracket_outputs(&["r-1", "j-1"]), T);
+    let meta = exr::meta::MetaData::read_from_file(rig.out().join("j-1.exr"), false).unwrap();
+    let response = match meta.headers[0]
+        .own_attributes
+        .other
+        .get(&exr::prelude::Text::from("filmbackResponse"))
+    {
+        Some(exr::prelude::AttributeValue::Text(t)) => t.to_string(),
+        other => panic!("filmbackResponse: {other:?}"),
+    };
+    assert!(
+        response.starts_with("measured curve of ")
+            && response.ends_with("(raw+JPEG, 3 capture(s))"),
+        "{response}"
+    );
     let state = rig.state();
     let summary = rig.stop();
     assert_eq!((summary.finished, summary.rejected), (2, 0));
     assert_eq!(journaled_brackets(&state), ["j-1", "r-1"]);
+    assert_eq!(
+        response_of(&state, "j-1"),
+        filmback::darkroom::Source::Cached
+    );
 }
 
 /// gphoto2, Capture One, macOS and Windows leave files beside the frames: none of them is
