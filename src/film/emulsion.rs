@@ -186,10 +186,17 @@ impl DensityTable {
         }
     }
 
+    /// Density `d` in the table's units: `(d − low)/step + ½`, whose integer part is the
+    /// nearest entry.
+    fn units(&self, d: f32) -> f32 {
+        (d - self.low) * (1.0 / DENSITY_STEP) + 0.5
+    }
+
+    /// The entry at `u` table units ([`DensityTable::units`]), clamped to the table (the
+    /// float-to-integer cast takes negatives and NaN to 0).
     #[inline]
-    fn index(&self, d: f32) -> usize {
-        let i = ((d - self.low) * (1.0 / DENSITY_STEP) + 0.5).max(0.0) as usize;
-        i.min(self.display.len() - 1)
+    fn at(&self, u: f32) -> usize {
+        (u as usize).min(self.display.len() - 1)
     }
 }
 
@@ -198,8 +205,10 @@ impl DensityTable {
 #[derive(Debug, Clone)]
 struct Grained {
     grain: Grain,
-    /// `[D, σ_px(D)]` by exposure: the density and the grain's standard deviation there,
-    /// both at the bucket's centre (σ's error is `|dσ/dD|` times the density's).
+    /// `[u(D), σ_px(D)/step]` by exposure, in units of [`DensityTable`]'s grid: the density
+    /// ([`DensityTable::units`]) and the grain's standard deviation there, both at the
+    /// bucket's centre (σ's error is `|dσ/dD|` times the density's), so that a grained
+    /// sample is the entry at `u + (σ/step)·n`.
     density: [ExposureTable<[f32; 2]>; 3],
     from_density: [DensityTable; 3],
 }
@@ -299,16 +308,19 @@ impl Emulsion {
                         id: stock.id.clone(),
                         reason: "its data sheet gives no RMS granularity, so +grain cannot be modelled (Kodak gives only a Print Grain Index for colour negatives)".into(),
                     })?;
-                let density = [0, 1, 2].map(|c| {
-                    ExposureTable::new(stock.layer(c), |d| {
-                        let d = d as f32;
-                        [d, grain.sigma(c, d)]
-                    })
-                });
                 let from_density = [0, 1, 2].map(|c| {
                     let curve = stock.layer(c);
                     DensityTable::new(curve.d_min() - 1.0, curve.d_max() + 1.0, |d| {
                         linear(c, d).min(1.0)
+                    })
+                });
+                let density = [0, 1, 2].map(|c| {
+                    ExposureTable::new(stock.layer(c), |d| {
+                        let d = d as f32;
+                        [
+                            from_density[c].units(d),
+                            grain.sigma(c, d) * (1.0 / DENSITY_STEP),
+                        ]
                     })
                 });
                 Some(Grained {
@@ -413,17 +425,17 @@ impl Emulsion {
             ColourMode::PerLayer | ColourMode::NeutralGrey => {
                 let n = g.grain.normals(x, y);
                 [0, 1, 2].map(|c| {
-                    let [d, sigma] = g.density[c].get(e[c] * self.scale[c]);
+                    let [u, sigma] = g.density[c].get(e[c] * self.scale[c]);
                     let t = &g.from_density[c];
-                    t.display[t.index(d + sigma * n[c])]
+                    t.display[t.at(u + sigma * n[c])]
                 })
             }
             ColourMode::Luminance => {
                 let (e, l) = luminance_of(e);
-                let [d, sigma] = g.density[1].get(l * self.scale[1]);
-                let d = d + sigma * g.grain.normals(x, y)[1];
+                let [u, sigma] = g.density[1].get(l * self.scale[1]);
                 let t = &g.from_density[1];
-                keep_chromaticity(e, l, t.linear[t.index(d)])
+                let u = u + sigma * g.grain.normals(x, y)[1];
+                keep_chromaticity(e, l, t.linear[t.at(u)])
             }
         }
     }
