@@ -10,8 +10,8 @@
 //!    colour, half/PIZ encode, publish), the whole of `filmback merge` minus process
 //!    start.
 //!
-//! Printed: both times, their ratio, the develop stages, and the process's peak resident
-//! memory (which includes making the scene and the DNGs).
+//! Printed: both times, their ratio, the develop stages, the EXR's size and the process's
+//! peak resident memory (which includes making the scene and the DNGs).
 
 use std::time::{Duration, Instant};
 
@@ -161,5 +161,7 @@ fn main() {
     for (stage, d) in &stages {
         println!("  {stage:<8} {:7.0} ms", d.as_secs_f64() * 1e3);
     }
+    let exr_size = std::fs::metadata(out.join("bench.exr")).map_or(0, |m| m.len());
+    println!("EXR:                  {:7.1} MB", exr_size as f64 / 1e6);
     println!("peak resident memory: {:7.0} MiB", peak_rss_mib());
 }

@@ -536,7 +536,7 @@ fn merging_in_cfa_space_is_no_worse_than_after_demosaicking() {
                 clipped: 0,
             };
             mosaic::scale_channels(&mut m, &info.cfa, wb);
-            let mut rgb = raw::demosaic::demosaic(m, &info.cfa);
+            let mut rgb = raw::demosaic::demosaic(m, &info.cfa, &raw::demosaic::CAMERA_RGB);
             for p in rgb.chunks_exact_mut(3) {
                 for c in 0..3 {
                     p[c] /= wb[c];

@@ -90,6 +90,16 @@ impl RadianceSource for RadianceMap {
     fn sample(&self, pixel: usize, channel: usize) -> f32 {
         self.pixels()[pixel * RadianceMap::channels(self) + channel]
     }
+    #[inline]
+    fn line(&self, pixel: usize, channel: usize, out: &mut [f32]) {
+        let channels = RadianceMap::channels(self);
+        let samples = self.pixels()[pixel * channels + channel..]
+            .iter()
+            .step_by(channels);
+        for (v, &s) in out.iter_mut().zip(samples) {
+            *v = s;
+        }
+    }
     fn max_value(&self) -> f32 {
         use rayon::prelude::*;
         self.pixels()

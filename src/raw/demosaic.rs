@@ -27,9 +27,12 @@ pub fn method(cfa: &Cfa) -> &'static str {
     }
 }
 
-/// Interpolates the two missing colours of every pixel of `mosaic` (laid out as `cfa`):
-/// interleaved camera RGB, `width × height × 3`.
-pub fn demosaic(mosaic: MergedMosaic, cfa: &Cfa) -> Vec<f32> {
+/// Interpolates the two missing colours of every pixel of `mosaic` (laid out as `cfa`)
+/// and applies the 3×3 matrix `to_output` (row-major, `out_r = Σ_c m[r][c]·in_c`) to each
+/// camera RGB pixel: interleaved RGB, `width × height × 3`. The interpolation is rawler's;
+/// the matrix is applied on every core while its pixels are copied out.
+pub fn demosaic(mosaic: MergedMosaic, cfa: &Cfa, to_output: &[[f32; 3]; 3]) -> Vec<f32> {
+    use rayon::prelude::*;
     let (width, height) = (mosaic.width, mosaic.height);
     let pattern = CFA::new(&cfa.name());
     let colours = PlaneColor::default();
@@ -40,5 +43,18 @@ pub fn demosaic(mosaic: MergedMosaic, cfa: &Cfa) -> Vec<f32> {
     } else {
         PPGDemosaic::new().demosaic(&pixels, &pattern, &colours, roi)
     };
-    rgb.into_inner().into_iter().flatten().collect()
+    drop(pixels);
+    let camera = rgb.into_inner();
+    let mut out = vec![0.0f32; camera.len() * 3];
+    out.par_chunks_exact_mut(3)
+        .zip(camera.par_iter())
+        .for_each(|(o, p)| {
+            for (v, row) in o.iter_mut().zip(to_output) {
+                *v = row[0] * p[0] + row[1] * p[1] + row[2] * p[2];
+            }
+        });
+    out
 }
+
+/// The identity matrix, for [`demosaic`] to camera RGB.
+pub const CAMERA_RGB: [[f32; 3]; 3] = [[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]];

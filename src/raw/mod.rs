@@ -220,8 +220,8 @@ pub struct DevelopedRaw {
     pub order: Vec<usize>,
     /// The demosaicking method used.
     pub demosaic: &'static str,
-    /// Wall time of each step: `merge` (CFA), `demosaic` (white balance and
-    /// interpolation), `colour`.
+    /// Wall time of each step: `merge` (CFA), `demosaic` (white balance, interpolation
+    /// and the camera → output matrix).
     pub timings: Vec<(&'static str, std::time::Duration)>,
 }
 
@@ -335,10 +335,7 @@ fn finish_timed(
     let to_709 = colour::camera_to_709(info, path)?;
     let t = std::time::Instant::now();
     mosaic::scale_channels(&mut merged, &info.cfa, colour::white_balance(info));
-    let mut rgb = demosaic::demosaic(merged, &info.cfa);
+    let rgb = demosaic::demosaic(merged, &info.cfa, &to_709);
     timings.push(("demosaic", t.elapsed()));
-    let t = std::time::Instant::now();
-    colour::apply(&to_709, &mut rgb);
-    timings.push(("colour", t.elapsed()));
     Ok(rgb)
 }
