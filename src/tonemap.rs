@@ -255,6 +255,9 @@ fn unkey(k: u32) -> f32 {
     f32::from_bits(if k >> 31 == 1 { k & !(1 << 31) } else { !k })
 }
 
+/// Luminances a tone map measures at least ([`LuminanceHistogram::of_map`]).
+const SAMPLED_LUMINANCES: usize = 4_000_000;
+
 /// A histogram of a map's finite luminances in 2²⁰ buckets of their `f32` bits (2⁻¹¹
 /// relative width each), with their exact extremes: what both tone maps measure, built
 /// in one streamed pass (no luminance buffer; `4·2²⁰` bytes per part being counted).
@@ -324,23 +327,33 @@ impl LuminanceHistogram {
     }
 
     /// The histogram of `map`'s luminances `L = 0.2126 R + 0.7152 G + 0.0722 B` (the
-    /// sample itself for one channel), in one pass over the map: four contiguous parts
-    /// per thread (at most 32) counted in parallel, then summed.
+    /// sample itself for one channel) over every `s`-th row, `s = max(1, ⌊P / 4·10⁶⌋)`
+    /// for `P` pixels: at least four million luminances (every row up to 8 MP, every 6th
+    /// of a 24 MP map), counted in parallel by contiguous groups of rows. A percentile's
+    /// rank error from the sample is about `√(p(1−p)/n)`, under 0.03 % of the pixels;
+    /// the rows not read may hold luminances beyond the sample's extremes, which the
+    /// maps clamp as they clamp every luminance outside their range.
     pub fn of_map(map: &RadianceMap) -> LuminanceHistogram {
         let ch = map.channels();
-        let pixels = map.pixels();
+        let width = map.width() as usize;
+        let height = map.height() as usize;
+        let stride = (width * height / SAMPLED_LUMINANCES).max(1);
+        let rows: Vec<usize> = (0..height).step_by(stride).collect();
         let parts = (4 * rayon::current_num_threads()).clamp(1, 32);
-        let chunk = (pixels.len() / ch).div_ceil(parts).max(1) * ch;
-        pixels
-            .par_chunks(chunk)
-            .map(|part| {
+        let per_part = rows.len().div_ceil(parts).max(1);
+        let pixels = map.pixels();
+        rows.par_chunks(per_part)
+            .map(|group| {
                 let mut h = LuminanceHistogram::empty();
-                if ch == 3 {
-                    for p in part.chunks_exact(3) {
-                        h.add(luminance(p[0], p[1], p[2]));
+                for &y in group {
+                    let row = &pixels[y * width * ch..(y + 1) * width * ch];
+                    if ch == 3 {
+                        for p in row.chunks_exact(3) {
+                            h.add(luminance(p[0], p[1], p[2]));
+                        }
+                    } else {
+                        row.chunks_exact(ch).for_each(|p| h.add(p[0]));
                     }
-                } else {
-                    part.chunks_exact(ch).for_each(|p| h.add(p[0]));
                 }
                 h
             })
@@ -413,23 +426,24 @@ fn exact_percentile(finite: &[f32], p: f64) -> f32 {
 /// negative radiance count as 0, `L ≤ 0` is black, an infinite channel white.
 #[inline]
 fn keep_chromaticity(e: [f32; 3], display: impl Fn(f32) -> f32) -> [u16; 3] {
-    let e = e.map(|v| if v.is_nan() { 0.0 } else { v.max(0.0) });
-    let l = luminance(e[0], e[1], e[2]);
-    let rgb = if l == f32::INFINITY || e.iter().any(|v| v.is_infinite()) {
-        [1.0; 3]
+    // `max` takes the other operand for NaN: NaN and negative samples read 0.
+    let (r, g, b) = (e[0].max(0.0), e[1].max(0.0), e[2].max(0.0));
+    let l = luminance(r, g, b);
+    let (r, g, b) = if l == f32::INFINITY || r.max(g).max(b) == f32::INFINITY {
+        (1.0, 1.0, 1.0)
     } else if l > 0.0 {
         let k = display(l) / l;
-        let peak = e[0].max(e[1]).max(e[2]);
+        let peak = r.max(g).max(b);
         if peak * k > 1.0 {
             // Clipped: the brightest channel white, whatever `v`.
-            e.map(|c| c / peak)
+            (r / peak, g / peak, b / peak)
         } else {
-            e.map(|c| c * k)
+            (r * k, g * k, b * k)
         }
     } else {
-        [0.0; 3]
+        (0.0, 0.0, 0.0)
     };
-    rgb.map(srgb_encode_u16)
+    [srgb_encode_u16(r), srgb_encode_u16(g), srgb_encode_u16(b)]
 }
 
 /// Histogram adjustment parameters (Ward Larson, Rushmeier & Piatko 1997, §4–5).

@@ -291,7 +291,9 @@ impl Lab for DarkroomLab {
             // After publishing: the refit is for the body's next brackets.
             let t = std::time::Instant::now();
             p.pooled = refit_pool(job.cached.as_ref(), p, &mut notes);
-            stages.push(("pool", t.elapsed()));
+            if p.pooled.is_some() {
+                stages.push(("pool", t.elapsed()));
+            }
         }
         Ok(Processed {
             outputs,
