@@ -51,8 +51,8 @@ pub enum Source {
     Standard,
     /// A camera raw: linear after the black level, clipped at the white level.
     Raw,
-    /// One fit over this bracket and the body's earlier good brackets (see the module
-    /// docs).
+    /// The body's curve, one fit over its earlier good brackets, which this bracket
+    /// agrees with (see the module docs).
     Pooled,
 }
 
@@ -128,7 +128,7 @@ pub struct ChosenResponse {
     /// its frames worse by more than [`CONTRADICTION_STOPS`] (a picture style or setting
     /// changed): the daemon reports it and keeps the cache as it was.
     pub contradicts_cache: bool,
-    /// A good fit's evidence for the body's pool, and the pool's refit if one was made.
+    /// A good fit's evidence for the body's pool (the daemon pools it and refits).
     pub pooling: Option<Pooling>,
 }
 
@@ -337,17 +337,35 @@ pub fn choose_response(
     {
         return Ok(use_pooled(cached, body, fit, report, notes, pooling));
     }
-    Ok(use_own(
-        calibration,
-        confidence,
-        &pair,
-        ratio,
-        ratio_source,
+    let sizes: Vec<String> = calibration
+        .channels
+        .iter()
+        .map(|c| format!("{} {}", c.name, c.fit.size()))
+        .collect();
+    let family = calibration
+        .channels
+        .iter()
+        .find(|c| c.borrowed_from.is_none())
+        .map_or_else(String::new, |c| c.fit.family());
+    if confidence < 0.5 {
+        notes.push(format!(
+            "low-confidence response fit ({confidence:.2}) from {pair}: check the result or give a response file"
+        ));
+    }
+    Ok(ChosenResponse {
+        response: calibration.response,
+        source: Source::Fitted,
+        summary: format!(
+            "calibrated from {pair} (ratio {ratio:.4}, {}): {family}; {}; confidence {confidence:.2}",
+            ratio_source.as_str(),
+            sizes.join("; ")
+        ),
         report,
+        fit,
         notes,
         contradicts_cache,
         pooling,
-    ))
+    })
 }
 
 /// The bracket merged with the body's pooled curve `cached`, which it agrees with.
@@ -377,51 +395,6 @@ fn use_pooled(
         fit: own_fit,
         notes,
         contradicts_cache: false,
-        pooling,
-    }
-}
-
-/// The bracket merged with its own fit.
-#[allow(clippy::too_many_arguments)]
-fn use_own(
-    calibration: Calibration,
-    confidence: f64,
-    pair: &str,
-    ratio: f64,
-    ratio_source: RatioSource,
-    report: serde_json::Value,
-    mut notes: Vec<String>,
-    contradicts_cache: bool,
-    pooling: Option<Pooling>,
-) -> ChosenResponse {
-    let fit = Some((calibration.response.clone(), confidence));
-    let sizes: Vec<String> = calibration
-        .channels
-        .iter()
-        .map(|c| format!("{} {}", c.name, c.fit.size()))
-        .collect();
-    let family = calibration
-        .channels
-        .iter()
-        .find(|c| c.borrowed_from.is_none())
-        .map_or_else(String::new, |c| c.fit.family());
-    if confidence < 0.5 {
-        notes.push(format!(
-            "low-confidence response fit ({confidence:.2}) from {pair}: check the result or give a response file"
-        ));
-    }
-    ChosenResponse {
-        response: calibration.response,
-        source: Source::Fitted,
-        summary: format!(
-            "calibrated from {pair} (ratio {ratio:.4}, {}): {family}; {}; confidence {confidence:.2}",
-            ratio_source.as_str(),
-            sizes.join("; ")
-        ),
-        report,
-        fit,
-        notes,
-        contradicts_cache,
         pooling,
     }
 }
