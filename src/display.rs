@@ -175,6 +175,27 @@ pub fn srgb_encode_u16(x: f32) -> u16 {
     table[((x.to_bits() >> SHIFT) - base) as usize]
 }
 
+/// `to_8bit(srgb_encode_u16(x))` in one look-up: the same value for every `f32`, from a
+/// table of the same buckets holding the 8-bit codes.
+#[inline]
+pub fn srgb_encode_u8(x: f32) -> u8 {
+    const SHIFT: u32 = 12;
+    static TABLE: OnceLock<(u32, Vec<u8>)> = OnceLock::new();
+    let low = 2f32.powi(-12);
+    if !(x >= low && x < 1.0) {
+        return to_8bit(srgb_encode_u16(x));
+    }
+    let (base, table) = TABLE.get_or_init(|| {
+        let base = low.to_bits() >> SHIFT;
+        let top = 1f32.to_bits() >> SHIFT;
+        let table = (base..top)
+            .map(|i| to_8bit(srgb_encode_u16(f32::from_bits(i << SHIFT))))
+            .collect();
+        (base, table)
+    });
+    table[((x.to_bits() >> SHIFT) - base) as usize]
+}
+
 /// The sRGB ICC profile embedded in every output: built by the `moxcms` crate (already in
 /// the build through `image`) from the IEC 61966-2.1 colorants (primaries x,y = 0.64,0.33 /
 /// 0.30,0.60 / 0.15,0.06, D65 white, adapted to the D50 PCS) and the sRGB parametric
@@ -191,6 +212,20 @@ pub fn srgb_icc_profile() -> &'static [u8] {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// The 8-bit table gives exactly the 16-bit encoder's value at 8 bits, for every
+    /// bucket of the table and the values around and outside it.
+    #[test]
+    fn srgb_encode_u8_is_the_16_bit_value_at_8_bits() {
+        let mut x = 1e-6f32;
+        while x < 1.5 {
+            assert_eq!(srgb_encode_u8(x), to_8bit(srgb_encode_u16(x)), "{x}");
+            x = f32::from_bits(x.to_bits() + 997);
+        }
+        for x in [f32::NAN, -1.0, 0.0, 2f32.powi(-12), 1.0, f32::INFINITY] {
+            assert_eq!(srgb_encode_u8(x), to_8bit(srgb_encode_u16(x)), "{x}");
+        }
+    }
 
     #[test]
     fn icc_profile_is_a_valid_srgb_profile() {

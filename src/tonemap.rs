@@ -7,7 +7,7 @@
 
 use rayon::prelude::*;
 
-use crate::display::{DisplayImage, luminance, srgb_encode_u16, to_8bit};
+use crate::display::{DisplayImage, luminance, srgb_encode_u8, srgb_encode_u16};
 use crate::radiance::RadianceMap;
 
 /// A tone-mapping operator and its parameters.
@@ -58,7 +58,7 @@ impl Operator {
     pub fn apply(&self, map: &RadianceMap) -> DisplayImage {
         let tone = self.prepare(map);
         let mut samples = vec![0u16; map.width() as usize * map.height() as usize * 3];
-        tone.develop(map, 0, &mut samples, |v| v);
+        tone.develop(map, 0, &mut samples, srgb_encode_u16);
         DisplayImage::new(map.width(), map.height(), samples)
     }
 
@@ -129,7 +129,7 @@ impl Tone {
     /// Rows `first..first + out.len()/(3·width)` of `map` into 8-bit RGB `out` (bands of
     /// rows in parallel): the unit the streaming JPEG writer pulls.
     pub fn render_rows_8bit(&self, map: &RadianceMap, first: usize, out: &mut [u8]) {
-        self.develop(map, first, out, to_8bit);
+        self.develop(map, first, out, srgb_encode_u8);
     }
 
     fn develop<T: Send + Copy>(
@@ -137,7 +137,7 @@ impl Tone {
         map: &RadianceMap,
         first: usize,
         out: &mut [T],
-        convert: impl Fn(u16) -> T + Sync,
+        encode: impl Fn(f32) -> T + Sync,
     ) {
         let ch = map.channels();
         let width = map.width() as usize;
@@ -153,9 +153,9 @@ impl Tone {
                         [p[0]; 3]
                     };
                     let v = keep_chromaticity(e, |l| self.display_value(l));
-                    o[0] = convert(v[0]);
-                    o[1] = convert(v[1]);
-                    o[2] = convert(v[2]);
+                    o[0] = encode(v[0]);
+                    o[1] = encode(v[1]);
+                    o[2] = encode(v[2]);
                 }
             });
     }
@@ -422,10 +422,11 @@ fn exact_percentile(finite: &[f32], p: f64) -> f32 {
 }
 
 /// `E_c·(v/L)` for display value `v = display(L)` (one division a pixel), scaled down
-/// together if one channel would pass white (to `E_c/max E`), sRGB-encoded: NaN and
-/// negative radiance count as 0, `L ≤ 0` is black, an infinite channel white.
+/// together if one channel would pass white (to `E_c/max E`): linear display RGB in
+/// `[0, 1]` for the sRGB encoder. NaN and negative radiance count as 0, `L ≤ 0` is black,
+/// an infinite channel white.
 #[inline]
-fn keep_chromaticity(e: [f32; 3], display: impl Fn(f32) -> f32) -> [u16; 3] {
+fn keep_chromaticity(e: [f32; 3], display: impl Fn(f32) -> f32) -> [f32; 3] {
     // `max` takes the other operand for NaN: NaN and negative samples read 0.
     let (r, g, b) = (e[0].max(0.0), e[1].max(0.0), e[2].max(0.0));
     let l = luminance(r, g, b);
@@ -443,7 +444,7 @@ fn keep_chromaticity(e: [f32; 3], display: impl Fn(f32) -> f32) -> [u16; 3] {
     } else {
         (0.0, 0.0, 0.0)
     };
-    [srgb_encode_u16(r), srgb_encode_u16(g), srgb_encode_u16(b)]
+    [r, g, b]
 }
 
 /// Histogram adjustment parameters (Ward Larson, Rushmeier & Piatko 1997, §4–5).
