@@ -396,7 +396,7 @@ impl ResponseCache {
     }
 
     /// Adds a good bracket to the body's pool (see the module docs), with `curve` and
-    /// its channels' `confidence` as the body's curve (the darkroom's refit of the pool
+    /// its channels' `confidence` as the body's curve (the lab's refit of the pool
     /// with this bracket, or the bracket's own fit when it starts the pool), clears the
     /// dissents and publishes the entry. An entry of another channel count is replaced.
     pub fn pool(
