@@ -354,28 +354,63 @@ pub fn calibrate(
             (k.exp(), RatioSource::Estimated)
         }
     };
+    let log_ratio = ratio.ln();
+    let channels = assemble(
+        names,
+        fitted
+            .into_iter()
+            .map(|(_, f, pairs)| {
+                let sets = ChannelSets {
+                    log_ratios: vec![log_ratio; pairs.len()],
+                    set_lengths: vec![pairs.len()],
+                    pairs,
+                };
+                (f, sets)
+            })
+            .collect(),
+    )?;
+    finish(ratio, ratio_source, channels)
+}
+
+/// A channel's tone pairs as [`ChannelCalibration`] keeps them.
+struct ChannelSets {
+    pairs: Vec<TonePair>,
+    log_ratios: Vec<f64>,
+    set_lengths: Vec<usize>,
+}
+
+/// The channels' calibrations, in channel order, from their fits and tone pairs: a
+/// fitted channel as it is; one that failed borrows the most confident fitted channel's
+/// curve at confidence 0, without pairs. No fitted channel is an error giving each
+/// channel's reason.
+fn assemble(
+    names: &[&'static str],
+    fitted: Vec<(Result<ChannelFit, FitError>, ChannelSets)>,
+) -> Result<Vec<ChannelCalibration>, CalibrationError> {
     let donor = fitted
         .iter()
-        .filter_map(|(c, f, _)| f.as_ref().ok().map(|f| (*c, f.clone())))
+        .enumerate()
+        .filter_map(|(c, (f, _))| f.as_ref().ok().map(|f| (c, f.clone())))
         .max_by(|a, b| a.1.confidence.total_cmp(&b.1.confidence));
     let Some((donor_c, donor_fit)) = donor else {
         let reasons: Vec<String> = fitted
             .iter()
-            .filter_map(|(c, f, _)| f.as_ref().err().map(|e| format!("{}: {e}", names[*c])))
+            .enumerate()
+            .filter_map(|(c, (f, _))| f.as_ref().err().map(|e| format!("{}: {e}", names[c])))
             .collect();
         return Err(CalibrationError::NoChannel(reasons.join("; ")));
     };
-    let log_ratio = ratio.ln();
-    let channels: Vec<ChannelCalibration> = fitted
+    Ok(fitted
         .into_iter()
-        .map(|(c, f, pairs)| match f {
+        .enumerate()
+        .map(|(c, (f, sets))| match f {
             Ok(fit) => ChannelCalibration {
                 name: names[c],
                 fit,
                 borrowed_from: None,
-                log_ratios: vec![log_ratio; pairs.len()],
-                set_lengths: vec![pairs.len()],
-                pairs,
+                pairs: sets.pairs,
+                log_ratios: sets.log_ratios,
+                set_lengths: sets.set_lengths,
             },
             Err(_) => ChannelCalibration {
                 name: names[c],
@@ -391,8 +426,7 @@ pub fn calibrate(
                 set_lengths: Vec::new(),
             },
         })
-        .collect();
-    finish(ratio, ratio_source, channels)
+        .collect())
 }
 
 /// Why a calibration is refused as a whole, from its channels' fits: a degree out of
@@ -541,43 +575,20 @@ pub fn calibrate_bracket(
     if let Some(e) = refusal(fitted.iter().map(|(c, f, ..)| (names[*c], f))) {
         return Err(e);
     }
-    let donor = fitted
-        .iter()
-        .filter_map(|(c, f, ..)| f.as_ref().ok().map(|f| (*c, f.clone())))
-        .max_by(|a, b| a.1.confidence.total_cmp(&b.1.confidence));
-    let Some((donor_c, donor_fit)) = donor else {
-        let reasons: Vec<String> = fitted
-            .iter()
-            .filter_map(|(c, f, ..)| f.as_ref().err().map(|e| format!("{}: {e}", names[*c])))
-            .collect();
-        return Err(CalibrationError::NoChannel(reasons.join("; ")));
-    };
-    let channels = fitted
-        .into_iter()
-        .map(|(c, f, pairs, log_ratios, set_lengths)| match f {
-            Ok(fit) => ChannelCalibration {
-                name: names[c],
-                fit,
-                borrowed_from: None,
-                pairs,
-                log_ratios,
-                set_lengths,
-            },
-            Err(_) => ChannelCalibration {
-                name: names[c],
-                fit: ChannelFit {
-                    equations: 0,
-                    coverage: 0.0,
-                    confidence: 0.0,
-                    ..donor_fit.clone()
-                },
-                borrowed_from: Some(names[donor_c]),
-                pairs: Vec::new(),
-                log_ratios: Vec::new(),
-                set_lengths: Vec::new(),
-            },
-        })
-        .collect();
+    let channels = assemble(
+        names,
+        fitted
+            .into_iter()
+            .map(|(_, f, pairs, log_ratios, set_lengths)| {
+                let sets = ChannelSets {
+                    pairs,
+                    log_ratios,
+                    set_lengths,
+                };
+                (f, sets)
+            })
+            .collect(),
+    )?;
     finish(brightest / darkest, ratio_source, channels)
 }
 

@@ -17,7 +17,7 @@ use rayon::prelude::*;
 
 use super::fit::{self, ChannelFit, Degree, FitError};
 use super::{
-    Calibration, CalibrationError, ChannelCalibration, RatioSource, channel_names, finish,
+    Calibration, CalibrationError, ChannelSets, RatioSource, assemble, channel_names, finish,
 };
 use crate::histogram::TonePair;
 
@@ -112,7 +112,6 @@ pub fn refit(pool: &[&Evidence], degree: Degree) -> Result<Calibration, Calibrat
         )));
     }
     let exposures = 1 + pool.iter().map(|e| e.frames - 1).sum::<usize>();
-    let names = channel_names(channels);
     let fitted: Vec<(Result<ChannelFit, FitError>, Vec<&PairSet>)> = (0..channels)
         .into_par_iter()
         .map(|c| {
@@ -129,49 +128,23 @@ pub fn refit(pool: &[&Evidence], degree: Degree) -> Result<Calibration, Calibrat
             (result, sets)
         })
         .collect();
-    let donor = fitted
-        .iter()
-        .enumerate()
-        .filter_map(|(c, (f, _))| f.as_ref().ok().map(|f| (c, f.clone())))
-        .max_by(|a, b| a.1.confidence.total_cmp(&b.1.confidence));
-    let Some((donor_c, donor_fit)) = donor else {
-        let reasons: Vec<String> = fitted
-            .iter()
-            .enumerate()
-            .filter_map(|(c, (f, _))| f.as_ref().err().map(|e| format!("{}: {e}", names[c])))
-            .collect();
-        return Err(CalibrationError::NoChannel(reasons.join("; ")));
-    };
-    let calibrated = fitted
-        .into_iter()
-        .enumerate()
-        .map(|(c, (f, sets))| match f {
-            Ok(fit) => ChannelCalibration {
-                name: names[c],
-                fit,
-                borrowed_from: None,
-                pairs: sets.iter().flat_map(|s| s.pairs.iter().copied()).collect(),
-                log_ratios: sets
-                    .iter()
-                    .flat_map(|s| std::iter::repeat_n(s.log_ratio, s.pairs.len()))
-                    .collect(),
-                set_lengths: sets.iter().map(|s| s.pairs.len()).collect(),
-            },
-            Err(_) => ChannelCalibration {
-                name: names[c],
-                fit: ChannelFit {
-                    equations: 0,
-                    coverage: 0.0,
-                    confidence: 0.0,
-                    ..donor_fit.clone()
-                },
-                borrowed_from: Some(names[donor_c]),
-                pairs: Vec::new(),
-                log_ratios: Vec::new(),
-                set_lengths: Vec::new(),
-            },
-        })
-        .collect();
+    let calibrated = assemble(
+        channel_names(channels),
+        fitted
+            .into_iter()
+            .map(|(f, sets)| {
+                let tones = ChannelSets {
+                    pairs: sets.iter().flat_map(|s| s.pairs.iter().copied()).collect(),
+                    log_ratios: sets
+                        .iter()
+                        .flat_map(|s| std::iter::repeat_n(s.log_ratio, s.pairs.len()))
+                        .collect(),
+                    set_lengths: sets.iter().map(|s| s.pairs.len()).collect(),
+                };
+                (f, tones)
+            })
+            .collect(),
+    )?;
     let span = pool
         .iter()
         .flat_map(|e| e.channels.iter().flatten())
