@@ -18,9 +18,10 @@ use std::time::Instant;
 
 use filmback::frame::{self, BitDepth, Frame, Limits};
 use filmback::histogram::Histogram;
-use filmback::metadata::{Camera, CaptureTime, Exposure};
 use filmback::response::{Degree, Preset, Ratio, RatioSource, calibrate, calibrate_bracket};
-use filmback::synthetic::{self, Encoding, ResponseCurve, Sensor, Shot, measure};
+use filmback::synthetic::{self, Encoding, ResponseCurve, Sensor, measure};
+
+mod common;
 
 fn median_ms(mut f: impl FnMut()) -> f64 {
     let mut t: Vec<f64> = (0..5)
@@ -41,27 +42,6 @@ fn errors(curve: &ResponseCurve, g: impl Fn(usize, usize) -> f64) -> (f64, f64) 
         (e.iter().map(|x| f(x).powi(2)).sum::<f64>() / 3.0).sqrt()
     };
     (rms(|x| x.own), rms(|x| x.shape))
-}
-
-fn shot(exposure: f64) -> Shot {
-    Shot {
-        camera: Camera::default(),
-        exposure: Exposure {
-            time_s: Some(exposure),
-            f_number: Some(1.0),
-            iso: Some(100.0),
-        },
-        captured_at: CaptureTime {
-            year: 2026,
-            month: 1,
-            day: 1,
-            hour: 0,
-            minute: 0,
-            second: 0,
-            nanos: None,
-            offset_minutes: None,
-        },
-    }
 }
 
 fn peer(dir: &Path, ratio: f64) -> Option<(f64, Vec<Vec<f64>>)> {
@@ -107,8 +87,8 @@ fn main() {
             .iter()
             .map(|&(file, e)| {
                 let f = synthetic::expose(&scene, e, &sensor);
-                let bytes =
-                    synthetic::encode(&f, &shot(e), Encoding::Jpeg { quality: 95 }).unwrap();
+                let bytes = synthetic::encode(&f, &common::shot(e), Encoding::Jpeg { quality: 95 })
+                    .unwrap();
                 std::fs::write(dir.path().join(file), &bytes).unwrap();
                 frame::decode(Path::new(file), &bytes, Limits::default())
                     .unwrap()

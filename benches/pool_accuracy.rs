@@ -26,30 +26,15 @@ use std::path::Path;
 use filmback::darkroom::CONTRADICTION_STOPS;
 use filmback::frame::{self, BitDepth, Frame, Limits};
 use filmback::histogram::Histogram;
-use filmback::metadata::{Camera, CaptureTime, Exposure};
 use filmback::response::pool::{self, Evidence};
 use filmback::response::{Calibration, Degree, Ratio, RatioSource, calibrate};
 use filmback::synthetic::{
-    self, Encoding as FileEncoding, ResponseCurve as Curve, SceneKind, Sensor, Shot, measure,
+    self, Encoding as FileEncoding, ResponseCurve as Curve, SceneKind, Sensor, measure,
 };
 
-const RATIO: f64 = 4.0;
+mod common;
 
-fn dorf_curves() -> Vec<(String, Curve)> {
-    let root = Path::new(env!("CARGO_MANIFEST_DIR"));
-    let path = ["..", "../.."]
-        .iter()
-        .map(|up| {
-            root.join(up)
-                .join("shared/testdata/response-curves/dorf-even.csv")
-        })
-        .find(|p| p.exists())
-        .unwrap_or_else(|| root.join("../shared/testdata/response-curves/dorf-even.csv"));
-    synthetic::dorf_curves(&path).unwrap_or_else(|e| {
-        eprintln!("(DoRF curves unavailable: {e}: nothing to measure)");
-        Vec::new()
-    })
-}
+const RATIO: f64 = 4.0;
 
 /// One frame of `scene` at `exposure` through `curve`, 1 DN noise, JPEG-coded at
 /// `quality` (decoded back) or lossless.
@@ -71,25 +56,12 @@ fn expose(
     let Some(quality) = quality else {
         return frame;
     };
-    let shot = Shot {
-        camera: Camera::default(),
-        exposure: Exposure {
-            time_s: Some(exposure),
-            f_number: Some(1.0),
-            iso: Some(100.0),
-        },
-        captured_at: CaptureTime {
-            year: 2026,
-            month: 1,
-            day: 1,
-            hour: 0,
-            minute: 0,
-            second: 0,
-            nanos: None,
-            offset_minutes: None,
-        },
-    };
-    let bytes = synthetic::encode(&frame, &shot, FileEncoding::Jpeg { quality }).unwrap();
+    let bytes = synthetic::encode(
+        &frame,
+        &common::shot(exposure),
+        FileEncoding::Jpeg { quality },
+    )
+    .unwrap();
     frame::decode(Path::new("synthetic.jpg"), &bytes, Limits::default())
         .unwrap()
         .frame
@@ -135,14 +107,6 @@ fn confidence(c: &Calibration) -> f64 {
         .fold(f64::INFINITY, f64::min)
 }
 
-fn quantile(v: &mut [f64], q: f64) -> f64 {
-    if v.is_empty() {
-        return f64::NAN;
-    }
-    v.sort_by(f64::total_cmp);
-    v[((v.len() - 1) as f64 * q).round() as usize]
-}
-
 fn main() {
     let args: Vec<String> = std::env::args().collect();
     let arg = |flag: &str| {
@@ -151,14 +115,12 @@ fn main() {
             .and_then(|i| args.get(i + 1))
             .cloned()
     };
-    let record = |name: &str| -> u32 { name.trim_start_matches("dorf-").parse().unwrap_or(0) };
     let split = arg("--curves").unwrap_or_else(|| "report".into());
-    let mut curves = dorf_curves();
-    match split.as_str() {
-        "tune" => curves.retain(|(n, _)| record(n) % 4 == 0),
-        "report" => curves.retain(|(n, _)| record(n) % 4 != 0),
-        other => panic!("--curves takes tune or report, not {other}"),
-    }
+    let mut curves = common::dorf_curves().unwrap_or_else(|e| {
+        eprintln!("(DoRF curves unavailable: {e}: nothing to measure)");
+        Vec::new()
+    });
+    common::keep_split(&mut curves, &split);
     let every: usize = arg("--every").map_or(4, |n| n.parse().expect("--every takes a number"));
     let curves: Vec<(String, Curve)> = curves.into_iter().step_by(every.max(1)).collect();
     let brackets: usize =
@@ -243,12 +205,12 @@ fn main() {
         }
         let mut cells = Vec::new();
         for (j, v) in row.iter_mut().enumerate() {
-            let med = quantile(v, 0.5);
+            let med = common::quantile(v, 0.5);
             if j == 2 || j == 5 {
                 cells.push(format!("{med:.2}"));
             } else {
                 cells.push(format!("{med:.3}"));
-                cells.push(format!("{:.3}", quantile(v, 0.9)));
+                cells.push(format!("{:.3}", common::quantile(v, 0.9)));
             }
         }
         println!("| {} | {} |", n + 1, cells.join(" | "));
@@ -259,7 +221,7 @@ fn main() {
     );
     println!(
         "refit time per pool, median {:.0} ms, largest {:.0} ms (this machine, as loaded)",
-        quantile(&mut refit_ms.clone(), 0.5),
+        common::quantile(&mut refit_ms.clone(), 0.5),
         refit_ms.iter().copied().fold(0.0, f64::max)
     );
 }

@@ -23,19 +23,20 @@ use filmback::histogram::Histogram;
 use filmback::response::{Degree, PRIOR_MID_GREY, Ratio, calibrate};
 use filmback::synthetic::{self, SceneKind, Sensor};
 
-const RATIOS: [f64; 3] = [2.0, 4.0, 8.0];
+mod common;
 
-fn quantile(v: &mut [f64], q: f64) -> f64 {
-    v.sort_by(f64::total_cmp);
-    v[((v.len() - 1) as f64 * q).round() as usize]
-}
+const RATIOS: [f64; 3] = [2.0, 4.0, 8.0];
 
 /// `(median, p10, p90)` of `v`, or NaNs when empty.
 fn spread(v: &mut [f64]) -> (f64, f64, f64) {
     if v.is_empty() {
         return (f64::NAN, f64::NAN, f64::NAN);
     }
-    (quantile(v, 0.5), quantile(v, 0.1), quantile(v, 0.9))
+    (
+        common::quantile(v, 0.5),
+        common::quantile(v, 0.1),
+        common::quantile(v, 0.9),
+    )
 }
 
 /// The estimated ratio of one pair of histograms and the range it states
@@ -47,22 +48,14 @@ fn estimate(dark: &Histogram, bright: &Histogram) -> Option<(f64, (f64, f64))> {
 }
 
 fn synthetic_pairs(split: &str, width: u32, height: u32) {
-    let path = Path::new(env!("CARGO_MANIFEST_DIR"))
-        .join("../shared/testdata/response-curves/dorf-even.csv");
-    let mut curves = match synthetic::dorf_curves(&path) {
+    let mut curves = match common::dorf_curves() {
         Ok(c) => c,
         Err(e) => {
             eprintln!("(DoRF curves unavailable: {e}: synthetic pairs skipped)");
             return;
         }
     };
-    let record = |name: &str| -> u32 { name.trim_start_matches("dorf-").parse().unwrap_or(0) };
-    match split {
-        "all" => {}
-        "tune" => curves.retain(|(n, _)| record(n) % 4 == 0),
-        "report" => curves.retain(|(n, _)| record(n) % 4 != 0),
-        other => panic!("--curves takes all, tune or report, not {other}"),
-    }
+    common::keep_split(&mut curves, split);
     let mut mids: Vec<f64> = curves.iter().map(|(_, c)| c.inverse(0.5)).collect();
     let (m, lo, hi) = spread(&mut mids);
     println!(

@@ -49,16 +49,19 @@ use std::process::Command;
 use filmback::frame::{self, BitDepth, Frame, Limits};
 use filmback::histogram::Histogram;
 use filmback::merge::{self, BracketFrame, MergeOptions};
-use filmback::metadata::{Camera, CaptureTime, Exposure};
+use filmback::metadata::Camera;
 use filmback::radiance::RadianceMap;
 use filmback::response::fit::{FEATURES, logistic_confidence};
 use filmback::response::{
     Calibration, Degree, InverseResponse, Ratio, RatioSource, calibrate, calibrate_bracket,
 };
 use filmback::synthetic::{
-    self, Encoding as FileEncoding, ResponseCurve as Curve, SceneKind, Sensor, Shot, measure,
+    self, Encoding as FileEncoding, ResponseCurve as Curve, SceneKind, Sensor, measure,
 };
 use nalgebra::{DMatrix, DVector};
+
+mod common;
+use common::quantile;
 
 const RATIOS: [f64; 7] = [1.25, 2.0, 4.0, 8.0, 16.0, 64.0, 256.0];
 const WIDTH: u32 = 1024;
@@ -83,26 +86,6 @@ fn merged_error(truth: &RadianceMap, frames: &[(&Frame, f64)], g: &InverseRespon
 
 /// Read noise of the 16-bit sensor in 16-bit codes (a quarter of an 8-bit code).
 const NOISE_16: f64 = 64.0;
-
-fn dorf_curves() -> Vec<(String, Curve)> {
-    // `../shared` of the repository, or of its parent for a git worktree in a folder.
-    let root = Path::new(env!("CARGO_MANIFEST_DIR"));
-    let path = ["..", "../.."]
-        .iter()
-        .map(|up| {
-            root.join(up)
-                .join("shared/testdata/response-curves/dorf-even.csv")
-        })
-        .find(|p| p.exists())
-        .unwrap_or_else(|| root.join("../shared/testdata/response-curves/dorf-even.csv"));
-    match synthetic::dorf_curves(&path) {
-        Ok(curves) => curves,
-        Err(e) => {
-            eprintln!("(DoRF curves unavailable: {e}: skipped)");
-            Vec::new()
-        }
-    }
-}
 
 #[derive(Clone, Copy, PartialEq)]
 enum Encoding {
@@ -168,24 +151,7 @@ fn expose(
         seed,
     };
     let frame = synthetic::expose(scene, exposure, &sensor);
-    let shot = Shot {
-        camera: Camera::default(),
-        exposure: Exposure {
-            time_s: Some(exposure),
-            f_number: Some(1.0),
-            iso: Some(100.0),
-        },
-        captured_at: CaptureTime {
-            year: 2026,
-            month: 1,
-            day: 1,
-            hour: 0,
-            minute: 0,
-            second: 0,
-            nanos: None,
-            offset_minutes: None,
-        },
-    };
+    let shot = common::shot(exposure);
     match enc {
         Encoding::Sixteen => (frame, None),
         Encoding::Lossless8 => {
@@ -236,14 +202,6 @@ struct Outcome {
     peer_index: Option<usize>,
 }
 
-fn quantile(v: &mut [f64], q: f64) -> f64 {
-    if v.is_empty() {
-        return f64::NAN;
-    }
-    v.sort_by(f64::total_cmp);
-    v[((v.len() - 1) as f64 * q).round() as usize]
-}
-
 fn peer_python() -> Option<String> {
     let out = Command::new("/work/shared/peer/setup.sh").output().ok()?;
     let py = String::from_utf8(out.stdout).ok()?.trim().to_string();
@@ -268,15 +226,12 @@ fn main() {
             .and_then(|i| args.get(i + 1))
             .cloned()
     };
-    let mut dorf = dorf_curves();
+    let mut dorf = common::dorf_curves().unwrap_or_else(|e| {
+        eprintln!("(DoRF curves unavailable: {e}: skipped)");
+        Vec::new()
+    });
     // The DoRF records are numbered 0, 2, 4, …: tune on multiples of 4, report on the rest.
-    let record = |name: &str| -> u32 { name.trim_start_matches("dorf-").parse().unwrap_or(0) };
-    match arg("--curves").as_deref() {
-        None | Some("all") => {}
-        Some("tune") => dorf.retain(|(n, _)| record(n) % 4 == 0),
-        Some("report") => dorf.retain(|(n, _)| record(n) % 4 != 0),
-        Some(other) => panic!("--curves takes all, tune or report, not {other}"),
-    }
+    common::keep_split(&mut dorf, arg("--curves").as_deref().unwrap_or("all"));
     let every = arg("--every")
         .map(|n| n.parse::<usize>().expect("--every takes a whole number"))
         .unwrap_or(if quick { 10 } else { 1 });

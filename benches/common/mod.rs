@@ -1,0 +1,68 @@
+//! What the benchmarks share: the DoRF curves and their split, the synthetic shot's EXIF,
+//! quantiles. Each bench uses part of it.
+#![allow(dead_code)]
+
+use std::path::Path;
+
+use filmback::metadata::{Camera, CaptureTime, Exposure};
+use filmback::synthetic::{self, ResponseCurve, Shot, SyntheticError};
+
+/// The DoRF curves of `../shared/testdata/response-curves/dorf-even.csv`, found beside
+/// the repository or, for a git worktree in a folder, beside its parent.
+pub fn dorf_curves() -> Result<Vec<(String, ResponseCurve)>, SyntheticError> {
+    let root = Path::new(env!("CARGO_MANIFEST_DIR"));
+    let path = ["..", "../.."]
+        .iter()
+        .map(|up| {
+            root.join(up)
+                .join("shared/testdata/response-curves/dorf-even.csv")
+        })
+        .find(|p| p.exists())
+        .unwrap_or_else(|| root.join("../shared/testdata/response-curves/dorf-even.csv"));
+    synthetic::dorf_curves(&path)
+}
+
+/// Keeps the DoRF records of `split`: `all`, `tune` (records numbered ≡ 0 mod 4, the
+/// curves a change is tuned on) or `report` (the others, ≡ 2 mod 4, where its accuracy
+/// is reported).
+pub fn keep_split(curves: &mut Vec<(String, ResponseCurve)>, split: &str) {
+    let record = |name: &str| -> u32 { name.trim_start_matches("dorf-").parse().unwrap_or(0) };
+    match split {
+        "all" => {}
+        "tune" => curves.retain(|(n, _)| record(n) % 4 == 0),
+        "report" => curves.retain(|(n, _)| record(n) % 4 != 0),
+        other => panic!("--curves takes all, tune or report, not {other}"),
+    }
+}
+
+/// The value of rank `round(q·(n − 1))` of `v` (sorted in place); NaN when empty.
+pub fn quantile(v: &mut [f64], q: f64) -> f64 {
+    if v.is_empty() {
+        return f64::NAN;
+    }
+    v.sort_by(f64::total_cmp);
+    v[((v.len() - 1) as f64 * q).round() as usize]
+}
+
+/// A synthetic frame's EXIF: exposure time `exposure` s at f/1, ISO 100, the default
+/// camera, 2026-01-01 00:00:00.
+pub fn shot(exposure: f64) -> Shot {
+    Shot {
+        camera: Camera::default(),
+        exposure: Exposure {
+            time_s: Some(exposure),
+            f_number: Some(1.0),
+            iso: Some(100.0),
+        },
+        captured_at: CaptureTime {
+            year: 2026,
+            month: 1,
+            day: 1,
+            hour: 0,
+            minute: 0,
+            second: 0,
+            nanos: None,
+            offset_minutes: None,
+        },
+    }
+}
