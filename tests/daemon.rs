@@ -258,6 +258,16 @@ fn files_present_before_start_are_developed() {
     assert_eq!(journaled_brackets(&state), ["a-1", "b-1"]);
 }
 
+/// A RAW+JPEG bracket of `model` dropped into `dir`, each capture's raw then its JPEG.
+#[cfg(feature = "raw")]
+fn put_raw_plus_jpeg(dir: &Path, model: &str, second: u32, prefix: &str) {
+    let jpegs = aeb(model, second, prefix);
+    for (raw, jpeg) in raw_aeb(model, second, prefix).iter().zip(&jpegs) {
+        put(dir, std::slice::from_ref(raw));
+        put(dir, std::slice::from_ref(jpeg));
+    }
+}
+
 /// A three-frame AEB as DNGs (`<prefix>-1.dng` …) from a 14-bit RGGB sensor, the longest
 /// frame's mid-grey at 0.18 of full scale.
 #[cfg(feature = "raw")]
@@ -362,12 +372,7 @@ fn assert_one_raw_bracket(state: &Path) {
 #[test]
 fn raw_plus_jpeg_gives_one_bracket_from_the_raws() {
     let mut rig = Rig::start(&[], Arc::new(DarkroomLab), |_| {});
-    let jpegs = aeb("Raw Body", 10, "r");
-    let raws = raw_aeb("Raw Body", 10, "r");
-    for (raw, jpeg) in raws.iter().zip(&jpegs) {
-        put(&rig.ingest(), std::slice::from_ref(raw));
-        put(&rig.ingest(), std::slice::from_ref(jpeg));
-    }
+    put_raw_plus_jpeg(&rig.ingest(), "Raw Body", 10, "r");
     expect_outputs(&rig.out(), &bracket_outputs(&["r-1"]), T);
     let state = rig.state();
     let summary = rig.stop();
@@ -445,12 +450,7 @@ fn raw_plus_jpeg_in_sibling_folders_jpeg_first_gives_one_bracket_from_the_raws()
 #[test]
 fn jpegs_of_a_raw_plus_jpeg_body_are_frames_after_the_gap_with_its_measured_curve() {
     let mut rig = Rig::start(&[], Arc::new(DarkroomLab), |_| {});
-    let jpegs = aeb("Raw Body", 10, "r");
-    let raws = raw_aeb("Raw Body", 10, "r");
-    for (raw, jpeg) in raws.iter().zip(&jpegs) {
-        put(&rig.ingest(), std::slice::from_ref(raw));
-        put(&rig.ingest(), std::slice::from_ref(jpeg));
-    }
+    put_raw_plus_jpeg(&rig.ingest(), "Raw Body", 10, "r");
     expect_outputs(&rig.out(), &bracket_outputs(&["r-1"]), T);
     put(&rig.ingest(), &aeb("Raw Body", 30, "j"));
     expect_outputs(&rig.out(), &bracket_outputs(&["r-1", "j-1"]), T);
