@@ -33,6 +33,7 @@ use filmback::synthetic::{
 };
 
 mod common;
+use common::arg;
 
 const RATIO: f64 = 4.0;
 
@@ -108,13 +109,6 @@ fn confidence(c: &Calibration) -> f64 {
 }
 
 fn main() {
-    let args: Vec<String> = std::env::args().collect();
-    let arg = |flag: &str| {
-        args.iter()
-            .position(|a| a == flag)
-            .and_then(|i| args.get(i + 1))
-            .cloned()
-    };
     let split = arg("--curves").unwrap_or_else(|| "report".into());
     let mut curves = common::dorf_curves().unwrap_or_else(|e| {
         eprintln!("(DoRF curves unavailable: {e}: nothing to measure)");

@@ -24,6 +24,7 @@ use filmback::response::{Degree, PRIOR_MID_GREY, Ratio, calibrate};
 use filmback::synthetic::{self, SceneKind, Sensor};
 
 mod common;
+use common::arg;
 
 const RATIOS: [f64; 3] = [2.0, 4.0, 8.0];
 
@@ -206,13 +207,6 @@ fn real_pairs() {
 }
 
 fn main() {
-    let args: Vec<String> = std::env::args().collect();
-    let arg = |flag: &str| {
-        args.iter()
-            .position(|a| a == flag)
-            .and_then(|i| args.get(i + 1))
-            .cloned()
-    };
     let split = arg("--curves").unwrap_or_else(|| "report".into());
     let (width, height) = match arg("--size") {
         Some(size) => {

@@ -61,7 +61,7 @@ use filmback::synthetic::{
 use nalgebra::{DMatrix, DVector};
 
 mod common;
-use common::quantile;
+use common::{arg, quantile};
 
 const RATIOS: [f64; 7] = [1.25, 2.0, 4.0, 8.0, 16.0, 64.0, 256.0];
 const WIDTH: u32 = 1024;
@@ -220,12 +220,6 @@ fn main() {
         .filter(|(n, _)| n != "linear")
         .collect();
     let args: Vec<String> = std::env::args().collect();
-    let arg = |flag: &str| {
-        args.iter()
-            .position(|a| a == flag)
-            .and_then(|i| args.get(i + 1))
-            .cloned()
-    };
     let mut dorf = common::dorf_curves().unwrap_or_else(|e| {
         eprintln!("(DoRF curves unavailable: {e}: skipped)");
         Vec::new()

@@ -35,6 +35,15 @@ pub fn keep_split(curves: &mut Vec<(String, ResponseCurve)>, split: &str) {
     }
 }
 
+/// The word after `flag` on the command line, if any.
+pub fn arg(flag: &str) -> Option<String> {
+    let args: Vec<String> = std::env::args().collect();
+    args.iter()
+        .position(|a| a == flag)
+        .and_then(|i| args.get(i + 1))
+        .cloned()
+}
+
 /// The value of rank `round(q·(n − 1))` of `v` (sorted in place); NaN when empty.
 pub fn quantile(v: &mut [f64], q: f64) -> f64 {
     if v.is_empty() {
