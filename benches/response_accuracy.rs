@@ -187,6 +187,8 @@ struct Outcome {
     shape: f64,
     /// Largest |scale error| over channels, stops.
     scale: f64,
+    /// The colour cast: largest minus smallest scale error over channels, stops.
+    cast: f64,
     /// Merged radiance error with the true response, fraction.
     merge_true: f64,
     /// Merged radiance error with the fitted response minus `merge_true`, fraction.
@@ -378,6 +380,7 @@ fn main() {
                         own: f64::NAN,
                         shape: f64::NAN,
                         scale: f64::NAN,
+                        cast: f64::NAN,
                         merge_true,
                         gap: f64::NAN,
                         best_pair,
@@ -488,9 +491,10 @@ fn main() {
                                 errors(curve, |c, k| cal.response.eval(c, k as f64 / 255.0));
                             outcome.own = own;
                             outcome.shape = shape;
-                            outcome.scale = measure::scale_errors(&cal.response, curve)
-                                .into_iter()
-                                .fold(0.0, |a: f64, s| a.max(s.abs()));
+                            let scales = measure::scale_errors(&cal.response, curve);
+                            outcome.scale = scales.iter().fold(0.0, |a: f64, s| a.max(s.abs()));
+                            outcome.cast = scales.iter().fold(f64::NEG_INFINITY, |a, &s| a.max(s))
+                                - scales.iter().fold(f64::INFINITY, |a, &s| a.min(s));
                             if !fits_only {
                                 outcome.gap = merged_error(&radiance, &frames, &cal.response)
                                     .map_or(f64::NAN, |e| e - merge_true);
@@ -576,13 +580,15 @@ fn main() {
     );
     println!();
     println!(
-        "Errors in stops over codes 16..239, DoRF curves only (all curves if DoRF is absent). 'scale' = largest |mean log2 g - log2 g_true| over channels; 'true-g merge' = median relative radiance error of the merge given the true response; 'gap' = the same with the fitted response minus it, percentage points. 'confident wrong' = confidence >= 0.5 but shape error > 0.1 stop."
+        "Errors in stops over codes 16..239, DoRF curves only (all curves if DoRF is absent). 'scale' = largest |mean log2 g - log2 g_true| over channels; 'cast' = largest minus smallest scale error over channels (the colour cast); 'true-g merge' = median relative radiance error of the merge given the true response; 'gap' = the same with the fitted response minus it, percentage points. 'confident wrong' = confidence >= 0.5 but shape error > 0.1 stop."
     );
     println!();
     println!(
-        "| encoding | scene | ratio | n | fail | shape median | shape p90 | shape max | own median | scale median | scale p90 | true-g merge | gap median (pp) | gap p90 (pp) | low conf. | confident wrong | eff. parameters median | OpenCV shape median | OpenCV p90 | ours better |"
+        "| encoding | scene | ratio | n | fail | shape median | shape p90 | shape max | own median | scale median | scale p90 | cast median | cast p90 | true-g merge | gap median (pp) | gap p90 (pp) | low conf. | confident wrong | eff. parameters median | OpenCV shape median | OpenCV p90 | ours better |"
     );
-    println!("|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|");
+    println!(
+        "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|"
+    );
     let use_dorf = outcomes.iter().any(|o| o.curve.starts_with("dorf-"));
     for &enc in &encodings {
         for &kind in &scenes {
@@ -603,6 +609,7 @@ fn main() {
                 let mut own = column(&|o| o.own);
                 let mut shape = column(&|o| o.shape);
                 let mut scale = column(&|o| o.scale);
+                let mut cast = column(&|o| o.cast);
                 let mut merge_true: Vec<f64> = set
                     .iter()
                     .map(|o| o.merge_true)
@@ -640,7 +647,7 @@ fn main() {
                     )
                 };
                 println!(
-                    "| {} | {} | {ratio} | {} | {} | {:.4} | {:.4} | {:.3} | {:.4} | {:.4} | {:.4} | {:.2} % | {:.2} | {:.2} | {low} | {wrong} | {:.1} | {pm} | {pp} | {better} |",
+                    "| {} | {} | {ratio} | {} | {} | {:.4} | {:.4} | {:.3} | {:.4} | {:.4} | {:.4} | {:.4} | {:.4} | {:.2} % | {:.2} | {:.2} | {low} | {wrong} | {:.1} | {pm} | {pp} | {better} |",
                     enc.name(),
                     kind.name(),
                     set.len(),
@@ -651,6 +658,8 @@ fn main() {
                     quantile(&mut own, 0.5),
                     quantile(&mut scale, 0.5),
                     quantile(&mut scale, 0.9),
+                    quantile(&mut cast, 0.5),
+                    quantile(&mut cast, 0.9),
                     100.0 * quantile(&mut merge_true, 0.5),
                     100.0 * quantile(&mut gap, 0.5),
                     100.0 * quantile(&mut gap, 0.9),

@@ -450,15 +450,94 @@ fn refusal<'a>(
         .then_some(CalibrationError::Swapped)
 }
 
-/// The sampled curves of `channels`, checked.
+/// Brightness above which a channel's level is left alone: its fade to `g(1) = 1` starts
+/// at its brightest tone or here, whichever is lower (the last code but one of 8 bits).
+const BALANCE_TOP: f64 = 254.0 / 255.0;
+
+/// Points, evenly spaced in brightness, at which the channels' levels are compared.
+const BALANCE_POINTS: usize = 64;
+
+/// The channels' balance where their equations are, not at white: per channel the
+/// offset `o_c` (nats of `ln g`) subtracted from `ln g_c` up to its brightest tone.
+///
+/// Two frames fix each channel's curve only up to its level, which `g(1) = 1` sets by
+/// extrapolating above the brightest tone the channel's equations reach (a few codes,
+/// often tenths of a stop of exposure); the channels extrapolate differently, and their
+/// difference is a colour cast over the whole map. Setting `g(1) = 1` in every channel
+/// means "white that clips all channels at once is neutral"; the same convention is
+/// applied here where it is measured: over the tones `[b_lo, b_hi]` that every fitted
+/// channel's equations cover, `L_c = mean_b ln g_c(b)` at [`BALANCE_POINTS`] points, and
+/// `o_c = L_c − mean_c L_c` (fitted channels; a borrowed channel has its donor's curve
+/// and so its offset), so a tone that is neutral in codes is neutral in radiance there.
+/// Above its brightest tone `b_c` the offset fades linearly in `b` to 0 at `b = 1`, so
+/// `g(1) = 1` still holds; `o_c` is never below `ln g_c(b_c)`, so `g_c(b_c) ≤ 1`. One
+/// channel, a single fitted channel, or no common tones: no offsets.
+fn balance(channels: &[ChannelCalibration]) -> Vec<f64> {
+    let none = vec![0.0; channels.len()];
+    let fitted: Vec<&ChannelCalibration> = channels
+        .iter()
+        .filter(|c| c.borrowed_from.is_none())
+        .collect();
+    if fitted.len() < 2 {
+        return none;
+    }
+    let lo = fitted.iter().map(|c| c.fit.covered.0).fold(0.0, f64::max);
+    let hi = fitted
+        .iter()
+        .map(|c| c.fit.covered.1)
+        .fold(BALANCE_TOP, f64::min);
+    if !(hi > lo && lo > 0.0) {
+        return none;
+    }
+    let level = |c: &ChannelCalibration| {
+        (0..BALANCE_POINTS)
+            .map(|k| {
+                c.fit
+                    .log_g(lo + (hi - lo) * (k as f64 + 0.5) / BALANCE_POINTS as f64)
+            })
+            .sum::<f64>()
+            / BALANCE_POINTS as f64
+    };
+    let levels: Vec<f64> = channels.iter().map(level).collect();
+    let reference = channels
+        .iter()
+        .zip(&levels)
+        .filter(|(c, _)| c.borrowed_from.is_none())
+        .map(|(_, l)| l)
+        .sum::<f64>()
+        / fitted.len() as f64;
+    if !reference.is_finite() {
+        return none;
+    }
+    channels
+        .iter()
+        .zip(&levels)
+        .map(|(c, l)| (l - reference).max(c.fit.log_g(c.fit.covered.1.min(BALANCE_TOP))))
+        .collect()
+}
+
+/// The sampled curves of `channels`, balanced ([`balance`]) and checked.
 fn finish(
     ratio: f64,
     ratio_source: RatioSource,
     channels: Vec<ChannelCalibration>,
 ) -> Result<Calibration, CalibrationError> {
+    let offsets = balance(&channels);
     let samples = channels
         .iter()
-        .map(|ch| sample_curve(|b| ch.fit.eval(b), CALIBRATED_SAMPLES))
+        .zip(&offsets)
+        .map(|(ch, &offset)| {
+            let top = ch.fit.covered.1.min(BALANCE_TOP);
+            sample_curve(
+                |b| {
+                    // The offset in full up to the channel's brightest tone, fading
+                    // linearly in `b` to nothing at `b = 1`, which stays `g(1) = 1`.
+                    let fade = ((1.0 - b) / (1.0 - top)).clamp(0.0, 1.0);
+                    (ch.fit.log_g(b) - offset * fade).exp()
+                },
+                CALIBRATED_SAMPLES,
+            )
+        })
         .collect();
     let response = InverseResponse::from_samples(samples).map_err(|e| {
         CalibrationError::NoChannel(format!("the fitted curve is not a valid response: {e}"))
