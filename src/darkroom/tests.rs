@@ -219,8 +219,16 @@ fn job_memory_grows_by_each_frames_own_decoded_size() {
         2 * 6000 * 4000 * 3,
         "16-bit frames hold twice the bytes"
     );
+    // The EXR alone is merged while it is encoded: no map, no look, no JPEG bands.
     let no_looks = job_memory_bytes(6000, 4000, 2, 3, 1, 0);
-    assert_eq!(pair - no_looks, 8 * 6000 * 4000);
-    // The figure the documentation states for a 24 MP pair with two looks.
+    assert_eq!(
+        pair - no_looks,
+        (4 * 3 + 8) * 6000 * 4000 + 18 * 64 * 6000,
+        "the map, one look's working set and the JPEG bands"
+    );
+    // The figures the documentation states: a 24 MP pair with two looks, five 24 MP
+    // frames and seven 45 MP frames written only as EXR.
     assert_eq!(pair / 1_000_000, 774);
+    assert_eq!(job_memory_bytes(6000, 4000, 5, 3, 1, 0) / 1_000_000, 504);
+    assert_eq!(job_memory_bytes(8256, 5504, 7, 3, 1, 0) / 10_000_000, 122);
 }
