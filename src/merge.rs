@@ -1027,7 +1027,7 @@ impl<'a> BracketMerge<'a> {
     }
 
     /// Channel `channel` of the `out.len()` pixels from `pixel` on (one line or part of
-    /// one), frame by frame over runs of [`RUN`] pixels.
+    /// one), frame by frame over runs of 256 pixels.
     pub fn line(&self, pixel: usize, channel: usize, out: &mut [f32]) {
         match &self.codes {
             Codes::Eight(f) => self.line_of(f, pixel, channel, out),
