@@ -83,6 +83,11 @@
 //! bracket, two 8-bit frames, every outcome is tabulated once per channel by code pair
 //! (65 536 entries), so a sample costs one lookup; [`PairMerge`] goes further and is
 //! evaluated while the file is encoded, so no radiance buffer exists at all.
+//! [`BracketMerge`] does the same for any other bracket (three frames or more, or 16-bit
+//! frames) through the per-frame tables: an encoder pulls one line of one channel at a
+//! time, so what a merge written only as a file holds is the frames' codes, the tables
+//! and the lines in flight, whatever the number of frames. Both give exactly the values
+//! of [`merge`] (the same tables, summed in the same order).
 //!
 //! # Equal exposures
 //!
@@ -897,6 +902,268 @@ impl<'a> PairMerge<'a> {
     }
 }
 
+/// The sorted frames' codes, borrowed from the frames.
+enum Codes<'a> {
+    Eight(Vec<&'a [u8]>),
+    Sixteen(Vec<&'a [u16]>),
+}
+
+/// Pixels of one line merged at a time by [`BracketMerge::line`]: the weighted sums live
+/// on the stack (2 KB).
+const RUN: usize = 256;
+
+/// A merge of any bracket evaluated a line at a time on demand, never held as a whole
+/// image: an encoder pulls [`BracketMerge::line`] while it writes (a PIZ block of 32
+/// lines at a time on each thread), which saves the `f32` radiance buffer (12 bytes per
+/// RGB pixel). Per sample it sums `w_k(code_k)` and `w_k(code_k)·x_k(code_k)` over the
+/// frames from the per-frame, per-channel tables of [`merge`], darkest first, and divides
+/// (or applies the clipped-everywhere rule), so the values are exactly those of
+/// [`merge`]. For two 8-bit frames [`PairMerge`] is faster (one lookup a sample).
+pub struct BracketMerge<'a> {
+    codes: Codes<'a>,
+    tables: Tables,
+    factor: f32,
+    width: u32,
+    height: u32,
+    /// Input indices sorted by exposure, darkest first.
+    pub order: Vec<usize>,
+    /// The exposures in that order.
+    pub exposures: Vec<f64>,
+    /// Samples clipped high in every frame (value is a lower bound).
+    pub clipped_high: u64,
+    /// Samples clipped low in every frame (value is an upper bound).
+    pub clipped_low: u64,
+}
+
+impl<'a> BracketMerge<'a> {
+    /// Prepares the merge of `frames` (any number ≥ 2, 8- or 16-bit): checks the bracket
+    /// exactly as [`merge`] does, builds the tables and counts the clipped samples (one
+    /// pass over the darkest frame's codes, and the others' only where it is clipped).
+    pub fn new(
+        frames: &[BracketFrame<'a>],
+        response: &InverseResponse,
+        weighting: Weighting,
+    ) -> Result<BracketMerge<'a>, MergeError> {
+        check(frames, response)?;
+        let mut order: Vec<usize> = (0..frames.len()).collect();
+        order.sort_by(|&a, &b| frames[a].exposure.total_cmp(&frames[b].exposure));
+        let exposures: Vec<f64> = order.iter().map(|&i| frames[i].exposure).collect();
+        let first = frames[0].frame;
+        let depth = first.bit_depth();
+        let tables = Tables::new(&exposures, response, first.channels(), depth, weighting);
+        let codes = match depth {
+            BitDepth::Eight => Codes::Eight(
+                order
+                    .iter()
+                    .map(|&i| match frames[i].frame.samples() {
+                        Samples::Eight(v) => v.as_slice(),
+                        Samples::Sixteen(_) => unreachable!("depth checked"),
+                    })
+                    .collect(),
+            ),
+            BitDepth::Sixteen => Codes::Sixteen(
+                order
+                    .iter()
+                    .map(|&i| match frames[i].frame.samples() {
+                        Samples::Sixteen(v) => v.as_slice(),
+                        Samples::Eight(_) => unreachable!("depth checked"),
+                    })
+                    .collect(),
+            ),
+        };
+        let (clipped_high, clipped_low) = match &codes {
+            Codes::Eight(c) => count_clipped_everywhere(c, &tables),
+            Codes::Sixteen(c) => count_clipped_everywhere(c, &tables),
+        };
+        Ok(BracketMerge {
+            codes,
+            tables,
+            factor: 1.0,
+            width: first.width(),
+            height: first.height(),
+            order,
+            exposures,
+            clipped_high,
+            clipped_low,
+        })
+    }
+
+    /// Width in pixels.
+    pub fn width(&self) -> u32 {
+        self.width
+    }
+
+    /// Height in pixels.
+    pub fn height(&self) -> u32 {
+        self.height
+    }
+
+    /// 1 (grey) or 3 (RGB).
+    pub fn channels(&self) -> usize {
+        self.tables.channels
+    }
+
+    /// Ratio of the longest to the shortest exposure.
+    pub fn ratio(&self) -> f64 {
+        self.exposures[self.exposures.len() - 1] / self.exposures[0]
+    }
+
+    /// Multiplies every value by `factor` (a change of scale, see [`exposure_scale`]),
+    /// applied to each merged value as [`merge`]'s caller applies it to the map.
+    pub fn scale_by(&mut self, factor: f32) {
+        self.factor *= factor;
+    }
+
+    /// Radiance of channel `channel` of pixel `pixel` (row-major index).
+    pub fn sample(&self, pixel: usize, channel: usize) -> f32 {
+        let i = pixel * self.tables.channels + channel;
+        let value = match &self.codes {
+            Codes::Eight(f) => estimate(&self.tables, channel, |k| f[k][i].into()),
+            Codes::Sixteen(f) => estimate(&self.tables, channel, |k| f[k][i].into()),
+        };
+        match value {
+            Estimate::Weighted(v, _) | Estimate::High(v) | Estimate::Low(v) => v * self.factor,
+        }
+    }
+
+    /// Channel `channel` of the `out.len()` pixels from `pixel` on (one line or part of
+    /// one), frame by frame over runs of 256 pixels.
+    pub fn line(&self, pixel: usize, channel: usize, out: &mut [f32]) {
+        match &self.codes {
+            Codes::Eight(f) => self.line_of(f, pixel, channel, out),
+            Codes::Sixteen(f) => self.line_of(f, pixel, channel, out),
+        }
+    }
+
+    fn line_of<T: Copy + Into<usize>>(
+        &self,
+        frames: &[&[T]],
+        pixel: usize,
+        channel: usize,
+        out: &mut [f32],
+    ) {
+        let t = &self.tables;
+        let (channels, last) = (t.channels, t.frames - 1);
+        for (run, out) in out.chunks_mut(RUN).enumerate() {
+            let start = (pixel + run * RUN) * channels + channel;
+            let (mut num, mut den) = ([0f32; RUN], [0f32; RUN]);
+            for (k, codes) in frames.iter().enumerate() {
+                let table = &t.weighted[t.index(k, channel, 0)..t.index(k, channel, t.levels)];
+                let codes = codes[start..].iter().step_by(channels);
+                for ((n, d), &code) in num.iter_mut().zip(&mut den).zip(codes).take(out.len()) {
+                    let [w, wx] = table[code.into()];
+                    *n += wx;
+                    *d += w;
+                }
+            }
+            for (j, v) in out.iter_mut().enumerate() {
+                let value = if den[j] > 0.0 {
+                    num[j] / den[j]
+                } else {
+                    // Clipped in every frame: the rule of `estimate`.
+                    let i = start + j * channels;
+                    let dark: usize = frames[0][i].into();
+                    if dark >= t.levels / 2 {
+                        t.value[t.index(0, channel, dark)]
+                    } else {
+                        t.value[t.index(last, channel, frames[last][i].into())]
+                    }
+                };
+                *v = value * self.factor;
+            }
+        }
+    }
+
+    /// An upper bound of every value, from the tables alone: the largest `x_k(code)`
+    /// (a weighted mean never exceeds its largest term; the clipped rules take a term),
+    /// raised by 10⁻⁵ for the rounding of the `f32` sums.
+    pub fn max_bound(&self) -> f32 {
+        let largest = self.tables.value.iter().copied().fold(0.0, f32::max);
+        largest * self.factor * (1.0 + 1e-5)
+    }
+
+    /// The largest finite value of the image: one pass over the whole merge, rows in
+    /// parallel, nothing held.
+    pub fn max_value(&self) -> f32 {
+        let width = self.width as usize;
+        (0..self.height as usize)
+            .into_par_iter()
+            .map(|y| {
+                let mut line = vec![0f32; width];
+                let mut max = 0f32;
+                for c in 0..self.channels() {
+                    self.line(y * width, c, &mut line);
+                    max = line
+                        .iter()
+                        .copied()
+                        .filter(|v| v.is_finite())
+                        .fold(max, f32::max);
+                }
+                max
+            })
+            .reduce(|| 0.0, f32::max)
+    }
+
+    /// Evaluates every sample into a [`RadianceMap`] (rows in parallel).
+    pub fn to_map(&self) -> RadianceMap {
+        let (width, channels) = (self.width as usize, self.channels());
+        let mut pixels = vec![0.0f32; width * self.height as usize * channels];
+        pixels
+            .par_chunks_mut(width * channels)
+            .enumerate()
+            .for_each(|(y, row)| {
+                let mut line = vec![0f32; width];
+                for c in 0..channels {
+                    self.line(y * width, c, &mut line);
+                    for (o, &v) in row[c..].iter_mut().step_by(channels).zip(&line) {
+                        *o = v;
+                    }
+                }
+            });
+        RadianceMap::new(self.width, self.height, channels, pixels)
+            .expect("buffer sized from the frames")
+    }
+}
+
+/// Samples clipped high and low in every frame (every weight zero, the rule of
+/// `estimate`): the darkest frame's code decides most samples, the brightest's most of
+/// the rest, the others are read only where both are clipped.
+fn count_clipped_everywhere<T: Copy + Into<usize> + Sync>(
+    frames: &[&[T]],
+    tables: &Tables,
+) -> (u64, u64) {
+    let (channels, last) = (tables.channels, tables.frames - 1);
+    let zero =
+        |k: usize, c: usize, code: T| tables.weighted[tables.index(k, c, code.into())][0] == 0.0;
+    let chunk = channels << 14;
+    frames[0]
+        .par_chunks(chunk)
+        .enumerate()
+        .map(|(n, dark)| {
+            let (mut high, mut low) = (0u64, 0u64);
+            for (p, pixel) in dark.chunks_exact(channels).enumerate() {
+                for (c, &code) in pixel.iter().enumerate() {
+                    if !zero(0, c, code) {
+                        continue;
+                    }
+                    let i = n * chunk + p * channels + c;
+                    if !zero(last, c, frames[last][i])
+                        || (1..last).any(|k| !zero(k, c, frames[k][i]))
+                    {
+                        continue;
+                    }
+                    if code.into() >= tables.levels / 2 {
+                        high += 1;
+                    } else {
+                        low += 1;
+                    }
+                }
+            }
+            (high, low)
+        })
+        .reduce(|| (0, 0), |a, b| (a.0 + b.0, a.1 + b.1))
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -1052,6 +1319,89 @@ mod tests {
         let merged = merge(&bracket(&frames, &cam), &linear(), MergeOptions::default()).unwrap();
         let v = merged.radiance.pixels()[0];
         assert!((v - 4000.0 / 65535.0).abs() < 1e-6, "{v}");
+    }
+
+    /// `n` RGB frames of an odd `width × height` (17 × 45: not a whole number of PIZ
+    /// blocks or merge runs) one stop apart, of a scene spanning 34 stops with a gamma
+    /// 2.2 response and a little pseudo-random noise, so that some samples are clipped
+    /// high or low in every frame; 8-bit, or 16-bit when `sixteen`.
+    fn exposed(n: usize, sixteen: bool) -> Vec<(Frame, f64)> {
+        let (width, height) = (17u32, 45u32);
+        let samples = (width * height * 3) as usize;
+        let mut state = 0x9e37_79b9_7f4a_7c15u64;
+        let mut noise = move || {
+            state ^= state << 13;
+            state ^= state >> 7;
+            state ^= state << 17;
+            (state >> 11) as f64 / (1u64 << 53) as f64 - 0.5
+        };
+        let scene: Vec<f64> = (0..samples)
+            .map(|i| 2f64.powf(34.0 * i as f64 / samples as f64 - 28.0))
+            .collect();
+        (0..n)
+            .map(|k| {
+                let e = 2f64.powi(k as i32);
+                let level = |r: f64, max: f64| (max * (r * e).min(1.0).powf(1.0 / 2.2)).round();
+                let samples = if sixteen {
+                    Samples::Sixteen(
+                        scene
+                            .iter()
+                            .map(|&r| {
+                                (level(r, 65535.0) + 40.0 * noise()).clamp(0.0, 65535.0) as u16
+                            })
+                            .collect(),
+                    )
+                } else {
+                    Samples::Eight(
+                        scene
+                            .iter()
+                            .map(|&r| (level(r, 255.0) + 2.0 * noise()).clamp(0.0, 255.0) as u8)
+                            .collect(),
+                    )
+                };
+                (Frame::new(width, height, 3, samples).unwrap(), e)
+            })
+            .collect()
+    }
+
+    #[test]
+    fn bracket_merge_equals_the_merged_map_bit_for_bit() {
+        let cam = Camera::default();
+        let g = InverseResponse::srgb(3, 1024);
+        for (n, sixteen) in [(3, false), (5, false), (3, true)] {
+            let mut frames = exposed(n, sixteen);
+            // Out of order, as a bracket may arrive.
+            frames.swap(0, n - 1);
+            for weighting in [Weighting::Hat, Weighting::NoiseAware] {
+                let b = bracket(&frames, &cam);
+                let options = MergeOptions {
+                    weighting,
+                    confidence: false,
+                };
+                let map = merge(&b, &g, options).unwrap();
+                let mut lazy = BracketMerge::new(&b, &g, weighting).unwrap();
+                let case = format!("{n} frames, 16-bit {sixteen}, {weighting:?}");
+                assert_eq!(lazy.to_map(), map.radiance, "{case}");
+                assert_eq!(lazy.order, map.order, "{case}");
+                assert_eq!(
+                    (lazy.clipped_high, lazy.clipped_low),
+                    (map.clipped_high, map.clipped_low),
+                    "{case}"
+                );
+                assert!(
+                    lazy.clipped_high > 0 && (sixteen || lazy.clipped_low > 0),
+                    "{case}"
+                );
+                assert_eq!(lazy.sample(700, 2), map.radiance.pixels()[700 * 3 + 2]);
+                let max = map.radiance.pixels().iter().copied().fold(0.0, f32::max);
+                assert_eq!(lazy.max_value(), max, "{case}");
+                assert!(lazy.max_bound() >= max, "{case}");
+                // A change of scale multiplies each merged value, as on the map.
+                lazy.scale_by(3.7);
+                let scaled: Vec<f32> = map.radiance.pixels().iter().map(|v| v * 3.7).collect();
+                assert_eq!(lazy.to_map().pixels(), &scaled[..], "{case}");
+            }
+        }
     }
 
     #[test]

@@ -234,7 +234,7 @@ pub fn run(args: Args) -> anyhow::Result<ExitCode> {
                 json!(options.weighting)
             },
             "merge_mode": if developed.fused {
-                "fused into encode (8-bit pair: merge ms is the table build, the lookups are inside encode ms)"
+                "fused into encode (merge ms is the tables and the clipped count; the merge itself is inside encode ms)"
             } else {
                 "buffered"
             },

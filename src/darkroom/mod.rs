@@ -7,12 +7,14 @@
 //!
 //! # Memory
 //!
-//! Two 8-bit frames written only as EXR are merged while the file is encoded
-//! ([`PairMerge`]): no radiance buffer exists. With renderings (or a confidence layer, or
-//! more frames) the map is built once (`width × height × channels × 4` bytes) beside the
-//! decoded frames the caller holds, and the EXR and every rendering read that one map;
-//! the renderings are made on a second thread while the EXR is encoded.
-//! [`job_memory_bytes`] bounds the peak.
+//! A bracket written only as EXR (no renderings, no confidence layer) is merged while the
+//! file is encoded, a PIZ block of lines at a time on each thread: two 8-bit frames
+//! through one table per code pair ([`PairMerge`]), any other bracket through the
+//! per-frame tables ([`BracketMerge`]). No radiance buffer exists; the peak is the
+//! decoded frames the caller holds plus the EXR. With renderings (or a confidence layer)
+//! the map is built once (`width × height × channels × 4` bytes) beside the decoded
+//! frames, and the EXR and every rendering read that one map; the renderings are made on
+//! a second thread while the EXR is encoded. [`job_memory_bytes`] bounds the peak.
 
 use std::io::Cursor;
 use std::path::{Path, PathBuf};
@@ -23,7 +25,7 @@ use crate::frame::{LoadedFrame, Samples};
 use crate::hdr_output::{
     self, ExrOptions, FrameRecord, OutputError, Provenance, RadianceSource, Written,
 };
-use crate::merge::{self, BracketFrame, MergeError, MergeOptions, PairMerge};
+use crate::merge::{self, BracketFrame, BracketMerge, MergeError, MergeOptions, PairMerge};
 use crate::radiance::RadianceMap;
 use crate::rendering::{self, Format, Look, Outputs, RenderingError, SourceExif};
 use crate::response::{CalibrationError, InverseResponse, RatioSource};
@@ -181,9 +183,11 @@ pub struct Developed {
     pub raw_radiance: Option<RadianceMap>,
 }
 
-/// The merged bracket: evaluated during encoding, or held as a map.
+/// The merged bracket: evaluated during encoding (an 8-bit pair, or any other bracket),
+/// or held as a map.
 enum Radiance<'a> {
-    Fused(PairMerge<'a>),
+    Pair(PairMerge<'a>),
+    Banded(BracketMerge<'a>),
     Buffered(merge::Merged),
 }
 
@@ -230,14 +234,19 @@ pub fn develop(
         None => {
             let chosen = choose_response(&bracket, ratio_source, policy, &mut stages)?;
             let t = Instant::now();
-            let fused = if options.confidence || !prints.looks.is_empty() || prints.exr.is_none() {
-                None
+            // Only the EXR needs the radiance: merge while it is encoded.
+            let streamed = !options.confidence && prints.looks.is_empty() && prints.exr.is_some();
+            let merged = if streamed {
+                match PairMerge::new(&bracket, &chosen.response, options.weighting)? {
+                    Some(pair) => Radiance::Pair(pair),
+                    None => Radiance::Banded(BracketMerge::new(
+                        &bracket,
+                        &chosen.response,
+                        options.weighting,
+                    )?),
+                }
             } else {
-                PairMerge::new(&bracket, &chosen.response, options.weighting)?
-            };
-            let merged = match fused {
-                Some(pair) => Radiance::Fused(pair),
-                None => Radiance::Buffered(merge::merge(&bracket, &chosen.response, options)?),
+                Radiance::Buffered(merge::merge(&bracket, &chosen.response, options)?)
             };
             stages.push(("merge", t.elapsed()));
             (chosen, merged)
@@ -248,7 +257,8 @@ pub fn develop(
     let (scale, factor) = merge::exposure_scale(&exif, exposures, prints.luminance_calibration);
     let mut merged = merged;
     match &mut merged {
-        Radiance::Fused(p) => p.scale_by(factor as f32),
+        Radiance::Pair(p) => p.scale_by(factor as f32),
+        Radiance::Banded(b) => b.scale_by(factor as f32),
         Radiance::Buffered(m) if factor != 1.0 => {
             use rayon::prelude::*;
             let f = factor as f32;
@@ -257,7 +267,8 @@ pub fn develop(
         Radiance::Buffered(_) => {}
     }
     let (order, ratio, clipped) = match &merged {
-        Radiance::Fused(p) => (p.order.clone(), p.ratio(), (p.clipped_high, p.clipped_low)),
+        Radiance::Pair(p) => (p.order.clone(), p.ratio(), (p.clipped_high, p.clipped_low)),
+        Radiance::Banded(b) => (b.order.clone(), b.ratio(), (b.clipped_high, b.clipped_low)),
         Radiance::Buffered(m) => (m.order.clone(), m.ratio(), (m.clipped_high, m.clipped_low)),
     };
     let provenance = Provenance {
@@ -292,13 +303,13 @@ pub fn develop(
         ));
     }
     let (source, confidence): (&dyn RadianceSource, Option<&[f32]>) = match &merged {
-        Radiance::Fused(pair) => (pair, None),
+        Radiance::Pair(pair) => (pair, None),
+        Radiance::Banded(banded) => (banded, None),
         Radiance::Buffered(m) => (&m.radiance, m.confidence.as_deref()),
     };
-    let fused = matches!(merged, Radiance::Fused(_));
-    let map = match &merged {
-        Radiance::Buffered(m) => Some(&m.radiance),
-        Radiance::Fused(_) => None,
+    let (fused, map) = match &merged {
+        Radiance::Buffered(m) => (false, Some(&m.radiance)),
+        Radiance::Pair(_) | Radiance::Banded(_) => (true, None),
     };
     // Outputs are written concurrently below; a name already taken that may not be
     // replaced stops the bracket before any file is written, as it did in sequence.
@@ -434,15 +445,18 @@ fn print_looks(
 /// `P = width·height` and `S = P·channels`:
 ///
 /// `frames·S·bytes_per_sample` (the decoded frames, held as codes; the merge makes no
-/// per-frame float buffer) `+ 4·S` (the radiance map, `f32`) `+ 2·S` (the EXR encoded in
-/// memory before it is published, at most its uncompressed half-float size) `+ 8·P` if
-/// there are looks (the largest working set of one look: a tone map's luminances and
-/// percentile bucket, or the optics' half-resolution pyramid of three layers; looks
-/// render one after another, beside the EXR, and stream to their encoder)
-/// `+ 18·64·width` (the JPEG bands in flight).
+/// per-frame float buffer) `+` [`working_memory_bytes`]: with looks, `4·S` (the
+/// radiance map, `f32`) `+ 2·S` (the EXR encoded in memory before it is published, at
+/// most its uncompressed half-float size) `+ 8·P` (the largest working set of one look:
+/// a tone map's luminances and percentile bucket, or the optics' half-resolution pyramid
+/// of three layers; looks render one after another, beside the EXR, and stream to their
+/// encoder) `+ 18·64·width` (the JPEG bands in flight); without looks (the EXR alone, no
+/// confidence layer) the merge runs inside the encoder and only the `2·S` of the EXR is
+/// added.
 ///
 /// So each frame adds only its own decoded size: a 24 MP 8-bit RGB pair with two looks
-/// is bounded by 775 MB, a 7-frame 45 MP (8256 × 5504) bracket by 2.15 GB.
+/// is bounded by 775 MB, a 5-frame 24 MP bracket written only as EXR by 504 MB, a
+/// 7-frame 45 MP (8256 × 5504) bracket by 2.15 GB with looks and 1.23 GB without.
 pub fn job_memory_bytes(
     width: u32,
     height: u32,
@@ -456,15 +470,22 @@ pub fn job_memory_bytes(
         + working_memory_bytes(width, height, channels, looks)
 }
 
-/// The part of [`job_memory_bytes`] that does not grow with the frames: the radiance map,
-/// the EXR in memory, one look's working set and the JPEG bands, for a
-/// `width × height × channels` map: `4·S + 2·S + (looks > 0 ? 8·P : 0) + 18·64·width`.
+/// The part of [`job_memory_bytes`] that does not grow with the frames, for a
+/// `width × height × channels` map: with looks, the radiance map, the EXR in memory, one
+/// look's working set and the JPEG bands, `4·S + 2·S + 8·P + 18·64·width`; without looks
+/// (the EXR alone, merged while it is encoded, no confidence layer), the EXR only, `2·S`.
+/// The PIZ blocks in flight (at most `5·T` blocks of 32 lines, `320·T·width·channels`
+/// bytes on `T` threads, 12 MB for a 24 MP map on 2 threads) are within the EXR's `2·S`:
+/// PIZ files of photographs are about `0.6·S`.
 pub fn working_memory_bytes(width: u32, height: u32, channels: usize, looks: usize) -> u64 {
     let pixels = u64::from(width) * u64::from(height);
     let samples = pixels * channels as u64;
-    let map = 4 * samples;
     let exr = 2 * samples;
-    let look = if looks > 0 { 8 * pixels } else { 0 };
+    if looks == 0 {
+        return exr;
+    }
+    let map = 4 * samples;
+    let look = 8 * pixels;
     let bands = 18 * 64 * u64::from(width);
     map + exr + look + bands
 }

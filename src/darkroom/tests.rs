@@ -219,8 +219,83 @@ fn job_memory_grows_by_each_frames_own_decoded_size() {
         2 * 6000 * 4000 * 3,
         "16-bit frames hold twice the bytes"
     );
+    // The EXR alone is merged while it is encoded: no map, no look, no JPEG bands.
     let no_looks = job_memory_bytes(6000, 4000, 2, 3, 1, 0);
-    assert_eq!(pair - no_looks, 8 * 6000 * 4000);
-    // The figure the documentation states for a 24 MP pair with two looks.
+    assert_eq!(
+        pair - no_looks,
+        (4 * 3 + 8) * 6000 * 4000 + 18 * 64 * 6000,
+        "the map, one look's working set and the JPEG bands"
+    );
+    // The figures the documentation states: a 24 MP pair with two looks, five 24 MP
+    // frames and seven 45 MP frames written only as EXR.
     assert_eq!(pair / 1_000_000, 774);
+    assert_eq!(job_memory_bytes(6000, 4000, 5, 3, 1, 0) / 1_000_000, 504);
+    assert_eq!(job_memory_bytes(8256, 5504, 7, 3, 1, 0) / 10_000_000, 122);
+}
+
+/// Three frames written only as EXR are merged inside the encoder (no map), on the
+/// luminance scale of their EXIF, and the file holds the same samples as the map the
+/// darkroom builds when it must (here for a confidence layer).
+#[test]
+fn an_exr_only_bracket_is_merged_in_bands_with_the_maps_values() {
+    let truth = scene(90, 70, 11);
+    let sensor = Sensor::noiseless(ResponseCurve::Srgb, BitDepth::Eight);
+    let times = [1.0 / 400.0, 1.0 / 100.0, 1.0 / 25.0];
+    let frames: Vec<LoadedFrame> = times
+        .iter()
+        .enumerate()
+        .map(|(i, &t)| {
+            let mut f = loaded(&format!("f{i}.png"), expose(&truth, t * 25.0, &sensor));
+            f.metadata.exposure = Exposure {
+                time_s: Some(t),
+                f_number: Some(8.0),
+                iso: Some(100.0),
+            };
+            f
+        })
+        .collect();
+    let exposures: Vec<f64> = times.iter().map(|t| t * 100.0 / 64.0).collect();
+    let dir = tempfile::tempdir().unwrap();
+    let exif = SourceExif::default();
+    let develop_with = |stem: &str, confidence: bool| {
+        let prints = Prints {
+            dir: dir.path(),
+            stem,
+            exr: Some(ExrOptions::default()),
+            radiance_hdr: false,
+            looks: &[],
+            format: Format::Jpeg { quality: 90 },
+            exif: &exif,
+            overwrite: Overwrite::Refuse,
+            luminance_calibration: 1.0,
+        };
+        let options = MergeOptions {
+            confidence,
+            ..MergeOptions::default()
+        };
+        let policy = ResponsePolicy::Use(GivenResponse::standard(3));
+        develop(
+            &frames,
+            &exposures,
+            RatioSource::Exif,
+            policy,
+            options,
+            &prints,
+        )
+        .unwrap()
+    };
+    let banded = develop_with("banded", false);
+    let buffered = develop_with("buffered", true);
+    assert!(banded.fused && !buffered.fused);
+    assert!(matches!(banded.scale, merge::Scale::Luminance { .. }));
+    assert_eq!(banded.clipped, buffered.clipped);
+    assert_eq!(banded.order, vec![0, 1, 2]);
+    let read = |stem: &str| hdr_output::read_exr(&dir.path().join(format!("{stem}.exr"))).unwrap();
+    let (a, b) = (read("banded"), read("buffered"));
+    let bits = |m: &RadianceMap| m.pixels().iter().map(|v| v.to_bits()).collect::<Vec<_>>();
+    assert_eq!(bits(&a), bits(&b));
+    assert!(
+        a.pixels().iter().any(|&v| v > 1.0),
+        "luminance, not the relative scale"
+    );
 }

@@ -45,7 +45,7 @@ use half::slice::{HalfBitsSliceExt, HalfFloatSliceExt};
 use rayon::prelude::*;
 
 use crate::atomic::{self, Overwrite, PublishError};
-use crate::merge::PairMerge;
+use crate::merge::{BracketMerge, PairMerge};
 use crate::metadata::{Camera, CaptureTime, Exposure};
 use crate::radiance::RadianceMap;
 
@@ -55,7 +55,8 @@ mod piz;
 use header::{image_attributes, layer_attributes, text};
 
 /// Anything the writers can pull radiance from, sample by sample: a [`RadianceMap`], or
-/// a [`PairMerge`] evaluated while the file is encoded (no radiance buffer at all).
+/// a [`PairMerge`] or [`BracketMerge`] evaluated while the file is encoded, a block of
+/// lines at a time on each thread (no radiance buffer at all).
 pub trait RadianceSource: Sync {
     /// Width in pixels.
     fn width(&self) -> u32;
@@ -126,6 +127,37 @@ impl RadianceSource for PairMerge<'_> {
     }
     fn max_value(&self) -> f32 {
         PairMerge::max_value(self)
+    }
+}
+
+impl RadianceSource for BracketMerge<'_> {
+    fn width(&self) -> u32 {
+        BracketMerge::width(self)
+    }
+    fn height(&self) -> u32 {
+        BracketMerge::height(self)
+    }
+    fn channels(&self) -> usize {
+        BracketMerge::channels(self)
+    }
+    #[inline]
+    fn sample(&self, pixel: usize, channel: usize) -> f32 {
+        BracketMerge::sample(self, pixel, channel)
+    }
+    #[inline]
+    fn line(&self, pixel: usize, channel: usize, out: &mut [f32]) {
+        BracketMerge::line(self, pixel, channel, out)
+    }
+    /// The tables' bound while it is within half's range (then nothing can overflow),
+    /// else the exact maximum (one more pass over the frames' codes), so half overflow is
+    /// handled exactly as for the merged map.
+    fn max_value(&self) -> f32 {
+        let bound = self.max_bound();
+        if bound <= HALF_MAX {
+            bound
+        } else {
+            BracketMerge::max_value(self)
+        }
     }
 }
 

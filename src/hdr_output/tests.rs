@@ -253,6 +253,113 @@ fn half_overflow_is_scaled_or_clamped_with_a_warning() {
     assert_eq!(b[b.len() - 1], 200_000.0);
 }
 
+/// `n` 8-bit RGB frames of 37 × 45 pixels (45 lines: a PIZ block of 32 lines and one of
+/// 13) one stop apart, of a scene spanning 22 stops through a gamma 2.2 response, with
+/// pseudo-random noise of ±1 code; relative exposures `1, 2, 4, …`.
+fn bracket_frames(n: usize) -> Vec<(crate::frame::Frame, f64)> {
+    use crate::frame::{Frame, Samples};
+    let (width, height) = (37u32, 45u32);
+    let samples = (width * height * 3) as usize;
+    let jitter = noise(samples * n, 7);
+    (0..n)
+        .map(|k| {
+            let e = 2f32.powi(k as i32);
+            let codes = (0..samples)
+                .map(|i| {
+                    let r = 2f32.powf(22.0 * i as f32 / samples as f32 - 15.0);
+                    let level = 255.0 * (r * e).min(1.0).powf(1.0 / 2.2);
+                    (level + 2.0 * jitter[k * samples + i] - 1.0)
+                        .round()
+                        .clamp(0.0, 255.0) as u8
+                })
+                .collect();
+            (
+                Frame::new(width, height, 3, Samples::Eight(codes)).unwrap(),
+                f64::from(e),
+            )
+        })
+        .collect()
+}
+
+#[test]
+fn a_bracket_merged_in_bands_writes_the_merged_maps_file() {
+    use crate::merge::{self, BracketFrame, BracketMerge, MergeOptions};
+    let camera = Camera::default();
+    let g = crate::response::InverseResponse::srgb(3, 1024);
+    for n in [3, 5] {
+        let frames = bracket_frames(n);
+        let bracket: Vec<BracketFrame<'_>> = frames
+            .iter()
+            .map(|(frame, exposure)| BracketFrame {
+                source: Path::new("frame.jpg"),
+                frame,
+                exposure: *exposure,
+                camera: &camera,
+            })
+            .collect();
+        // 1: the relative scale; 20 000: a luminance scale beyond half's range, scaled
+        // down by a power of two after the exact maximum.
+        for factor in [1.0f32, 20_000.0] {
+            let mut map = merge::merge(&bracket, &g, MergeOptions::default())
+                .unwrap()
+                .radiance;
+            map.pixels_mut().iter_mut().for_each(|v| *v *= factor);
+            let mut banded = BracketMerge::new(&bracket, &g, Default::default()).unwrap();
+            banded.scale_by(factor);
+            let options = [
+                ExrOptions::default(),
+                ExrOptions {
+                    compression: ExrCompression::Zip,
+                    ..ExrOptions::default()
+                },
+                ExrOptions {
+                    sample: SampleFormat::Float,
+                    ..ExrOptions::default()
+                },
+            ];
+            for options in options {
+                let case = format!("{n} frames, factor {factor}, {options:?}");
+                let encode = |source: &dyn RadianceSource| {
+                    let mut bytes = Cursor::new(Vec::new());
+                    let written =
+                        encode_exr(&mut bytes, source, None, &Provenance::default(), options)
+                            .unwrap();
+                    (bytes.into_inner(), written)
+                };
+                let (want, want_written) = encode(&map);
+                let (got, got_written) = encode(&banded);
+                assert_eq!(got_written, want_written, "{case}");
+                let scaled = factor > 1.0 && options.sample == SampleFormat::Half;
+                assert_eq!(scaled, got_written.scale < 1.0, "{case}");
+                // The file holds the map, to half's rounding.
+                let image = read_back(got);
+                for (c, name) in ["R", "G", "B"].iter().enumerate() {
+                    for (p, v) in channel(&image, name).iter().enumerate() {
+                        let exact = map.pixels()[p * 3 + c] * got_written.scale;
+                        let tolerance = match options.sample {
+                            SampleFormat::Half => exact.abs() * 2f32.powi(-11) + 6e-8,
+                            SampleFormat::Float => 0.0,
+                        };
+                        assert!(
+                            (v - exact).abs() <= tolerance,
+                            "{case} {name}{p}: {v} {exact}"
+                        );
+                    }
+                }
+                // The map's own file holds the same samples, bit for bit (the bytes
+                // differ only in the order of the header's attributes).
+                let of_map = read_back(want);
+                for name in ["R", "G", "B"] {
+                    let bits = |image| -> Vec<u32> {
+                        channel(image, name).iter().map(|v| v.to_bits()).collect()
+                    };
+                    assert_eq!(bits(&image), bits(&of_map), "{case} {name}");
+                }
+            }
+        }
+    }
+}
+
 #[test]
 fn grey_maps_write_one_channel_and_hdr_encodes() {
     let map = RadianceMap::new(4, 2, 1, vec![0.0, 0.5, 1.0, 2.0, 4.0, 8.0, 16.0, 32.0]).unwrap();
