@@ -186,7 +186,49 @@ fn psnr(reference: &[u8], jpeg: &[u8]) -> f64 {
     10.0 * (255.0f64 * 255.0 / mse).log10()
 }
 
+/// `cargo bench --bench film_speed -- look REQUEST [WIDTH HEIGHT [RUNS]]`: develops one
+/// look of the synthetic scene to 8 bits `RUNS` times (default 6000 × 4000, 1 run) and
+/// prints each time, for a profiler (`perf record`, `valgrind --tool=callgrind`): a
+/// look's instruction count minus plain `velvia50`'s at the same size is what its options
+/// cost. With `FILMBACK_LOOK_DUMP=PATH` the last rendering's 8-bit RGB is written to
+/// `PATH` (to compare two builds' output).
+fn one_look(args: &[String]) {
+    let request = args.first().map_or("velvia50", String::as_str);
+    let number = |i: usize, default: u32| {
+        args.get(i)
+            .map_or(default, |v| v.parse().expect("a whole number"))
+    };
+    let (w, h, runs) = (number(1, 6000), number(2, 4000), number(3, 1));
+    let map = synthetic::scene(w, h, 1);
+    let catalogue = Catalogue::builtin().expect("built-in stocks");
+    let r: film::Request = request.parse().expect("request");
+    let stock = catalogue.get(&r.stock).expect("stock");
+    let key = film::scene_key(&map, Key::LogAverage);
+    for _ in 0..runs {
+        let start = Instant::now();
+        let emulsion = film::Emulsion::with_options(
+            stock,
+            r.exposure,
+            key,
+            ColourMode::PerLayer,
+            &r.options,
+            (w, h),
+        )
+        .expect("emulsion");
+        let image = black_box(emulsion.render(&map, Depth::Eight));
+        println!("{request} {w}×{h}: {:.1} ms", ms(start.elapsed()));
+        if let Ok(path) = std::env::var("FILMBACK_LOOK_DUMP") {
+            std::fs::write(&path, image.to_u8()).expect("dump written");
+        }
+    }
+}
+
 fn main() {
+    let args: Vec<String> = std::env::args().collect();
+    if let Some(i) = args.iter().position(|a| a == "look") {
+        one_look(&args[i + 1..]);
+        return;
+    }
     let (w, h) = (6000u32, 4000u32);
     println!(
         "film_speed: {w}×{h} ({:.0} MP) synthetic scene, {} rayon threads, best of {RUNS}",

@@ -144,6 +144,16 @@ impl<T: Copy> ExposureTable<T> {
         self.entries[((h.to_bits() >> TABLE_SHIFT) - self.base) as usize]
     }
 
+    /// The same buckets, each entry through `f`.
+    pub fn map<U>(&self, f: impl Fn(T) -> U) -> ExposureTable<U> {
+        ExposureTable {
+            low: self.low,
+            high: self.high,
+            base: self.base,
+            entries: self.entries.iter().map(|&v| f(v)).collect(),
+        }
+    }
+
     /// Number of entries.
     pub fn len(&self) -> usize {
         self.entries.len()
@@ -160,8 +170,12 @@ impl<T: Copy> ExposureTable<T> {
 #[derive(Debug, Clone)]
 struct DensityTable {
     low: f32,
+    /// The last entry's index, as a float (the clamp of [`DensityTable::at`]).
+    top: f32,
     /// sRGB-encoded, 0..=65535.
     display: Vec<u16>,
+    /// The same, 8-bit ([`to_8bit`] of `display`).
+    display8: Vec<u8>,
     /// Linear light.
     linear: Vec<f32>,
 }
@@ -176,27 +190,34 @@ impl DensityTable {
         let linear: Vec<f32> = (0..n)
             .map(|i| linear(low + i as f64 * f64::from(DENSITY_STEP)) as f32)
             .collect();
+        let display: Vec<u16> = linear
+            .iter()
+            .map(|&t| (srgb_encode(t) * 65535.0).round() as u16)
+            .collect();
+        assert!(display.len() < 1 << 22, "a density table spans a few D");
         DensityTable {
             low: low as f32,
-            display: linear
-                .iter()
-                .map(|&t| (srgb_encode(t) * 65535.0).round() as u16)
-                .collect(),
+            top: (display.len() - 1) as f32,
+            display8: display.iter().map(|&v| to_8bit(v)).collect(),
+            display,
             linear,
         }
     }
 
-    /// Density `d` in the table's units: `(d − low)/step + ½`, whose integer part is the
-    /// nearest entry.
+    /// Density `d` in the table's units, `(d − low)/step`: entry `i` is at `i`.
     fn units(&self, d: f32) -> f32 {
-        (d - self.low) * (1.0 / DENSITY_STEP) + 0.5
+        (d - self.low) * (1.0 / DENSITY_STEP)
     }
 
-    /// The entry at `u` table units ([`DensityTable::units`]), clamped to the table (the
-    /// float-to-integer cast takes negatives and NaN to 0).
+    /// The entry nearest `u` table units ([`DensityTable::units`]), clamped to the table
+    /// (NaN to the first entry). Rounding is by adding 2²³: the sum's mantissa is then
+    /// the rounded integer (ties to even), without a float-to-integer conversion and its
+    /// saturation checks.
     #[inline]
     fn at(&self, u: f32) -> usize {
-        (u as usize).min(self.display.len() - 1)
+        // `max` takes the number of a NaN pair.
+        let u = u.max(0.0).min(self.top);
+        ((u + 8_388_608.0).to_bits() & 0x7f_ffff) as usize
     }
 }
 
@@ -222,6 +243,8 @@ pub struct Emulsion {
     mode: ColourMode,
     /// Per-layer display value (sRGB-encoded, 0..=65535).
     display: [ExposureTable<u16>; 3],
+    /// The same, 8-bit ([`to_8bit`] of `display`), for 8-bit development.
+    display8: [ExposureTable<u8>; 3],
     /// Green-layer linear light for the luminance mode.
     transmittance: ExposureTable<f32>,
     grained: Option<Grained>,
@@ -297,6 +320,7 @@ impl Emulsion {
                 (srgb_encode(linear(c, d) as f32) * 65535.0).round() as u16
             })
         });
+        let display8 = [0, 1, 2].map(|c| display[c].map(to_8bit));
         let transmittance = ExposureTable::new(stock.layer(1), |d| linear(1, d) as f32);
         let long_side = f64::from(size.0.max(size.1).max(1));
         let pitch_mm = options.format_mm / long_side;
@@ -346,6 +370,7 @@ impl Emulsion {
             scale,
             mode,
             display,
+            display8,
             transmittance,
             grained,
             kernels,
@@ -400,44 +425,96 @@ impl Emulsion {
     /// grain (see [`Emulsion::pixel_at`]).
     #[inline]
     pub fn pixel(&self, e: [f32; 3]) -> [u16; 3] {
-        match self.mode {
-            ColourMode::PerLayer | ColourMode::NeutralGrey => [
-                self.display[0].get(e[0] * self.scale[0]),
-                self.display[1].get(e[1] * self.scale[1]),
-                self.display[2].get(e[2] * self.scale[2]),
-            ],
-            ColourMode::Luminance => {
-                let (e, l) = luminance_of(e);
-                let t = self.transmittance.get(l * self.scale[1]);
-                keep_chromaticity(e, l, t)
-            }
-        }
+        self.develop_pixel(e)
     }
 
     /// Develops the pixel at (`x`, `y`): as [`Emulsion::pixel`], with the grain of that
     /// position if the look has grain.
     #[inline]
     pub fn pixel_at(&self, e: [f32; 3], x: usize, y: usize) -> [u16; 3] {
-        let Some(g) = &self.grained else {
-            return self.pixel(e);
-        };
+        match &self.grained {
+            None => self.develop_pixel(e),
+            Some(g) => self.develop_grained(g, e, x, y),
+        }
+    }
+
+    /// One pixel without grain, at the depth of `T`.
+    #[inline]
+    fn develop_pixel<T: Sample>(&self, e: [f32; 3]) -> [T; 3] {
         match self.mode {
             ColourMode::PerLayer | ColourMode::NeutralGrey => {
-                let n = g.grain.normals(x, y);
-                [0, 1, 2].map(|c| {
+                let d = T::exposure_tables(self);
+                [
+                    d[0].get(e[0] * self.scale[0]),
+                    d[1].get(e[1] * self.scale[1]),
+                    d[2].get(e[2] * self.scale[2]),
+                ]
+            }
+            ColourMode::Luminance => {
+                let (e, l) = luminance_of(e);
+                let t = self.transmittance.get(l * self.scale[1]);
+                keep_chromaticity(e, l, t).map(T::from_u16)
+            }
+        }
+    }
+
+    /// One pixel with the grain of (`x`, `y`), at the depth of `T`.
+    #[inline]
+    fn develop_grained<T: Sample>(&self, g: &Grained, e: [f32; 3], x: usize, y: usize) -> [T; 3] {
+        let n = g.grain.normals(x, y);
+        match self.mode {
+            ColourMode::PerLayer | ColourMode::NeutralGrey => {
+                let layer = |c: usize| {
                     let [u, sigma] = g.density[c].get(e[c] * self.scale[c]);
                     let t = &g.from_density[c];
-                    t.display[t.at(u + sigma * n[c])]
-                })
+                    T::density_table(t)[t.at(u + sigma * n[c])]
+                };
+                [layer(0), layer(1), layer(2)]
             }
             ColourMode::Luminance => {
                 let (e, l) = luminance_of(e);
                 let [u, sigma] = g.density[1].get(l * self.scale[1]);
                 let t = &g.from_density[1];
-                let u = u + sigma * g.grain.normals(x, y)[1];
-                keep_chromaticity(e, l, t.linear[t.at(u)])
+                let u = u + sigma * n[1];
+                keep_chromaticity(e, l, t.linear[t.at(u)]).map(T::from_u16)
             }
         }
+    }
+}
+
+/// A display sample's depth: the tables kept at it, so that 8-bit development reads
+/// 8-bit tables (each entry [`to_8bit`] of the 16-bit one: the same output as converting
+/// after).
+trait Sample: Copy + Send {
+    /// The per-layer display tables by exposure.
+    fn exposure_tables(e: &Emulsion) -> &[ExposureTable<Self>; 3];
+    /// A layer's display values by density.
+    fn density_table(t: &DensityTable) -> &[Self];
+    /// A 16-bit display value at this depth.
+    fn from_u16(v: u16) -> Self;
+}
+
+impl Sample for u16 {
+    fn exposure_tables(e: &Emulsion) -> &[ExposureTable<u16>; 3] {
+        &e.display
+    }
+    fn density_table(t: &DensityTable) -> &[u16] {
+        &t.display
+    }
+    fn from_u16(v: u16) -> u16 {
+        v
+    }
+}
+
+impl Sample for u8 {
+    fn exposure_tables(e: &Emulsion) -> &[ExposureTable<u8>; 3] {
+        &e.display8
+    }
+    fn density_table(t: &DensityTable) -> &[u8] {
+        &t.display8
+    }
+    fn from_u16(v: u16) -> u8 {
+        to_8bit(v)
     }
 }
 
@@ -526,7 +603,7 @@ impl Emulsion {
         match depth {
             Depth::Sixteen => {
                 let mut samples = vec![0u16; width * height * 3];
-                self.develop(&exposure, 0, &mut samples, |v| v);
+                self.develop(&exposure, 0, &mut samples);
                 DisplayImage::new(map.width(), map.height(), samples)
             }
             Depth::Eight => {
@@ -540,17 +617,11 @@ impl Emulsion {
     /// Develops rows `first..first + out.len()/(3·width)` of the exposure into 8-bit RGB
     /// `out` (bands of rows in parallel): the unit the streaming JPEG writer pulls.
     pub fn render_rows_8bit(&self, exposure: &Exposure<'_>, first: usize, out: &mut [u8]) {
-        self.develop(exposure, first, out, to_8bit);
+        self.develop(exposure, first, out);
     }
 
-    /// Develops rows from `first` into RGB `out`, each 16-bit value through `convert`.
-    fn develop<T: Send + Copy>(
-        &self,
-        exposure: &Exposure<'_>,
-        first: usize,
-        out: &mut [T],
-        convert: impl Fn(u16) -> T + Sync,
-    ) {
+    /// Develops rows from `first` into RGB `out` at the depth of `T`.
+    fn develop<T: Sample>(&self, exposure: &Exposure<'_>, first: usize, out: &mut [T]) {
         let width = exposure.width() as usize;
         out.par_chunks_mut(width * 3 * DEVELOP_ROWS)
             .enumerate()
@@ -563,15 +634,19 @@ impl Emulsion {
                         .zip(rows.chunks_exact(width * ch))
                         .enumerate()
                     {
-                        for (x, (o, p)) in out
-                            .chunks_exact_mut(3)
-                            .zip(row.chunks_exact(ch))
-                            .enumerate()
-                        {
-                            let v = self.pixel_at(colour(p, ch), x, y0 + i);
-                            o[0] = convert(v[0]);
-                            o[1] = convert(v[1]);
-                            o[2] = convert(v[2]);
+                        let pixels = out.chunks_exact_mut(3).zip(row.chunks_exact(ch));
+                        match &self.grained {
+                            None => {
+                                for (o, p) in pixels {
+                                    o.copy_from_slice(&self.develop_pixel::<T>(colour(p, ch)));
+                                }
+                            }
+                            Some(g) => {
+                                for (x, (o, p)) in pixels.enumerate() {
+                                    let v = self.develop_grained::<T>(g, colour(p, ch), x, y0 + i);
+                                    o.copy_from_slice(&v);
+                                }
+                            }
                         }
                     }
                 })

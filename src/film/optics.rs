@@ -413,31 +413,32 @@ impl Plan {
             let next = halve(pyramid.last().expect("level one"));
             pyramid.push(next);
         }
-        // Each level's terms in one pass of rows, then the levels collapsed from the top
-        // down, each upsampled by 2 into the one below, down to level 1.
-        let mut sums: Vec<Option<Plane>> = pyramid
-            .iter()
-            .zip(&wide)
-            .map(|(p, terms)| (!terms.is_empty()).then(|| blur(p, terms)))
-            .collect();
-        for l in (1..sums.len()).rev() {
-            if let Some(upper) = sums[l].take() {
-                let (lw, lh) = (pyramid[l - 1].width, pyramid[l - 1].height);
-                let lower = sums[l - 1].get_or_insert_with(|| Plane {
-                    width: lw,
-                    height: lh,
-                    values: vec![0f32; lw * lh],
-                });
-                lower.values.par_chunks_mut(lw).enumerate().for_each_init(
+        // Each level's terms in one pass of rows, over the level itself (a level without
+        // terms becomes zero), then the levels collapsed from the top down, each upsampled
+        // by 2 into the one below, down to level 1: no plane beyond the pyramid's.
+        for (plane, terms) in pyramid.iter_mut().zip(&wide) {
+            if terms.is_empty() {
+                plane.values.fill(0.0);
+            } else {
+                blur_in_place(plane, terms);
+            }
+        }
+        while pyramid.len() > 1 {
+            let upper = pyramid.pop().expect("two levels");
+            let lower = pyramid.last_mut().expect("one level");
+            lower
+                .values
+                .par_chunks_mut(lower.width)
+                .enumerate()
+                .for_each_init(
                     || vec![0f32; upper.width],
                     |mixed, (y, row)| {
                         mix_rows(&upper, y, mixed);
                         upsample_row_add(mixed, row);
                     },
                 );
-            }
         }
-        plan.coarse = sums.into_iter().next().flatten();
+        plan.coarse = pyramid.pop();
         plan
     }
 
@@ -484,20 +485,83 @@ impl Plan {
     }
 }
 
-/// The sum `Σₜ wₜ·(kₜ ∗ P)` of a plane's terms, rows in parallel.
-fn blur(plane: &Plane, terms: &[(f32, Vec<f32>)]) -> Plane {
-    let mut values = vec![0f32; plane.width * plane.height];
-    values
-        .par_chunks_mut(plane.width)
-        .enumerate()
-        .for_each_init(Vec::new, |column, (y, row)| {
-            add_separable(|d| plane.row(y as isize + d), terms, column, row);
-        });
-    Plane {
-        width: plane.width,
-        height: plane.height,
-        values,
-    }
+/// The sum `Σₜ wₜ·(kₜ ∗ P)` of a plane's terms (each applied down then across, edges
+/// repeating the border row), written over the plane: no second plane is allocated
+/// (each would be fresh memory, page-faulted in at every rendering). The rows are split
+/// into a few chunks per thread; before any is written, the `r` rows (the kernels'
+/// reach) beyond each end of each chunk are copied; a chunk then runs down its rows,
+/// keeping each original row in a ring of `r + 1` rows before overwriting it, so that
+/// an output row reads the originals of the rows above from the ring, of the rows below
+/// from the chunk itself or the copy beyond its end.
+fn blur_in_place(plane: &mut Plane, terms: &[(f32, Vec<f32>)]) {
+    let width = plane.width;
+    let r = terms.iter().map(|(_, k)| k.len() / 2).max().unwrap_or(0);
+    let rows = plane
+        .height
+        .div_ceil(4 * rayon::current_num_threads())
+        .max(r)
+        .max(1);
+    let chunks = plane.height.div_ceil(rows);
+    let source = &*plane;
+    let beyond: Vec<(Vec<f32>, Vec<f32>)> = (0..chunks)
+        .into_par_iter()
+        .map(|i| {
+            let (top, end) = ((i * rows) as isize, ((i + 1) * rows) as isize);
+            let above: Vec<f32> = (1..=r as isize)
+                .flat_map(|d| source.row(top - d))
+                .copied()
+                .collect();
+            let below: Vec<f32> = (0..r as isize)
+                .flat_map(|d| source.row(end + d))
+                .copied()
+                .collect();
+            (above, below)
+        })
+        .collect();
+    // Row `i` of a chunk (from −r) is kept in slot `i mod (r + 1)` of the ring; `slot`
+    // reduces a value within −r..=r, a slot's offset from the current row's.
+    let ring_rows = r as isize + 1;
+    let slot = |i: isize| (if i < 0 { i + ring_rows } else { i }) as usize;
+    plane
+        .values
+        .par_chunks_mut(rows * width)
+        .zip(beyond)
+        .for_each_init(
+            || (vec![0f32; (r + 1) * width], Vec::new()),
+            |(ring, column), (chunk, (above, below))| {
+                let n = chunk.len() / width;
+                for d in 1..=r {
+                    let s = slot(-(d as isize));
+                    ring[s * width..(s + 1) * width]
+                        .copy_from_slice(&above[(d - 1) * width..d * width]);
+                }
+                // `now` is row `i`'s slot, advanced without a division.
+                let mut now = 0;
+                for i in 0..n {
+                    let s = now;
+                    now = if now == r { 0 } else { now + 1 };
+                    ring[s * width..(s + 1) * width]
+                        .copy_from_slice(&chunk[i * width..(i + 1) * width]);
+                    let (head, tail) = chunk.split_at_mut((i + 1) * width);
+                    let out = &mut head[i * width..];
+                    out.fill(0.0);
+                    let (ring, tail, below) = (&*ring, &*tail, &below);
+                    let line = |d: isize| -> &[f32] {
+                        if d <= 0 {
+                            let s = slot(s as isize + d);
+                            &ring[s * width..(s + 1) * width]
+                        } else if i + (d as usize) < n {
+                            let t = (d as usize - 1) * width;
+                            &tail[t..t + width]
+                        } else {
+                            let b = i + d as usize - n;
+                            &below[b * width..(b + 1) * width]
+                        }
+                    };
+                    add_separable(line, terms, column, out);
+                }
+            },
+        );
 }
 
 /// Row `y` of a plane upsampled by 2 vertically (bilinear, sample `j` centred on row
