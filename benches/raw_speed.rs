@@ -21,6 +21,9 @@ use filmback::frame::{self, Limits, LoadedFrame};
 use filmback::hdr_output::ExrOptions;
 use filmback::merge::MergeOptions;
 use filmback::metadata::CaptureTime;
+use filmback::raw::Cfa;
+use filmback::raw::demosaic;
+use filmback::raw::mosaic::MergedMosaic;
 use filmback::rendering::{Format, SourceExif};
 use filmback::response::RatioSource;
 use filmback::synthetic::{self, RawSensor, Shot, demo};
@@ -85,6 +88,13 @@ fn main() {
             path
         })
         .collect();
+    // The longest frame's signal as a mosaic, for timing the demosaicking alone.
+    let mosaic = MergedMosaic {
+        width: width as usize,
+        height: height as usize,
+        values: synthetic::raw_signal(&scene, 1.0, &sensor),
+        clipped: 0,
+    };
     drop(scene);
     let size: u64 = paths
         .iter()
@@ -149,6 +159,32 @@ fn main() {
             stages = developed.stages;
         }
     }
+    let cfa = Cfa {
+        width: 2,
+        height: 2,
+        colours: vec![0, 1, 1, 2],
+    };
+    let gains = [0.5f32, 1.0, 0.7];
+    let matrix = [[1.6f32, -0.5, -0.1], [-0.2, 1.4, -0.2], [0.0, -0.4, 1.4]];
+    let mut ours = Duration::MAX;
+    let mut theirs = Duration::MAX;
+    for _ in 0..runs {
+        let m = mosaic.clone();
+        let t = Instant::now();
+        let rgb = demosaic::demosaic(m, &cfa, gains, &matrix);
+        ours = ours.min(t.elapsed());
+        drop(rgb);
+        let m = mosaic.clone();
+        let t = Instant::now();
+        let rgb = rawler_ppg(m, &cfa, gains, &matrix);
+        theirs = theirs.min(t.elapsed());
+        drop(rgb);
+    }
+    println!(
+        "demosaic stage: ours (PPG) {:.0} ms, rawler PPG path {:.0} ms",
+        ours.as_secs_f64() * 1e3,
+        theirs.as_secs_f64() * 1e3
+    );
     println!(
         "decode 3 raws:        {:7.0} ms",
         decode.as_secs_f64() * 1e3
@@ -164,4 +200,38 @@ fn main() {
     let exr_size = std::fs::metadata(out.join("bench.exr")).map_or(0, |m| m.len());
     println!("EXR:                  {:7.1} MB", exr_size as f64 / 1e6);
     println!("peak resident memory: {:7.0} MiB", peak_rss_mib());
+}
+
+/// The demosaic stage as it was before ours: white balance on the mosaic, rawler's PPG,
+/// the matrix applied while copying out.
+fn rawler_ppg(mut m: MergedMosaic, cfa: &Cfa, gains: [f32; 3], matrix: &[[f32; 3]; 3]) -> Vec<f32> {
+    use rawler::cfa::{CFA, PlaneColor};
+    use rawler::imgop::sensor::Demosaic;
+    use rawler::imgop::sensor::bayer::ppg::PPGDemosaic;
+    use rawler::imgop::{Dim2, Point, Rect};
+    use rawler::pixarray::PixF32;
+    let width = m.width;
+    m.values
+        .par_chunks_mut(width)
+        .enumerate()
+        .for_each(|(y, row)| {
+            for (x, v) in row.iter_mut().enumerate() {
+                *v *= gains[cfa.colour_at(x, y)];
+            }
+        });
+    let pixels = PixF32::new_with(m.values, m.width, m.height);
+    let roi = Rect::new(Point::new(0, 0), Dim2::new(m.width, m.height));
+    let rgb =
+        PPGDemosaic::new().demosaic(&pixels, &CFA::new(&cfa.name()), &PlaneColor::default(), roi);
+    drop(pixels);
+    let camera = rgb.into_inner();
+    let mut out = vec![0.0f32; camera.len() * 3];
+    out.par_chunks_exact_mut(3)
+        .zip(camera.par_iter())
+        .for_each(|(o, p)| {
+            for (v, row) in o.iter_mut().zip(matrix) {
+                *v = row[0] * p[0] + row[1] * p[1] + row[2] * p[2];
+            }
+        });
+    out
 }

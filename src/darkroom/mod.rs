@@ -217,10 +217,15 @@ pub fn develop(
     if bracket.len() < 2 {
         return Err(MergeError::TooFewFrames(bracket.len()).into());
     }
+    // Anchor the values to the EXIF exposure (see `merge`'s "Absolute scale"); a raw
+    // bracket's demosaicking applies the factor in its one pass.
+    let exif: Vec<_> = frames.iter().map(|f| f.metadata.exposure).collect();
+    let (scale, factor) = merge::exposure_scale(&exif, exposures, prints.luminance_calibration);
     #[cfg(feature = "raw")]
-    let raw_merged = raw::merge(frames, exposures, &mut stages)?;
+    let raw_merged = raw::merge(frames, exposures, factor, &mut stages)?;
     #[cfg(not(feature = "raw"))]
     let raw_merged: Option<(ChosenResponse, merge::Merged)> = None;
+    let scaled = raw_merged.is_some();
     let mut weighting = format!("{:?}", options.weighting);
     let (chosen, merged) = match raw_merged {
         Some((chosen, m)) => {
@@ -243,13 +248,10 @@ pub fn develop(
             (chosen, merged)
         }
     };
-    // Anchor the values to the EXIF exposure (see `merge`'s "Absolute scale").
-    let exif: Vec<_> = frames.iter().map(|f| f.metadata.exposure).collect();
-    let (scale, factor) = merge::exposure_scale(&exif, exposures, prints.luminance_calibration);
     let mut merged = merged;
     match &mut merged {
         Radiance::Fused(p) => p.scale_by(factor as f32),
-        Radiance::Buffered(m) if factor != 1.0 => {
+        Radiance::Buffered(m) if factor != 1.0 && !scaled => {
             use rayon::prelude::*;
             let f = factor as f32;
             m.radiance.pixels_mut().par_iter_mut().for_each(|v| *v *= f);
@@ -514,7 +516,7 @@ pub fn develop_single(
 ) -> Result<Developed, DarkroomError> {
     let mut stages = Stages::new();
     #[cfg(feature = "raw")]
-    let raw_map = raw::merge(std::slice::from_ref(frame), &[1.0], &mut stages)?;
+    let raw_map = raw::merge(std::slice::from_ref(frame), &[1.0], 1.0, &mut stages)?;
     #[cfg(not(feature = "raw"))]
     let raw_map: Option<(ChosenResponse, merge::Merged)> = None;
     let is_raw = raw_map.is_some();

@@ -179,6 +179,15 @@ fn decode_unguarded(path: &Path, bytes: &[u8], max_pixels: u64) -> Result<RawMos
             "colour filter array {cfa} is neither Bayer (2×2) nor X-Trans (6×6)"
         )));
     }
+    // Bayer: one red, one blue, and the two greens on a diagonal (the demosaicking's
+    // premise).
+    let diagonal_greens = (cfa.color_at(0, 0) == 1 && cfa.color_at(1, 1) == 1)
+        || (cfa.color_at(0, 1) == 1 && cfa.color_at(1, 0) == 1);
+    if is_bayer && !diagonal_greens {
+        return Err(unsupported(format!(
+            "colour filter array {cfa} is 2×2 without its greens on a diagonal"
+        )));
+    }
     let RawImageData::Integer(data) = &image.data else {
         return Err(unsupported(
             "floating-point raw data: only integer mosaics are merged".to_string(),

@@ -16,7 +16,8 @@
 //! codes, and a [`RawInfo`] with levels, CFA and colour); [`mosaic::merge`] merges a
 //! bracket of mosaics in CFA space with the noise-optimal weight of a linear sensor;
 //! [`demosaic`] interpolates the merged mosaic once (PPG for Bayer sensors, bilinear
-//! for X-Trans); [`colour`] turns white-balanced camera RGB into linear Rec. 709.
+//! for X-Trans) in one pass with the white balance, the camera → Rec. 709 matrix of
+//! [`colour`] and the exposure scale.
 //!
 //! # Hostile input
 //!
@@ -220,15 +221,16 @@ pub struct DevelopedRaw {
     pub order: Vec<usize>,
     /// The demosaicking method used.
     pub demosaic: &'static str,
-    /// Wall time of each step: `merge` (CFA), `demosaic` (white balance, interpolation
-    /// and the camera → output matrix).
+    /// Wall time of each step: `merge` (CFA), `demosaic` (white balance, interpolation,
+    /// the camera → output matrix and the scale, one pass).
     pub timings: Vec<(&'static str, std::time::Duration)>,
 }
 
 /// Merges a bracket of raw frames of one camera ([`mosaic::merge`], noise from
-/// [`mosaic::Noise::typical`] at each frame's ISO), then white-balances, demosaicks and
-/// converts to Rec. 709 ([`finish`]). One frame is developed alone (no merge to make).
-pub fn develop(frames: &[RawExposure<'_>]) -> Result<DevelopedRaw, RawError> {
+/// [`mosaic::Noise::typical`] at each frame's ISO), then white-balances, demosaicks,
+/// converts to Rec. 709 and multiplies by `scale` ([`finish`]). One frame is developed
+/// alone (no merge to make).
+pub fn develop(frames: &[RawExposure<'_>], scale: f64) -> Result<DevelopedRaw, RawError> {
     let Some(first) = frames.first() else {
         return Err(RawError::Decode {
             path: PathBuf::new(),
@@ -304,7 +306,7 @@ pub fn develop(frames: &[RawExposure<'_>]) -> Result<DevelopedRaw, RawError> {
     let clipped = merged.clipped;
     let mut order: Vec<usize> = (0..frames.len()).collect();
     order.sort_by(|&a, &b| frames[a].exposure.total_cmp(&frames[b].exposure));
-    let rgb = finish_timed(merged, first.info, first.path, &mut timings)?;
+    let rgb = finish_timed(merged, first.info, first.path, scale, &mut timings)?;
     Ok(DevelopedRaw {
         width: first.width,
         height: first.height,
@@ -316,26 +318,29 @@ pub fn develop(frames: &[RawExposure<'_>]) -> Result<DevelopedRaw, RawError> {
     })
 }
 
-/// White balance on the mosaic, demosaicking, then camera → Rec. 709: interleaved linear
-/// RGB of `merged` (see [`colour`]).
+/// White balance, demosaicking, camera → Rec. 709 and `scale` in one pass: interleaved
+/// linear RGB of `merged`, `scale · M · c'` with `M` of [`colour::camera_to_709`] and `c'`
+/// the white-balanced camera RGB.
 pub fn finish(
     merged: mosaic::MergedMosaic,
     info: &RawInfo,
     path: &std::path::Path,
+    scale: f64,
 ) -> Result<Vec<f32>, RawError> {
-    finish_timed(merged, info, path, &mut Vec::new())
+    finish_timed(merged, info, path, scale, &mut Vec::new())
 }
 
 fn finish_timed(
-    mut merged: mosaic::MergedMosaic,
+    merged: mosaic::MergedMosaic,
     info: &RawInfo,
     path: &std::path::Path,
+    scale: f64,
     timings: &mut Vec<(&'static str, std::time::Duration)>,
 ) -> Result<Vec<f32>, RawError> {
     let to_709 = colour::camera_to_709(info, path)?;
+    let matrix = to_709.map(|row| row.map(|v| (f64::from(v) * scale) as f32));
     let t = std::time::Instant::now();
-    mosaic::scale_channels(&mut merged, &info.cfa, colour::white_balance(info));
-    let rgb = demosaic::demosaic(merged, &info.cfa, &to_709);
+    let rgb = demosaic::demosaic(merged, &info.cfa, colour::white_balance(info), &matrix);
     timings.push(("demosaic", t.elapsed()));
     Ok(rgb)
 }

@@ -26,7 +26,7 @@
 
 use rayon::prelude::*;
 
-use super::{CLIPPED, Cfa};
+use super::CLIPPED;
 
 /// A sensor's noise in normalised signal units: `Var s = shot · s + read²`.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -206,19 +206,4 @@ fn merge_row(frames: &[(&dyn Signal, f32, f32, f32)], rows: &[Vec<f32>], out: &m
         *out = num / den;
     }
     clipped
-}
-
-/// Multiplies each sample of `mosaic` by `gains[colour]` (white balance on the mosaic,
-/// before demosaicking, so that the interpolation sees neutral edges as neutral).
-pub fn scale_channels(mosaic: &mut MergedMosaic, cfa: &Cfa, gains: [f32; 3]) {
-    let width = mosaic.width;
-    mosaic
-        .values
-        .par_chunks_mut(width.max(1))
-        .enumerate()
-        .for_each(|(y, row)| {
-            for (x, v) in row.iter_mut().enumerate() {
-                *v *= gains[cfa.colour_at(x, y)];
-            }
-        });
 }
