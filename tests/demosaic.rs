@@ -201,7 +201,7 @@ fn demosaicking_quality_against_the_truth() {
             let cfa = cfa(name);
             let m = mosaic(&scene, &cfa);
             let ours = quality(
-                &demosaic::demosaic(m.clone(), &cfa, UNBALANCED, &CAMERA_RGB),
+                &demosaic::demosaic(&m, &cfa, UNBALANCED, &CAMERA_RGB).0,
                 &scene.rgb,
             );
             let base = quality(&bilinear(&m, &cfa), &scene.rgb);

@@ -174,7 +174,7 @@ fn reference_with(b: &Bracket, noise: Noise) -> Vec<f32> {
         .map(|(l, &e)| (l as &dyn Signal, e, noise))
         .collect();
     let merged = mosaic::merge(&inputs, W as usize, H as usize);
-    raw::finish(merged, &info, Path::new("reference"), 1.0).unwrap()
+    raw::finish(&merged, &info, Path::new("reference"), 1.0).unwrap()
 }
 
 /// Median over well-measured samples of `|s·v − E|/E`, `s` the one global factor (median
@@ -535,7 +535,8 @@ fn merging_in_cfa_space_is_no_worse_than_after_demosaicking() {
                 values: s.clone(),
                 clipped: 0,
             };
-            let mut rgb = raw::demosaic::demosaic(m, &info.cfa, wb, &raw::demosaic::CAMERA_RGB);
+            let (mut rgb, _) =
+                raw::demosaic::demosaic(&m, &info.cfa, wb, &raw::demosaic::CAMERA_RGB);
             for p in rgb.chunks_exact_mut(3) {
                 for c in 0..3 {
                     p[c] /= wb[c];

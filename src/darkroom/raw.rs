@@ -13,7 +13,7 @@ use crate::response::InverseResponse;
 pub const LINEAR_RAW: &str = "linear (raw)";
 
 /// Merges `frames` when they are raws (`None` when none is): the response reported and
-/// the merged radiance in linear Rec. 709 times `scale` (stages `merge`, `demosaic`). A
+/// the merged radiance in linear Rec. 709 times `scale` (stage `merge+demosaic`). A
 /// bracket that mixes raw and other frames is refused.
 pub(super) fn merge(
     frames: &[LoadedFrame],

@@ -46,7 +46,7 @@
 use rayon::prelude::*;
 
 use super::Cfa;
-use super::mosaic::MergedMosaic;
+use super::mosaic::MosaicRows;
 
 /// Rows of output per band: the working copies of a band (mosaic and green, `BAND + 6`
 /// rows each) stay within a core's cache for rows of a few thousand pixels.
@@ -65,18 +65,20 @@ pub fn method(cfa: &Cfa) -> &'static str {
     }
 }
 
-/// Interpolates the two missing colours of every pixel of `mosaic` (laid out as `cfa`)
-/// after multiplying each sample by `gains[colour]`, and applies the 3×3 matrix
-/// `to_output` (row-major, `out_r = Σ_c m[r][c]·in_c`, the exposure scale folded in) to
-/// each pixel: interleaved RGB, `width × height × 3`. See the module docs.
-pub fn demosaic(
-    mosaic: MergedMosaic,
+/// Interpolates the two missing colours of every pixel of `mosaic` (laid out as `cfa`,
+/// read row by row, so a [`super::mosaic::Merge`] is merged as the bands need it) after
+/// multiplying each sample by `gains[colour]`, and applies the 3×3 matrix `to_output`
+/// (row-major, `out_r = Σ_c m[r][c]·in_c`, the exposure scale folded in) to each pixel:
+/// interleaved RGB, `width × height × 3`, and the samples clipped in every frame. See
+/// the module docs.
+pub fn demosaic<S: MosaicRows>(
+    mosaic: &S,
     cfa: &Cfa,
     gains: [f32; 3],
     to_output: &[[f32; 3]; 3],
-) -> Vec<f32> {
+) -> (Vec<f32>, u64) {
     if cfa.width == 2 && cfa.height == 2 {
-        bayer(&mosaic, cfa, gains, to_output)
+        bayer(mosaic, cfa, gains, to_output)
     } else {
         xtrans(mosaic, cfa, gains, to_output)
     }
@@ -134,11 +136,13 @@ fn sites(cfa: &Cfa) -> [[Site; 2]; 2] {
 }
 
 /// A band's working copies: the white-balanced mosaic and the green plane, `rows + 2·PAD`
-/// rows of `width + 2·PAD` values, row `r` holding image row `y0 + r − PAD`.
+/// rows of `width + 2·PAD` values, row `r` holding image row `y0 + r − PAD`; and the
+/// source's working memory.
 struct Band {
     stride: usize,
     mosaic: Vec<f32>,
     green: Vec<f32>,
+    scratch: Vec<f32>,
 }
 
 impl Band {
@@ -149,27 +153,39 @@ impl Band {
             stride,
             mosaic: vec![0.0; len],
             green: vec![0.0; len],
+            scratch: Vec::new(),
         }
     }
 
-    /// Copies image rows `y0 − PAD .. y0 + rows + PAD` (mirrored beyond the image) with
-    /// each sample times its colour's gain.
-    fn load(&mut self, mosaic: &MergedMosaic, cfa: &Cfa, gains: [f32; 3], y0: usize, rows: usize) {
-        let (w, h, s) = (mosaic.width, mosaic.height, self.stride);
-        for r in 0..rows + 2 * PAD {
-            let y = mirror(y0 as isize + r as isize - PAD as isize, h);
-            let src = &mosaic.values[y * w..(y + 1) * w];
-            let g = [gains[cfa.colour_at(0, y)], gains[cfa.colour_at(1, y)]];
-            let dst = &mut self.mosaic[r * s..(r + 1) * s];
-            for (x, (d, &v)) in dst[PAD..PAD + w].iter_mut().zip(src).enumerate() {
-                *d = v * g[x & 1];
-            }
-            for k in 1..=PAD {
-                let left = mirror(-(k as isize), w);
-                dst[PAD - k] = src[left] * g[left & 1];
-                let right = mirror((w - 1 + k) as isize, w);
-                dst[PAD + w - 1 + k] = src[right] * g[right & 1];
-            }
+    /// Reads image row `y` (mirrored beyond the image) of `source` into working row `r`,
+    /// each sample times its colour's gain, the row mirrored into its apron columns.
+    /// Returns the row's samples clipped in every frame when `y` is one of `own` (so that
+    /// rows read twice, as aprons or mirrors, are counted once).
+    fn load_row<S: MosaicRows>(
+        &mut self,
+        source: &S,
+        r: usize,
+        y: isize,
+        own: &std::ops::Range<usize>,
+        cfa: &Cfa,
+        gains: [f32; 3],
+    ) -> u64 {
+        let (w, s) = (source.width(), self.stride);
+        let y_in = mirror(y, source.height());
+        let dst = &mut self.mosaic[r * s..(r + 1) * s];
+        let clipped = source.row(y_in, &mut dst[PAD..PAD + w], &mut self.scratch);
+        let g = [gains[cfa.colour_at(0, y_in)], gains[cfa.colour_at(1, y_in)]];
+        for (x, v) in dst[PAD..PAD + w].iter_mut().enumerate() {
+            *v *= g[x & 1];
+        }
+        for k in 1..=PAD {
+            dst[PAD - k] = dst[PAD + mirror(-(k as isize), w)];
+            dst[PAD + w - 1 + k] = dst[PAD + mirror((w - 1 + k) as isize, w)];
+        }
+        if y >= 0 && own.contains(&(y as usize)) {
+            clipped
+        } else {
+            0
         }
     }
 }
@@ -295,45 +311,83 @@ fn ppg_band(
     }
 }
 
-/// PPG on bands of [`BAND`] rows, one band per task.
-fn bayer(mosaic: &MergedMosaic, cfa: &Cfa, gains: [f32; 3], matrix: &[[f32; 3]; 3]) -> Vec<f32> {
-    let (width, height) = (mosaic.width, mosaic.height);
+/// PPG on bands of [`BAND`] rows. The image is cut into a few runs of bands per thread;
+/// each run slides its working copy down the image, so a source row is read once per run
+/// (apart from the apron above the run's first band) and a merge is evaluated once.
+fn bayer<S: MosaicRows>(
+    source: &S,
+    cfa: &Cfa,
+    gains: [f32; 3],
+    matrix: &[[f32; 3]; 3],
+) -> (Vec<f32>, u64) {
+    let (width, height) = (source.width(), source.height());
     let mut out = vec![0.0f32; width * height * 3];
     if width == 0 || height == 0 {
-        return out;
+        return (out, 0);
     }
     let sites = sites(cfa);
-    out.par_chunks_mut(BAND * width * 3)
+    let runs = 4 * rayon::current_num_threads();
+    let run_rows = height.div_ceil(runs).div_ceil(BAND) * BAND;
+    let clipped = out
+        .par_chunks_mut(run_rows * width * 3)
         .enumerate()
-        .for_each_init(
+        .map_init(
             || Band::new(width),
             |band, (k, out)| {
-                let (y0, rows) = (k * BAND, out.len() / (width * 3));
-                band.load(mosaic, cfa, gains, y0, rows);
-                ppg_band(band, &sites, y0, rows, width, matrix, out);
+                let y_start = k * run_rows;
+                let own = y_start..y_start + out.len() / (width * 3);
+                let mut clipped = 0;
+                for (b, out) in out.chunks_mut(BAND * width * 3).enumerate() {
+                    let (y0, rows) = (y_start + b * BAND, out.len() / (width * 3));
+                    // Every band but a run's last is BAND rows: the previous band's last
+                    // 2·PAD working rows are this band's first.
+                    let first = if b == 0 {
+                        0
+                    } else {
+                        let s = band.stride;
+                        band.mosaic.copy_within(BAND * s..(BAND + 2 * PAD) * s, 0);
+                        2 * PAD
+                    };
+                    for r in first..rows + 2 * PAD {
+                        let y = (y0 + r) as isize - PAD as isize;
+                        clipped += band.load_row(source, r, y, &own, cfa, gains);
+                    }
+                    ppg_band(band, &sites, y0, rows, width, matrix, out);
+                }
+                clipped
             },
-        );
-    out
+        )
+        .sum();
+    (out, clipped)
 }
 
-/// X-Trans through rawler's bilinear interpolation (module docs).
-fn xtrans(mosaic: MergedMosaic, cfa: &Cfa, gains: [f32; 3], matrix: &[[f32; 3]; 3]) -> Vec<f32> {
+/// X-Trans through rawler's bilinear interpolation (module docs): the mosaic is read
+/// into memory, white-balanced, interpolated, and the matrix applied while copying out.
+fn xtrans<S: MosaicRows>(
+    source: &S,
+    cfa: &Cfa,
+    gains: [f32; 3],
+    matrix: &[[f32; 3]; 3],
+) -> (Vec<f32>, u64) {
     use rawler::cfa::{CFA, PlaneColor};
     use rawler::imgop::sensor::Demosaic;
     use rawler::imgop::sensor::xtrans::bilinear::XTransBilinearDemosaic;
     use rawler::imgop::{Dim2, Point, Rect};
     use rawler::pixarray::PixF32;
 
-    let (width, height) = (mosaic.width, mosaic.height);
-    let mut values = mosaic.values;
-    values
+    let (width, height) = (source.width(), source.height());
+    let mut values = vec![0.0f32; width * height];
+    let clipped = values
         .par_chunks_mut(width.max(1))
         .enumerate()
-        .for_each(|(y, row)| {
+        .map_init(Vec::new, |scratch, (y, row)| {
+            let clipped = source.row(y, row, scratch);
             for (x, v) in row.iter_mut().enumerate() {
                 *v *= gains[cfa.colour_at(x, y)];
             }
-        });
+            clipped
+        })
+        .sum();
     let pixels = PixF32::new_with(values, width, height);
     let roi = Rect::new(Point::new(0, 0), Dim2::new(width, height));
     let rgb = XTransBilinearDemosaic::new().demosaic(
@@ -352,11 +406,12 @@ fn xtrans(mosaic: MergedMosaic, cfa: &Cfa, gains: [f32; 3], matrix: &[[f32; 3]; 
                 *v = row[0] * p[0] + row[1] * p[1] + row[2] * p[2];
             }
         });
-    out
+    (out, clipped)
 }
 
 #[cfg(test)]
 mod tests {
+    use super::super::mosaic::{self, Linear, Merge, MergedMosaic, Noise, Signal};
     use super::*;
 
     fn cfa(name: &str) -> Cfa {
@@ -401,8 +456,15 @@ mod tests {
             .collect();
         for name in ["RGGB", "BGGR", "GRBG", "GBRG"] {
             let cfa = cfa(name);
-            for (w, h) in [(3, 3), (4, 5), (7, 2 * BAND + 5), (33, 17), (64, BAND)] {
-                let out = demosaic(flat(rgb, &cfa, w, h), &cfa, gains, &MATRIX);
+            for (w, h) in [
+                (3, 3),
+                (4, 5),
+                (7, 2 * BAND + 5),
+                (33, 17),
+                (64, BAND),
+                (9, 301),
+            ] {
+                let (out, _) = demosaic(&flat(rgb, &cfa, w, h), &cfa, gains, &MATRIX);
                 assert_eq!(out.len(), w * h * 3);
                 for (i, p) in out.chunks_exact(3).enumerate() {
                     for c in 0..3 {
@@ -418,13 +480,83 @@ mod tests {
         }
     }
 
+    /// A grey ramp down the image is linear, and PPG reproduces a linear grey exactly:
+    /// every row away from the mirrored top and bottom reads its own level, so bands and
+    /// the runs of bands that slide their working rows down the image line up.
+    #[test]
+    fn a_grey_ramp_is_exact_across_bands() {
+        let (w, h) = (11, 301);
+        for name in ["RGGB", "GBRG"] {
+            let cfa = cfa(name);
+            let ramp = MergedMosaic {
+                width: w,
+                height: h,
+                values: (0..w * h).map(|i| 0.1 + (i / w) as f32 * 0.003).collect(),
+                clipped: 0,
+            };
+            let (out, _) = demosaic(&ramp, &cfa, UNBALANCED, &CAMERA_RGB);
+            for y in 3..h - 3 {
+                let level = 0.1 + y as f32 * 0.003;
+                for v in &out[y * w * 3..(y + 1) * w * 3] {
+                    assert!((v - level).abs() < 1e-5, "{name} row {y}: {v} for {level}");
+                }
+            }
+        }
+    }
+
+    /// Merging row by row inside the bands gives the same pixels and the same count of
+    /// samples clipped in every frame as merging into memory first.
+    #[test]
+    fn merging_in_the_bands_equals_merging_first() {
+        let (w, h) = (23, 157);
+        let cfa = cfa("GRBG");
+        let frame = |scale: f32| -> Vec<f32> {
+            (0..w * h)
+                .map(|i| {
+                    let (x, y) = ((i % w) as f32, (i / w) as f32);
+                    (scale * (0.3 + 0.7 * ((x * 0.37).sin() * (y * 0.21).cos()).abs())).min(1.0)
+                })
+                .collect()
+        };
+        let (short, long) = (frame(1.2), frame(9.6));
+        let signals = [
+            Linear {
+                signal: &short,
+                width: w,
+            },
+            Linear {
+                signal: &long,
+                width: w,
+            },
+        ];
+        let noise = Noise {
+            shot: 1e-4,
+            read: 1e-3,
+        };
+        let inputs: Vec<(&dyn Signal, f64, Noise)> =
+            vec![(&signals[0], 1.0, noise), (&signals[1], 8.0, noise)];
+        let gains = [0.7, 1.0, 1.3];
+        let merged = mosaic::merge(&inputs, w, h);
+        assert!(merged.clipped > 0, "the test needs samples clipped in both");
+        let (first, clipped_first) = demosaic(&merged, &cfa, gains, &MATRIX);
+        let (fused, clipped_fused) = demosaic(&Merge::new(&inputs, w, h), &cfa, gains, &MATRIX);
+        assert_eq!(clipped_fused, merged.clipped);
+        assert_eq!(clipped_first, 0, "a merged mosaic counts nothing again");
+        assert_eq!(fused, first);
+    }
+
     /// Mosaics too small to mirror (one or two pixels across) come out finite, at their
     /// size, without a panic.
     #[test]
     fn tiny_mosaics_come_out_finite() {
         let cfa = cfa("RGGB");
         for (w, h) in [(1, 1), (1, 4), (2, 2), (4, 1), (2, 5), (0, 3)] {
-            let out = demosaic(flat([0.3, 0.6, 0.9], &cfa, w, h), &cfa, UNBALANCED, &MATRIX);
+            let (out, _) = demosaic(
+                &flat([0.3, 0.6, 0.9], &cfa, w, h),
+                &cfa,
+                UNBALANCED,
+                &MATRIX,
+            );
             assert_eq!(out.len(), w * h * 3, "{w}×{h}");
             assert!(out.iter().all(|v| v.is_finite()), "{w}×{h}: {out:?}");
         }

@@ -13,11 +13,12 @@
 //! # Stages
 //!
 //! [`decode`] reads a file into a [`RawMosaic`] (the visible area of the mosaic, 16-bit
-//! codes, and a [`RawInfo`] with levels, CFA and colour); [`mosaic::merge`] merges a
-//! bracket of mosaics in CFA space with the noise-optimal weight of a linear sensor;
-//! [`demosaic`] interpolates the merged mosaic once (PPG for Bayer sensors, bilinear
-//! for X-Trans) in one pass with the white balance, the camera → Rec. 709 matrix of
-//! [`colour`] and the exposure scale.
+//! codes, and a [`RawInfo`] with levels, CFA and colour); [`mosaic::Merge`] merges a
+//! bracket of mosaics in CFA space with the noise-optimal weight of a linear sensor, row
+//! by row as [`demosaic`] asks for them; [`demosaic`] interpolates the merged mosaic once
+//! (PPG for Bayer sensors, bilinear for X-Trans) in one pass over bands of rows with the
+//! white balance, the camera → Rec. 709 matrix of [`colour`] and the exposure scale, so
+//! no full-size merged mosaic is held.
 //!
 //! # Hostile input
 //!
@@ -221,8 +222,8 @@ pub struct DevelopedRaw {
     pub order: Vec<usize>,
     /// The demosaicking method used.
     pub demosaic: &'static str,
-    /// Wall time of each step: `merge` (CFA), `demosaic` (white balance, interpolation,
-    /// the camera → output matrix and the scale, one pass).
+    /// Wall time of each step: `merge+demosaic` (the CFA merge, white balance,
+    /// interpolation, the camera → output matrix and the scale, one pass over bands).
     pub timings: Vec<(&'static str, std::time::Duration)>,
 }
 
@@ -300,13 +301,18 @@ pub fn develop(frames: &[RawExposure<'_>], scale: f64) -> Result<DevelopedRaw, R
             (c as &dyn mosaic::Signal, f.exposure, noise)
         })
         .collect();
+    let merge = mosaic::Merge::new(&inputs, first.width as usize, first.height as usize);
+    let to_709 = colour::camera_to_709(first.info, first.path)?;
     let t = std::time::Instant::now();
-    let merged = mosaic::merge(&inputs, first.width as usize, first.height as usize);
-    let mut timings = vec![("merge", t.elapsed())];
-    let clipped = merged.clipped;
+    let (rgb, clipped) = demosaic::demosaic(
+        &merge,
+        &first.info.cfa,
+        colour::white_balance(first.info),
+        &scaled(&to_709, scale),
+    );
+    let timings = vec![("merge+demosaic", t.elapsed())];
     let mut order: Vec<usize> = (0..frames.len()).collect();
     order.sort_by(|&a, &b| frames[a].exposure.total_cmp(&frames[b].exposure));
-    let rgb = finish_timed(merged, first.info, first.path, scale, &mut timings)?;
     Ok(DevelopedRaw {
         width: first.width,
         height: first.height,
@@ -322,25 +328,22 @@ pub fn develop(frames: &[RawExposure<'_>], scale: f64) -> Result<DevelopedRaw, R
 /// linear RGB of `merged`, `scale · M · c'` with `M` of [`colour::camera_to_709`] and `c'`
 /// the white-balanced camera RGB.
 pub fn finish(
-    merged: mosaic::MergedMosaic,
+    merged: &mosaic::MergedMosaic,
     info: &RawInfo,
     path: &std::path::Path,
     scale: f64,
-) -> Result<Vec<f32>, RawError> {
-    finish_timed(merged, info, path, scale, &mut Vec::new())
-}
-
-fn finish_timed(
-    merged: mosaic::MergedMosaic,
-    info: &RawInfo,
-    path: &std::path::Path,
-    scale: f64,
-    timings: &mut Vec<(&'static str, std::time::Duration)>,
 ) -> Result<Vec<f32>, RawError> {
     let to_709 = colour::camera_to_709(info, path)?;
-    let matrix = to_709.map(|row| row.map(|v| (f64::from(v) * scale) as f32));
-    let t = std::time::Instant::now();
-    let rgb = demosaic::demosaic(merged, &info.cfa, colour::white_balance(info), &matrix);
-    timings.push(("demosaic", t.elapsed()));
+    let (rgb, _) = demosaic::demosaic(
+        merged,
+        &info.cfa,
+        colour::white_balance(info),
+        &scaled(&to_709, scale),
+    );
     Ok(rgb)
+}
+
+/// `m · scale`.
+fn scaled(m: &[[f32; 3]; 3], scale: f64) -> [[f32; 3]; 3] {
+    m.map(|row| row.map(|v| (f64::from(v) * scale) as f32))
 }
