@@ -395,7 +395,17 @@ fn write_radiance(
     stages: &mut Stages,
 ) -> Result<Written, DarkroomError> {
     let t = Instant::now();
-    let mut exr = Cursor::new(Vec::new());
+    // Room for the samples uncompressed (an upper bound for a compressed file, which
+    // stores a block raw when compression does not shrink it, and what the job's memory
+    // budget already counts), so the buffer is not regrown and copied while it fills;
+    // pages are only taken as they are written.
+    let planes = source.channels() + usize::from(confidence.is_some());
+    let bytes = match options.sample {
+        hdr_output::SampleFormat::Half => 2,
+        hdr_output::SampleFormat::Float => 4,
+    };
+    let samples = source.width() as usize * source.height() as usize * planes;
+    let mut exr = Cursor::new(Vec::with_capacity(samples * bytes + (1 << 16)));
     let written = hdr_output::encode_exr(&mut exr, source, confidence, provenance, options)?;
     stages.push(("encode", t.elapsed()));
     let t = Instant::now();
