@@ -6,12 +6,17 @@
 //! `--mp` megapixels (3:2) are written to a temporary folder; then, best of `--runs`:
 //! 1. **decode**: `frame::load` of the three files in parallel (what `filmback merge`
 //!    does first);
-//! 2. **bracket → EXR**: decode, then `darkroom::develop` (CFA merge, PPG demosaic,
-//!    colour, half/PIZ encode, publish), the whole of `filmback merge` minus process
-//!    start.
+//! 2. **bracket → EXR**: decode, then `darkroom::develop` (CFA merge inside the PPG
+//!    demosaic's bands with white balance, colour and scale, then half/PIZ encode,
+//!    publish), the whole of `filmback merge` minus process start.
 //!
-//! Printed: both times, their ratio, the develop stages, the EXR's size and the process's
-//! peak resident memory (which includes making the scene and the DNGs).
+//! Also timed alone, on the longest frame's signal as a mosaic: our demosaic stage against
+//! the one it replaced (white balance pass, rawler's PPG, the matrix while copying out),
+//! best of `--runs` each, in the same run (the machine's load moves absolute times).
+//!
+//! Printed: the times (and the mean CPU time of a run, all threads: on two cores the
+//! wall time cannot be below half of it), the ratio, the develop stages, the EXR's size
+//! and the process's peak resident memory (which includes making the scene and the DNGs).
 
 use std::time::{Duration, Instant};
 
@@ -21,6 +26,9 @@ use filmback::frame::{self, Limits, LoadedFrame};
 use filmback::hdr_output::ExrOptions;
 use filmback::merge::MergeOptions;
 use filmback::metadata::CaptureTime;
+use filmback::raw::Cfa;
+use filmback::raw::demosaic;
+use filmback::raw::mosaic::MergedMosaic;
 use filmback::rendering::{Format, SourceExif};
 use filmback::response::RatioSource;
 use filmback::synthetic::{self, RawSensor, Shot, demo};
@@ -42,6 +50,23 @@ fn peak_rss_mib() -> f64 {
         .find_map(|l| l.strip_prefix("VmHWM:"))
         .and_then(|v| v.trim().trim_end_matches("kB").trim().parse::<f64>().ok())
         .map_or(f64::NAN, |kb| kb / 1024.0)
+}
+
+/// CPU time of the process so far (user + system, all threads) in seconds, from
+/// `/proc/self/stat` (clock ticks of 1/100 s): less moved by other processes on a shared
+/// machine than wall time.
+fn cpu_seconds() -> f64 {
+    let stat = std::fs::read_to_string("/proc/self/stat").unwrap_or_default();
+    // Fields after the command name in parentheses; utime and stime are the 14th and 15th
+    // of the line, the 12th and 13th after it.
+    let fields: Vec<&str> = stat
+        .rsplit_once(')')
+        .map_or(Vec::new(), |(_, rest)| rest.split_whitespace().collect());
+    let ticks = |i: usize| fields.get(i).and_then(|v| v.parse::<f64>().ok());
+    match (ticks(11), ticks(12)) {
+        (Some(user), Some(system)) => (user + system) / 100.0,
+        _ => f64::NAN,
+    }
 }
 
 fn main() {
@@ -85,6 +110,13 @@ fn main() {
             path
         })
         .collect();
+    // The longest frame's signal as a mosaic, for timing the demosaicking alone.
+    let mosaic = MergedMosaic {
+        width: width as usize,
+        height: height as usize,
+        values: synthetic::raw_signal(&scene, 1.0, &sensor),
+        clipped: 0,
+    };
     drop(scene);
     let size: u64 = paths
         .iter()
@@ -104,12 +136,14 @@ fn main() {
             .collect()
     };
     let mut decode = Duration::MAX;
+    let cpu = cpu_seconds();
     for _ in 0..runs {
         let t = Instant::now();
         let frames = load();
         decode = decode.min(t.elapsed());
         drop(frames);
     }
+    let decode_cpu = (cpu_seconds() - cpu) / runs as f64;
 
     let out = dir.path().join("out");
     std::fs::create_dir_all(&out).expect("out folder");
@@ -127,6 +161,7 @@ fn main() {
     };
     let mut full = Duration::MAX;
     let mut stages = Vec::new();
+    let cpu = cpu_seconds();
     for _ in 0..runs {
         let t = Instant::now();
         let frames = load();
@@ -149,11 +184,46 @@ fn main() {
             stages = developed.stages;
         }
     }
+    let full_cpu = (cpu_seconds() - cpu) / runs as f64;
+    let cfa = Cfa {
+        width: 2,
+        height: 2,
+        colours: vec![0, 1, 1, 2],
+    };
+    let gains = [0.5f32, 1.0, 0.7];
+    let matrix = [[1.6f32, -0.5, -0.1], [-0.2, 1.4, -0.2], [0.0, -0.4, 1.4]];
+    let (mut ours, mut ours_cpu) = (Duration::MAX, 0.0);
+    let (mut theirs, mut theirs_cpu) = (Duration::MAX, 0.0);
+    for _ in 0..runs {
+        let (t, cpu) = (Instant::now(), cpu_seconds());
+        let (rgb, _) = demosaic::demosaic(&mosaic, &cfa, gains, &matrix);
+        ours = ours.min(t.elapsed());
+        ours_cpu += cpu_seconds() - cpu;
+        drop(rgb);
+        let m = mosaic.clone();
+        let (t, cpu) = (Instant::now(), cpu_seconds());
+        let rgb = rawler_ppg(m, &cfa, gains, &matrix);
+        theirs = theirs.min(t.elapsed());
+        theirs_cpu += cpu_seconds() - cpu;
+        drop(rgb);
+    }
     println!(
-        "decode 3 raws:        {:7.0} ms",
-        decode.as_secs_f64() * 1e3
+        "demosaic stage: ours (PPG) {:.0} ms (CPU {:.2} s), rawler PPG path {:.0} ms (CPU {:.2} s)",
+        ours.as_secs_f64() * 1e3,
+        ours_cpu / runs as f64,
+        theirs.as_secs_f64() * 1e3,
+        theirs_cpu / runs as f64
     );
-    println!("bracket → half/PIZ:   {:7.0} ms", full.as_secs_f64() * 1e3);
+    println!(
+        "decode 3 raws:        {:7.0} ms   (CPU {:.2} s per run)",
+        decode.as_secs_f64() * 1e3,
+        decode_cpu
+    );
+    println!(
+        "bracket → half/PIZ:   {:7.0} ms   (CPU {:.2} s per run)",
+        full.as_secs_f64() * 1e3,
+        full_cpu
+    );
     println!(
         "ratio:                {:7.2} (bracket → EXR over decoding alone)",
         full.as_secs_f64() / decode.as_secs_f64()
@@ -164,4 +234,38 @@ fn main() {
     let exr_size = std::fs::metadata(out.join("bench.exr")).map_or(0, |m| m.len());
     println!("EXR:                  {:7.1} MB", exr_size as f64 / 1e6);
     println!("peak resident memory: {:7.0} MiB", peak_rss_mib());
+}
+
+/// The demosaic stage as it was before ours: white balance on the mosaic, rawler's PPG,
+/// the matrix applied while copying out.
+fn rawler_ppg(mut m: MergedMosaic, cfa: &Cfa, gains: [f32; 3], matrix: &[[f32; 3]; 3]) -> Vec<f32> {
+    use rawler::cfa::{CFA, PlaneColor};
+    use rawler::imgop::sensor::Demosaic;
+    use rawler::imgop::sensor::bayer::ppg::PPGDemosaic;
+    use rawler::imgop::{Dim2, Point, Rect};
+    use rawler::pixarray::PixF32;
+    let width = m.width;
+    m.values
+        .par_chunks_mut(width)
+        .enumerate()
+        .for_each(|(y, row)| {
+            for (x, v) in row.iter_mut().enumerate() {
+                *v *= gains[cfa.colour_at(x, y)];
+            }
+        });
+    let pixels = PixF32::new_with(m.values, m.width, m.height);
+    let roi = Rect::new(Point::new(0, 0), Dim2::new(m.width, m.height));
+    let rgb =
+        PPGDemosaic::new().demosaic(&pixels, &CFA::new(&cfa.name()), &PlaneColor::default(), roi);
+    drop(pixels);
+    let camera = rgb.into_inner();
+    let mut out = vec![0.0f32; camera.len() * 3];
+    out.par_chunks_exact_mut(3)
+        .zip(camera.par_iter())
+        .for_each(|(o, p)| {
+            for (v, row) in o.iter_mut().zip(matrix) {
+                *v = row[0] * p[0] + row[1] * p[1] + row[2] * p[2];
+            }
+        });
+    out
 }

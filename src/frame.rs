@@ -360,8 +360,9 @@ pub fn load(path: &Path, limits: Limits) -> Result<LoadedFrame, FrameError> {
             max_bytes,
         });
     }
-    let mut bytes = Vec::new();
+    // Sized for the file as it stands (no regrowing while a 20-80 MB raw is read);
     // `take` also bounds a file that grows while it is read.
+    let mut bytes = Vec::with_capacity(info.len().min(max_bytes) as usize + 1);
     std::fs::File::open(path)
         .and_then(|file| file.take(max_bytes).read_to_end(&mut bytes))
         .map_err(read_error)?;

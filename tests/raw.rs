@@ -121,7 +121,7 @@ fn develop(frames: &[LoadedFrame]) -> raw::DevelopedRaw {
             }
         })
         .collect();
-    raw::develop(&inputs).unwrap()
+    raw::develop(&inputs, 1.0).unwrap()
 }
 
 /// The sensor's exact description, as the float reference uses it.
@@ -174,7 +174,7 @@ fn reference_with(b: &Bracket, noise: Noise) -> Vec<f32> {
         .map(|(l, &e)| (l as &dyn Signal, e, noise))
         .collect();
     let merged = mosaic::merge(&inputs, W as usize, H as usize);
-    raw::finish(merged, &info, Path::new("reference")).unwrap()
+    raw::finish(&merged, &info, Path::new("reference"), 1.0).unwrap()
 }
 
 /// Median over well-measured samples of `|s·v − E|/E`, `s` the one global factor (median
@@ -475,7 +475,7 @@ fn inspect_shows_a_raws_levels_and_cfa() {
     assert_eq!(r["raw"]["response"], "linear (raw)", "{r}");
 }
 
-/// A Fuji X-Trans mosaic (6×6) is demosaicked by Markesteijn's method: the round trip
+/// A Fuji X-Trans mosaic (6×6) is demosaicked by rawler's bilinear interpolation: the round trip
 /// stays within the Bayer figure's neighbourhood.
 #[test]
 fn xtrans_bracket_round_trips() {
@@ -529,14 +529,14 @@ fn merging_in_cfa_space_is_no_worse_than_after_demosaicking() {
         .signals
         .iter()
         .map(|s| {
-            let mut m = mosaic::MergedMosaic {
+            let m = mosaic::MergedMosaic {
                 width: w,
                 height: h,
                 values: s.clone(),
                 clipped: 0,
             };
-            mosaic::scale_channels(&mut m, &info.cfa, wb);
-            let mut rgb = raw::demosaic::demosaic(m, &info.cfa, &raw::demosaic::CAMERA_RGB);
+            let (mut rgb, _) =
+                raw::demosaic::demosaic(&m, &info.cfa, wb, &raw::demosaic::CAMERA_RGB);
             for p in rgb.chunks_exact_mut(3) {
                 for c in 0..3 {
                     p[c] /= wb[c];

@@ -221,10 +221,15 @@ pub fn develop(
     if bracket.len() < 2 {
         return Err(MergeError::TooFewFrames(bracket.len()).into());
     }
+    // Anchor the values to the EXIF exposure (see `merge`'s "Absolute scale"); a raw
+    // bracket's demosaicking applies the factor in its one pass.
+    let exif: Vec<_> = frames.iter().map(|f| f.metadata.exposure).collect();
+    let (scale, factor) = merge::exposure_scale(&exif, exposures, prints.luminance_calibration);
     #[cfg(feature = "raw")]
-    let raw_merged = raw::merge(frames, exposures, &mut stages)?;
+    let raw_merged = raw::merge(frames, exposures, factor, &mut stages)?;
     #[cfg(not(feature = "raw"))]
     let raw_merged: Option<(ChosenResponse, merge::Merged)> = None;
+    let scaled = raw_merged.is_some();
     let mut weighting = format!("{:?}", options.weighting);
     let (chosen, merged) = match raw_merged {
         Some((chosen, m)) => {
@@ -252,14 +257,11 @@ pub fn develop(
             (chosen, merged)
         }
     };
-    // Anchor the values to the EXIF exposure (see `merge`'s "Absolute scale").
-    let exif: Vec<_> = frames.iter().map(|f| f.metadata.exposure).collect();
-    let (scale, factor) = merge::exposure_scale(&exif, exposures, prints.luminance_calibration);
     let mut merged = merged;
     match &mut merged {
         Radiance::Pair(p) => p.scale_by(factor as f32),
         Radiance::Banded(b) => b.scale_by(factor as f32),
-        Radiance::Buffered(m) if factor != 1.0 => {
+        Radiance::Buffered(m) if factor != 1.0 && !scaled => {
             use rayon::prelude::*;
             let f = factor as f32;
             m.radiance.pixels_mut().par_iter_mut().for_each(|v| *v *= f);
@@ -404,7 +406,17 @@ fn write_radiance(
     stages: &mut Stages,
 ) -> Result<Written, DarkroomError> {
     let t = Instant::now();
-    let mut exr = Cursor::new(Vec::new());
+    // Room for the samples uncompressed (an upper bound for a compressed file, which
+    // stores a block raw when compression does not shrink it, and what the job's memory
+    // budget already counts), so the buffer is not regrown and copied while it fills;
+    // pages are only taken as they are written.
+    let planes = source.channels() + usize::from(confidence.is_some());
+    let bytes = match options.sample {
+        hdr_output::SampleFormat::Half => 2,
+        hdr_output::SampleFormat::Float => 4,
+    };
+    let samples = source.width() as usize * source.height() as usize * planes;
+    let mut exr = Cursor::new(Vec::with_capacity(samples * bytes + (1 << 16)));
     let written = hdr_output::encode_exr(&mut exr, source, confidence, provenance, options)?;
     stages.push(("encode", t.elapsed()));
     let t = Instant::now();
@@ -535,7 +547,7 @@ pub fn develop_single(
 ) -> Result<Developed, DarkroomError> {
     let mut stages = Stages::new();
     #[cfg(feature = "raw")]
-    let raw_map = raw::merge(std::slice::from_ref(frame), &[1.0], &mut stages)?;
+    let raw_map = raw::merge(std::slice::from_ref(frame), &[1.0], 1.0, &mut stages)?;
     #[cfg(not(feature = "raw"))]
     let raw_map: Option<(ChosenResponse, merge::Merged)> = None;
     let is_raw = raw_map.is_some();

@@ -13,11 +13,12 @@ use crate::response::InverseResponse;
 pub const LINEAR_RAW: &str = "linear (raw)";
 
 /// Merges `frames` when they are raws (`None` when none is): the response reported and
-/// the merged radiance in linear Rec. 709 (stages `merge`, `demosaic`, `colour`). A bracket that mixes raw and
-/// other frames is refused.
+/// the merged radiance in linear Rec. 709 times `scale` (stage `merge+demosaic`). A
+/// bracket that mixes raw and other frames is refused.
 pub(super) fn merge(
     frames: &[LoadedFrame],
     exposures: &[f64],
+    scale: f64,
     stages: &mut Stages,
 ) -> Result<Option<(ChosenResponse, Merged)>, DarkroomError> {
     let Some(first_raw) = frames.iter().find(|f| f.raw.is_some()) else {
@@ -42,7 +43,7 @@ pub(super) fn merge(
             exposure,
         });
     }
-    let developed = raw::develop(&inputs)?;
+    let developed = raw::develop(&inputs, scale)?;
     stages.extend(developed.timings.iter().copied());
     let exposures: Vec<f64> = developed.order.iter().map(|&i| exposures[i]).collect();
     let radiance = RadianceMap::new(developed.width, developed.height, 3, developed.rgb)

@@ -121,6 +121,23 @@ fn failed(path: &Path, error: RawlerError) -> RawError {
     }
 }
 
+/// Keeps the `width × height` area at `(x0, y0)` of the row-major `data` (rows of
+/// `stride` samples), compacted to its start: each row moves to a lower index, so rows
+/// copied in order never overwrite one still to come. The area lies within `data`.
+fn crop_in_place(
+    data: &mut Vec<u16>,
+    stride: usize,
+    (x0, y0, width, height): (usize, usize, usize, usize),
+) {
+    if (x0, y0, width) != (0, 0, stride) {
+        for row in 0..height {
+            let from = (y0 + row) * stride + x0;
+            data.copy_within(from..from + width, row * width);
+        }
+    }
+    data.truncate(width * height);
+}
+
 fn decode_unguarded(path: &Path, bytes: &[u8], max_pixels: u64) -> Result<RawMosaic, RawError> {
     let failed = |error: RawlerError| failed(path, error);
     let source = RawSource::new_from_slice(bytes);
@@ -140,7 +157,7 @@ fn decode_unguarded(path: &Path, bytes: &[u8], max_pixels: u64) -> Result<RawMos
     let header = decoder.raw_image(&source, &params, true).map_err(failed)?;
     within_limit(header.width, header.height)?;
     drop(header);
-    let image = decoder.raw_image(&source, &params, false).map_err(failed)?;
+    let mut image = decoder.raw_image(&source, &params, false).map_err(failed)?;
     // The decoded image again: a file whose header understates its size is refused before
     // anything larger (the demosaicked map) is made of it.
     within_limit(image.width, image.height)?;
@@ -179,6 +196,15 @@ fn decode_unguarded(path: &Path, bytes: &[u8], max_pixels: u64) -> Result<RawMos
             "colour filter array {cfa} is neither Bayer (2×2) nor X-Trans (6×6)"
         )));
     }
+    // Bayer: one red, one blue, and the two greens on a diagonal (the demosaicking's
+    // premise).
+    let diagonal_greens = (cfa.color_at(0, 0) == 1 && cfa.color_at(1, 1) == 1)
+        || (cfa.color_at(0, 1) == 1 && cfa.color_at(1, 0) == 1);
+    if is_bayer && !diagonal_greens {
+        return Err(unsupported(format!(
+            "colour filter array {cfa} is 2×2 without its greens on a diagonal"
+        )));
+    }
     let RawImageData::Integer(data) = &image.data else {
         return Err(unsupported(
             "floating-point raw data: only integer mosaics are merged".to_string(),
@@ -204,10 +230,6 @@ fn decode_unguarded(path: &Path, bytes: &[u8], max_pixels: u64) -> Result<RawMos
             path: path.to_path_buf(),
             reason: "fewer samples than the sensor's size".to_string(),
         });
-    }
-    let mut codes = Vec::with_capacity(width * height);
-    for row in data[y0 * full.0..].chunks_exact(full.0).take(height) {
-        codes.extend_from_slice(&row[x0..x0 + width]);
     }
     let tile = cfa.shift(x0, y0);
     let cfa = Cfa {
@@ -270,6 +292,15 @@ fn decode_unguarded(path: &Path, bytes: &[u8], max_pixels: u64) -> Result<RawMos
         image.clean_model.clone(),
         &exif.unwrap_or_default(),
     );
+    // The visible area, moved out of the decoded image and cropped in place.
+    let RawImageData::Integer(mut codes) =
+        std::mem::replace(&mut image.data, RawImageData::Integer(Vec::new()))
+    else {
+        return Err(unsupported(
+            "floating-point raw data: only integer mosaics are merged".to_string(),
+        ));
+    };
+    crop_in_place(&mut codes, full.0, (x0, y0, width, height));
     Ok(RawMosaic {
         width: u32::try_from(width).map_err(|_| unsupported("too wide".to_string()))?,
         height: u32::try_from(height).map_err(|_| unsupported("too tall".to_string()))?,
@@ -292,4 +323,26 @@ fn decode_unguarded(path: &Path, bytes: &[u8], max_pixels: u64) -> Result<RawMos
             captured: exif.captured,
         },
     })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::crop_in_place;
+
+    #[test]
+    fn the_visible_area_is_cropped_in_place() {
+        // 5 × 4, sample = 10·row + column.
+        let full: Vec<u16> = (0..4)
+            .flat_map(|y| (0..5).map(move |x| 10 * y + x))
+            .collect();
+        let mut data = full.clone();
+        crop_in_place(&mut data, 5, (1, 1, 3, 2));
+        assert_eq!(data, [11, 12, 13, 21, 22, 23]);
+        let mut data = full.clone();
+        crop_in_place(&mut data, 5, (0, 0, 5, 3));
+        assert_eq!(data, full[..15]);
+        let mut data = full.clone();
+        crop_in_place(&mut data, 5, (2, 0, 3, 4));
+        assert_eq!(data, [2, 3, 4, 12, 13, 14, 22, 23, 24, 32, 33, 34]);
+    }
 }

@@ -13,10 +13,12 @@
 //! # Stages
 //!
 //! [`decode`] reads a file into a [`RawMosaic`] (the visible area of the mosaic, 16-bit
-//! codes, and a [`RawInfo`] with levels, CFA and colour); [`mosaic::merge`] merges a
-//! bracket of mosaics in CFA space with the noise-optimal weight of a linear sensor;
-//! [`demosaic`] interpolates the merged mosaic once (PPG for Bayer sensors, bilinear
-//! for X-Trans); [`colour`] turns white-balanced camera RGB into linear Rec. 709.
+//! codes, and a [`RawInfo`] with levels, CFA and colour); [`mosaic::Merge`] merges a
+//! bracket of mosaics in CFA space with the noise-optimal weight of a linear sensor, row
+//! by row as [`demosaic`] asks for them; [`demosaic`] interpolates the merged mosaic once
+//! (PPG for Bayer sensors, bilinear for X-Trans) in one pass over bands of rows with the
+//! white balance, the camera → Rec. 709 matrix of [`colour`] and the exposure scale, so
+//! no full-size merged mosaic is held.
 //!
 //! # Hostile input
 //!
@@ -220,15 +222,16 @@ pub struct DevelopedRaw {
     pub order: Vec<usize>,
     /// The demosaicking method used.
     pub demosaic: &'static str,
-    /// Wall time of each step: `merge` (CFA), `demosaic` (white balance, interpolation
-    /// and the camera → output matrix).
+    /// Wall time of each step: `merge+demosaic` (the CFA merge, white balance,
+    /// interpolation, the camera → output matrix and the scale, one pass over bands).
     pub timings: Vec<(&'static str, std::time::Duration)>,
 }
 
 /// Merges a bracket of raw frames of one camera ([`mosaic::merge`], noise from
-/// [`mosaic::Noise::typical`] at each frame's ISO), then white-balances, demosaicks and
-/// converts to Rec. 709 ([`finish`]). One frame is developed alone (no merge to make).
-pub fn develop(frames: &[RawExposure<'_>]) -> Result<DevelopedRaw, RawError> {
+/// [`mosaic::Noise::typical`] at each frame's ISO), then white-balances, demosaicks,
+/// converts to Rec. 709 and multiplies by `scale` ([`finish`]). One frame is developed
+/// alone (no merge to make).
+pub fn develop(frames: &[RawExposure<'_>], scale: f64) -> Result<DevelopedRaw, RawError> {
     let Some(first) = frames.first() else {
         return Err(RawError::Decode {
             path: PathBuf::new(),
@@ -298,13 +301,18 @@ pub fn develop(frames: &[RawExposure<'_>]) -> Result<DevelopedRaw, RawError> {
             (c as &dyn mosaic::Signal, f.exposure, noise)
         })
         .collect();
+    let merge = mosaic::Merge::new(&inputs, first.width as usize, first.height as usize);
+    let to_709 = colour::camera_to_709(first.info, first.path)?;
     let t = std::time::Instant::now();
-    let merged = mosaic::merge(&inputs, first.width as usize, first.height as usize);
-    let mut timings = vec![("merge", t.elapsed())];
-    let clipped = merged.clipped;
+    let (rgb, clipped) = demosaic::demosaic(
+        &merge,
+        &first.info.cfa,
+        colour::white_balance(first.info),
+        &scaled(&to_709, scale),
+    );
+    let timings = vec![("merge+demosaic", t.elapsed())];
     let mut order: Vec<usize> = (0..frames.len()).collect();
     order.sort_by(|&a, &b| frames[a].exposure.total_cmp(&frames[b].exposure));
-    let rgb = finish_timed(merged, first.info, first.path, &mut timings)?;
     Ok(DevelopedRaw {
         width: first.width,
         height: first.height,
@@ -316,26 +324,26 @@ pub fn develop(frames: &[RawExposure<'_>]) -> Result<DevelopedRaw, RawError> {
     })
 }
 
-/// White balance on the mosaic, demosaicking, then camera → Rec. 709: interleaved linear
-/// RGB of `merged` (see [`colour`]).
+/// White balance, demosaicking, camera → Rec. 709 and `scale` in one pass: interleaved
+/// linear RGB of `merged`, `scale · M · c'` with `M` of [`colour::camera_to_709`] and `c'`
+/// the white-balanced camera RGB.
 pub fn finish(
-    merged: mosaic::MergedMosaic,
+    merged: &mosaic::MergedMosaic,
     info: &RawInfo,
     path: &std::path::Path,
-) -> Result<Vec<f32>, RawError> {
-    finish_timed(merged, info, path, &mut Vec::new())
-}
-
-fn finish_timed(
-    mut merged: mosaic::MergedMosaic,
-    info: &RawInfo,
-    path: &std::path::Path,
-    timings: &mut Vec<(&'static str, std::time::Duration)>,
+    scale: f64,
 ) -> Result<Vec<f32>, RawError> {
     let to_709 = colour::camera_to_709(info, path)?;
-    let t = std::time::Instant::now();
-    mosaic::scale_channels(&mut merged, &info.cfa, colour::white_balance(info));
-    let rgb = demosaic::demosaic(merged, &info.cfa, &to_709);
-    timings.push(("demosaic", t.elapsed()));
+    let (rgb, _) = demosaic::demosaic(
+        merged,
+        &info.cfa,
+        colour::white_balance(info),
+        &scaled(&to_709, scale),
+    );
     Ok(rgb)
+}
+
+/// `m · scale`.
+fn scaled(m: &[[f32; 3]; 3], scale: f64) -> [[f32; 3]; 3] {
+    m.map(|row| row.map(|v| (f64::from(v) * scale) as f32))
 }

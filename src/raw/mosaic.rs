@@ -26,7 +26,7 @@
 
 use rayon::prelude::*;
 
-use super::{CLIPPED, Cfa};
+use super::CLIPPED;
 
 /// A sensor's noise in normalised signal units: `Var s = shot · s + read²`.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -128,39 +128,100 @@ pub struct MergedMosaic {
     pub clipped: u64,
 }
 
+/// A mosaic that can be read row by row: a merged mosaic held in memory, or a bracket
+/// merged on demand ([`Merge`]), so that the demosaicking pulls the rows it needs
+/// without a full-size merged buffer.
+pub trait MosaicRows: Sync {
+    /// Width in pixels.
+    fn width(&self) -> usize;
+    /// Height in pixels.
+    fn height(&self) -> usize;
+    /// Row `y` into `out` (`width` values, radiance in units of the longest frame's
+    /// clipping point); returns the samples of the row clipped in every frame. `scratch`
+    /// is working memory the caller keeps between calls.
+    fn row(&self, y: usize, out: &mut [f32], scratch: &mut Vec<f32>) -> u64;
+}
+
+impl MosaicRows for MergedMosaic {
+    fn width(&self) -> usize {
+        self.width
+    }
+
+    fn height(&self) -> usize {
+        self.height
+    }
+
+    fn row(&self, y: usize, out: &mut [f32], _scratch: &mut Vec<f32>) -> u64 {
+        out.copy_from_slice(&self.values[y * self.width..(y + 1) * self.width]);
+        0
+    }
+}
+
+/// A bracket of frames merged row by row on demand (see the module docs for the
+/// estimate).
+pub struct Merge<'a> {
+    /// Darkest first: `(signal, r, a, σ²)`.
+    frames: Vec<(&'a dyn Signal, f32, f32, f32)>,
+    width: usize,
+    height: usize,
+}
+
+impl<'a> Merge<'a> {
+    /// The merge of `frames` (each with its relative exposure and noise, any order) of
+    /// one `width × height` mosaic.
+    pub fn new(frames: &[(&'a dyn Signal, f64, Noise)], width: usize, height: usize) -> Merge<'a> {
+        let mut order: Vec<usize> = (0..frames.len()).collect();
+        order.sort_by(|&a, &b| frames[a].1.total_cmp(&frames[b].1));
+        let e_ref = order.last().map_or(1.0, |&k| frames[k].1);
+        let frames = order
+            .iter()
+            .map(|&k| {
+                let (signal, e, noise) = frames[k];
+                let r = (e / e_ref) as f32;
+                (
+                    signal,
+                    r,
+                    noise.shot as f32,
+                    (noise.read * noise.read) as f32,
+                )
+            })
+            .collect();
+        Merge {
+            frames,
+            width,
+            height,
+        }
+    }
+}
+
+impl MosaicRows for Merge<'_> {
+    fn width(&self) -> usize {
+        self.width
+    }
+
+    fn height(&self) -> usize {
+        self.height
+    }
+
+    fn row(&self, y: usize, out: &mut [f32], scratch: &mut Vec<f32>) -> u64 {
+        let width = self.width;
+        scratch.resize(width * self.frames.len(), 0.0);
+        for (row, &(signal, ..)) in scratch.chunks_exact_mut(width.max(1)).zip(&self.frames) {
+            signal.row(y, row);
+        }
+        merge_row(&self.frames, scratch, width, out)
+    }
+}
+
 /// Merges `frames` (each with its relative exposure and noise, any order) of one
-/// `width × height` mosaic; see the module docs for the estimate.
+/// `width × height` mosaic into memory; see the module docs for the estimate.
 pub fn merge(frames: &[(&dyn Signal, f64, Noise)], width: usize, height: usize) -> MergedMosaic {
-    let mut order: Vec<usize> = (0..frames.len()).collect();
-    order.sort_by(|&a, &b| frames[a].1.total_cmp(&frames[b].1));
-    let e_ref = order.last().map_or(1.0, |&k| frames[k].1);
-    // Darkest first.
-    let sorted: Vec<(&dyn Signal, f32, f32, f32)> = order
-        .iter()
-        .map(|&k| {
-            let (signal, e, noise) = frames[k];
-            let r = (e / e_ref) as f32;
-            (
-                signal,
-                r,
-                noise.shot as f32,
-                (noise.read * noise.read) as f32,
-            )
-        })
-        .collect();
+    let merge = Merge::new(frames, width, height);
     let mut values = vec![0.0f32; width * height];
     let clipped: u64 = values
         .par_chunks_mut(width.max(1))
         .enumerate()
-        .map_init(
-            || vec![vec![0.0f32; width]; sorted.len()],
-            |rows, (y, out)| {
-                for (row, &(signal, ..)) in rows.iter_mut().zip(&sorted) {
-                    signal.row(y, row);
-                }
-                merge_row(&sorted, rows, out)
-            },
-        )
+        .map_init(Vec::new, |scratch, (y, out)| merge.row(y, out, scratch))
         .sum();
     MergedMosaic {
         width,
@@ -172,7 +233,14 @@ pub fn merge(frames: &[(&dyn Signal, f64, Noise)], width: usize, height: usize) 
 
 /// One row of the merge (see the module docs); returns the samples clipped in every
 /// frame. `frames` are darkest first: `(signal, r, a, σ²)`.
-fn merge_row(frames: &[(&dyn Signal, f32, f32, f32)], rows: &[Vec<f32>], out: &mut [f32]) -> u64 {
+/// `rows` holds each frame's row of `width` signals, in the order of `frames`.
+fn merge_row(
+    frames: &[(&dyn Signal, f32, f32, f32)],
+    rows: &[f32],
+    width: usize,
+    out: &mut [f32],
+) -> u64 {
+    let rows: Vec<&[f32]> = rows.chunks_exact(width.max(1)).collect();
     let clips: Vec<f32> = frames.iter().map(|f| f.0.clip()).collect();
     let inverse: Vec<f32> = frames.iter().map(|f| 1.0 / f.1).collect();
     let mut clipped = 0;
@@ -206,19 +274,4 @@ fn merge_row(frames: &[(&dyn Signal, f32, f32, f32)], rows: &[Vec<f32>], out: &m
         *out = num / den;
     }
     clipped
-}
-
-/// Multiplies each sample of `mosaic` by `gains[colour]` (white balance on the mosaic,
-/// before demosaicking, so that the interpolation sees neutral edges as neutral).
-pub fn scale_channels(mosaic: &mut MergedMosaic, cfa: &Cfa, gains: [f32; 3]) {
-    let width = mosaic.width;
-    mosaic
-        .values
-        .par_chunks_mut(width.max(1))
-        .enumerate()
-        .for_each(|(y, row)| {
-            for (x, v) in row.iter_mut().enumerate() {
-                *v *= gains[cfa.colour_at(x, y)];
-            }
-        });
 }
