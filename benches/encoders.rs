@@ -18,12 +18,13 @@
 //! decoded by Pillow). The Python side runs with `FILMBACK_ENCODERS_PYTHON`, else
 //! `/tmp/filmback-encoders-venv/bin/python` or CI's `/tmp/filmback-openexr-venv/bin/python`
 //! when present, else `python3`; a missing package skips its half of the comparison.
-//! `-- --runs N` (default 3): each time is the best of N.
+//! Ours and theirs alternate, `--rounds R` times (default 2), each timing the best of
+//! `--runs N` calls (default 3); the table keeps each one's best over the rounds.
 
 use std::io::Cursor;
 use std::path::{Path, PathBuf};
 use std::process::Command;
-use std::time::{Duration, Instant};
+use std::time::Instant;
 
 use filmback::display::Depth;
 use filmback::film::{Catalogue, ColourMode, Key};
@@ -46,29 +47,43 @@ const QUALITY: u8 = 92;
 /// Exposure times of the pair; the scene is exposed at `k = 25·t` (0.25 and 1.0).
 const TIMES: [f64; 2] = [0.01, 0.04];
 
-/// The best of `runs` calls of `f`, and its last result.
-fn best<T>(runs: usize, mut f: impl FnMut() -> T) -> (Duration, T) {
-    let mut best = Duration::MAX;
+/// The best wall time and the least CPU time (ms) of `runs` calls of `f`, and its last
+/// result.
+fn best<T>(runs: usize, mut f: impl FnMut() -> T) -> ((f64, f64), T) {
+    let (mut wall, mut cpu) = (f64::INFINITY, f64::INFINITY);
     let mut last = None;
     for _ in 0..runs.max(1) {
-        let start = Instant::now();
+        let (start, start_cpu) = (Instant::now(), cpu_ms());
         let out = std::hint::black_box(f());
-        best = best.min(start.elapsed());
+        wall = wall.min(start.elapsed().as_secs_f64() * 1e3);
+        cpu = cpu.min(cpu_ms() - start_cpu);
         last = Some(out);
     }
-    (best, last.expect("at least one run"))
+    ((wall, cpu), last.expect("at least one run"))
 }
 
-fn ms(d: Duration) -> f64 {
-    d.as_secs_f64() * 1e3
+/// CPU time (ms) run so far by this process's live threads: the sum of the first field
+/// of Linux's `/proc/self/task/*/schedstat` (ns on the CPU); NaN elsewhere. The thread
+/// pools live through every measurement, so a difference counts all their work.
+fn cpu_ms() -> f64 {
+    let Ok(tasks) = std::fs::read_dir("/proc/self/task") else {
+        return f64::NAN;
+    };
+    tasks
+        .filter_map(|t| std::fs::read_to_string(t.ok()?.path().join("schedstat")).ok())
+        .filter_map(|s| s.split_whitespace().next()?.parse::<f64>().ok())
+        .sum::<f64>()
+        / 1e6
 }
 
 fn main() {
     let runs: usize = common::arg("--runs").map_or(3, |r| r.parse().expect("--runs N"));
+    let rounds: usize = common::arg("--rounds").map_or(2, |r| r.parse().expect("--rounds N"));
     let dir = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("target/bench-data/encoders");
     std::fs::create_dir_all(&dir).expect("bench data folder");
     println!(
-        "encoders: {WIDTH}×{HEIGHT} synthetic pair, JPEG q{QUALITY}, half PIZ EXR, best of {runs}"
+        "encoders: {WIDTH}×{HEIGHT} synthetic pair, JPEG q{QUALITY}, half PIZ EXR, best of \
+         {runs} × {rounds} rounds"
     );
 
     let start = Instant::now();
@@ -87,73 +102,87 @@ fn main() {
         options: Box::default(),
     };
     let image = look.render(&map, Depth::Eight).expect("renders");
-    let rgb = image.to_u8().into_owned();
-    let halves: Vec<u16> = map
+    // The raw files the script reads (not kept in memory).
+    write_raw(&dir.join("velvia50.rgb8"), &image.to_u8());
+    let halves: Vec<u8> = map
         .pixels()
         .par_chunks(1 << 16)
-        .flat_map_iter(|c| c.iter().map(|&v| f16::from_f32(v).to_bits()))
+        .flat_map_iter(|c| c.iter().flat_map(|&v| f16::from_f32(v).to_le_bytes()))
         .collect();
-    write_raw(&dir.join("velvia50.rgb8"), &rgb);
-    write_raw(
-        &dir.join("radiance.f16"),
-        &halves
-            .iter()
-            .flat_map(|h| h.to_le_bytes())
-            .collect::<Vec<u8>>(),
-    );
+    write_raw(&dir.join("radiance.f16"), &halves);
+    drop(halves);
     println!(
         "merged map, Velvia 50 look and raw files ready in {:.1} s (not timed)\n",
         start.elapsed().as_secs_f64()
     );
 
-    // --- ours, on one and on two threads ---
+    // --- ours and theirs, interleaved so that both see the same load ---
     let exif = SourceExif::default();
-    let pool = |threads: usize| {
-        rayon::ThreadPoolBuilder::new()
-            .num_threads(threads)
-            .build()
-            .expect("thread pool")
-    };
-    let mut jpeg = Vec::new();
-    let mut exr = Vec::new();
-    let mut ours = serde_json::Map::new();
-    for threads in [1, 2] {
-        let (t_jpeg, bytes) = pool(threads).install(|| {
-            best(runs, || {
-                let mut out = Vec::with_capacity(16 << 20);
-                rendering::encode(&image, Format::Jpeg { quality: QUALITY }, &exif, &mut out)
-                    .expect("encodes");
-                out
-            })
+    let pools: Vec<(usize, rayon::ThreadPool)> = [1, 2]
+        .into_iter()
+        .map(|threads| {
+            let pool = rayon::ThreadPoolBuilder::new()
+                .num_threads(threads)
+                .build()
+                .expect("thread pool");
+            (threads, pool)
+        })
+        .collect();
+    let mut ours: Vec<Ours> = pools
+        .iter()
+        .map(|(threads, _)| Ours {
+            threads: *threads,
+            jpeg: (f64::INFINITY, f64::INFINITY),
+            exr: (f64::INFINITY, f64::INFINITY),
+        })
+        .collect();
+    let (mut jpeg, mut exr) = (Vec::new(), Vec::new());
+    let mut theirs: Option<serde_json::Value> = None;
+    let python = python();
+    let script = Path::new(env!("CARGO_MANIFEST_DIR")).join("benches/encoders.py");
+    for round in 1..=rounds {
+        println!("round {round} of {rounds}");
+        for ((threads, pool), kept) in pools.iter().zip(&mut ours) {
+            let (t_jpeg, bytes) = pool.install(|| {
+                best(runs, || {
+                    let mut out = Vec::with_capacity(16 << 20);
+                    let format = Format::Jpeg { quality: QUALITY };
+                    rendering::encode(&image, format, &exif, &mut out).expect("encodes");
+                    out
+                })
+            });
+            jpeg = bytes;
+            let (t_exr, bytes) = pool.install(|| {
+                best(runs, || {
+                    let mut out = Cursor::new(Vec::with_capacity(64 << 20));
+                    let (provenance, options) = (Provenance::default(), ExrOptions::default());
+                    hdr_output::encode_exr(&mut out, &map, None, &provenance, options)
+                        .expect("encodes");
+                    out.into_inner()
+                })
+            });
+            exr = bytes;
+            kept.jpeg = (kept.jpeg.0.min(t_jpeg.0), kept.jpeg.1.min(t_jpeg.1));
+            kept.exr = (kept.exr.0.min(t_exr.0), kept.exr.1.min(t_exr.1));
+            println!(
+                "  ours, {threads} thread(s): JPEG {:.1} ms (CPU {:.1}), EXR {:.1} ms (CPU {:.1})",
+                t_jpeg.0, t_jpeg.1, t_exr.0, t_exr.1
+            );
+        }
+        if round == 1 {
+            write_raw(&dir.join("ours.jpg"), &jpeg);
+            write_raw(&dir.join("ours.exr"), &exr);
+        }
+        let Some(result) = run_script(&python, &script, &dir, runs, round == 1) else {
+            return;
+        };
+        theirs = Some(match theirs {
+            None => result,
+            Some(kept) => fastest(kept, &result),
         });
-        jpeg = bytes;
-        let (t_exr, bytes) = pool(threads).install(|| {
-            best(runs, || {
-                let mut out = Cursor::new(Vec::with_capacity(64 << 20));
-                hdr_output::encode_exr(
-                    &mut out,
-                    &map,
-                    None,
-                    &Provenance::default(),
-                    ExrOptions::default(),
-                )
-                .expect("encodes");
-                out.into_inner()
-            })
-        });
-        exr = bytes;
-        ours.insert(
-            threads.to_string(),
-            serde_json::json!({"jpeg_ms": ms(t_jpeg), "exr_ms": ms(t_exr)}),
-        );
-        println!(
-            "ours, {threads} thread(s): JPEG {:.1} ms, EXR {:.1} ms",
-            ms(t_jpeg),
-            ms(t_exr)
-        );
     }
     // What our EXR time includes and OpenEXR's does not: f32 → half of the map.
-    let (t_half, _) = pool(1).install(|| {
+    let (t_half, _) = pools[0].1.install(|| {
         best(runs, || {
             let mut out = vec![f16::ZERO; map.pixels().len()];
             out.convert_from_f32_slice(map.pixels());
@@ -161,20 +190,26 @@ fn main() {
         })
     });
     println!(
-        "  (our EXR time includes f32 → half of the map: {:.1} ms on one thread)",
-        ms(t_half)
+        "\nour EXR time includes f32 → half of the map: {:.1} ms (CPU {:.1}) on one thread",
+        t_half.0, t_half.1
     );
-    let ours_jpeg = dir.join("ours.jpg");
-    let ours_exr = dir.join("ours.exr");
-    write_raw(&ours_jpeg, &jpeg);
-    write_raw(&ours_exr, &exr);
+    if let Some(theirs) = theirs {
+        report(&ours, &theirs, jpeg.len(), exr.len());
+    }
+}
 
-    // --- theirs, on the same pixels ---
-    let python = python();
-    let script = Path::new(env!("CARGO_MANIFEST_DIR")).join("benches/encoders.py");
-    println!("\n{python} {}", script.display());
-    let output = Command::new(&python)
-        .arg(&script)
+/// Runs `encoders.py` once (with its checks on request): its result, or `None` (said
+/// why) when it cannot run.
+fn run_script(
+    python: &str,
+    script: &Path,
+    dir: &Path,
+    runs: usize,
+    checks: bool,
+) -> Option<serde_json::Value> {
+    let mut command = Command::new(python);
+    command
+        .arg(script)
         .args(["--dir", &dir.display().to_string()])
         .args([
             "--width",
@@ -187,17 +222,25 @@ fn main() {
             &QUALITY.to_string(),
             "--runs",
             &runs.to_string(),
-        ])
-        .output();
-    let theirs = match output {
+        ]);
+    if checks {
+        command.arg("--checks");
+        println!("  {python} {}", script.display());
+    }
+    match command.output() {
         Ok(out) if out.status.success() => {
             let text = String::from_utf8_lossy(&out.stdout);
             for line in text.lines().filter(|l| !l.starts_with("RESULT ")) {
                 println!("  {line}");
             }
-            text.lines()
+            let result = text
+                .lines()
                 .find_map(|l| l.strip_prefix("RESULT "))
-                .and_then(|json| serde_json::from_str::<serde_json::Value>(json).ok())
+                .and_then(|json| serde_json::from_str(json).ok());
+            if result.is_none() {
+                println!("  skipped: the script printed no result");
+            }
+            result
         }
         Ok(out) => {
             println!(
@@ -210,30 +253,44 @@ fn main() {
             println!("  skipped: cannot run {python}: {e}");
             None
         }
-    };
-    let Some(theirs) = theirs else {
-        return;
-    };
-    report(&ours, &theirs, jpeg.len(), exr.len());
+    }
 }
 
-/// The side-by-side table: time per encoder and thread count, theirs ÷ ours (above 1:
-/// ours is faster), sizes and the JPEGs' PSNR.
-fn report(
-    ours: &serde_json::Map<String, serde_json::Value>,
-    theirs: &serde_json::Value,
-    jpeg_bytes: usize,
-    exr_bytes: usize,
-) {
+/// `kept` with each of its times replaced by the smaller of it and `round`'s.
+fn fastest(mut kept: serde_json::Value, round: &serde_json::Value) -> serde_json::Value {
+    for part in ["jpeg", "exr"] {
+        for key in ["ms", "cpu_ms"] {
+            if let Some(times) = kept[part][key].as_object_mut() {
+                for (threads, t) in times.iter_mut() {
+                    if let (Some(a), Some(b)) = (t.as_f64(), round[part][key][threads].as_f64()) {
+                        *t = serde_json::json!(a.min(b));
+                    }
+                }
+            }
+        }
+    }
+    kept
+}
+
+/// Our best times on one thread count: (wall ms, CPU ms) of each encoder.
+struct Ours {
+    threads: usize,
+    jpeg: (f64, f64),
+    exr: (f64, f64),
+}
+
+/// The side-by-side table: wall and CPU time per encoder and thread count, theirs ÷ ours
+/// (above 1: ours is faster), sizes and the JPEGs' PSNR.
+fn report(ours: &[Ours], theirs: &serde_json::Value, jpeg_bytes: usize, exr_bytes: usize) {
     println!(
-        "\n{:<34} {:>8} {:>10} {:>10} {:>12}",
-        "encoder", "threads", "ours ms", "theirs ms", "theirs/ours"
+        "\n{:<34} {:>7} {:>9} {:>10} {:>7} {:>9} {:>10} {:>7}",
+        "encoder", "threads", "ours ms", "theirs ms", "ratio", "ours CPU", "theirs CPU", "ratio"
     );
     let rows = [
-        ("JPEG q92 (libjpeg-turbo, Pillow)", "jpeg", "jpeg_ms"),
-        ("half PIZ EXR (OpenEXR)", "exr", "exr_ms"),
+        ("JPEG q92 (libjpeg-turbo, Pillow)", "jpeg"),
+        ("half PIZ EXR (OpenEXR)", "exr"),
     ];
-    for (name, part, key) in rows {
+    for (name, part) in rows {
         let Some(times) = theirs[part]["ms"].as_object() else {
             println!(
                 "{name:<34} skipped: {}",
@@ -243,19 +300,20 @@ fn report(
         };
         for (threads, their_ms) in times {
             let their_ms = their_ms.as_f64().unwrap_or(f64::NAN);
+            let their_cpu = theirs[part]["cpu_ms"][threads].as_f64().unwrap_or(f64::NAN);
             // OpenEXR's pool of 0 threads runs on the caller: compare with our one.
-            let ours_threads = if threads == "0" {
-                "1"
-            } else {
-                threads.as_str()
-            };
-            let our_ms = ours
-                .get(ours_threads)
-                .and_then(|o| o[key].as_f64())
-                .unwrap_or(f64::NAN);
+            let ours_threads = threads.parse::<usize>().unwrap_or(0).max(1);
+            let (our_ms, our_cpu) =
+                ours.iter()
+                    .find(|o| o.threads == ours_threads)
+                    .map_or((f64::NAN, f64::NAN), |o| {
+                        if part == "jpeg" { o.jpeg } else { o.exr }
+                    });
             println!(
-                "{name:<34} {threads:>8} {our_ms:>10.1} {their_ms:>10.1} {:>12.2}",
-                their_ms / our_ms
+                "{name:<34} {threads:>7} {our_ms:>9.1} {their_ms:>10.1} {:>7.2} {our_cpu:>9.1} \
+                 {their_cpu:>10.1} {:>7.2}",
+                their_ms / our_ms,
+                their_cpu / our_cpu
             );
         }
     }
