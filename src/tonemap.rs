@@ -121,7 +121,7 @@ impl Tone {
     #[inline]
     pub fn display_value(&self, l: f32) -> f32 {
         match self {
-            Tone::Linear { lo, scale } => ((l - lo) * scale).clamp(0.0, 1.0),
+            &Tone::Linear { lo, scale } => linear_display(l, lo, scale),
             Tone::Curve(t) => t.get(l),
         }
     }
@@ -132,6 +132,8 @@ impl Tone {
         self.develop(map, first, out, srgb_encode_u8);
     }
 
+    /// Develops rows into `out` through `encode`, with the operator chosen once (not per
+    /// pixel).
     fn develop<T: Send + Copy>(
         &self,
         map: &RadianceMap,
@@ -139,26 +141,50 @@ impl Tone {
         out: &mut [T],
         encode: impl Fn(f32) -> T + Sync,
     ) {
-        let ch = map.channels();
-        let width = map.width() as usize;
-        let rows = out.len() / (3 * width);
-        let input = &map.pixels()[first * width * ch..(first + rows) * width * ch];
-        out.par_chunks_mut(3 * 4096)
-            .zip(input.par_chunks(ch * 4096))
-            .for_each(|(out, pixels)| {
-                for (o, p) in out.chunks_exact_mut(3).zip(pixels.chunks_exact(ch)) {
-                    let e = if ch == 3 {
-                        [p[0], p[1], p[2]]
-                    } else {
-                        [p[0]; 3]
-                    };
-                    let v = keep_chromaticity(e, |l| self.display_value(l));
-                    o[0] = encode(v[0]);
-                    o[1] = encode(v[1]);
-                    o[2] = encode(v[2]);
-                }
-            });
+        match self {
+            &Tone::Linear { lo, scale } => {
+                develop_rows(map, first, out, encode, |l| linear_display(l, lo, scale))
+            }
+            Tone::Curve(t) => develop_rows(map, first, out, encode, |l| t.get(l)),
+        }
     }
+}
+
+/// `(L − lo)·scale` clamped to 0..=1: [`Tone::Linear`]'s display value.
+#[inline]
+fn linear_display(l: f32, lo: f32, scale: f32) -> f32 {
+    ((l - lo) * scale).clamp(0.0, 1.0)
+}
+
+/// Rows `first..` of `map` into `out` (3 samples a pixel), each pixel's luminance through
+/// `display` ([`keep_chromaticity`]) and each channel through `encode`, bands of rows in
+/// parallel.
+fn develop_rows<T: Send + Copy>(
+    map: &RadianceMap,
+    first: usize,
+    out: &mut [T],
+    encode: impl Fn(f32) -> T + Sync,
+    display: impl Fn(f32) -> f32 + Sync,
+) {
+    let ch = map.channels();
+    let width = map.width() as usize;
+    let rows = out.len() / (3 * width);
+    let input = &map.pixels()[first * width * ch..(first + rows) * width * ch];
+    out.par_chunks_mut(3 * 4096)
+        .zip(input.par_chunks(ch * 4096))
+        .for_each(|(out, pixels)| {
+            for (o, p) in out.chunks_exact_mut(3).zip(pixels.chunks_exact(ch)) {
+                let e = if ch == 3 {
+                    [p[0], p[1], p[2]]
+                } else {
+                    [p[0]; 3]
+                };
+                let v = keep_chromaticity(e, &display);
+                o[0] = encode(v[0]);
+                o[1] = encode(v[1]);
+                o[2] = encode(v[2]);
+            }
+        });
 }
 
 /// Mantissa bits of the luminance kept in [`CurveTable`]'s index: buckets of 2⁻¹¹
