@@ -14,18 +14,7 @@ use filmback::synthetic::SceneKind;
 const PATTERNS: [&str; 4] = ["RGGB", "BGGR", "GRBG", "GBRG"];
 
 fn cfa(name: &str) -> Cfa {
-    Cfa {
-        width: 2,
-        height: 2,
-        colours: name
-            .bytes()
-            .map(|b| match b {
-                b'R' => 0,
-                b'G' => 1,
-                _ => 2,
-            })
-            .collect(),
-    }
+    Cfa::bayer(name).expect("a Bayer pattern")
 }
 
 /// A scene: `width × height` interleaved RGB in `[0, 1]`.

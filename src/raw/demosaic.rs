@@ -415,18 +415,7 @@ mod tests {
     use super::*;
 
     fn cfa(name: &str) -> Cfa {
-        Cfa {
-            width: 2,
-            height: 2,
-            colours: name
-                .bytes()
-                .map(|b| match b {
-                    b'R' => 0,
-                    b'G' => 1,
-                    _ => 2,
-                })
-                .collect(),
-        }
+        Cfa::bayer(name).expect("a Bayer pattern")
     }
 
     /// The mosaic of a uniform camera colour `rgb`.

@@ -60,6 +60,25 @@ impl Cfa {
         usize::from(self.colours[(y % self.height) * self.width + x % self.width])
     }
 
+    /// The 2 × 2 Bayer tile named by its colours row by row, as [`Cfa::name`] writes it
+    /// (`RGGB`, `BGGR`, `GRBG`, `GBRG`); `None` for another name.
+    pub fn bayer(name: &str) -> Option<Cfa> {
+        let colours: Vec<u8> = name
+            .bytes()
+            .map(|b| match b {
+                b'R' => Some(0),
+                b'G' => Some(1),
+                b'B' => Some(2),
+                _ => None,
+            })
+            .collect::<Option<_>>()?;
+        (colours.len() == 4).then_some(Cfa {
+            width: 2,
+            height: 2,
+            colours,
+        })
+    }
+
     /// The pattern's name, its tile's colours as letters row by row (`RGGB`).
     pub fn name(&self) -> String {
         self.colours
