@@ -466,9 +466,11 @@ const BALANCE_POINTS: usize = 64;
 /// difference is a colour cast over the whole map. Setting `g(1) = 1` in every channel
 /// means "white that clips all channels at once is neutral"; the same convention is
 /// applied here where it is measured: over the tones `[b_lo, b_hi]` that every fitted
-/// channel's equations cover, `L_c = mean_b ln g_c(b)` at [`BALANCE_POINTS`] points, and
+/// channel's equations cover, `L_c = Σ_b w(b)·ln g_c(b) / Σ_b w(b)` at [`BALANCE_POINTS`]
+/// points, weighted as the merge weighs a code (`w(b) = 1 − |2b − 1|`, the hat), and
 /// `o_c = L_c − mean_c L_c` (fitted channels; a borrowed channel has its donor's curve
-/// and so its offset), so a tone that is neutral in codes is neutral in radiance there.
+/// and so its offset), so a tone that is neutral in codes is neutral in radiance there,
+/// most of all at the codes the merge takes its radiance from.
 /// Above its brightest tone `b_c` the offset fades linearly in `b` to 0 at `b = 1`, so
 /// `g(1) = 1` still holds; `o_c` is never below `ln g_c(b_c)`, so `g_c(b_c) ≤ 1`. One
 /// channel, a single fitted channel, or no common tones: no offsets.
@@ -490,13 +492,14 @@ fn balance(channels: &[ChannelCalibration]) -> Vec<f64> {
         return none;
     }
     let level = |c: &ChannelCalibration| {
-        (0..BALANCE_POINTS)
-            .map(|k| {
-                c.fit
-                    .log_g(lo + (hi - lo) * (k as f64 + 0.5) / BALANCE_POINTS as f64)
-            })
-            .sum::<f64>()
-            / BALANCE_POINTS as f64
+        let (mut sum, mut total) = (0.0, 0.0);
+        for k in 0..BALANCE_POINTS {
+            let b = lo + (hi - lo) * (k as f64 + 0.5) / BALANCE_POINTS as f64;
+            let w = 1.0 - (2.0 * b - 1.0).abs();
+            sum += w * c.fit.log_g(b);
+            total += w;
+        }
+        sum / total
     };
     let levels: Vec<f64> = channels.iter().map(level).collect();
     let reference = channels
