@@ -376,25 +376,7 @@ fn peer_python() -> Option<String> {
 /// Median relative error of an EXR's R, G, B against the scene after one global scale
 /// (the median ratio), over every 7th sample well exposed (5–95 %) in at least one frame.
 fn exr_error(path: &Path, truth: &RadianceMap, frames: &[PathBuf]) -> f64 {
-    let image = exr::prelude::read()
-        .no_deep_data()
-        .largest_resolution_level()
-        .all_channels()
-        .first_valid_layer()
-        .all_attributes()
-        .from_file(path)
-        .unwrap();
-    let channels = &image.layer_data.channel_data.list;
-    let plane = |name: &str| -> Vec<f32> {
-        channels
-            .iter()
-            .find(|c| c.name.to_string() == name)
-            .unwrap()
-            .sample_data
-            .values_as_f32()
-            .collect()
-    };
-    let (r, g, b) = (plane("R"), plane("G"), plane("B"));
+    let [r, g, b] = exr_rgb(path);
     let codes: Vec<Vec<u8>> = frames
         .iter()
         .map(
