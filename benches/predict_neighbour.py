@@ -73,6 +73,7 @@ REGISTER_RADIUS = 8  # registration searches shifts up to this many pixels (work
 REGISTER_GAIN = 0.05  # and shifts only when that lowers the spread by more than this share
 QUICK = 'frobisher'
 ABOVE_TOE = 32  # a diagnostic column counts only source samples at or above this code
+BANDS = [(DN_LO + 1, 16), (16, 32), (32, 64), (64, 128), (128, DN_HI)]  # source codes, lo..hi-1
 CODES = np.arange(256, dtype=float)
 
 
@@ -332,6 +333,20 @@ def sse(curves, hist, gamma, lowest=0):
     return out
 
 
+def band_sse(curves, hist, gamma):
+    """Per source-code band of BANDS: (sum of squared errors, samples), channels pooled."""
+    out = []
+    tables = [predict_table(curves[c], gamma) for c in range(3)]
+    for lo, hi in BANDS:
+        e, n = 0.0, 0.0
+        for c, (a, b, cnt) in enumerate(hist):
+            k = (a >= lo) & (a < hi)
+            e += float(np.sum(cnt[k] * (tables[c][a[k]] - b[k]) ** 2))
+            n += float(cnt[k].sum())
+        out.append((e, n))
+    return out
+
+
 def rms(per_channel):
     s = sum(x for x, _ in per_channel)
     n = sum(y for _, y in per_channel)
@@ -507,6 +522,8 @@ def run_bracket(binary, name, folder, workdir, times_mode):
         for m, curves in fits.items():
             row[m] = None if curves is None else sse(curves, h, gamma)
             row[m + '/toe'] = None if curves is None else sse(curves, h, gamma, ABOVE_TOE)
+            if m.endswith('-all'):
+                row[m + '/bands'] = None if curves is None else band_sse(curves, h, gamma)
         triples_all.append(row)
         for p in pair_fits:
             row2 = {'pair': p['k'], 'i': i, 'j': j, 'srgb': row['srgb'],
@@ -644,6 +661,25 @@ def report(brackets, args):
         T = [r for b in bs for r in b['two']]
         print(f'| {name} | ' + ' | '.join([median_rms(T, m) for m in methods2] +
                                          [median_rms(A, m) for m in methodsa]) + ' |')
+    print()
+    print('All-frame curves by the code of the source sample (RMS DN over every (i, j), '
+          'channels pooled); the last row gives each band\'s share of the samples:\n')
+    print('| bracket | method | ' + ' | '.join(f'{lo}–{hi - 1}' for lo, hi in BANDS) + ' |')
+    print('|---|---|' + '---|' * len(BANDS))
+    for name, bs in groups:
+        A = [r for b in bs for r in b['all']]
+        for m in methodsa:
+            rows = [r[m + '/bands'] for r in A if r.get(m + '/bands') is not None]
+            if not rows:
+                continue
+            cells = [math.sqrt(sum(r[k][0] for r in rows) / max(1.0, sum(r[k][1] for r in rows)))
+                     for k in range(len(BANDS))]
+            print(f'| {name} | {m} | ' + ' | '.join(f'{v:.2f}' for v in cells) + ' |')
+        rows = [r['debevec-all/bands'] for r in A if r.get('debevec-all/bands') is not None]
+        total = sum(r[k][1] for r in rows for k in range(len(BANDS)))
+        if total:
+            print(f'| {name} | samples | ' + ' | '.join(
+                f'{100 * sum(r[k][1] for r in rows) / total:.0f} %' for k in range(len(BANDS))) + ' |')
     print()
     print(f'Confidence of two-frame fits against the all-frame curve (per channel of each pair fit: '
           f'"really worse" = its RMS over that pair\'s triples exceeds filmback-all\'s on the same '
