@@ -8,15 +8,17 @@ samples with 5 < DN < 250 in both frame i and frame j (the same samples for ever
 method). Methods:
 
   filmback-2    `filmback calibrate --json --ratio R` on an adjacent pair (S = the pair)
-  filmback-all  the curve `filmback merge` fits from every frame (S = all frames);
-                `calibrate` takes two frames only and `merge` does not write its curve,
-                so the curve is read back from merge's float OpenEXR output: per pixel
-                E * sum_k w(B_k) = sum_k w(B_k) g(B_k) e_ref / e_k (hat weights), solved
-                by least squares for g(1..254); the fit's residual is printed
+  filmback-all  `filmback calibrate --json --times T,...` on every frame (S = all frames):
+                the joint fit of every adjacent pair's equations, the curve `merge` and
+                the daemon fit for a bracket (response::calibrate_bracket)
   debevec-2/all, robertson-2/all
                 OpenCV CalibrateDebevec / CalibrateRobertson (defaults) on the same frames
                 and times
   srgb          the sRGB inverse (no fit)
+
+filmback reads JPEG sources as themselves (at --stride = the decimation), as a user's
+frames would reach it: its histograms need no registration, and it keeps a wider margin
+below white in a lossy file. Other sources reach it as the registered PNGs.
 
 Triples: S is an adjacent pair (two-frame methods) or every frame (all-frame methods);
 (i, j) runs over every ordered pair of frames at most MAX_STOPS apart whose samples in
@@ -37,7 +39,7 @@ ratios, `cut` keeps the longest run of frames whose adjacent ratios are within i
     /tmp/filmback-peer-venv/bin/python benches/predict_neighbour.py [--bin PATH] [--quick]
         [--bracket NAME] [--times listed|measured|cut] [--brackets DIR]
 
-(the peer's python from ../shared/peer/setup.sh: cv2, numpy, OpenEXR.) Output: markdown
+(the peer's python from ../shared/peer/setup.sh: cv2, numpy.) Output: markdown
 tables for docs/accuracy.md.
 """
 import argparse
@@ -56,10 +58,6 @@ import warnings
 import cv2
 import numpy as np
 
-try:
-    import OpenEXR
-except ImportError:  # only filmback-all needs it
-    OpenEXR = None
 
 HERE = os.path.dirname(os.path.abspath(__file__))
 DN_LO, DN_HI = 5, 250  # samples counted: DN_LO < B < DN_HI in source and target
@@ -208,9 +206,10 @@ def failure(run):
     return re.sub(r'/\S*/', '', lines[-1]).replace('filmback: ', '')
 
 
-def filmback_pair(binary, dark, bright, ratio):
+def filmback_pair(binary, dark, bright, ratio, stride=1):
     """(curves 3x256, confidences) from `filmback calibrate`, or (None, reason)."""
-    r = subprocess.run([binary, 'calibrate', '--json', '--ratio', repr(ratio), dark, bright],
+    r = subprocess.run([binary, 'calibrate', '--json', '--ratio', repr(ratio), '--stride', str(stride),
+                        dark, bright],
                        capture_output=True, text=True)
     if r.returncode != 0:
         return None, failure(r)
@@ -221,65 +220,19 @@ def filmback_pair(binary, dark, bright, ratio):
     return curves, conf
 
 
-def read_exr(path):
-    with OpenEXR.File(path, separate_channels=True) as f:
-        ch = f.channels()
-        return np.stack([np.asarray(ch[c].pixels, np.float64) for c in ('R', 'G', 'B')], -1)
-
-
-def filmback_all(binary, paths, exposures, workdir, images):
-    """The curve `filmback merge` fitted from every frame, read back from its radiance map:
-    (curves 3x256, confidences, relative RMS residual of the read-back), or (None, reason)."""
-    if OpenEXR is None:
-        return None, 'python module OpenEXR missing'
-    out = tempfile.mkdtemp(dir=workdir)
+def filmback_all(binary, paths, exposures, stride=1):
+    """(curves 3x256, confidences) from `filmback calibrate` on every frame at the given
+    exposure times, or (None, reason)."""
     times = ','.join(repr(e) for e in exposures)
-    r = subprocess.run([binary, 'merge', '--json', '--exr', 'float', '--compression', 'none',
-                        '--times', times, '-o', out, *paths], capture_output=True, text=True)
+    r = subprocess.run([binary, 'calibrate', '--json', '--times', times, '--stride', str(stride),
+                        *paths],
+                       capture_output=True, text=True)
     if r.returncode != 0:
         return None, failure(r)
-    report = json.loads(r.stdout)
-    resp = report.get('response', {})
-    if resp.get('source') not in (None, 'fitted'):
-        return None, f"merge used a {resp.get('source')} response, not a fit"
-    conf = [float(c.get('confidence', float('nan'))) for c in resp.get('channels', [])]
-    exr = glob.glob(os.path.join(out, '*.exr'))
-    radiance = read_exr(exr[0])
-    e_ref = max(exposures)
-    hat = np.minimum(CODES, 255 - CODES) / 127.5
-    curves, residuals, seen_codes = [], [], []
-    for c in range(3):
-        codes = [im[:, :, c].ravel().astype(np.int64) for im in images]
-        e = radiance[:, :, c].ravel()
-        wsum = sum(hat[k] for k in codes)
-        keep = wsum > 0
-        codes, e, wsum = [k[keep] for k in codes], e[keep], wsum[keep]
-        # Normal equations of  sum_k w(c_k) s_k g(c_k) = E * sum_k w(c_k).
-        ata = np.zeros(256 * 256)
-        atb = np.zeros(256)
-        for k, ck in enumerate(codes):
-            ak = hat[ck] * e_ref / exposures[k]
-            atb += np.bincount(ck, ak * e * wsum, 256)
-            for m, cm in enumerate(codes):
-                am = hat[cm] * e_ref / exposures[m]
-                ata += np.bincount(ck * 256 + cm, ak * am, 256 * 256)
-        ata = ata.reshape(256, 256)[1:255, 1:255]
-        seen = np.diag(ata) > 0
-        seen_codes.append(np.concatenate([[False], seen, [False]]))
-        # A code met in few pixels, always beside the same codes of other frames, is not
-        # fixed by these equations alone; a faint second-difference penalty (the merge's
-        # curve is a smooth spline) settles those and leaves the well-determined ones.
-        d2 = np.diff(np.eye(254), 2, axis=0)
-        lam = 1e-7 * np.trace(ata) / 254
-        sol = np.linalg.solve(ata + lam * d2.T @ d2, atb[1:255])
-        g = np.concatenate([[0.0], sol, [0.0]])
-        g[255] = 2 * g[254] - g[253]
-        g[0] = max(0.0, 2 * g[1] - g[2])
-        pred = sum(hat[ck] * e_ref / exposures[k] * g[ck] for k, ck in enumerate(codes))
-        residuals.append(float(np.sqrt(np.mean((pred - e * wsum) ** 2)) /
-                               np.sqrt(np.mean((e * wsum) ** 2))))
-        curves.append(g / g[254])
-    return np.array(curves), conf, max(residuals), np.array(seen_codes)
+    d = json.loads(r.stdout)
+    curves = np.array([np.nan_to_num(np.asarray(ch['inverse_response'], float))
+                       for ch in d['channels']])
+    return curves, [float(ch.get('confidence', float('nan'))) for ch in d['channels']]
 
 
 def opencv_curve(kind, images, exposures):
@@ -427,16 +380,16 @@ def measure_ratios(images, exposures, curves):
 
 # ---------------------------------------------------------------- one bracket
 
-def all_frame_fits(binary, b, paths, exposures, workdir):
+def all_frame_fits(binary, b, paths, exposures):
     fits, notes = {}, []
     t = time.time()
-    res = filmback_all(binary, paths, exposures, workdir, b['images'])
+    res = filmback_all(binary, paths, exposures, b['fit_stride'])
     if res[0] is None:
         notes.append(f"filmback-all failed: {res[1]}")
         fits['filmback-all'] = None
     else:
         fits['filmback-all'] = res[0]
-        b['all_confidence'], b['readback_residual'] = res[1], res[2]
+        b['all_confidence'] = res[1]
     fits['debevec-all'] = opencv_curve('debevec', b['images'], exposures)
     fits['robertson-all'] = opencv_curve('robertson', b['images'], exposures)
     log(f"  all-frame fits {time.time() - t:.1f} s")
@@ -448,13 +401,23 @@ def run_bracket(binary, name, folder, workdir, times_mode):
     b = load(binary, folder)
     b['name'] = name
     n = len(b['images'])
+    # filmback fits its histograms from the files a user would give it: a JPEG source as
+    # itself (a JPEG's top codes ring, and filmback keeps a wider margin below white in a
+    # lossy file), read at the decimation the other methods see (--stride); its fit needs
+    # no registration. Other sources: the registered, decimated frames as PNG.
+    jpeg = all(p.lower().endswith(('.jpg', '.jpeg')) for p in b['paths'])
+    b['fit_stride'] = b['decimate'] if jpeg else 1
+    b['fit_source'] = 'source JPEGs' if jpeg else 'registered PNGs'
     paths = []
     for k, im in enumerate(b['images']):
+        if jpeg:
+            paths.append(b['paths'][k])
+            continue
         p = os.path.join(workdir, f'{name}_{k:02d}_{b["names"][k]}.png')
         cv2.imwrite(p, np.ascontiguousarray(im[:, :, ::-1]))
         paths.append(p)
     exposures = list(b['listed'])
-    fits, notes = all_frame_fits(binary, b, paths, exposures, workdir)
+    fits, notes = all_frame_fits(binary, b, paths, exposures)
     # Each adjacent pair's implied ratio under each all-frame curve, against the listed one.
     ratios = measure_ratios(b['images'], exposures, {m: g for m, g in fits.items() if g is not None})
     b['ratios'] = ratios
@@ -464,7 +427,7 @@ def run_bracket(binary, name, folder, workdir, times_mode):
         for r in ratios:
             exposures.append(exposures[-1] * r['measured'])
         b['treatment'] = 'measured ratios (chained), every method'
-        fits, notes = all_frame_fits(binary, b, paths, exposures, workdir)
+        fits, notes = all_frame_fits(binary, b, paths, exposures)
     elif times_mode == 'cut' and any(r['off'] for r in ratios):
         # Keep the longest run of adjacent pairs that follow their listed ratio.
         best, start = (0, 0), 0
@@ -483,7 +446,7 @@ def run_bracket(binary, name, folder, workdir, times_mode):
         paths = [paths[k] for k in keep]
         exposures = [exposures[k] for k in keep]
         n = len(keep)
-        fits, notes = all_frame_fits(binary, b, paths, exposures, workdir)
+        fits, notes = all_frame_fits(binary, b, paths, exposures)
     b['exposures'] = exposures
     b['notes'] = notes
     fits['srgb'] = srgb_curve()
@@ -491,7 +454,7 @@ def run_bracket(binary, name, folder, workdir, times_mode):
     pair_fits = []
     for k in range(n - 1):
         ratio = exposures[k + 1] / exposures[k]
-        fb = filmback_pair(binary, paths[k], paths[k + 1], ratio)
+        fb = filmback_pair(binary, paths[k], paths[k + 1], ratio, b['fit_stride'])
         pair = {'k': k, 'ratio': ratio,
                 'filmback-2': fb[0], 'confidence': fb[1] if fb[0] is not None else None,
                 'failure': None if fb[0] is not None else fb[1],
@@ -499,19 +462,6 @@ def run_bracket(binary, name, folder, workdir, times_mode):
                 'robertson-2': opencv_curve('robertson', b['images'][k:k + 2], exposures[k:k + 2])}
         pair_fits.append(pair)
     log(f"  {n - 1} pair fits {time.time() - t:.1f} s")
-    # Check the read-back: the first pair that fitted, merged alone, against calibrate's curve.
-    fitted = [p for p in pair_fits if p['filmback-2'] is not None]
-    if fitted and OpenEXR is not None:
-        k = fitted[0]['k']
-        two = filmback_all(binary, paths[k:k + 2], exposures[k:k + 2], workdir, b['images'][k:k + 2])
-        if two[0] is not None:
-            # On the codes the pair holds, after the best scale (g's scale is free).
-            diffs = []
-            for c in range(3):
-                ref, got, seen = fitted[0]['filmback-2'][c], two[0][c], two[3][c]
-                scale = np.dot(ref[seen], got[seen]) / np.dot(got[seen], got[seen])
-                diffs.append(np.max(np.abs(scale * got[seen] - ref[seen])))
-            b['readback_check'] = (f"{b['names'][k]}+{b['names'][k + 1]}", float(max(diffs)))
     t = time.time()
     hists, thin = joint_histograms(b['images'], exposures)
     b['thin'] = thin
@@ -595,14 +545,16 @@ def report(brackets, args):
           f'(up to {REGISTER_RADIUS} px at the size used) that minimises the spread of B_bright given '
           'B_dark (within-code variance over total), kept when it lowers the spread by more than '
           f'{REGISTER_GAIN:.0%}; shown as dx,dy (spread at 0 → at the shift):\n')
-    print('| bracket | frames | exposures from | size used | adjacent shifts | registered | times |')
-    print('|---|---|---|---|---|---|---|')
+    print('| bracket | frames | exposures from | size used | adjacent shifts | registered | times '
+          '| filmback fits from |')
+    print('|---|---|---|---|---|---|---|---|')
     for b in brackets:
         offs = ', '.join(f'{d[0]},{d[1]} ({before:.3f} → {after:.3f})' if d.any() else '0,0'
                          for d, after, before in b['steps'])
         h, w = b['images'][0].shape[:2]
         print(f"| {b['name']} | {len(b['paths'])} | {b['source']} | {w}x{h} (every {b['decimate']}) "
-              f"| {offs} | {'yes' if b['registered'] else 'no'} | {b['treatment']} |")
+              f"| {offs} | {'yes' if b['registered'] else 'no'} | {b['treatment']} "
+              f"| {b['fit_source']}, stride {b['fit_stride']} |")
     print()
     print('Adjacent pairs: the ratio their samples imply, per channel R G B, under each '
           'all-frame curve fitted at the listed times (memorial, 15 pairs at one listed ratio: '
@@ -717,20 +669,14 @@ def report(brackets, args):
                   + ' '.join(f"{r['rms2']:.1f}" for r in mine) + ' | '
                   + ' '.join(f"{r['rmsall']:.1f}" for r in mine) + f' | {deb} |')
     print()
-    print('All-frame filmback fits (confidence R G B from `merge --json`; the curve read back from '
-          "merge's EXR: relative residual of the read-back, and the largest difference, on the codes "
-          "the pair holds, between `merge`'s curve of the first pair that fits, read back, "
-          "and `calibrate`'s, g(1) = 1):\n")
-    print('| bracket | confidence | read-back residual | read-back vs calibrate (max abs. g; pair) |')
-    print('|---|---|---|---|')
+    print('All-frame filmback fits (confidence R G B from `calibrate --json` on every frame):\n')
+    print('| bracket | confidence |')
+    print('|---|---|')
     for b in brackets:
         conf = ' '.join(f'{c:.2f}' for c in b.get('all_confidence', [])) or '–'
-        res = f"{b['readback_residual']:.1e}" if 'readback_residual' in b else '–'
-        chk = (f"{b['readback_check'][1]:.4f} ({b['readback_check'][0]})"
-               if 'readback_check' in b else '–')
-        print(f"| {b['name']} | {conf} | {res} | {chk} |")
+        print(f"| {b['name']} | {conf} |")
         for note in b['notes']:
-            print(f"|  | {note} | | |")
+            print(f"|  | {note} |")
     print()
     for kind, fb, db in (('all', 'filmback-all', 'debevec-all'), ('2', 'filmback-2', 'debevec-2')):
         worst, seen = [], set()
