@@ -271,9 +271,21 @@ fn code_lengths(frequency: &[u64]) -> Option<Vec<u8>> {
 /// OpenEXR's canonical code for the given lengths: codes are handed out from the longest
 /// length to the shortest, within a length in symbol order. Returns `code << 6 | length`.
 fn canonical_codes(lengths: &[u8]) -> Vec<u64> {
+    // Counted in four tables: most lengths are 0, and one table would make each
+    // increment wait for the previous one.
+    let mut count = [[0u64; MAX_CODE_BITS as usize + 1]; 4];
+    let quads = lengths.chunks_exact(4);
+    for &l in quads.remainder() {
+        count[0][usize::from(l)] += 1;
+    }
+    for quad in quads {
+        for (table, &l) in count.iter_mut().zip(quad) {
+            table[usize::from(l)] += 1;
+        }
+    }
     let mut next = [0u64; MAX_CODE_BITS as usize + 1];
-    for &l in lengths {
-        next[usize::from(l)] += 1;
+    for (l, n) in next.iter_mut().enumerate() {
+        *n = count.iter().map(|table| table[l]).sum();
     }
     let mut c = 0u64;
     for l in (1..=usize::from(MAX_CODE_BITS)).rev() {
