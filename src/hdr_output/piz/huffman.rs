@@ -145,12 +145,15 @@ pub(super) fn huffman_encode(words: &[u16], out: &mut Vec<u8>) -> Option<()> {
         .map(|(&f, &l)| f * u64::from(l))
         .sum();
     out.resize(data_at + usize::try_from(bound / 8).ok()? + 9, 0);
-    let longest = lengths.iter().copied().max().unwrap_or(0);
+    let longest = u32::from(lengths.iter().copied().max().unwrap_or(0));
     let data = &mut out[data_at..];
-    let (data_bits, data_bytes) = if u32::from(longest) > PUT_BITS {
-        pack_words::<true>(words, &codes, first, codes[run_symbol - first], data)
+    let run = codes[run_symbol - first];
+    let (data_bits, data_bytes) = if longest > PUT_BITS {
+        pack_words::<true, false>(words, &codes, first, run, data)
+    } else if 2 * longest > PUT_BITS {
+        pack_words::<false, false>(words, &codes, first, run, data)
     } else {
-        pack_words::<false>(words, &codes, first, codes[run_symbol - first], data)
+        pack_words::<false, true>(words, &codes, first, run, data)
     };
     out.truncate(data_at + data_bytes);
 
@@ -167,12 +170,20 @@ pub(super) fn huffman_encode(words: &[u16], out: &mut Vec<u8>) -> Option<()> {
     Some(())
 }
 
+/// Words checked at once for a stretch without runs.
+const STRETCH: usize = 16;
+
 /// Writes the codes of `words` into `buf` (large enough: see [`Bits`]), runs of `n + 1`
 /// equal words (`1 ≤ n ≤ 255`) as the word's code, the run symbol's code and `n` when
 /// that is shorter. `codes[w − first]` and `run` are `code << 6 | length`; `LONG` when a
-/// code may exceed [`PUT_BITS`]. Returns the bits and bytes written.
+/// code may exceed [`PUT_BITS`], `PAIRS` when two codes always fit in one put. Returns the
+/// bits and bytes written.
+///
+/// The words up to the first that equals its successor, looked for [`STRETCH`] at a
+/// time, are single codes: they are sent without looking for runs, in pairs when
+/// `PAIRS`.
 #[inline(always)]
-fn pack_words<const LONG: bool>(
+fn pack_words<const LONG: bool, const PAIRS: bool>(
     words: &[u16],
     codes: &[u64],
     first: usize,
@@ -186,10 +197,46 @@ fn pack_words<const LONG: bool>(
             bits.put(value, len);
         }
     };
+    let code = |w: u16| {
+        let c = codes[usize::from(w) - first];
+        (c >> 6, (c & 63) as u32)
+    };
     let (run_code, run_len) = (run >> 6, (run & 63) as u32);
     let mut bits = Bits::new(buf);
     let mut i = 0;
     while i < words.len() {
+        if i + STRETCH < words.len() {
+            // Bit k set when word i + k equals its successor; the words before the
+            // first such are single codes.
+            let this: &[u16; STRETCH] = words[i..i + STRETCH].try_into().expect("a stretch");
+            let next: &[u16; STRETCH] = words[i + 1..=i + STRETCH].try_into().expect("a stretch");
+            let mut equal = 0u32;
+            for (k, (a, b)) in this.iter().zip(next).enumerate() {
+                equal |= u32::from(a == b) << k;
+            }
+            let singles = &this[..(equal.trailing_zeros() as usize).min(STRETCH)];
+            if PAIRS {
+                let pairs = singles.chunks_exact(2);
+                let last = pairs.remainder();
+                for pair in pairs {
+                    let ((c0, l0), (c1, l1)) = (code(pair[0]), code(pair[1]));
+                    bits.put(c0 << l1 | c1, l0 + l1);
+                }
+                if let [w] = last {
+                    let (c, len) = code(*w);
+                    bits.put(c, len);
+                }
+            } else {
+                for &w in singles {
+                    let (c, len) = code(w);
+                    put(&mut bits, c, len);
+                }
+            }
+            i += singles.len();
+            if singles.len() == STRETCH {
+                continue;
+            }
+        }
         let word = words[i];
         let end = words.len().min(i + 256);
         let mut j = i + 1;
@@ -198,8 +245,7 @@ fn pack_words<const LONG: bool>(
         }
         let repeats = (j - i - 1) as u32;
         i = j;
-        let c = codes[usize::from(word) - first];
-        let (c, len) = (c >> 6, (c & 63) as u32);
+        let (c, len) = code(word);
         if repeats == 0 {
             put(&mut bits, c, len);
         } else if len + run_len + 8 < len * repeats {
@@ -536,31 +582,47 @@ mod tests {
                 (next() >> (64 - len)) << 6 | len
             })
             .collect();
-        let words: Vec<u16> = runs_and_noise(4, 60_000)
-            .iter()
-            .map(|&w| first as u16 + w % 299)
+        // Runs, then noise (stretches without runs), then runs.
+        let mut noise = random(6);
+        let words: Vec<u16> = runs_and_noise(4, 30_000)
+            .into_iter()
+            .chain((0..30_000).map(|_| noise() as u16))
+            .chain(runs_and_noise(7, 10_001))
+            .map(|w| first as u16 + w % 299)
             .collect();
-        let run = codes[299];
-        let (want_bits, want) = reference_data(&words, &codes, first, run);
-        let mut buf = vec![0u8; want.len() + 8];
-        assert_eq!(
-            pack_words::<true>(&words, &codes, first, run, &mut buf),
-            (want_bits, want.len())
-        );
-        assert!(buf[..want.len()] == want, "codes up to 58 bits");
-
-        // The same with the fast path's codes of at most 57 bits.
-        let short: Vec<u64> = codes
-            .iter()
-            .map(|&c| if c & 63 == 58 { c >> 7 << 6 | 57 } else { c })
-            .collect();
-        let run = short[299];
-        let (want_bits, want) = reference_data(&words, &short, first, run);
-        let mut buf = vec![0u8; want.len() + 8];
-        assert_eq!(
-            pack_words::<false>(&words, &short, first, run, &mut buf),
-            (want_bits, want.len())
-        );
-        assert!(buf[..want.len()] == want, "codes up to 57 bits");
+        // Each path with the longest codes it takes: 58 bits split, 57 in one put, 28 in
+        // pairs.
+        let shortened = |longest: u64| -> Vec<u64> {
+            codes
+                .iter()
+                .map(|&c| {
+                    let len = c & 63;
+                    if len > longest {
+                        (c >> 6 >> (len - longest)) << 6 | longest
+                    } else {
+                        c
+                    }
+                })
+                .collect()
+        };
+        type Pack = fn(&[u16], &[u64], usize, u64, &mut [u8]) -> (u64, usize);
+        let paths: [(u64, Pack); 3] = [
+            (58, pack_words::<true, false>),
+            (57, pack_words::<false, false>),
+            (28, pack_words::<false, true>),
+        ];
+        for (longest, pack_words) in paths {
+            let codes = shortened(longest);
+            assert!(codes.iter().any(|c| c & 63 == longest));
+            let run = codes[299];
+            let (want_bits, want) = reference_data(&words, &codes, first, run);
+            let mut buf = vec![0u8; want.len() + 8];
+            assert_eq!(
+                pack_words(&words, &codes, first, run, &mut buf),
+                (want_bits, want.len()),
+                "codes up to {longest} bits"
+            );
+            assert!(buf[..want.len()] == want, "codes up to {longest} bits");
+        }
     }
 }
