@@ -20,6 +20,14 @@
 //! when present, else `python3`; a missing package skips its half of the comparison.
 //! Ours and theirs alternate, `--rounds R` times (default 2), each timing the best of
 //! `--runs N` calls (default 3); the table keeps each one's best over the rounds.
+//!
+//! `cargo bench --bench encoders -- --piz` times only our half PIZ EXR, on one thread,
+//! on two 24 MP maps: the merged pair above and a noisy raw-like map (each channel a
+//! 14-bit count of the synthetic scene with shot and read noise, σ² = 9 + DN/2 DN²,
+//! divided by 2¹⁴), the kind of halves a raw bracket's merge writes. It prints each
+//! file's size and the FNV-1a hash of its offset table and blocks (equal hashes: the same
+//! pixels bytes; the header's attributes come in no fixed order) and writes them as
+//! `piz-merged.exr` and `piz-noisy.exr` beside the other outputs.
 
 use std::io::Cursor;
 use std::path::{Path, PathBuf};
@@ -81,6 +89,10 @@ fn main() {
     let rounds: usize = common::arg("--rounds").map_or(2, |r| r.parse().expect("--rounds N"));
     let dir = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("target/bench-data/encoders");
     std::fs::create_dir_all(&dir).expect("bench data folder");
+    if std::env::args().any(|a| a == "--piz") {
+        piz_only(&dir, runs, rounds);
+        return;
+    }
     println!(
         "encoders: {WIDTH}×{HEIGHT} synthetic pair, JPEG q{QUALITY}, half PIZ EXR, best of \
          {runs} × {rounds} rounds"
@@ -337,6 +349,90 @@ fn report(ours: &[Ours], theirs: &serde_json::Value, jpeg_bytes: usize, exr_byte
             theirs["exr"]["same_pixels"]
         );
     }
+}
+
+/// The `--piz` mode: our half PIZ EXR of the merged map and of a noisy raw-like map on
+/// one thread, the two alternating `rounds` times, best of `runs` CPU times each.
+fn piz_only(dir: &Path, runs: usize, rounds: usize) {
+    let maps = [("merged", merged_map(dir)), ("noisy", noisy_map())];
+    let pool = rayon::ThreadPoolBuilder::new()
+        .num_threads(1)
+        .build()
+        .expect("thread pool");
+    println!("half PIZ EXR of two {WIDTH}×{HEIGHT} maps, one thread, best of {runs}");
+    let mut kept = [(f64::INFINITY, f64::INFINITY); 2];
+    for round in 1..=rounds {
+        for ((name, map), kept) in maps.iter().zip(&mut kept) {
+            let ((ms, cpu), bytes) = pool.install(|| {
+                best(runs, || {
+                    let mut out = Cursor::new(Vec::with_capacity(64 << 20));
+                    let (provenance, options) = (Provenance::default(), ExrOptions::default());
+                    hdr_output::encode_exr(&mut out, map, None, &provenance, options)
+                        .expect("encodes");
+                    out.into_inner()
+                })
+            });
+            *kept = (kept.0.min(ms), kept.1.min(cpu));
+            // FNV-1a, 64 bits, of the offset table and blocks (the header's attributes
+            // come in no fixed order).
+            let hash = bytes[header_end(&bytes)..]
+                .iter()
+                .fold(0xcbf2_9ce4_8422_2325_u64, |h, &b| {
+                    (h ^ u64::from(b)).wrapping_mul(0x100_0000_01b3)
+                });
+            println!(
+                "  round {round}, {name}: {ms:.1} ms (CPU {cpu:.1}), {} bytes, blocks' FNV-1a \
+                 {hash:016x}",
+                bytes.len()
+            );
+            if round == 1 {
+                write_raw(&dir.join(format!("piz-{name}.exr")), &bytes);
+            }
+        }
+    }
+    for ((name, _), (ms, cpu)) in maps.iter().zip(kept) {
+        println!("best, {name}: {ms:.1} ms (CPU {cpu:.1})");
+    }
+}
+
+/// Where a single-part OpenEXR file's header ends: after the magic number and version (8
+/// bytes), attributes `name\0 type\0 size:i32 value` up to an empty name.
+fn header_end(bytes: &[u8]) -> usize {
+    let string_end = |at: usize| at + bytes[at..].iter().position(|&b| b == 0).expect("a name");
+    let mut at = 8;
+    loop {
+        let name_end = string_end(at);
+        if name_end == at {
+            return at + 1;
+        }
+        let type_end = string_end(name_end + 1);
+        let size = i32::from_le_bytes(bytes[type_end + 1..type_end + 5].try_into().expect("4"));
+        at = type_end + 5 + usize::try_from(size).expect("a size");
+    }
+}
+
+/// A 24 MP raw-like map: per channel, `DN = round(4 000·s + n)` clamped to `0..2¹⁴` for
+/// the scene's value `s`, with `n` of variance `9 + 4 000·s/2` DN² (read and shot noise;
+/// the sum of four uniform deviates, near-Gaussian), divided by 2¹⁴.
+fn noisy_map() -> RadianceMap {
+    let truth = scene(WIDTH, HEIGHT, 24);
+    let mut pixels = truth.into_pixels();
+    pixels.par_iter_mut().enumerate().for_each(|(i, v)| {
+        // splitmix64 of the index: four 16-bit uniforms.
+        let mut z = (i as u64).wrapping_add(0x9e37_79b9_7f4a_7c15);
+        z = (z ^ (z >> 30)).wrapping_mul(0xbf58_476d_1ce4_e5b9);
+        z = (z ^ (z >> 27)).wrapping_mul(0x94d0_49bb_1331_11eb);
+        z ^= z >> 31;
+        let sum: f64 = (0..4)
+            .map(|k| ((z >> (16 * k)) & 0xffff) as f64 / 65536.0)
+            .sum();
+        // Four uniforms: mean 2, variance 1/3.
+        let unit = (sum - 2.0) * 3f64.sqrt();
+        let signal = 4000.0 * f64::from(*v);
+        let dn = (signal + unit * (9.0 + signal / 2.0).sqrt()).round();
+        *v = (dn.clamp(0.0, 16383.0) / 16384.0) as f32;
+    });
+    RadianceMap::new(WIDTH, HEIGHT, 3, pixels).expect("a 3-channel map")
 }
 
 /// The merged 24 MP map, rounded to half precision (what both EXR encoders store).

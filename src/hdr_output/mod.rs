@@ -94,19 +94,39 @@ impl RadianceSource for RadianceMap {
     #[inline]
     fn line(&self, pixel: usize, channel: usize, out: &mut [f32]) {
         let channels = RadianceMap::channels(self);
-        let samples = self.pixels()[pixel * channels + channel..]
-            .iter()
-            .step_by(channels);
-        for (v, &s) in out.iter_mut().zip(samples) {
-            *v = s;
+        let from = &self.pixels()[pixel * channels..];
+        if channels == 3 {
+            // Whole pixels of a constant size, so that the gather is vectorised.
+            for (v, rgb) in out.iter_mut().zip(from.chunks_exact(3)) {
+                *v = rgb[channel];
+            }
+        } else {
+            for (v, &s) in out.iter_mut().zip(from[channel..].iter().step_by(channels)) {
+                *v = s;
+            }
         }
     }
     fn max_value(&self) -> f32 {
-        use rayon::prelude::*;
+        // Sixteen running maxima per stretch of samples, each updated by a compare and a
+        // select, which vectorises (a fold with `f32::max` does not); the maximum of
+        // finite values does not depend on the order.
+        const LANES: usize = 16;
         self.pixels()
-            .par_iter()
-            .copied()
-            .filter(|v| v.is_finite())
+            .par_chunks(1 << 16)
+            .map(|stretch| {
+                let mut lanes = [0f32; LANES];
+                let blocks = stretch.chunks_exact(LANES);
+                let rest = blocks.remainder();
+                for block in blocks {
+                    for (m, &v) in lanes.iter_mut().zip(block) {
+                        *m = if v.is_finite() && v > *m { v } else { *m };
+                    }
+                }
+                for (m, &v) in lanes.iter_mut().zip(rest) {
+                    *m = if v.is_finite() && v > *m { v } else { *m };
+                }
+                lanes.into_iter().fold(0.0, f32::max)
+            })
             .reduce(|| 0.0, f32::max)
     }
 }

@@ -563,3 +563,42 @@ fn an_ap1_file_states_its_primaries() {
     assert!((value("R", 1) - 0.613_097).abs() < 1e-3);
     assert!((value("B", 1) - 0.020_615).abs() < 1e-3);
 }
+
+#[test]
+fn a_maps_maximum_and_lines_are_its_samples() {
+    // 37 × 45 × 3 samples: stretches of 16 with a remainder; non-finite values ignored.
+    let n = 37 * 45 * 3;
+    let mut pixels: Vec<f32> = (0..n)
+        .map(|i| ((i * 7919) % 1013) as f32 / 10.0 - 20.0)
+        .collect();
+    pixels[5] = f32::NAN;
+    pixels[300] = f32::INFINITY;
+    pixels[301] = f32::NEG_INFINITY;
+    let plain = |p: &[f32]| {
+        p.iter()
+            .copied()
+            .filter(|v| v.is_finite())
+            .fold(0.0, f32::max)
+    };
+    for at in [0, 17, n - 1] {
+        let mut p = pixels.clone();
+        p[at] = 1e6 + at as f32;
+        let map = RadianceMap::new(37, 45, 3, p.clone()).unwrap();
+        assert_eq!(map.max_value(), plain(&p), "largest at {at}");
+        assert_eq!(map.max_value(), 1e6 + at as f32);
+    }
+    let negative = RadianceMap::new(37, 45, 3, vec![-1.0; n]).unwrap();
+    assert_eq!(negative.max_value(), 0.0);
+
+    let map = RadianceMap::new(37, 45, 3, pixels.clone()).unwrap();
+    let mut line = vec![0f32; 30];
+    for channel in 0..3 {
+        map.line(37 * 2 + 5, channel, &mut line);
+        for (k, v) in line.iter().enumerate() {
+            assert_eq!(v.to_bits(), map.sample(37 * 2 + 5 + k, channel).to_bits());
+        }
+    }
+    let grey = RadianceMap::new(37, 45, 1, pixels[..37 * 45].to_vec()).unwrap();
+    grey.line(40, 0, &mut line);
+    assert_eq!(line, pixels[40..70]);
+}

@@ -21,63 +21,61 @@ const LONG_ZERO_RUN: u64 = 63;
 const SHORTEST_LONG_RUN: usize = 2 + (LONG_ZERO_RUN - SHORT_ZERO_RUN) as usize;
 const LONGEST_LONG_RUN: usize = 255 + SHORTEST_LONG_RUN;
 
-/// MSB-first bit writer over a byte vector.
+/// Longest value [`Bits::put`] takes: with at most 7 bits pending, the accumulator then
+/// holds at most 64.
+const PUT_BITS: u32 = 57;
+
+/// MSB-first bit writer into a slice grown in advance by the caller. After each value the
+/// whole accumulator is stored as 8 big-endian bytes and the position advanced by the
+/// whole bytes written, so at most 7 bits stay pending; the next store rewrites the
+/// partial byte, and the slice must have 8 bytes to spare past the last one.
 struct Bits<'a> {
-    out: &'a mut Vec<u8>,
+    buf: &'a mut [u8],
+    /// Bytes completed.
+    pos: usize,
+    /// The pending bits in its low `pending` bits (higher bits are stale).
     acc: u64,
     pending: u32,
-    total: u64,
 }
 
 impl<'a> Bits<'a> {
-    fn new(out: &'a mut Vec<u8>) -> Self {
+    fn new(buf: &'a mut [u8]) -> Self {
         Bits {
-            out,
+            buf,
+            pos: 0,
             acc: 0,
             pending: 0,
-            total: 0,
         }
     }
 
-    /// Appends the low `len ≤ 58` bits of `value`.
+    /// Appends the low `1 ≤ len ≤ 57` bits of `value` (no higher bits set).
     #[inline(always)]
     fn put(&mut self, value: u64, len: u32) {
-        if len > 32 {
-            self.put_long(value, len);
-        } else {
-            self.put_short(value, len);
-        }
-    }
-
-    #[cold]
-    fn put_long(&mut self, value: u64, len: u32) {
-        self.put_short(value >> 32, len - 32);
-        self.put_short(value & 0xffff_ffff, 32);
-    }
-
-    /// Appends the low `len ≤ 32` bits of `value`.
-    #[inline(always)]
-    fn put_short(&mut self, value: u64, len: u32) {
+        debug_assert!((1..=PUT_BITS).contains(&len) && value >> len == 0);
         self.acc = (self.acc << len) | value;
         self.pending += len;
-        self.total += u64::from(len);
-        if self.pending >= 32 {
-            self.pending -= 32;
-            let word = (self.acc >> self.pending) as u32;
-            self.out.extend_from_slice(&word.to_be_bytes());
+        let aligned = self.acc << (64 - self.pending);
+        self.buf[self.pos..self.pos + 8].copy_from_slice(&aligned.to_be_bytes());
+        self.pos += (self.pending >> 3) as usize;
+        self.pending &= 7;
+    }
+
+    /// Appends the low `1 ≤ len ≤ 58` bits of `value`, in two parts when longer than
+    /// [`Bits::put`] takes.
+    #[inline(always)]
+    fn put_any(&mut self, value: u64, len: u32) {
+        if len > PUT_BITS {
+            self.put(value >> 32, len - 32);
+            self.put(value & 0xffff_ffff, 32);
+        } else {
+            self.put(value, len);
         }
     }
 
-    /// Flushes, padding the last byte with zeros; returns the number of bits written.
-    fn finish(mut self) -> u64 {
-        while self.pending >= 8 {
-            self.pending -= 8;
-            self.out.push((self.acc >> self.pending) as u8);
-        }
-        if self.pending > 0 {
-            self.out.push((self.acc << (8 - self.pending)) as u8);
-        }
-        self.total
+    /// Bits written, and bytes holding them (the last padded with zeros).
+    fn finish(self) -> (u64, usize) {
+        let bits = 8 * self.pos as u64 + u64::from(self.pending);
+        (bits, self.pos + usize::from(self.pending > 0))
     }
 }
 
@@ -101,15 +99,17 @@ pub(super) fn huffman_encode(words: &[u16], out: &mut Vec<u8>) -> Option<()> {
     let first = frequency.iter().position(|&f| f > 0)?;
     let run_symbol = frequency.iter().rposition(|&f| f > 0)? + 1;
     frequency[run_symbol] = 1;
-    let lengths = code_lengths(&frequency[first..=run_symbol])?;
+    let frequency = &frequency[first..=run_symbol];
+    let lengths = code_lengths(frequency)?;
     let codes = canonical_codes(&lengths);
 
     let header_at = out.len();
     out.extend_from_slice(&[0; 20]);
 
-    // The code table: lengths, runs of absent symbols shortened.
+    // The code table: lengths, runs of absent symbols shortened; at most 6 bits a symbol.
     let table_at = out.len();
-    let mut bits = Bits::new(out);
+    out.resize(table_at + lengths.len() * 6 / 8 + 9, 0);
+    let mut bits = Bits::new(&mut out[table_at..]);
     let mut s = 0;
     while s < lengths.len() {
         if lengths[s] == 0 {
@@ -133,42 +133,29 @@ pub(super) fn huffman_encode(words: &[u16], out: &mut Vec<u8>) -> Option<()> {
         bits.put(u64::from(lengths[s]), 6);
         s += 1;
     }
-    bits.finish();
-    let table_bytes = out.len() - table_at;
+    let (_, table_bytes) = bits.finish();
+    out.truncate(table_at + table_bytes);
 
-    // The data. Codes are packed as `code << 6 | length`, as in OpenEXR.
-    let code = |w: u16| codes[usize::from(w) - first];
+    // The data: each word costs at most its code (a run is sent as one only when
+    // shorter), so Σ frequency·length bounds the bits.
+    let data_at = out.len();
+    let bound: u64 = frequency
+        .iter()
+        .zip(&lengths)
+        .map(|(&f, &l)| f * u64::from(l))
+        .sum();
+    out.resize(data_at + usize::try_from(bound / 8).ok()? + 9, 0);
+    let longest = u32::from(lengths.iter().copied().max().unwrap_or(0));
+    let data = &mut out[data_at..];
     let run = codes[run_symbol - first];
-    let (run_code, run_len) = (run >> 6, (run & 63) as u32);
-    let mut bits = Bits::new(out);
-    let mut send = |word: u16, repeats: u32| {
-        let c = code(word);
-        let (c, len) = (c >> 6, (c & 63) as u32);
-        if repeats == 0 {
-            bits.put(c, len);
-        } else if len + run_len + 8 < len * repeats {
-            bits.put(c, len);
-            bits.put(run_code, run_len);
-            bits.put(u64::from(repeats), 8);
-        } else {
-            for _ in 0..=repeats {
-                bits.put(c, len);
-            }
-        }
+    let (data_bits, data_bytes) = if longest > PUT_BITS {
+        pack_words::<true, false>(words, &codes, first, run, data)
+    } else if 2 * longest > PUT_BITS {
+        pack_words::<false, false>(words, &codes, first, run, data)
+    } else {
+        pack_words::<false, true>(words, &codes, first, run, data)
     };
-    let mut current = words[0];
-    let mut repeats = 0u32;
-    for &w in &words[1..] {
-        if w == current && repeats < 255 {
-            repeats += 1;
-        } else {
-            send(current, repeats);
-            current = w;
-            repeats = 0;
-        }
-    }
-    send(current, repeats);
-    let data_bits = bits.finish();
+    out.truncate(data_at + data_bytes);
 
     let header = [
         first as u32,
@@ -181,6 +168,97 @@ pub(super) fn huffman_encode(words: &[u16], out: &mut Vec<u8>) -> Option<()> {
         out[header_at + 4 * k..header_at + 4 * k + 4].copy_from_slice(&v.to_le_bytes());
     }
     Some(())
+}
+
+/// Words checked at once for a stretch without runs.
+const STRETCH: usize = 16;
+
+/// Writes the codes of `words` into `buf` (large enough: see [`Bits`]), runs of `n + 1`
+/// equal words (`1 ≤ n ≤ 255`) as the word's code, the run symbol's code and `n` when
+/// that is shorter. `codes[w − first]` and `run` are `code << 6 | length`; `LONG` when a
+/// code may exceed [`PUT_BITS`], `PAIRS` when two codes always fit in one put. Returns the
+/// bits and bytes written.
+///
+/// The words up to the first that equals its successor, looked for [`STRETCH`] at a
+/// time, are single codes: they are sent without looking for runs, in pairs when
+/// `PAIRS`.
+#[inline(always)]
+fn pack_words<const LONG: bool, const PAIRS: bool>(
+    words: &[u16],
+    codes: &[u64],
+    first: usize,
+    run: u64,
+    buf: &mut [u8],
+) -> (u64, usize) {
+    let put = |bits: &mut Bits, value: u64, len: u32| {
+        if LONG {
+            bits.put_any(value, len);
+        } else {
+            bits.put(value, len);
+        }
+    };
+    let code = |w: u16| {
+        let c = codes[usize::from(w) - first];
+        (c >> 6, (c & 63) as u32)
+    };
+    let (run_code, run_len) = (run >> 6, (run & 63) as u32);
+    let mut bits = Bits::new(buf);
+    let mut i = 0;
+    while i < words.len() {
+        if i + STRETCH < words.len() {
+            // Bit k set when word i + k equals its successor; the words before the
+            // first such are single codes.
+            let this: &[u16; STRETCH] = words[i..i + STRETCH].try_into().expect("a stretch");
+            let next: &[u16; STRETCH] = words[i + 1..=i + STRETCH].try_into().expect("a stretch");
+            let mut equal = 0u32;
+            for (k, (a, b)) in this.iter().zip(next).enumerate() {
+                equal |= u32::from(a == b) << k;
+            }
+            let singles = &this[..(equal.trailing_zeros() as usize).min(STRETCH)];
+            if PAIRS {
+                let pairs = singles.chunks_exact(2);
+                let last = pairs.remainder();
+                for pair in pairs {
+                    let ((c0, l0), (c1, l1)) = (code(pair[0]), code(pair[1]));
+                    bits.put(c0 << l1 | c1, l0 + l1);
+                }
+                if let [w] = last {
+                    let (c, len) = code(*w);
+                    bits.put(c, len);
+                }
+            } else {
+                for &w in singles {
+                    let (c, len) = code(w);
+                    put(&mut bits, c, len);
+                }
+            }
+            i += singles.len();
+            if singles.len() == STRETCH {
+                continue;
+            }
+        }
+        let word = words[i];
+        let end = words.len().min(i + 256);
+        let mut j = i + 1;
+        while j < end && words[j] == word {
+            j += 1;
+        }
+        let repeats = (j - i - 1) as u32;
+        i = j;
+        let (c, len) = code(word);
+        if repeats == 0 {
+            put(&mut bits, c, len);
+        } else if len + run_len + 8 < len * repeats {
+            put(&mut bits, c, len);
+            put(&mut bits, run_code, run_len);
+            bits.put(u64::from(repeats), 8);
+        } else {
+            for _ in 0..=repeats {
+                put(&mut bits, c, len);
+            }
+        }
+    }
+    bits.finish()
 }
 
 /// Huffman code lengths for `frequency` (zero for absent symbols; at least two present),
@@ -239,9 +317,21 @@ fn code_lengths(frequency: &[u64]) -> Option<Vec<u8>> {
 /// OpenEXR's canonical code for the given lengths: codes are handed out from the longest
 /// length to the shortest, within a length in symbol order. Returns `code << 6 | length`.
 fn canonical_codes(lengths: &[u8]) -> Vec<u64> {
+    // Counted in four tables: most lengths are 0, and one table would make each
+    // increment wait for the previous one.
+    let mut count = [[0u64; MAX_CODE_BITS as usize + 1]; 4];
+    let quads = lengths.chunks_exact(4);
+    for &l in quads.remainder() {
+        count[0][usize::from(l)] += 1;
+    }
+    for quad in quads {
+        for (table, &l) in count.iter_mut().zip(quad) {
+            table[usize::from(l)] += 1;
+        }
+    }
     let mut next = [0u64; MAX_CODE_BITS as usize + 1];
-    for &l in lengths {
-        next[usize::from(l)] += 1;
+    for (l, n) in next.iter_mut().enumerate() {
+        *n = count.iter().map(|table| table[l]).sum();
     }
     let mut c = 0u64;
     for l in (1..=usize::from(MAX_CODE_BITS)).rev() {
@@ -307,19 +397,232 @@ mod tests {
 
     #[test]
     fn bits_are_written_most_significant_first() {
-        let mut out = Vec::new();
+        let mut out = vec![0u8; 8 + 9];
         let mut bits = Bits::new(&mut out);
         bits.put(0b101, 3);
-        bits.put(0x3_ffff_ffff_ffff, 50);
+        bits.put_any(0x3_ffff_ffff_ffff, 50);
         bits.put(0, 4);
         bits.put(1, 1);
-        assert_eq!(bits.finish(), 58);
+        assert_eq!(bits.finish(), (58, 8));
         // 101 + fifty ones + 0000 + 1, padded: 10111111 ×6 … then 1 0000 1 00 (pad).
         let mut want = String::from("101");
         want.push_str(&"1".repeat(50));
         want.push_str("00001");
         want.push_str("000000");
-        let got: String = out.iter().map(|b| format!("{b:08b}")).collect();
+        let got: String = out[..8].iter().map(|b| format!("{b:08b}")).collect();
         assert_eq!(got, want);
+    }
+
+    /// Appends the low `len` bits of `value`, most significant first.
+    fn push_bits(bits: &mut Vec<bool>, value: u64, len: u32) {
+        bits.extend((0..len).rev().map(|k| value >> k & 1 == 1));
+    }
+
+    /// Packs bits into bytes, most significant first, the last byte padded with zeros.
+    fn pack(bits: &[bool]) -> Vec<u8> {
+        bits.chunks(8)
+            .map(|byte| {
+                byte.iter()
+                    .enumerate()
+                    .fold(0u8, |b, (k, &bit)| b | u8::from(bit) << (7 - k))
+            })
+            .collect()
+    }
+
+    /// The data part written one bit at a time, runs found by looking ahead word by word.
+    fn reference_data(words: &[u16], codes: &[u64], first: usize, run: u64) -> (u64, Vec<u8>) {
+        let split = |c: u64| (c >> 6, (c & 63) as u32);
+        let (run_code, run_len) = split(run);
+        let mut bits = Vec::new();
+        let mut k = 0;
+        while k < words.len() {
+            let w = words[k];
+            let mut n = 0;
+            while n < 255 && k + n + 1 < words.len() && words[k + n + 1] == w {
+                n += 1;
+            }
+            let (c, len) = split(codes[usize::from(w) - first]);
+            if n > 0 && len + run_len + 8 < len * n as u32 {
+                push_bits(&mut bits, c, len);
+                push_bits(&mut bits, run_code, run_len);
+                push_bits(&mut bits, n as u64, 8);
+            } else {
+                for _ in 0..=n {
+                    push_bits(&mut bits, c, len);
+                }
+            }
+            k += n + 1;
+        }
+        (bits.len() as u64, pack(&bits))
+    }
+
+    /// [`huffman_encode`] written plainly: one frequency table, the code table and the
+    /// data one bit at a time.
+    fn reference_encode(words: &[u16]) -> Vec<u8> {
+        let mut frequency = vec![0u64; SYMBOLS];
+        for &w in words {
+            frequency[usize::from(w)] += 1;
+        }
+        let first = frequency.iter().position(|&f| f > 0).unwrap();
+        let run_symbol = frequency.iter().rposition(|&f| f > 0).unwrap() + 1;
+        frequency[run_symbol] = 1;
+        let lengths = code_lengths(&frequency[first..=run_symbol]).unwrap();
+        let codes = canonical_codes(&lengths);
+        let mut bits = Vec::new();
+        let mut s = 0;
+        while s < lengths.len() {
+            let zeros = lengths[s..]
+                .iter()
+                .take(LONGEST_LONG_RUN)
+                .take_while(|&&l| l == 0)
+                .count();
+            if zeros >= SHORTEST_LONG_RUN {
+                push_bits(&mut bits, LONG_ZERO_RUN, 6);
+                push_bits(&mut bits, (zeros - SHORTEST_LONG_RUN) as u64, 8);
+                s += zeros;
+            } else if zeros >= 2 {
+                push_bits(&mut bits, SHORT_ZERO_RUN + zeros as u64 - 2, 6);
+                s += zeros;
+            } else {
+                push_bits(&mut bits, u64::from(lengths[s]), 6);
+                s += 1;
+            }
+        }
+        let table = pack(&bits);
+        let (data_bits, data) = reference_data(words, &codes, first, codes[run_symbol - first]);
+        let mut out = Vec::new();
+        for v in [
+            first as u32,
+            run_symbol as u32,
+            table.len() as u32,
+            data_bits as u32,
+            0,
+        ] {
+            out.extend_from_slice(&v.to_le_bytes());
+        }
+        out.extend_from_slice(&table);
+        out.extend_from_slice(&data);
+        out
+    }
+
+    /// xorshift64*: a reproducible stream of pseudo-random numbers.
+    fn random(seed: u64) -> impl FnMut() -> u64 {
+        let mut x = seed | 1;
+        move || {
+            x ^= x >> 12;
+            x ^= x << 25;
+            x ^= x >> 27;
+            x.wrapping_mul(0x2545_f491_4f6c_dd1d)
+        }
+    }
+
+    /// Words in runs of random lengths (often past 256), values spread over 2¹⁶.
+    fn runs_and_noise(seed: u64, n: usize) -> Vec<u16> {
+        let mut next = random(seed);
+        let mut words = Vec::with_capacity(n);
+        while words.len() < n {
+            let r = next();
+            let value = match r % 4 {
+                0 => 0,
+                1 => (r >> 8) as u16,
+                _ => (r >> 8) as u16 % 40,
+            };
+            let length = match (r >> 40) % 5 {
+                0 => 1 + (r >> 48) as usize % 600,
+                1 => 2 + (r >> 48) as usize % 3,
+                _ => 1,
+            };
+            words.extend(std::iter::repeat_n(value, length.min(n - words.len())));
+        }
+        words
+    }
+
+    #[test]
+    fn huffman_encode_matches_a_bit_by_bit_reference() {
+        // Fibonacci frequencies give the deepest code the count allows (27 bits here).
+        let mut deep = Vec::new();
+        let (mut a, mut b) = (1usize, 1usize);
+        for w in 0..27u16 {
+            deep.extend(std::iter::repeat_n(w * 7 + 3, a));
+            (a, b) = (b, a + b);
+        }
+        let mut shuffle = random(5);
+        for k in (1..deep.len()).rev() {
+            deep.swap(k, shuffle() as usize % (k + 1));
+        }
+        let mut noise = random(9);
+        let inputs: Vec<(&str, Vec<u16>)> = vec![
+            ("one word", vec![42]),
+            ("two words", vec![65535, 0]),
+            ("all equal", vec![7; 5000]),
+            ("all equal, 256", vec![0; 256]),
+            ("all equal, 257", vec![u16::MAX; 257]),
+            ("runs", runs_and_noise(1, 100_000)),
+            ("runs, odd count", runs_and_noise(2, 77_777)),
+            ("noise", (0..50_000).map(|_| noise() as u16).collect()),
+            ("deep code", deep),
+        ];
+        for (name, words) in inputs {
+            let mut out = vec![0xaa];
+            huffman_encode(&words, &mut out).unwrap();
+            assert_eq!(out[0], 0xaa, "{name}: wrote before its start");
+            assert!(out[1..] == reference_encode(&words), "{name}: bytes differ");
+        }
+    }
+
+    #[test]
+    fn codes_up_to_58_bits_are_packed_like_the_reference() {
+        // Any table will do for the writer: random codes of 1..=58 bits.
+        let mut next = random(3);
+        let first = 100;
+        let codes: Vec<u64> = (0..300)
+            .map(|_| {
+                let r = next();
+                let len = 1 + r % 58;
+                (next() >> (64 - len)) << 6 | len
+            })
+            .collect();
+        // Runs, then noise (stretches without runs), then runs.
+        let mut noise = random(6);
+        let words: Vec<u16> = runs_and_noise(4, 30_000)
+            .into_iter()
+            .chain((0..30_000).map(|_| noise() as u16))
+            .chain(runs_and_noise(7, 10_001))
+            .map(|w| first as u16 + w % 299)
+            .collect();
+        // Each path with the longest codes it takes: 58 bits split, 57 in one put, 28 in
+        // pairs.
+        let shortened = |longest: u64| -> Vec<u64> {
+            codes
+                .iter()
+                .map(|&c| {
+                    let len = c & 63;
+                    if len > longest {
+                        (c >> 6 >> (len - longest)) << 6 | longest
+                    } else {
+                        c
+                    }
+                })
+                .collect()
+        };
+        type Pack = fn(&[u16], &[u64], usize, u64, &mut [u8]) -> (u64, usize);
+        let paths: [(u64, Pack); 3] = [
+            (58, pack_words::<true, false>),
+            (57, pack_words::<false, false>),
+            (28, pack_words::<false, true>),
+        ];
+        for (longest, pack_words) in paths {
+            let codes = shortened(longest);
+            assert!(codes.iter().any(|c| c & 63 == longest));
+            let run = codes[299];
+            let (want_bits, want) = reference_data(&words, &codes, first, run);
+            let mut buf = vec![0u8; want.len() + 8];
+            assert_eq!(
+                pack_words(&words, &codes, first, run, &mut buf),
+                (want_bits, want.len()),
+                "codes up to {longest} bits"
+            );
+            assert!(buf[..want.len()] == want, "codes up to {longest} bits");
+        }
     }
 }
