@@ -272,13 +272,14 @@ fn ppg_green(c: f32, [cn, cs, cw, ce]: [f32; 4], [gn, gs, gw, ge]: [f32; 4]) -> 
     value * 0.25
 }
 
-/// Step 1 on working row `r`: half `p` of the green plane is the mosaic's where the row
-/// is green, else `ppg_green` of every value but the first and last of the half (the
-/// others' neighbours lie beyond the working row).
-fn green_row(band: &mut Band, row_sites: &[Site; 2], r: usize) {
-    let (m, half) = (&band.mosaic, band.half);
+/// Step 1 on working row `r` of the band's mosaic `m` into its green plane `green`
+/// (halves of `half` values, see [`Band`]): half `p` of the green is the mosaic's where
+/// the row is green, else `ppg_green` of every value but the first and last of the half
+/// (their neighbours lie beyond the working row). Separate slices, so that the compiler
+/// knows the green written is not the mosaic read.
+fn green_row(m: &[f32], green: &mut [f32], half: usize, row_sites: &[Site; 2], r: usize) {
     for (p, site) in row_sites.iter().enumerate() {
-        let dst = &mut band.green[(2 * r + p) * half..(2 * r + p + 1) * half];
+        let dst = &mut green[(2 * r + p) * half..(2 * r + p + 1) * half];
         match site {
             Site::Green { .. } => dst.copy_from_slice(run(m, half, r, p, 0, half)),
             Site::Chroma { .. } => {
@@ -407,7 +408,8 @@ fn ppg_band(
     // Step 1 on working rows PAD − 1 ..= PAD + rows; the image row of r is y0 + r − PAD,
     // of the parity of y0 + r + 1 (PAD being 3).
     for r in PAD - 1..PAD + rows + 1 {
-        green_row(band, &sites[(y0 + r + 1) & 1], r);
+        let row_sites = &sites[(y0 + r + 1) & 1];
+        green_row(&band.mosaic, &mut band.green, band.half, row_sites, r);
     }
     let half = band.half;
     // Pixels of each half of a row: image columns 2k' and 2k' + 1.
