@@ -29,6 +29,13 @@
 //! mirrored about the edge pixel (`x = −k` reads `x = k`), which keeps the CFA's colours
 //! in place, so edge pixels are interpolated like any other.
 //!
+//! A working row is kept as two halves, its even and its odd columns: in a Bayer row each
+//! half is one colour, so every step is a loop over the pixels of one colour at unit
+//! stride, whose neighbours are the same or the other half shifted by a value, and the
+//! compiler turns it into vector instructions. A row's output is made per half, three
+//! planes of colour, in chunks of 256 pixel pairs (in the first-level cache), and then
+//! interleaved.
+//!
 //! # X-Trans sensors
 //!
 //! The 6×6 X-Trans mosaic is interpolated by rawler's bilinear demosaicker (its
@@ -52,9 +59,18 @@ use super::mosaic::MosaicRows;
 /// rows each) stay within a core's cache for rows of a few thousand pixels.
 const BAND: usize = 16;
 
-/// Pixels of apron around a band's working copy: the green of step 1 is needed one pixel
-/// beyond the band and reads the mosaic two pixels beyond that.
+/// Rows of apron above and below a band's working copy: the green of step 1 is needed one
+/// row beyond the band and reads the mosaic two rows beyond that.
 const PAD: usize = 3;
+
+/// Columns of apron left and right of a working row before it is split into its even and
+/// odd columns: the three columns that step 1 reads beyond the image (as [`PAD`] rows),
+/// and one more so that both halves start at an even column (`x = −4` and `x = −3`).
+const APRON: usize = 4;
+
+/// Pixel pairs per chunk of a row whose RGB is made before it is interleaved: the six
+/// planes of a chunk stay in the first-level cache.
+const CHUNK: usize = 256;
 
 /// Which interpolator [`demosaic`] uses for `cfa`.
 pub fn method(cfa: &Cfa) -> &'static str {
@@ -135,32 +151,40 @@ fn sites(cfa: &Cfa) -> [[Site; 2]; 2] {
     })
 }
 
-/// A band's working copies: the white-balanced mosaic and the green plane, `rows + 2·PAD`
-/// rows of `width + 2·PAD` values, row `r` holding image row `y0 + r − PAD`; and the
+/// A band's working copies, each working row split into its even and its odd image
+/// columns (two *halves* of `half` values, half `p` at `(2r + p)·half`, value `k` of half
+/// `p` being image column `x = 2k − APRON + p`), so that every step reads pixels of one
+/// colour at unit stride: the white-balanced mosaic and the green plane, `rows + 2·PAD`
+/// working rows, row `r` holding image row `y0 + r − PAD`. Besides: one row before it is
+/// split, the six planes (three colours, two halves) of a chunk of output, and the
 /// source's working memory.
 struct Band {
-    stride: usize,
+    half: usize,
     mosaic: Vec<f32>,
     green: Vec<f32>,
+    line: Vec<f32>,
+    rgb: Vec<f32>,
     scratch: Vec<f32>,
 }
 
 impl Band {
     fn new(width: usize) -> Band {
-        let stride = width + 2 * PAD;
-        let len = stride * (BAND + 2 * PAD);
+        let half = (width + 2 * APRON).div_ceil(2);
+        let len = 2 * half * (BAND + 2 * PAD);
         Band {
-            stride,
+            half,
             mosaic: vec![0.0; len],
             green: vec![0.0; len],
+            line: vec![0.0; 2 * half],
+            rgb: vec![0.0; 6 * CHUNK],
             scratch: Vec::new(),
         }
     }
 
     /// Reads image row `y` (mirrored beyond the image) of `source` into working row `r`,
-    /// each sample times its colour's gain, the row mirrored into its apron columns.
-    /// Returns the row's samples clipped in every frame when `y` is one of `own` (so that
-    /// rows read twice, as aprons or mirrors, are counted once).
+    /// each sample times its colour's gain, the row mirrored into its apron columns and
+    /// split into its halves. Returns the row's samples clipped in every frame when `y`
+    /// is one of `own` (so that rows read twice, as aprons or mirrors, are counted once).
     fn load_row<S: MosaicRows>(
         &mut self,
         source: &S,
@@ -170,17 +194,29 @@ impl Band {
         cfa: &Cfa,
         gains: [f32; 3],
     ) -> u64 {
-        let (w, s) = (source.width(), self.stride);
+        let w = source.width();
         let y_in = mirror(y, source.height());
-        let dst = &mut self.mosaic[r * s..(r + 1) * s];
-        let clipped = source.row(y_in, &mut dst[PAD..PAD + w], &mut self.scratch);
+        let line = &mut self.line;
+        let clipped = source.row(y_in, &mut line[APRON..APRON + w], &mut self.scratch);
         let g = [gains[cfa.colour_at(0, y_in)], gains[cfa.colour_at(1, y_in)]];
-        for (x, v) in dst[PAD..PAD + w].iter_mut().enumerate() {
-            *v *= g[x & 1];
+        let mut pairs = line[APRON..APRON + w].chunks_exact_mut(2);
+        for pair in &mut pairs {
+            pair[0] *= g[0];
+            pair[1] *= g[1];
         }
-        for k in 1..=PAD {
-            dst[PAD - k] = dst[PAD + mirror(-(k as isize), w)];
-            dst[PAD + w - 1 + k] = dst[PAD + mirror((w - 1 + k) as isize, w)];
+        for v in pairs.into_remainder() {
+            *v *= g[0];
+        }
+        // Image column x is line[APRON + x]; the apron reads its mirror.
+        for j in (0..APRON).chain(APRON + w..line.len()) {
+            let x = j as isize - APRON as isize;
+            line[j] = line[APRON + mirror(x, w)];
+        }
+        let (even, odd) =
+            self.mosaic[2 * r * self.half..2 * (r + 1) * self.half].split_at_mut(self.half);
+        for ((pair, e), o) in line.chunks_exact(2).zip(even).zip(odd) {
+            *e = pair[0];
+            *o = pair[1];
         }
         if y >= 0 && own.contains(&(y as usize)) {
             clipped
@@ -188,6 +224,14 @@ impl Band {
             0
         }
     }
+}
+
+/// `n` values of half `p` of working row `r` of `plane` (halves of `half` values, see
+/// [`Band`]) from value `start`.
+#[inline(always)]
+fn run(plane: &[f32], half: usize, r: usize, p: usize, start: usize, n: usize) -> &[f32] {
+    let at = (2 * r + p) * half + start;
+    &plane[at..at + n]
 }
 
 /// `hue_transit` of Lin's description (module docs, step 2): `v1 … v3` carried along the
@@ -201,12 +245,10 @@ fn hue_transit(l1: f32, l2: f32, l3: f32, v1: f32, v3: f32) -> f32 {
     if between { along } else { mean }
 }
 
-/// Step 1 at the red or blue sample `i` of `m` (row stride `s`).
+/// Step 1 at a red or blue sample `c`, from its own colour two pixels north, south, west
+/// and east (`[c3, c23, c11, c15]`) and the green beside it (`[g8, g18, g12, g14]`).
 #[inline(always)]
-fn ppg_green(m: &[f32], i: usize, s: usize) -> f32 {
-    let c = m[i];
-    let (cn, cs, cw, ce) = (m[i - 2 * s], m[i + 2 * s], m[i - 2], m[i + 2]);
-    let (gn, gs, gw, ge) = (m[i - s], m[i + s], m[i - 1], m[i + 1]);
+fn ppg_green(c: f32, [cn, cs, cw, ce]: [f32; 4], [gn, gs, gw, ge]: [f32; 4]) -> f32 {
     let vertical = (gn - gs).abs();
     let horizontal = (gw - ge).abs();
     let dn = 2.0 * (c - cn).abs() + vertical;
@@ -230,16 +272,129 @@ fn ppg_green(m: &[f32], i: usize, s: usize) -> f32 {
     value * 0.25
 }
 
-/// `columns · (a, b, c)` into `out`.
-#[inline(always)]
-fn write(out: &mut [f32], columns: &[[f32; 3]; 3], a: f32, b: f32, c: f32) {
-    for (k, o) in out.iter_mut().enumerate() {
-        *o = columns[0][k] * a + columns[1][k] * b + columns[2][k] * c;
+/// Step 1 on working row `r` of the band's mosaic `m` into its green plane `green`
+/// (halves of `half` values, see [`Band`]): half `p` of the green is the mosaic's where
+/// the row is green, else `ppg_green` of every value but the first and last of the half
+/// (their neighbours lie beyond the working row). Separate slices, so that the compiler
+/// knows the green written is not the mosaic read.
+fn green_row(m: &[f32], green: &mut [f32], half: usize, row_sites: &[Site; 2], r: usize) {
+    for (p, site) in row_sites.iter().enumerate() {
+        let dst = &mut green[(2 * r + p) * half..(2 * r + p + 1) * half];
+        match site {
+            Site::Green { .. } => dst.copy_from_slice(run(m, half, r, p, 0, half)),
+            Site::Chroma { .. } => {
+                let n = half - 2;
+                // Value k of half p, image column x; x ± 1 is value k − 1 + p and k + p
+                // of the other half.
+                let c = run(m, half, r, p, 1, n);
+                let (cw, ce) = (run(m, half, r, p, 0, n), run(m, half, r, p, 2, n));
+                let (cn, cs) = (run(m, half, r - 2, p, 1, n), run(m, half, r + 2, p, 1, n));
+                let (gn, gs) = (run(m, half, r - 1, p, 1, n), run(m, half, r + 1, p, 1, n));
+                let gw = run(m, half, r, 1 - p, p, n);
+                let ge = run(m, half, r, 1 - p, 1 + p, n);
+                for (k, g) in dst[1..1 + n].iter_mut().enumerate() {
+                    *g = ppg_green(
+                        c[k],
+                        [cn[k], cs[k], cw[k], ce[k]],
+                        [gn[k], gs[k], gw[k], ge[k]],
+                    );
+                }
+            }
+        }
+    }
+}
+
+/// Steps 2 and 3 and the matrix for `n` pixels of half `p` of working row `r`, from value
+/// `k0 + 2` of the half (image column `2·k0 + p`): the output's three colours into
+/// `rgb[0..n]`, `rgb[CHUNK..CHUNK + n]` and `rgb[2·CHUNK..2·CHUNK + n]`.
+fn colour_run(
+    m: &[f32],
+    g: &[f32],
+    half: usize,
+    site: Site,
+    matrix: &[[f32; 3]; 3],
+    (r, p, k0, n): (usize, usize, usize, usize),
+    rgb: &mut [f32],
+) {
+    let columns = site.columns(matrix);
+    let (red, rest) = rgb.split_at_mut(CHUNK);
+    let (green, blue) = rest.split_at_mut(CHUNK);
+    let (red, green, blue) = (&mut red[..n], &mut green[..n], &mut blue[..n]);
+    let k = k0 + 2;
+    // Value k of half p, image column x; x ± 1 is value k − 1 + p and k + p of the other
+    // half.
+    let (west, east) = (k - 1 + p, k + p);
+    let q = 1 - p;
+    let mut write = |j: usize, a: f32, b: f32, c: f32| {
+        red[j] = columns[0][0] * a + columns[1][0] * b + columns[2][0] * c;
+        green[j] = columns[0][1] * a + columns[1][1] * b + columns[2][1] * c;
+        blue[j] = columns[0][2] * a + columns[1][2] * b + columns[2][2] * c;
+    };
+    match site {
+        Site::Green { .. } => {
+            let (mc, gc) = (run(m, half, r, p, k, n), run(g, half, r, p, k, n));
+            let (mw, me) = (run(m, half, r, q, west, n), run(m, half, r, q, east, n));
+            let (gw, ge) = (run(g, half, r, q, west, n), run(g, half, r, q, east, n));
+            let (mn, ms) = (run(m, half, r - 1, p, k, n), run(m, half, r + 1, p, k, n));
+            let (gn, gs) = (run(g, half, r - 1, p, k, n), run(g, half, r + 1, p, k, n));
+            for j in 0..n {
+                let across = hue_transit(gw[j], gc[j], ge[j], mw[j], me[j]);
+                let down = hue_transit(gn[j], gc[j], gs[j], mn[j], ms[j]);
+                write(j, mc[j], across, down);
+            }
+        }
+        Site::Chroma { .. } => {
+            let (mc, gc) = (run(m, half, r, p, k, n), run(g, half, r, p, k, n));
+            // The diagonal neighbours (other colour) and the own colour two pixels away
+            // along each diagonal.
+            let (m_ne, g_ne) = (
+                run(m, half, r - 1, q, east, n),
+                run(g, half, r - 1, q, east, n),
+            );
+            let (m_sw, g_sw) = (
+                run(m, half, r + 1, q, west, n),
+                run(g, half, r + 1, q, west, n),
+            );
+            let (m_nw, g_nw) = (
+                run(m, half, r - 1, q, west, n),
+                run(g, half, r - 1, q, west, n),
+            );
+            let (m_se, g_se) = (
+                run(m, half, r + 1, q, east, n),
+                run(g, half, r + 1, q, east, n),
+            );
+            let (c_ne, c_sw) = (
+                run(m, half, r - 2, p, k + 1, n),
+                run(m, half, r + 2, p, k - 1, n),
+            );
+            let (c_nw, c_se) = (
+                run(m, half, r - 2, p, k - 1, n),
+                run(m, half, r + 2, p, k + 1, n),
+            );
+            for j in 0..n {
+                let (c, gc) = (mc[j], gc[j]);
+                let d_ne = (m_ne[j] - m_sw[j]).abs()
+                    + (c_ne[j] - c).abs()
+                    + (c - c_sw[j]).abs()
+                    + (g_ne[j] - gc).abs()
+                    + (gc - g_sw[j]).abs();
+                let d_nw = (m_nw[j] - m_se[j]).abs()
+                    + (c_nw[j] - c).abs()
+                    + (c - c_se[j]).abs()
+                    + (g_nw[j] - gc).abs()
+                    + (gc - g_se[j]).abs();
+                let along_ne = hue_transit(g_ne[j], gc, g_sw[j], m_ne[j], m_sw[j]);
+                let along_nw = hue_transit(g_nw[j], gc, g_se[j], m_nw[j], m_se[j]);
+                let other = if d_ne < d_nw { along_ne } else { along_nw };
+                write(j, c, gc, other);
+            }
+        }
     }
 }
 
 /// Develops one band of `rows` output rows from image row `y0` into `out` (interleaved
-/// RGB of those rows): steps 1–3 of the module docs, then the matrix.
+/// RGB of those rows): steps 1–3 of the module docs, then the matrix, each a loop over the
+/// pixels of one half of a working row (one colour), then the two halves interleaved.
 fn ppg_band(
     band: &mut Band,
     sites: &[[Site; 2]; 2],
@@ -249,63 +404,57 @@ fn ppg_band(
     matrix: &[[f32; 3]; 3],
     out: &mut [f32],
 ) {
-    let s = band.stride;
-    // Step 1 on rows PAD − 1 ..= PAD + rows, columns PAD − 1 ..= PAD + width; the image
-    // row of r is y0 + r − PAD, the image column of c is c − PAD (both of the parity
-    // of r + 1 and c + 1, PAD being 3).
+    // Step 1 on working rows PAD − 1 ..= PAD + rows; the image row of r is y0 + r − PAD,
+    // of the parity of y0 + r + 1 (PAD being 3).
     for r in PAD - 1..PAD + rows + 1 {
-        let row = r * s..(r + 1) * s;
-        band.green[row.clone()].copy_from_slice(&band.mosaic[row]);
         let row_sites = &sites[(y0 + r + 1) & 1];
-        for (parity, site) in row_sites.iter().enumerate() {
-            if let Site::Chroma { .. } = site {
-                // The first column ≥ PAD − 1 whose image column has this parity.
-                let first = PAD - 1 + ((parity + PAD - 1 + 1) & 1);
-                for c in (first..PAD + width + 1).step_by(2) {
-                    let i = r * s + c;
-                    band.green[i] = ppg_green(&band.mosaic, i, s);
-                }
-            }
-        }
+        green_row(&band.mosaic, &mut band.green, band.half, row_sites, r);
     }
-    let (m, g) = (&band.mosaic, &band.green);
+    let half = band.half;
+    // Pixels of each half of a row: image columns 2k' and 2k' + 1.
+    let counts = [width.div_ceil(2), width / 2];
     for j in 0..rows {
-        let base = (PAD + j) * s + PAD;
+        let r = PAD + j;
+        let row_sites = &sites[(y0 + j) & 1];
         let dst = &mut out[j * width * 3..(j + 1) * width * 3];
-        for (parity, &site) in sites[(y0 + j) & 1].iter().enumerate() {
-            let columns = site.columns(matrix);
-            let pixels = dst.chunks_exact_mut(3).enumerate().skip(parity).step_by(2);
-            match site {
-                Site::Green { .. } => {
-                    for (x, px) in pixels {
-                        let i = base + x;
-                        let across = hue_transit(g[i - 1], g[i], g[i + 1], m[i - 1], m[i + 1]);
-                        let down = hue_transit(g[i - s], g[i], g[i + s], m[i - s], m[i + s]);
-                        write(px, &columns, m[i], across, down);
-                    }
-                }
-                Site::Chroma { .. } => {
-                    for (x, px) in pixels {
-                        let i = base + x;
-                        let (c, gc) = (m[i], g[i]);
-                        let (ne, sw) = (i - s + 1, i + s - 1);
-                        let (nw, se) = (i - s - 1, i + s + 1);
-                        let d_ne = (m[ne] - m[sw]).abs()
-                            + (m[i - 2 * s + 2] - c).abs()
-                            + (c - m[i + 2 * s - 2]).abs()
-                            + (g[ne] - gc).abs()
-                            + (gc - g[sw]).abs();
-                        let d_nw = (m[nw] - m[se]).abs()
-                            + (m[i - 2 * s - 2] - c).abs()
-                            + (c - m[i + 2 * s + 2]).abs()
-                            + (g[nw] - gc).abs()
-                            + (gc - g[se]).abs();
-                        let along_ne = hue_transit(g[ne], gc, g[sw], m[ne], m[sw]);
-                        let along_nw = hue_transit(g[nw], gc, g[se], m[nw], m[se]);
-                        let other = if d_ne < d_nw { along_ne } else { along_nw };
-                        write(px, &columns, c, gc, other);
-                    }
-                }
+        for k0 in (0..counts[0]).step_by(CHUNK) {
+            let n = [
+                (counts[0] - k0).min(CHUNK),
+                counts[1].saturating_sub(k0).min(CHUNK),
+            ];
+            let (even, odd) = band.rgb.split_at_mut(3 * CHUNK);
+            for (p, rgb) in [even, odd].into_iter().enumerate() {
+                let run = (r, p, k0, n[p]);
+                colour_run(
+                    &band.mosaic,
+                    &band.green,
+                    half,
+                    row_sites[p],
+                    matrix,
+                    run,
+                    rgb,
+                );
+            }
+            // Interleave: pixel 2k' from the even half, 2k' + 1 from the odd.
+            let rgb = &band.rgb;
+            let planes = |p: usize, len: usize| {
+                let at = 3 * CHUNK * p;
+                (
+                    &rgb[at..at + len],
+                    &rgb[at + CHUNK..at + CHUNK + len],
+                    &rgb[at + 2 * CHUNK..at + 2 * CHUNK + len],
+                )
+            };
+            let ((r0, g0, b0), (r1, g1, b1)) = (planes(0, n[0]), planes(1, n[1]));
+            let chunk_out = &mut dst[6 * k0..(6 * k0 + 3 * (n[0] + n[1]))];
+            let mut pairs = chunk_out.chunks_exact_mut(6);
+            for (i, px) in (&mut pairs).enumerate() {
+                px.copy_from_slice(&[r0[i], g0[i], b0[i], r1[i], g1[i], b1[i]]);
+            }
+            let last = pairs.into_remainder();
+            if !last.is_empty() {
+                let i = n[0] - 1;
+                last.copy_from_slice(&[r0[i], g0[i], b0[i]]);
             }
         }
     }
@@ -344,7 +493,7 @@ fn bayer<S: MosaicRows>(
                     let first = if b == 0 {
                         0
                     } else {
-                        let s = band.stride;
+                        let s = 2 * band.half;
                         band.mosaic.copy_within(BAND * s..(BAND + 2 * PAD) * s, 0);
                         2 * PAD
                     };
@@ -561,19 +710,164 @@ mod tests {
             hue_transit(1.0, 4.0, 3.0, 10.0, 30.0),
             20.0 + (8.0 - 1.0 - 3.0) * 0.25
         );
-        // 5×5, stride 5, centre 12 (R); rows: R G R G R / G B G B G / ...
-        let mut m = vec![0.0f32; 25];
-        let set = |m: &mut Vec<f32>, x: usize, y: usize, v: f32| m[y * 5 + x] = v;
-        set(&mut m, 2, 2, 0.5); // R13
-        set(&mut m, 2, 0, 0.9); // R3: north differs
-        set(&mut m, 2, 4, 0.1); // R23: south differs
-        set(&mut m, 0, 2, 0.2); // R11
-        set(&mut m, 4, 2, 0.45); // R15: east nearly equal
-        set(&mut m, 2, 1, 0.6); // G8
-        set(&mut m, 2, 3, 0.4); // G18
-        set(&mut m, 1, 2, 0.55); // G12
-        set(&mut m, 3, 2, 0.52); // G14
+        // R13 = 0.5; R3 = 0.9 and R23 = 0.1 differ, R11 = 0.2, R15 = 0.45 nearly equal;
+        // G8 = 0.6, G18 = 0.4, G12 = 0.55, G14 = 0.52.
+        let green = ppg_green(0.5, [0.9, 0.1, 0.2, 0.45], [0.6, 0.4, 0.55, 0.52]);
         let east = (3.0 * 0.52 + 0.55 + 0.5 - 0.45) * 0.25;
-        assert!((ppg_green(&m, 12, 5) - east).abs() < 1e-6);
+        assert!((green - east).abs() < 1e-6);
+    }
+
+    /// PPG written pixel by pixel over the whole image, from the module docs: the
+    /// white-balanced mosaic mirrored beyond the edges, the green of step 1 wherever steps
+    /// 2 and 3 read it, then the matrix, each sum in the order the bands evaluate it.
+    fn reference(m: &MergedMosaic, cfa: &Cfa, gains: [f32; 3], matrix: &[[f32; 3]; 3]) -> Vec<f32> {
+        let (w, h) = (m.width, m.height);
+        let v = |x: isize, y: isize| {
+            let (x, y) = (mirror(x, w), mirror(y, h));
+            m.values[y * w + x] * gains[cfa.colour_at(x, y)]
+        };
+        let colour = |x: isize, y: isize| {
+            cfa.colour_at(x.rem_euclid(2) as usize, y.rem_euclid(2) as usize)
+                .min(2)
+        };
+        let green = |x: isize, y: isize| {
+            if colour(x, y) == 1 {
+                return v(x, y);
+            }
+            let c = v(x, y);
+            let (cn, cs, cw, ce) = (v(x, y - 2), v(x, y + 2), v(x - 2, y), v(x + 2, y));
+            let (gn, gs, gw, ge) = (v(x, y - 1), v(x, y + 1), v(x - 1, y), v(x + 1, y));
+            let vertical = (gn - gs).abs();
+            let horizontal = (gw - ge).abs();
+            let gradients = [
+                2.0 * (c - cn).abs() + vertical,
+                2.0 * (c - ce).abs() + horizontal,
+                2.0 * (c - cw).abs() + horizontal,
+                2.0 * (c - cs).abs() + vertical,
+            ];
+            let values = [
+                3.0 * gn + gs + c - cn,
+                3.0 * ge + gw + c - ce,
+                3.0 * gw + ge + c - cw,
+                3.0 * gs + gn + c - cs,
+            ];
+            // The first smallest of N, E, W, S.
+            let mut best = 0;
+            for d in 1..4 {
+                if gradients[d] < gradients[best] {
+                    best = d;
+                }
+            }
+            values[best] * 0.25
+        };
+        let mut out = Vec::with_capacity(w * h * 3);
+        for y in 0..h as isize {
+            for x in 0..w as isize {
+                let (a, b, c, columns) = if colour(x, y) == 1 {
+                    let across = hue_transit(
+                        green(x - 1, y),
+                        green(x, y),
+                        green(x + 1, y),
+                        v(x - 1, y),
+                        v(x + 1, y),
+                    );
+                    let down = hue_transit(
+                        green(x, y - 1),
+                        green(x, y),
+                        green(x, y + 1),
+                        v(x, y - 1),
+                        v(x, y + 1),
+                    );
+                    (
+                        v(x, y),
+                        across,
+                        down,
+                        [1, colour(x + 1, y), colour(x, y + 1)],
+                    )
+                } else {
+                    let (c, gc) = (v(x, y), green(x, y));
+                    let diagonal = |dx: isize| {
+                        let (n, s) = ((x + dx, y - 1), (x - dx, y + 1));
+                        let gradient = (v(n.0, n.1) - v(s.0, s.1)).abs()
+                            + (v(x + 2 * dx, y - 2) - c).abs()
+                            + (c - v(x - 2 * dx, y + 2)).abs()
+                            + (green(n.0, n.1) - gc).abs()
+                            + (gc - green(s.0, s.1)).abs();
+                        let along = hue_transit(
+                            green(n.0, n.1),
+                            gc,
+                            green(s.0, s.1),
+                            v(n.0, n.1),
+                            v(s.0, s.1),
+                        );
+                        (gradient, along)
+                    };
+                    let ((d_ne, ne), (d_nw, nw)) = (diagonal(1), diagonal(-1));
+                    let own = colour(x, y);
+                    (c, gc, if d_ne < d_nw { ne } else { nw }, [own, 1, 2 - own])
+                };
+                for row in matrix {
+                    out.push(row[columns[0]] * a + row[columns[1]] * b + row[columns[2]] * c);
+                }
+            }
+        }
+        out
+    }
+
+    /// The bands, with each row split into its two colours, give the pixel-by-pixel
+    /// reference bit for bit: every 2×2 tile (the four Bayer patterns and one without
+    /// its greens on a diagonal), odd and even sizes from one pixel to several runs of
+    /// bands, on smooth random values and on a few levels repeated (ties between
+    /// gradients).
+    #[test]
+    fn the_bands_equal_the_pixel_by_pixel_reference() {
+        let mut seed = 0x2545_f491_4f6c_dd1du64;
+        let mut random = move || {
+            seed ^= seed << 13;
+            seed ^= seed >> 7;
+            seed ^= seed << 17;
+            (seed >> 40) as f32 / (1u64 << 24) as f32
+        };
+        let gains = [0.55f32, 1.0, 1.35];
+        for name in ["RGGB", "BGGR", "GRBG", "GBRG", "RGBG"] {
+            let cfa = cfa(name);
+            for (w, h) in [
+                (1, 1),
+                (2, 3),
+                (3, 2),
+                (5, 7),
+                (37, 2 * BAND + 5),
+                (64, BAND),
+                (2 * CHUNK + 3, 9),
+                (29, 301),
+            ] {
+                for levels in [None, Some(3.0f32)] {
+                    let values = (0..w * h)
+                        .map(|_| {
+                            let v = random();
+                            levels.map_or(v, |l| (v * l).floor() / l)
+                        })
+                        .collect();
+                    let m = MergedMosaic {
+                        width: w,
+                        height: h,
+                        values,
+                        clipped: 0,
+                    };
+                    let (bands, _) = demosaic(&m, &cfa, gains, &MATRIX);
+                    let expected = reference(&m, &cfa, gains, &MATRIX);
+                    assert_eq!(bands.len(), expected.len());
+                    for (i, (a, b)) in bands.iter().zip(&expected).enumerate() {
+                        assert!(
+                            a.to_bits() == b.to_bits(),
+                            "{name} {w}×{h} levels {levels:?}: pixel ({}, {}) channel {} reads {a}, the reference {b}",
+                            i / 3 % w,
+                            i / 3 / w,
+                            i % 3
+                        );
+                    }
+                }
+            }
+        }
     }
 }
