@@ -70,6 +70,13 @@
 //!
 //! The fit runs three times: a pilot (unit slopes, plain log–log curvature), then twice
 //! with the weights and the penalty taken from the previous fit's slopes.
+//!
+//! **Robust weights.** Then each equation's weighted residual `r_i` is compared with the
+//! robust spread `ŝ = 1.4826·median|r|` and, beyond `c·ŝ` ([`HUBER`] `c = 3`), its weight
+//! is multiplied by `c·ŝ/|r_i|` (one step of Huber's M-estimator) before the smoothness is
+//! chosen again. Without it a few equations no smooth curve explains — a JPEG's
+//! highlights ringing next to white when the file is not known as a JPEG, a sparse bin —
+//! set the cross-validated smoothness of the whole curve and bend its toe.
 
 use nalgebra::{DMatrix, DVector};
 use rayon::prelude::*;
@@ -718,6 +725,32 @@ pub fn fit_joint(
         problem.penalty = curvature(&problem.basis, Some(&|x| previous.log_slope(x.exp())));
         smoothing = problem.choose_smoothing();
     }
+    let mut robust = vec![1.0; pairs.len()];
+    {
+        // Robust weights, one Huber step: an equation whose weighted residual exceeds
+        // HUBER robust standard deviations counts as that much noisier, so that a few
+        // equations no smooth curve explains (a codec's ringing next to white, a sparse
+        // bin) cannot choose the smoothness of the whole curve.
+        let fitted = finish(&problem, smoothing.chosen, log_floor, (darkest, brightest));
+        let residuals: Vec<f64> = pairs
+            .iter()
+            .enumerate()
+            .map(|(i, p)| {
+                problem.sqrt_w[i]
+                    * (fitted.log_g(p.bright) - fitted.log_g(p.dark) - problem.log_ratios[i])
+            })
+            .collect();
+        let mut sizes: Vec<f64> = residuals.iter().map(|r| r.abs()).collect();
+        sizes.sort_by(f64::total_cmp);
+        let spread = MAD_TO_SIGMA * sizes[sizes.len() / 2];
+        if spread > 0.0 {
+            for ((w, r), f) in problem.sqrt_w.iter_mut().zip(&residuals).zip(&mut robust) {
+                *f = (HUBER * spread / r.abs()).min(1.0).sqrt();
+                *w *= *f;
+            }
+            smoothing = problem.choose_smoothing();
+        }
+    }
     if sets.len() > 1 {
         // Each frame pair's own scatter: a pair whose equations misfit the joint curve
         // more than the best-fitting pair's (a codec's ringing in one frame, a frame that
@@ -744,6 +777,18 @@ pub fn fit_joint(
         smoothing = problem.choose_smoothing();
     }
     let mut fit = finish(&problem, smoothing.chosen, log_floor, (darkest, brightest));
+    // The misfit the confidence reads is against the noise model, as the model was fitted:
+    // without the robust factors.
+    let chi2: f64 = pairs
+        .iter()
+        .enumerate()
+        .map(|(i, p)| {
+            let w = problem.sqrt_w[i] / robust[i];
+            (w * (fit.log_g(p.bright) - fit.log_g(p.dark) - problem.log_ratios[i])).powi(2)
+        })
+        .sum();
+    fit.misfit = chi2 / (pairs.len() as f64 - fit.effective_parameters).max(1.0);
+    fit.confidence = confidence(&fit);
     if smoothing.best != smoothing.chosen {
         // The data cannot choose between the two curves: their difference is part of
         // the error to expect.
@@ -764,6 +809,14 @@ pub fn fit_joint(
     check_degenerate(&fit)?;
     Ok(fit)
 }
+
+/// Huber's threshold for [`fit_joint`]'s robust weights, in robust standard deviations of
+/// the weighted residuals: the conventional value, not tuned.
+const HUBER: f64 = 3.0;
+
+/// The median absolute deviation of a normal distribution times this is its standard
+/// deviation.
+const MAD_TO_SIGMA: f64 = 1.4826;
 
 /// Degree of the pieces of the `auto` spline: cubic, so `ln g` has a continuous curvature.
 pub const SPLINE_DEGREE: usize = 3;
