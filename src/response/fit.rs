@@ -71,12 +71,14 @@
 //! The fit runs three times: a pilot (unit slopes, plain log–log curvature), then twice
 //! with the weights and the penalty taken from the previous fit's slopes.
 //!
-//! **Robust weights.** Then each equation's weighted residual `r_i` is compared with the
-//! robust spread `ŝ = 1.4826·median|r|` and, beyond `c·ŝ` ([`HUBER`] `c = 3`), its weight
-//! is multiplied by `c·ŝ/|r_i|` (one step of Huber's M-estimator) before the smoothness is
-//! chosen again. Without it a few equations no smooth curve explains — a JPEG's
-//! highlights ringing next to white when the file is not known as a JPEG, a sparse bin —
-//! set the cross-validated smoothness of the whole curve and bend its toe.
+//! **Robust weights.** Then each equation's weighted residual `r_i` (in units of the noise
+//! model's standard deviation) is compared with the robust spread `ŝ = 1.4826·median|r|`
+//! (at least 10⁻³: exact equations leave only rounding) and, beyond `c·ŝ` (Huber's
+//! `c = 3`), its weight is multiplied by `c·ŝ/|r_i|` (one step of Huber's M-estimator)
+//! before the smoothness is chosen again. Without it a few equations no smooth curve
+//! explains — a JPEG's highlights ringing next to white when the file is not known as a
+//! JPEG, a sparse bin — set the cross-validated smoothness of the whole curve and bend its
+//! toe.
 
 use nalgebra::{DMatrix, DVector};
 use rayon::prelude::*;
@@ -742,10 +744,13 @@ pub fn fit_joint(
             .collect();
         let mut sizes: Vec<f64> = residuals.iter().map(|r| r.abs()).collect();
         sizes.sort_by(f64::total_cmp);
-        let spread = MAD_TO_SIGMA * sizes[sizes.len() / 2];
-        if spread > 0.0 {
+        // Equations a curve meets exactly (noise-free data) leave only rounding, which is
+        // not an outlier: the spread is at least EXACT (in units of the noise model's σ).
+        let spread = (MAD_TO_SIGMA * sizes[sizes.len() / 2]).max(EXACT);
+        let limit = HUBER * spread;
+        if residuals.iter().any(|r| r.abs() > limit) {
             for ((w, r), f) in problem.sqrt_w.iter_mut().zip(&residuals).zip(&mut robust) {
-                *f = (HUBER * spread / r.abs()).min(1.0).sqrt();
+                *f = (limit / r.abs()).min(1.0).sqrt();
                 *w *= *f;
             }
             smoothing = problem.choose_smoothing();
@@ -813,6 +818,11 @@ pub fn fit_joint(
 /// Huber's threshold for [`fit_joint`]'s robust weights, in robust standard deviations of
 /// the weighted residuals: the conventional value, not tuned.
 const HUBER: f64 = 3.0;
+
+/// Least robust spread of the weighted residuals for [`fit_joint`]'s robust weights, in
+/// units of the noise model's standard deviation: below it the equations are met exactly
+/// but for rounding.
+const EXACT: f64 = 1e-3;
 
 /// The median absolute deviation of a normal distribution times this is its standard
 /// deviation.
