@@ -206,33 +206,26 @@ def failure(run):
     return re.sub(r'/\S*/', '', lines[-1]).replace('filmback: ', '')
 
 
-def filmback_pair(binary, dark, bright, ratio, stride=1):
-    """(curves 3x256, confidences) from `filmback calibrate`, or (None, reason)."""
-    r = subprocess.run([binary, 'calibrate', '--json', '--ratio', repr(ratio), '--stride', str(stride),
-                        dark, bright],
-                       capture_output=True, text=True)
-    if r.returncode != 0:
-        return None, failure(r)
-    d = json.loads(r.stdout)
-    curves = np.array([np.nan_to_num(np.asarray(ch['inverse_response'], float))
-                       for ch in d['channels']])
-    conf = [float(ch.get('confidence', float('nan'))) for ch in d['channels']]
-    return curves, conf
-
-
-def filmback_all(binary, paths, exposures, stride=1):
-    """(curves 3x256, confidences) from `filmback calibrate` on every frame at the given
-    exposure times, or (None, reason)."""
-    times = ','.join(repr(e) for e in exposures)
-    r = subprocess.run([binary, 'calibrate', '--json', '--times', times, '--stride', str(stride),
-                        *paths],
-                       capture_output=True, text=True)
+def filmback_calibrate(binary, args):
+    """(curves 3x256, confidences) from `filmback calibrate --json ARGS`, or (None, reason)."""
+    r = subprocess.run([binary, 'calibrate', '--json', *args], capture_output=True, text=True)
     if r.returncode != 0:
         return None, failure(r)
     d = json.loads(r.stdout)
     curves = np.array([np.nan_to_num(np.asarray(ch['inverse_response'], float))
                        for ch in d['channels']])
     return curves, [float(ch.get('confidence', float('nan'))) for ch in d['channels']]
+
+
+def filmback_pair(binary, dark, bright, ratio, stride=1):
+    """An adjacent pair's curves at their ratio (see filmback_calibrate)."""
+    return filmback_calibrate(binary, ['--ratio', repr(ratio), '--stride', str(stride), dark, bright])
+
+
+def filmback_all(binary, paths, exposures, stride=1):
+    """Every frame's joint curves at the given exposure times (see filmback_calibrate)."""
+    times = ','.join(repr(e) for e in exposures)
+    return filmback_calibrate(binary, ['--times', times, '--stride', str(stride), *paths])
 
 
 def opencv_curve(kind, images, exposures):

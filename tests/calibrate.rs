@@ -447,8 +447,9 @@ fn swapped_frames_are_refused() {
     assert!(err.to_string().contains("swapped"), "{err}");
 }
 
-fn write_frame(path: &Path, frame: &Frame, exposure: Option<f64>) {
-    let shot = Shot {
+/// A shot at `exposure` seconds, f/4, ISO 100 (no exposure: none of the three).
+fn shot(exposure: Option<f64>) -> Shot {
+    Shot {
         camera: Camera::default(),
         exposure: Exposure {
             time_s: exposure,
@@ -465,8 +466,11 @@ fn write_frame(path: &Path, frame: &Frame, exposure: Option<f64>) {
             nanos: None,
             offset_minutes: None,
         },
-    };
-    synthetic::write(path, frame, &shot, Encoding::Png).unwrap();
+    }
+}
+
+fn write_frame(path: &Path, frame: &Frame, exposure: Option<f64>) {
+    synthetic::write(path, frame, &shot(exposure), Encoding::Png).unwrap();
 }
 
 fn calibrate_command(args: &[&std::ffi::OsStr]) -> std::process::Output {
@@ -799,7 +803,8 @@ fn confidence_is_calibrated_on_held_out_pairs() {
 fn a_jpegs_ringing_next_to_white_does_not_bend_the_curve() {
     let scene = scene();
     let as_lossless = |f: &Frame| {
-        let bytes = synthetic::encode(f, &shot_at(0.01), Encoding::Jpeg { quality: 90 }).unwrap();
+        let bytes =
+            synthetic::encode(f, &shot(Some(0.01)), Encoding::Jpeg { quality: 90 }).unwrap();
         let decoded = filmback::frame::decode(Path::new("x.jpg"), &bytes, Default::default())
             .unwrap()
             .frame;
@@ -826,25 +831,4 @@ fn a_jpegs_ringing_next_to_white_does_not_bend_the_curve() {
         }
     }
     assert!(worst < 0.04, "shape error {worst:.4} stop");
-}
-
-fn shot_at(time_s: f64) -> Shot {
-    Shot {
-        camera: Camera::default(),
-        exposure: Exposure {
-            time_s: Some(time_s),
-            f_number: Some(4.0),
-            iso: Some(100.0),
-        },
-        captured_at: CaptureTime {
-            year: 2026,
-            month: 3,
-            day: 1,
-            hour: 12,
-            minute: 0,
-            second: 0,
-            nanos: None,
-            offset_minutes: None,
-        },
-    }
 }
