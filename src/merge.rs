@@ -72,7 +72,8 @@
 //! it takes the brightest frame's value `x_{N−1}(B_{N−1})` — an upper bound. Either way it
 //! is finite, never 0/0, and radiance stays monotone across the clip boundary, because
 //! just inside it the estimate is the same frame's `x(B)` at a smaller code. Such samples
-//! are counted ([`Merged::clipped_high`], [`Merged::clipped_low`]) and have confidence 0.
+//! are counted ([`BracketOrder::clipped_high`], [`BracketOrder::clipped_low`]) and have
+//! confidence 0.
 //!
 //! # Speed
 //!
@@ -217,15 +218,10 @@ pub enum MergeError {
     },
 }
 
-/// The result of [`merge`].
-#[derive(Debug, Clone)]
-pub struct Merged {
-    /// Linear relative radiance (scale: see the module docs).
-    pub radiance: RadianceMap,
-    /// Per pixel, the smallest over channels of `Σ_k w_k` (weights peak at 1, so the
-    /// range is `0..=N`); 0 where some channel was clipped in every frame. Present when
-    /// asked for in [`MergeOptions::confidence`].
-    pub confidence: Option<Vec<f32>>,
+/// What every merge reports of its bracket besides the radiance: the frames in exposure
+/// order and the samples clipped in all of them.
+#[derive(Debug, Clone, PartialEq)]
+pub struct BracketOrder {
     /// Input indices sorted by exposure, darkest first.
     pub order: Vec<usize>,
     /// The exposures in that order.
@@ -236,11 +232,33 @@ pub struct Merged {
     pub clipped_low: u64,
 }
 
-impl Merged {
+impl BracketOrder {
     /// Ratio of the longest to the shortest exposure, `e_max/e_min`.
     pub fn ratio(&self) -> f64 {
         self.exposures[self.exposures.len() - 1] / self.exposures[0]
     }
+}
+
+/// The input indices of `frames` sorted by exposure, darkest first (stable), and the
+/// exposures in that order.
+fn exposure_order(frames: &[BracketFrame<'_>]) -> (Vec<usize>, Vec<f64>) {
+    let mut order: Vec<usize> = (0..frames.len()).collect();
+    order.sort_by(|&a, &b| frames[a].exposure.total_cmp(&frames[b].exposure));
+    let exposures = order.iter().map(|&i| frames[i].exposure).collect();
+    (order, exposures)
+}
+
+/// The result of [`merge`].
+#[derive(Debug, Clone)]
+pub struct Merged {
+    /// Linear relative radiance (scale: see the module docs).
+    pub radiance: RadianceMap,
+    /// Per pixel, the smallest over channels of `Σ_k w_k` (weights peak at 1, so the
+    /// range is `0..=N`); 0 where some channel was clipped in every frame. Present when
+    /// asked for in [`MergeOptions::confidence`].
+    pub confidence: Option<Vec<f32>>,
+    /// The frames' order and what was clipped in all of them.
+    pub bracket: BracketOrder,
 }
 
 /// Lens transmittance and vignetting factor `q` of `H = q·L·t/N²` (ISO 12232).
@@ -374,9 +392,7 @@ pub fn merge(
     options: MergeOptions,
 ) -> Result<Merged, MergeError> {
     check(frames, response)?;
-    let mut order: Vec<usize> = (0..frames.len()).collect();
-    order.sort_by(|&a, &b| frames[a].exposure.total_cmp(&frames[b].exposure));
-    let exposures: Vec<f64> = order.iter().map(|&i| frames[i].exposure).collect();
+    let (order, exposures) = exposure_order(frames);
     let first = frames[0].frame;
     let (width, height, channels) = (first.width(), first.height(), first.channels());
     let depth = first.bit_depth();
@@ -386,16 +402,8 @@ pub fn merge(
     let mut confidence = options
         .confidence
         .then(|| vec![0.0f32; first.pixel_count()]);
-    let sorted: Vec<&Frame> = order.iter().map(|&i| frames[i].frame).collect();
-    let (clipped_high, clipped_low) = match depth {
-        BitDepth::Eight => {
-            let codes: Vec<&[u8]> = sorted
-                .iter()
-                .map(|f| match f.samples() {
-                    Samples::Eight(v) => v.as_slice(),
-                    Samples::Sixteen(_) => unreachable!("depth checked"),
-                })
-                .collect();
+    let (clipped_high, clipped_low) = match Codes::of(frames, &order) {
+        Codes::Eight(codes) => {
             match confidence.as_deref_mut() {
                 // The common case, an 8-bit pair, takes one lookup per sample.
                 None if codes.len() == 2 => {
@@ -406,32 +414,25 @@ pub fn merge(
                 conf => merge_codes(&codes, &tables, width as usize, &mut pixels, conf),
             }
         }
-        BitDepth::Sixteen => {
-            let codes: Vec<&[u16]> = sorted
-                .iter()
-                .map(|f| match f.samples() {
-                    Samples::Sixteen(v) => v.as_slice(),
-                    Samples::Eight(_) => unreachable!("depth checked"),
-                })
-                .collect();
-            merge_codes(
-                &codes,
-                &tables,
-                width as usize,
-                &mut pixels,
-                confidence.as_deref_mut(),
-            )
-        }
+        Codes::Sixteen(codes) => merge_codes(
+            &codes,
+            &tables,
+            width as usize,
+            &mut pixels,
+            confidence.as_deref_mut(),
+        ),
     };
     let radiance = RadianceMap::new(width, height, channels, pixels)
         .expect("buffer sized from the frame's dimensions");
     Ok(Merged {
         radiance,
         confidence,
-        order,
-        exposures,
-        clipped_high,
-        clipped_low,
+        bracket: BracketOrder {
+            order,
+            exposures,
+            clipped_high,
+            clipped_low,
+        },
     })
 }
 
@@ -791,14 +792,8 @@ pub struct PairMerge<'a> {
     table: PairTable,
     width: u32,
     height: u32,
-    /// Input indices sorted by exposure, darkest first.
-    pub order: Vec<usize>,
-    /// The exposures in that order.
-    pub exposures: Vec<f64>,
-    /// Samples clipped high in both frames (value is a lower bound).
-    pub clipped_high: u64,
-    /// Samples clipped low in both frames (value is an upper bound).
-    pub clipped_low: u64,
+    /// The frames' order and what was clipped in both.
+    pub bracket: BracketOrder,
 }
 
 impl<'a> PairMerge<'a> {
@@ -813,17 +808,11 @@ impl<'a> PairMerge<'a> {
         if frames.len() != 2 {
             return Ok(None);
         }
-        let (dark, bright) = if frames[0].exposure <= frames[1].exposure {
-            (0, 1)
-        } else {
-            (1, 0)
-        };
-        let (Samples::Eight(d), Samples::Eight(b)) =
-            (frames[dark].frame.samples(), frames[bright].frame.samples())
-        else {
+        let (order, exposures) = exposure_order(frames);
+        let Codes::Eight(codes) = Codes::of(frames, &order) else {
             return Ok(None);
         };
-        let exposures = vec![frames[dark].exposure, frames[bright].exposure];
+        let (d, b) = (codes[0], codes[1]);
         let first = frames[0].frame;
         let tables = Tables::new(
             &exposures,
@@ -840,10 +829,12 @@ impl<'a> PairMerge<'a> {
             table,
             width: first.width(),
             height: first.height(),
-            order: vec![dark, bright],
-            exposures,
-            clipped_high,
-            clipped_low,
+            bracket: BracketOrder {
+                order,
+                exposures,
+                clipped_high,
+                clipped_low,
+            },
         }))
     }
 
@@ -875,11 +866,6 @@ impl<'a> PairMerge<'a> {
         self.table.value.iter().copied().fold(0.0, f32::max)
     }
 
-    /// Ratio of the longer to the shorter exposure.
-    pub fn ratio(&self) -> f64 {
-        self.exposures[1] / self.exposures[0]
-    }
-
     /// Multiplies every value by `factor` (a change of scale, see [`exposure_scale`]).
     pub fn scale_by(&mut self, factor: f32) {
         for v in &mut self.table.value {
@@ -908,6 +894,34 @@ enum Codes<'a> {
     Sixteen(Vec<&'a [u16]>),
 }
 
+impl<'a> Codes<'a> {
+    /// The codes of `frames` in `order`, at the first frame's depth (the bracket is
+    /// checked to share one before).
+    fn of(frames: &[BracketFrame<'a>], order: &[usize]) -> Codes<'a> {
+        let sample = |i: usize| frames[i].frame.samples();
+        match frames[0].frame.bit_depth() {
+            BitDepth::Eight => Codes::Eight(
+                order
+                    .iter()
+                    .map(|&i| match sample(i) {
+                        Samples::Eight(v) => v.as_slice(),
+                        Samples::Sixteen(_) => unreachable!("depth checked"),
+                    })
+                    .collect(),
+            ),
+            BitDepth::Sixteen => Codes::Sixteen(
+                order
+                    .iter()
+                    .map(|&i| match sample(i) {
+                        Samples::Sixteen(v) => v.as_slice(),
+                        Samples::Eight(_) => unreachable!("depth checked"),
+                    })
+                    .collect(),
+            ),
+        }
+    }
+}
+
 /// Pixels of one line merged at a time by [`BracketMerge::line`]: the weighted sums live
 /// on the stack (2 KB).
 const RUN: usize = 256;
@@ -925,14 +939,8 @@ pub struct BracketMerge<'a> {
     factor: f32,
     width: u32,
     height: u32,
-    /// Input indices sorted by exposure, darkest first.
-    pub order: Vec<usize>,
-    /// The exposures in that order.
-    pub exposures: Vec<f64>,
-    /// Samples clipped high in every frame (value is a lower bound).
-    pub clipped_high: u64,
-    /// Samples clipped low in every frame (value is an upper bound).
-    pub clipped_low: u64,
+    /// The frames' order and what was clipped in all of them.
+    pub bracket: BracketOrder,
 }
 
 impl<'a> BracketMerge<'a> {
@@ -945,32 +953,11 @@ impl<'a> BracketMerge<'a> {
         weighting: Weighting,
     ) -> Result<BracketMerge<'a>, MergeError> {
         check(frames, response)?;
-        let mut order: Vec<usize> = (0..frames.len()).collect();
-        order.sort_by(|&a, &b| frames[a].exposure.total_cmp(&frames[b].exposure));
-        let exposures: Vec<f64> = order.iter().map(|&i| frames[i].exposure).collect();
+        let (order, exposures) = exposure_order(frames);
         let first = frames[0].frame;
         let depth = first.bit_depth();
         let tables = Tables::new(&exposures, response, first.channels(), depth, weighting);
-        let codes = match depth {
-            BitDepth::Eight => Codes::Eight(
-                order
-                    .iter()
-                    .map(|&i| match frames[i].frame.samples() {
-                        Samples::Eight(v) => v.as_slice(),
-                        Samples::Sixteen(_) => unreachable!("depth checked"),
-                    })
-                    .collect(),
-            ),
-            BitDepth::Sixteen => Codes::Sixteen(
-                order
-                    .iter()
-                    .map(|&i| match frames[i].frame.samples() {
-                        Samples::Sixteen(v) => v.as_slice(),
-                        Samples::Eight(_) => unreachable!("depth checked"),
-                    })
-                    .collect(),
-            ),
-        };
+        let codes = Codes::of(frames, &order);
         let (clipped_high, clipped_low) = match &codes {
             Codes::Eight(c) => count_clipped_everywhere(c, &tables),
             Codes::Sixteen(c) => count_clipped_everywhere(c, &tables),
@@ -981,10 +968,12 @@ impl<'a> BracketMerge<'a> {
             factor: 1.0,
             width: first.width(),
             height: first.height(),
-            order,
-            exposures,
-            clipped_high,
-            clipped_low,
+            bracket: BracketOrder {
+                order,
+                exposures,
+                clipped_high,
+                clipped_low,
+            },
         })
     }
 
@@ -1001,11 +990,6 @@ impl<'a> BracketMerge<'a> {
     /// 1 (grey) or 3 (RGB).
     pub fn channels(&self) -> usize {
         self.tables.channels
-    }
-
-    /// Ratio of the longest to the shortest exposure.
-    pub fn ratio(&self) -> f64 {
-        self.exposures[self.exposures.len() - 1] / self.exposures[0]
     }
 
     /// Multiplies every value by `factor` (a change of scale, see [`exposure_scale`]),
@@ -1196,11 +1180,11 @@ mod tests {
         let cam = Camera::default();
         let frames = [(grey(2, vec![160, 160]), 4.0), (grey(2, vec![40, 40]), 1.0)];
         let merged = merge(&bracket(&frames, &cam), &linear(), MergeOptions::default()).unwrap();
-        assert_eq!(merged.order, vec![1, 0]);
+        assert_eq!(merged.bracket.order, vec![1, 0]);
         for &v in merged.radiance.pixels() {
             assert!((v - 160.0 / 255.0).abs() < 1e-6, "{v}");
         }
-        assert_eq!(merged.ratio(), 4.0);
+        assert_eq!(merged.bracket.ratio(), 4.0);
     }
 
     #[test]
@@ -1214,7 +1198,10 @@ mod tests {
         let merged = merge(&bracket(&frames, &cam), &linear(), options).unwrap();
         // Clipped high: darkest frame's g(1)·e_ref/e_0 = 4. Clipped low: brightest's g(0) = 0.
         assert_eq!(merged.radiance.pixels(), &[4.0, 0.0]);
-        assert_eq!((merged.clipped_high, merged.clipped_low), (1, 1));
+        assert_eq!(
+            (merged.bracket.clipped_high, merged.bracket.clipped_low),
+            (1, 1)
+        );
         assert_eq!(merged.confidence.unwrap(), vec![0.0, 0.0]);
     }
 
@@ -1382,14 +1369,14 @@ mod tests {
                 let mut lazy = BracketMerge::new(&b, &g, weighting).unwrap();
                 let case = format!("{n} frames, 16-bit {sixteen}, {weighting:?}");
                 assert_eq!(lazy.to_map(), map.radiance, "{case}");
-                assert_eq!(lazy.order, map.order, "{case}");
+                assert_eq!(lazy.bracket.order, map.bracket.order, "{case}");
                 assert_eq!(
-                    (lazy.clipped_high, lazy.clipped_low),
-                    (map.clipped_high, map.clipped_low),
+                    (lazy.bracket.clipped_high, lazy.bracket.clipped_low),
+                    (map.bracket.clipped_high, map.bracket.clipped_low),
                     "{case}"
                 );
                 assert!(
-                    lazy.clipped_high > 0 && (sixteen || lazy.clipped_low > 0),
+                    lazy.bracket.clipped_high > 0 && (sixteen || lazy.bracket.clipped_low > 0),
                     "{case}"
                 );
                 assert_eq!(lazy.sample(700, 2), map.radiance.pixels()[700 * 3 + 2]);
@@ -1425,11 +1412,11 @@ mod tests {
             let (fast, general) = (run(false), run(true));
             assert_eq!(fast.radiance, general.radiance, "{weighting:?}");
             assert_eq!(
-                (fast.clipped_high, fast.clipped_low),
-                (general.clipped_high, general.clipped_low)
+                (fast.bracket.clipped_high, fast.bracket.clipped_low),
+                (general.bracket.clipped_high, general.bracket.clipped_low)
             );
             assert_eq!(
-                (fast.clipped_high, fast.clipped_low),
+                (fast.bracket.clipped_high, fast.bracket.clipped_low),
                 (2, 2),
                 "high: (255, 255), (255, 0); low: (0, 0), (0, 255)"
             );
@@ -1438,7 +1425,10 @@ mod tests {
                 .unwrap()
                 .unwrap();
             assert_eq!(lazy.to_map(), fast.radiance);
-            assert_eq!((lazy.clipped_high, lazy.clipped_low), (2, 2));
+            assert_eq!(
+                (lazy.bracket.clipped_high, lazy.bracket.clipped_low),
+                (2, 2)
+            );
             assert_eq!(lazy.sample(300, 0), fast.radiance.pixels()[300]);
             assert!(lazy.max_value() >= fast.radiance.pixels().iter().copied().fold(0.0, f32::max));
         }

@@ -291,7 +291,7 @@ fn sun_clipped_in_both_frames() {
     let values = merged.radiance.pixels();
     assert!(values.iter().all(|v| v.is_finite() && *v >= 0.0));
     assert!(
-        merged.clipped_high > 0,
+        merged.bracket.clipped_high > 0,
         "the sun must be clipped in both frames"
     );
     let bound = (BRIGHT / DARK) as f32; // g(1)·e_ref/e_dark
@@ -309,7 +309,7 @@ fn sun_clipped_in_both_frames() {
             assert_eq!(conf[i / 3], 0.0, "clipped pixels are flagged");
         }
     }
-    assert_eq!(clipped as u64, merged.clipped_high);
+    assert_eq!(clipped as u64, merged.bracket.clipped_high);
     // Monotone: sorted by true radiance, the merge never steps down by more than the
     // quantisation of one code, and no estimate exceeds the clipped bound.
     let mut order: Vec<usize> = (0..values.len()).collect();

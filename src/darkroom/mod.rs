@@ -268,11 +268,16 @@ pub fn develop(
         }
         Radiance::Buffered(_) => {}
     }
-    let (order, ratio, clipped) = match &merged {
-        Radiance::Pair(p) => (p.order.clone(), p.ratio(), (p.clipped_high, p.clipped_low)),
-        Radiance::Banded(b) => (b.order.clone(), b.ratio(), (b.clipped_high, b.clipped_low)),
-        Radiance::Buffered(m) => (m.order.clone(), m.ratio(), (m.clipped_high, m.clipped_low)),
+    let sorted = match &merged {
+        Radiance::Pair(p) => &p.bracket,
+        Radiance::Banded(b) => &b.bracket,
+        Radiance::Buffered(m) => &m.bracket,
     };
+    let (order, ratio, clipped) = (
+        sorted.order.clone(),
+        sorted.ratio(),
+        (sorted.clipped_high, sorted.clipped_low),
+    );
     let provenance = Provenance {
         camera: frames[0].metadata.camera.clone(),
         captured_at: frames[order[0]].metadata.captured_at,

@@ -4,7 +4,7 @@
 
 use super::{ChosenResponse, DarkroomError, Source, Stages};
 use crate::frame::{LoadedFrame, Samples};
-use crate::merge::Merged;
+use crate::merge::{BracketOrder, Merged};
 use crate::radiance::RadianceMap;
 use crate::raw::{self, RawError, RawExposure};
 use crate::response::InverseResponse;
@@ -74,10 +74,12 @@ pub(super) fn merge(
         Merged {
             radiance,
             confidence: None,
-            order: developed.order,
-            exposures,
-            clipped_high: developed.clipped,
-            clipped_low: 0,
+            bracket: BracketOrder {
+                order: developed.order,
+                exposures,
+                clipped_high: developed.clipped,
+                clipped_low: 0,
+            },
         },
     )))
 }
