@@ -102,7 +102,7 @@ use rayon::prelude::*;
 
 use crate::frame::{BitDepth, Frame, Samples};
 use crate::metadata::Camera;
-use crate::radiance::RadianceMap;
+use crate::radiance::{CodePairs, RadianceMap};
 use crate::response::InverseResponse;
 
 /// How much each frame's sample is trusted (see the module docs for when to use which).
@@ -858,6 +858,44 @@ impl<'a> PairMerge<'a> {
     pub fn sample(&self, pixel: usize, channel: usize) -> f32 {
         let i = pixel * self.table.channels + channel;
         self.table.value[self.table.index(channel, self.dark[i], self.bright[i])]
+    }
+
+    /// The `out.len()/channels` whole pixels from `pixel` on, channels interleaved: one
+    /// table lookup per sample.
+    #[inline]
+    pub fn pixels_into(&self, pixel: usize, out: &mut [f32]) {
+        let channels = self.table.channels;
+        let start = pixel * channels;
+        let (dark, bright) = (
+            &self.dark[start..start + out.len()],
+            &self.bright[start..start + out.len()],
+        );
+        let value = &self.table.value;
+        if channels == 3 {
+            // Whole pixels of a constant size: each channel's index without a modulo.
+            let pixels = out
+                .chunks_exact_mut(3)
+                .zip(dark.chunks_exact(3).zip(bright.chunks_exact(3)));
+            for (o, (d, b)) in pixels {
+                for c in 0..3 {
+                    o[c] = value[self.table.index(c, d[c], b[c])];
+                }
+            }
+        } else {
+            for ((o, &d), &b) in out.iter_mut().zip(dark).zip(bright) {
+                *o = value[self.table.index(0, d, b)];
+            }
+        }
+    }
+
+    /// The frames' codes and the table by code pair ([`CodePairs`]).
+    pub fn code_pairs(&self) -> CodePairs<'_> {
+        CodePairs {
+            dark: self.dark,
+            bright: self.bright,
+            channels: self.table.channels,
+            values: &self.table.value,
+        }
     }
 
     /// The largest value any sample can take (over all code pairs), an upper bound of the

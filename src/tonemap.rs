@@ -8,7 +8,7 @@
 use rayon::prelude::*;
 
 use crate::display::{DisplayImage, luminance, srgb_encode_u8, srgb_encode_u16};
-use crate::radiance::RadianceMap;
+use crate::radiance::{self, RadianceMap, RadianceSource};
 
 /// A tone-mapping operator and its parameters.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -55,7 +55,7 @@ impl Operator {
     }
 
     /// Renders `map` for display.
-    pub fn apply(&self, map: &RadianceMap) -> DisplayImage {
+    pub fn apply(&self, map: &dyn RadianceSource) -> DisplayImage {
         let tone = self.prepare(map);
         let mut samples = vec![0u16; map.width() as usize * map.height() as usize * 3];
         tone.develop(map, 0, &mut samples, srgb_encode_u16);
@@ -65,7 +65,7 @@ impl Operator {
     /// Measures `map` (percentiles, or the histogram's curve) for rendering it a band of
     /// rows at a time ([`Tone::render_rows_8bit`]), from one streamed pass over the map
     /// ([`LuminanceHistogram`]): no luminance buffer.
-    pub fn prepare(&self, map: &RadianceMap) -> Tone {
+    pub fn prepare(&self, map: &dyn RadianceSource) -> Tone {
         let histogram = LuminanceHistogram::of_map(map);
         match *self {
             Operator::Linear { low, high } => {
@@ -128,7 +128,7 @@ impl Tone {
 
     /// Rows `first..first + out.len()/(3·width)` of `map` into 8-bit RGB `out` (bands of
     /// rows in parallel): the unit the streaming JPEG writer pulls.
-    pub fn render_rows_8bit(&self, map: &RadianceMap, first: usize, out: &mut [u8]) {
+    pub fn render_rows_8bit(&self, map: &dyn RadianceSource, first: usize, out: &mut [u8]) {
         self.develop(map, first, out, srgb_encode_u8);
     }
 
@@ -136,7 +136,7 @@ impl Tone {
     /// pixel).
     fn develop<T: Send + Copy>(
         &self,
-        map: &RadianceMap,
+        map: &dyn RadianceSource,
         first: usize,
         out: &mut [T],
         encode: impl Fn(f32) -> T + Sync,
@@ -160,30 +160,32 @@ fn linear_display(l: f32, lo: f32, scale: f32) -> f32 {
 /// `display` ([`keep_chromaticity`]) and each channel through `encode`, bands of rows in
 /// parallel.
 fn develop_rows<T: Send + Copy>(
-    map: &RadianceMap,
+    map: &dyn RadianceSource,
     first: usize,
     out: &mut [T],
     encode: impl Fn(f32) -> T + Sync,
     display: impl Fn(f32) -> f32 + Sync,
 ) {
+    const PIXELS: usize = 4096;
     let ch = map.channels();
-    let width = map.width() as usize;
-    let rows = out.len() / (3 * width);
-    let input = &map.pixels()[first * width * ch..(first + rows) * width * ch];
-    out.par_chunks_mut(3 * 4096)
-        .zip(input.par_chunks(ch * 4096))
-        .for_each(|(out, pixels)| {
-            for (o, p) in out.chunks_exact_mut(3).zip(pixels.chunks_exact(ch)) {
-                let e = if ch == 3 {
-                    [p[0], p[1], p[2]]
-                } else {
-                    [p[0]; 3]
-                };
-                let v = keep_chromaticity(e, &display);
-                o[0] = encode(v[0]);
-                o[1] = encode(v[1]);
-                o[2] = encode(v[2]);
-            }
+    let first = first * map.width() as usize;
+    out.par_chunks_mut(3 * PIXELS)
+        .enumerate()
+        .for_each(|(part, out)| {
+            let count = out.len() / 3;
+            radiance::with_pixels(map, first + part * PIXELS, count, |pixels| {
+                for (o, p) in out.chunks_exact_mut(3).zip(pixels.chunks_exact(ch)) {
+                    let e = if ch == 3 {
+                        [p[0], p[1], p[2]]
+                    } else {
+                        [p[0]; 3]
+                    };
+                    let v = keep_chromaticity(e, &display);
+                    o[0] = encode(v[0]);
+                    o[1] = encode(v[1]);
+                    o[2] = encode(v[2]);
+                }
+            })
         });
 }
 
@@ -359,7 +361,7 @@ impl LuminanceHistogram {
     /// rank error from the sample is about `√(p(1−p)/n)`, under 0.03 % of the pixels;
     /// the rows not read may hold luminances beyond the sample's extremes, which the
     /// maps clamp as they clamp every luminance outside their range.
-    pub fn of_map(map: &RadianceMap) -> LuminanceHistogram {
+    pub fn of_map(map: &dyn RadianceSource) -> LuminanceHistogram {
         let ch = map.channels();
         let width = map.width() as usize;
         let height = map.height() as usize;
@@ -367,19 +369,19 @@ impl LuminanceHistogram {
         let rows: Vec<usize> = (0..height).step_by(stride).collect();
         let parts = (4 * rayon::current_num_threads()).clamp(1, 32);
         let per_part = rows.len().div_ceil(parts).max(1);
-        let pixels = map.pixels();
         rows.par_chunks(per_part)
             .map(|group| {
                 let mut h = LuminanceHistogram::empty();
                 for &y in group {
-                    let row = &pixels[y * width * ch..(y + 1) * width * ch];
-                    if ch == 3 {
-                        for p in row.chunks_exact(3) {
-                            h.add(luminance(p[0], p[1], p[2]));
+                    radiance::with_pixels(map, y * width, width, |row| {
+                        if ch == 3 {
+                            for p in row.chunks_exact(3) {
+                                h.add(luminance(p[0], p[1], p[2]));
+                            }
+                        } else {
+                            row.iter().for_each(|&l| h.add(l));
                         }
-                    } else {
-                        row.chunks_exact(ch).for_each(|p| h.add(p[0]));
-                    }
+                    })
                 }
                 h
             })

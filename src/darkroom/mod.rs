@@ -7,14 +7,17 @@
 //!
 //! # Memory
 //!
-//! A bracket written only as EXR (no renderings, no confidence layer) is merged while the
-//! file is encoded, a PIZ block of lines at a time on each thread: two 8-bit frames
-//! through one table per code pair ([`PairMerge`]), any other bracket through the
-//! per-frame tables ([`BracketMerge`]). No radiance buffer exists; the peak is the
-//! decoded frames the caller holds plus the EXR. With renderings (or a confidence layer)
-//! the map is built once (`width × height × channels × 4` bytes) beside the decoded
-//! frames, and the EXR and every rendering read that one map; the renderings are made on
-//! a second thread while the EXR is encoded. [`job_memory_bytes`] bounds the peak.
+//! Two 8-bit frames are merged through one table per code pair ([`PairMerge`]), a lookup
+//! per sample, evaluated where it is read: while the EXR is encoded, a PIZ block of lines
+//! at a time on each thread, and while each look is developed, a band of rows at a time.
+//! Any other bracket written only as EXR is merged the same way through the per-frame
+//! tables ([`BracketMerge`]). Then no radiance buffer exists; the peak is the decoded
+//! frames the caller holds plus the EXR and the looks' working sets. The map is built
+//! once (`width × height × channels × 4` bytes) beside the decoded frames, and every
+//! output reads it, for a confidence layer, a look with optics (MTF, halation: it reads
+//! the whole map) and looks of any other bracket (each would merge all its frames again).
+//! The renderings are made on a second thread while the EXR is encoded.
+//! [`job_memory_bytes`] bounds the peak.
 
 use std::io::Cursor;
 use std::path::{Path, PathBuf};
@@ -22,11 +25,9 @@ use std::time::{Duration, Instant};
 
 use crate::atomic::{self, Overwrite, PublishError};
 use crate::frame::{LoadedFrame, Samples};
-use crate::hdr_output::{
-    self, ExrOptions, FrameRecord, OutputError, Provenance, RadianceSource, Written,
-};
+use crate::hdr_output::{self, ExrOptions, FrameRecord, OutputError, Provenance, Written};
 use crate::merge::{self, BracketFrame, BracketMerge, MergeError, MergeOptions, PairMerge};
-use crate::radiance::RadianceMap;
+use crate::radiance::{RadianceMap, RadianceSource};
 use crate::rendering::{self, Format, Look, Outputs, RenderingError, SourceExif};
 use crate::response::{CalibrationError, InverseResponse, RatioSource};
 
@@ -171,7 +172,8 @@ pub struct Developed {
     pub exr_scale: f32,
     /// The scale of the radiance written (luminance anchored to EXIF, or relative).
     pub scale: merge::Scale,
-    /// True when the merge ran inside the EXR encoder (no radiance buffer).
+    /// True when the merge was evaluated while the EXR was encoded and the looks were
+    /// developed (no radiance buffer).
     pub fused: bool,
     /// Warnings (frame metadata, half overflow, weak fits).
     pub warnings: Vec<String>,
@@ -239,19 +241,26 @@ pub fn develop(
         None => {
             let chosen = choose_response(&bracket, ratio_source, policy, &mut stages)?;
             let t = Instant::now();
-            // Only the EXR needs the radiance: merge while it is encoded.
-            let streamed = !options.confidence && prints.looks.is_empty() && prints.exr.is_some();
-            let merged = if streamed {
-                match PairMerge::new(&bracket, &chosen.response, options.weighting)? {
-                    Some(pair) => Radiance::Pair(pair),
-                    None => Radiance::Banded(BracketMerge::new(
+            // Merge while the outputs are encoded and developed, unless a confidence layer
+            // is asked for or a look spreads light between pixels (MTF, halation; it reads
+            // the whole map). An 8-bit pair costs one table lookup a sample, so the EXR and
+            // every look evaluate it again; any other bracket is evaluated so only for the
+            // EXR alone, since each look would evaluate all its frames again.
+            let lazy = !options.confidence && !prints.looks.iter().any(Look::has_optics);
+            let pair = match lazy {
+                true => PairMerge::new(&bracket, &chosen.response, options.weighting)?,
+                false => None,
+            };
+            let merged = match pair {
+                Some(pair) => Radiance::Pair(pair),
+                None if lazy && prints.looks.is_empty() && prints.exr.is_some() => {
+                    Radiance::Banded(BracketMerge::new(
                         &bracket,
                         &chosen.response,
                         options.weighting,
-                    )?),
+                    )?)
                 }
-            } else {
-                Radiance::Buffered(merge::merge(&bracket, &chosen.response, options)?)
+                None => Radiance::Buffered(merge::merge(&bracket, &chosen.response, options)?),
             };
             stages.push(("merge", t.elapsed()));
             (chosen, merged)
@@ -314,10 +323,7 @@ pub fn develop(
         Radiance::Banded(banded) => (banded, None),
         Radiance::Buffered(m) => (&m.radiance, m.confidence.as_deref()),
     };
-    let (fused, map) = match &merged {
-        Radiance::Buffered(m) => (false, Some(&m.radiance)),
-        Radiance::Pair(_) | Radiance::Banded(_) => (true, None),
-    };
+    let fused = !matches!(merged, Radiance::Buffered(_));
     // Outputs are written concurrently below; a name already taken that may not be
     // replaced stops the bracket before any file is written, as it did in sequence.
     if prints.overwrite == Overwrite::Refuse
@@ -329,10 +335,10 @@ pub fn develop(
     // each JPEG encoder are partly single-threaded, so together they keep both cores
     // busy. Their stage times overlap.
     let (radiance, looks) = std::thread::scope(|scope| {
-        let looks = map.map(|map| {
+        let looks = (!prints.looks.is_empty()).then(|| {
             scope.spawn(move || {
                 let mut stages = Stages::new();
-                print_looks(map, prints, &mut stages).map(|written| (written, stages))
+                print_looks(source, prints, &mut stages).map(|written| (written, stages))
             })
         });
         let radiance = write_radiance_files(source, confidence, &provenance, prints);
@@ -433,7 +439,7 @@ fn write_radiance(
 
 /// Renders `map` in every look of `prints` (stage `render`).
 fn print_looks(
-    map: &RadianceMap,
+    map: &dyn RadianceSource,
     prints: &Prints<'_>,
     stages: &mut Stages,
 ) -> Result<Vec<PathBuf>, DarkroomError> {
@@ -463,7 +469,8 @@ fn print_looks(
 ///
 /// `frames·S·bytes_per_sample` (the decoded frames, held as codes; the merge makes no
 /// per-frame float buffer) `+` [`working_memory_bytes`]: with looks, `4·S` (the
-/// radiance map, `f32`) `+ 2·S` (the EXR encoded in memory before it is published, at
+/// radiance map, `f32`; an 8-bit pair whose looks have no optics needs none, so its
+/// peak stays `4·S` under the bound) `+ 2·S` (the EXR encoded in memory before it is published, at
 /// most its uncompressed half-float size) `+ 8·P` (the largest working set of one look:
 /// a tone map's luminances and percentile bucket, or the optics' half-resolution pyramid
 /// of three layers; looks render one after another, beside the EXR, and stream to their

@@ -299,3 +299,96 @@ fn an_exr_only_bracket_is_merged_in_bands_with_the_maps_values() {
         "luminance, not the relative scale"
     );
 }
+
+/// An 8-bit pair with looks is merged while the EXR is encoded and the looks developed
+/// (no map), and every file it writes is the same, byte for byte, as the one developed
+/// from the map the darkroom builds when it must (here for a confidence layer, whose EXR
+/// then differs by that layer only). A look with optics reads the whole map.
+#[test]
+fn a_pair_with_looks_is_developed_from_the_merge_with_the_maps_files() {
+    let truth = scene(130, 90, 5);
+    let sensor = Sensor::noiseless(ResponseCurve::Srgb, BitDepth::Eight);
+    let frames = [
+        loaded("a.png", expose(&truth, 1.0, &sensor)),
+        loaded("b.png", expose(&truth, 4.0, &sensor)),
+    ];
+    let exposures = [1.0, 4.0];
+    let catalogue = crate::film::Catalogue::builtin().unwrap();
+    let films = [
+        "velvia50".to_string(),
+        "provia100f+grain".to_string(),
+        "portra400".to_string(),
+    ];
+    let tonemaps = ["linear".to_string(), "histogram".to_string()];
+    let looks = rendering::looks(
+        &catalogue,
+        &films,
+        &tonemaps,
+        0.0,
+        crate::film::ColourMode::PerLayer,
+        crate::film::Key::LogAverage,
+    )
+    .unwrap();
+    let exif = SourceExif::default();
+    let dir = tempfile::tempdir().unwrap();
+    let develop_with = |stem: &str, looks: &[Look], format: Format, confidence: bool| {
+        let prints = Prints {
+            dir: dir.path(),
+            stem,
+            exr: Some(ExrOptions::default()),
+            radiance_hdr: false,
+            looks,
+            format,
+            exif: &exif,
+            overwrite: Overwrite::Refuse,
+            luminance_calibration: 1.0,
+        };
+        let options = MergeOptions {
+            confidence,
+            ..MergeOptions::default()
+        };
+        // Fitted, so that each channel has a curve of its own.
+        let policy = ResponsePolicy::Fit {
+            fallback: None,
+            min_confidence: 0.0,
+            pool: None,
+        };
+        develop(
+            &frames,
+            &exposures,
+            RatioSource::Argument,
+            policy,
+            options,
+            &prints,
+        )
+        .unwrap()
+    };
+    let bytes = |name: String| std::fs::read(dir.path().join(name)).unwrap();
+    for format in [Format::Jpeg { quality: 92 }, Format::Tiff16] {
+        let (lazy, map) = (format!("lazy{format:?}"), format!("map{format:?}"));
+        let fused = develop_with(&lazy, &looks, format, false);
+        let buffered = develop_with(&map, &looks, format, true);
+        assert!(fused.fused && !buffered.fused);
+        assert_eq!(fused.outputs.len(), 1 + looks.len());
+        for look in &looks {
+            let name = |stem: &str| format!("{stem}.{}.{}", look.name(), format.extension());
+            assert!(
+                bytes(name(&lazy)) == bytes(name(&map)),
+                "{} differs between the lazy merge and the map ({format:?})",
+                look.name()
+            );
+        }
+        let read = |stem: &str| hdr_output::read_exr(&dir.path().join(format!("{stem}.exr")));
+        assert_eq!(read(&lazy).unwrap(), read(&map).unwrap());
+    }
+    let halation = rendering::looks(
+        &catalogue,
+        &["velvia50+halation".to_string()],
+        &[],
+        0.0,
+        crate::film::ColourMode::PerLayer,
+        crate::film::Key::LogAverage,
+    )
+    .unwrap();
+    assert!(!develop_with("optics", &halation, Format::Jpeg { quality: 92 }, false).fused);
+}

@@ -8,7 +8,7 @@ use rayon::prelude::*;
 use super::grain::Grain;
 use super::{Curve, FilmError, Kind, Options, Stock, optics};
 use crate::display::{Depth, DisplayImage, luminance, srgb_encode, srgb_encode_u16, to_8bit};
-use crate::radiance::RadianceMap;
+use crate::radiance::{self, CodePairs, RadianceMap, RadianceSource};
 
 /// How the three layers share the light.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
@@ -50,23 +50,21 @@ pub enum Key {
 /// The scene's key as relative radiance. `LogAverage` is `exp(mean(ln L))` over pixels
 /// with finite `L > 0`, on a regular subsample of at most 2²⁰ pixels (enough for a mean
 /// of logs; it keeps 24 MP maps fast). A scene with no lit pixel has key 1.
-pub fn scene_key(map: &RadianceMap, key: Key) -> f64 {
+pub fn scene_key(map: &(impl RadianceSource + ?Sized), key: Key) -> f64 {
     if let Key::Grey(g) = key {
         return g;
     }
     let ch = map.channels();
-    let pixels = map.pixels();
-    let count = pixels.len() / ch;
+    let count = map.width() as usize * map.height() as usize;
     let stride = count.div_ceil(1 << 20).max(1);
     let (sum, n) = (0..count.div_ceil(stride))
         .into_par_iter()
         .map(|j| {
             let i = j * stride;
-            let p = &pixels[i * ch..i * ch + ch];
             if ch == 3 {
-                luminance(p[0], p[1], p[2])
+                luminance(map.sample(i, 0), map.sample(i, 1), map.sample(i, 2))
             } else {
-                p[0]
+                map.sample(i, 0)
             }
         })
         .filter(|l| l.is_finite() && *l > 0.0)
@@ -391,11 +389,20 @@ impl Emulsion {
 
     /// The light inside the film: `map` through the MTF and halation if the look asks for
     /// them ([`super::optics`]), else `map` itself, delivered a band of rows at a time
-    /// (the optics' wide terms are computed here). Radiance that is NaN or negative
-    /// counts as no light, `+∞` as 10³⁰.
-    pub fn expose<'a>(&self, map: &'a RadianceMap) -> Exposure<'a> {
+    /// (the optics' wide terms are computed here; a source that does not hold its pixels,
+    /// a merge evaluated on demand, is evaluated whole for them). Radiance that is NaN or
+    /// negative counts as no light, `+∞` as 10³⁰.
+    pub fn expose<'a>(&self, map: &'a dyn RadianceSource) -> Exposure<'a> {
         if !self.has_optics() {
-            return Exposure { map, filter: None };
+            let by_code = map
+                .code_pairs()
+                .filter(|_| self.grained.is_none() && self.mode != ColourMode::Luminance)
+                .map(|pairs| self.by_code(&pairs));
+            return Exposure {
+                map,
+                filter: None,
+                by_code,
+            };
         }
         let (w, h) = (map.width() as usize, map.height() as usize);
         let terms: Vec<Vec<(f64, f64)>> = (0..3)
@@ -414,10 +421,42 @@ impl Emulsion {
                 terms
             })
             .collect();
-        let filter = optics::Filter::new(map.pixels(), map.channels(), w, h, &terms);
+        let pixels = match map.held() {
+            Some(held) => std::borrow::Cow::Borrowed(held),
+            None => {
+                let mut all = vec![0.0; w * h * map.channels()];
+                map.pixels_into(0, &mut all);
+                std::borrow::Cow::Owned(all)
+            }
+        };
+        let filter = optics::Filter::new(pixels, map.channels(), w, h, &terms);
         Exposure {
             map,
             filter: Some(filter),
+            by_code: None,
+        }
+    }
+
+    /// Each layer's display value by code pair of a merged pair, without grain: entry
+    /// `(dark << 8) | bright` of layer `c` is the layer's table at `scale_c · E`, `E` the
+    /// pair's value of channel `c` (of its one channel if grey) for those codes, so that
+    /// a sample develops by one lookup to the same value as [`Emulsion::pixel`] gives.
+    fn by_code(&self, pairs: &CodePairs<'_>) -> ByCode {
+        let layer = |c: usize| -> (Vec<u16>, Vec<u8>) {
+            let channel = c.min(pairs.channels - 1);
+            let values = &pairs.values[channel << 16..(channel + 1) << 16];
+            values
+                .iter()
+                .map(|&e| {
+                    let h = e * self.scale[c];
+                    (self.display[c].get(h), self.display8[c].get(h))
+                })
+                .unzip()
+        };
+        let [(r16, r8), (g16, g8), (b16, b8)] = [0, 1, 2].map(layer);
+        ByCode {
+            sixteen: [r16, g16, b16],
+            eight: [r8, g8, b8],
         }
     }
 
@@ -485,13 +524,15 @@ impl Emulsion {
 /// A display sample's depth: the tables kept at it, so that 8-bit development reads
 /// 8-bit tables (each entry [`to_8bit`] of the 16-bit one: the same output as converting
 /// after).
-trait Sample: Copy + Send {
+trait Sample: Copy + Send + Sync {
     /// The per-layer display tables by exposure.
     fn exposure_tables(e: &Emulsion) -> &[ExposureTable<Self>; 3];
     /// A layer's display values by density.
     fn density_table(t: &DensityTable) -> &[Self];
     /// A 16-bit display value at this depth.
     fn from_u16(v: u16) -> Self;
+    /// The display tables by code pair at this depth.
+    fn by_code(b: &ByCode) -> &[Vec<Self>; 3];
 }
 
 impl Sample for u16 {
@@ -504,6 +545,9 @@ impl Sample for u16 {
     fn from_u16(v: u16) -> u16 {
         v
     }
+    fn by_code(b: &ByCode) -> &[Vec<u16>; 3] {
+        &b.sixteen
+    }
 }
 
 impl Sample for u8 {
@@ -515,6 +559,9 @@ impl Sample for u8 {
     }
     fn from_u16(v: u16) -> u8 {
         to_8bit(v)
+    }
+    fn by_code(b: &ByCode) -> &[Vec<u8>; 3] {
+        &b.eight
     }
 }
 
@@ -550,8 +597,17 @@ fn keep_chromaticity(e: [f32; 3], l: f32, t: f32) -> [u16; 3] {
 /// The light inside the film ([`Emulsion::expose`]): the radiance map, through the
 /// look's optics if it has any, a band of rows at a time.
 pub struct Exposure<'a> {
-    map: &'a RadianceMap,
+    map: &'a dyn RadianceSource,
     filter: Option<optics::Filter<'a>>,
+    /// The display tables by code pair, when the map is a merged pair and the look
+    /// develops each layer alone ([`Emulsion::by_code`]).
+    by_code: Option<ByCode>,
+}
+
+/// Per layer, the display value by code pair, `(dark << 8) | bright`, at both depths.
+struct ByCode {
+    sixteen: [Vec<u16>; 3],
+    eight: [Vec<u8>; 3],
 }
 
 impl Exposure<'_> {
@@ -571,10 +627,7 @@ impl Exposure<'_> {
         match &self.filter {
             None => {
                 let ch = self.map.channels();
-                f(
-                    &self.map.pixels()[first * width * ch..(first + count) * width * ch],
-                    ch,
-                )
+                radiance::with_pixels(self.map, first * width, count * width, |rows| f(rows, ch))
             }
             Some(filter) => FILTERED.with_borrow_mut(|rows| {
                 rows.resize(count * width * 3, 0.0);
@@ -596,7 +649,7 @@ const DEVELOP_ROWS: usize = optics::BAND;
 impl Emulsion {
     /// Develops a whole map at `depth` bits per sample (bands of rows in parallel), the
     /// optics included.
-    pub fn render(&self, map: &RadianceMap, depth: Depth) -> DisplayImage {
+    pub fn render(&self, map: &dyn RadianceSource, depth: Depth) -> DisplayImage {
         let exposure = self.expose(map);
         let width = map.width() as usize;
         let height = map.height() as usize;
@@ -623,6 +676,35 @@ impl Emulsion {
     /// Develops rows from `first` into RGB `out` at the depth of `T`.
     fn develop<T: Sample>(&self, exposure: &Exposure<'_>, first: usize, out: &mut [T]) {
         let width = exposure.width() as usize;
+        if let (Some(by_code), Some(pairs)) = (&exposure.by_code, exposure.map.code_pairs()) {
+            let tables = T::by_code(by_code);
+            let ch = pairs.channels;
+            let start = first * width;
+            out.par_chunks_mut(width * 3 * DEVELOP_ROWS)
+                .enumerate()
+                .for_each(|(band, out)| {
+                    let pixel = start + band * DEVELOP_ROWS * width;
+                    let count = out.len() / 3;
+                    let range = pixel * ch..(pixel + count) * ch;
+                    let (dark, bright) = (&pairs.dark[range.clone()], &pairs.bright[range]);
+                    let code = |i: usize| (usize::from(dark[i]) << 8) | usize::from(bright[i]);
+                    if ch == 3 {
+                        for (p, o) in out.chunks_exact_mut(3).enumerate() {
+                            for (c, (o, table)) in o.iter_mut().zip(tables).enumerate() {
+                                *o = table[code(3 * p + c)];
+                            }
+                        }
+                    } else {
+                        for (p, o) in out.chunks_exact_mut(3).enumerate() {
+                            let k = code(p);
+                            for (o, table) in o.iter_mut().zip(tables) {
+                                *o = table[k];
+                            }
+                        }
+                    }
+                });
+            return;
+        }
         out.par_chunks_mut(width * 3 * DEVELOP_ROWS)
             .enumerate()
             .for_each(|(band, out)| {

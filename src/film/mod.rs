@@ -221,6 +221,14 @@ pub struct Options {
     pub label: String,
 }
 
+impl Options {
+    /// Whether the options spread light between pixels (MTF, halation): such a look is
+    /// developed from the whole map at once, not pixel by pixel.
+    pub fn has_optics(&self) -> bool {
+        self.mtf || self.halation.is_some()
+    }
+}
+
 impl Default for Options {
     fn default() -> Options {
         Options {

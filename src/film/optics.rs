@@ -28,6 +28,8 @@
 //! fraction of a mid-tone but a large one next to the sun. The built-in stocks all have an
 //! anti-halation layer, so it is off unless asked for.
 
+use std::borrow::Cow;
+
 use rayon::prelude::*;
 
 use super::stock::Mtf;
@@ -646,7 +648,7 @@ pub fn filter(plane: &[f32], width: usize, height: usize, terms: &[(f64, f64)]) 
 /// of sampled Gaussians ([`filter_direct`]) is measured by `cargo bench --bench
 /// film_speed` as the PSNR of the rendering (see `docs/film.md`).
 pub struct Filter<'a> {
-    pixels: &'a [f32],
+    pixels: Cow<'a, [f32]>,
     channels: usize,
     width: usize,
     height: usize,
@@ -661,20 +663,21 @@ thread_local! {
 
 impl<'a> Filter<'a> {
     /// Prepares `terms[c]` for layer `c` of `pixels` (`channels` interleaved, `width ×
-    /// height`); the wide terms are computed here, in parallel.
+    /// height`, borrowed or owned); the wide terms are computed here, in parallel.
     pub fn new(
-        pixels: &'a [f32],
+        pixels: impl Into<Cow<'a, [f32]>>,
         channels: usize,
         width: usize,
         height: usize,
         terms: &[Vec<(f64, f64)>],
     ) -> Filter<'a> {
+        let pixels = pixels.into();
         let wide = terms
             .iter()
             .flatten()
             .any(|&(s, _)| s >= 1e-3 && level(s) > 0);
         let level_one: Vec<Option<Plane>> = if wide {
-            halve_layers(pixels, channels, width, height, terms.len())
+            halve_layers(&pixels, channels, width, height, terms.len())
                 .into_iter()
                 .map(Some)
                 .collect()

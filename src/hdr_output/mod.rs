@@ -47,89 +47,12 @@ use rayon::prelude::*;
 use crate::atomic::{self, Overwrite, PublishError};
 use crate::merge::{BracketMerge, PairMerge};
 use crate::metadata::{Camera, CaptureTime, Exposure};
-use crate::radiance::RadianceMap;
+use crate::radiance::{CodePairs, RadianceMap, RadianceSource};
 
 mod header;
 mod piz;
 
 use header::{image_attributes, layer_attributes, text};
-
-/// Anything the writers can pull radiance from, sample by sample: a [`RadianceMap`], or
-/// a [`PairMerge`] or [`BracketMerge`] evaluated while the file is encoded, a block of
-/// lines at a time on each thread (no radiance buffer at all).
-pub trait RadianceSource: Sync {
-    /// Width in pixels.
-    fn width(&self) -> u32;
-    /// Height in pixels.
-    fn height(&self) -> u32;
-    /// 1 (grey) or 3 (RGB).
-    fn channels(&self) -> usize;
-    /// Linear relative radiance of `channel` of `pixel` (row-major index).
-    fn sample(&self, pixel: usize, channel: usize) -> f32;
-    /// Channel `channel` of the `out.len()` pixels from `pixel` on (one line or part of one).
-    #[inline]
-    fn line(&self, pixel: usize, channel: usize, out: &mut [f32]) {
-        for (k, v) in out.iter_mut().enumerate() {
-            *v = self.sample(pixel + k, channel);
-        }
-    }
-    /// An upper bound of the finite values (decides half-overflow handling).
-    fn max_value(&self) -> f32;
-}
-
-impl RadianceSource for RadianceMap {
-    fn width(&self) -> u32 {
-        RadianceMap::width(self)
-    }
-    fn height(&self) -> u32 {
-        RadianceMap::height(self)
-    }
-    fn channels(&self) -> usize {
-        RadianceMap::channels(self)
-    }
-    #[inline]
-    fn sample(&self, pixel: usize, channel: usize) -> f32 {
-        self.pixels()[pixel * RadianceMap::channels(self) + channel]
-    }
-    #[inline]
-    fn line(&self, pixel: usize, channel: usize, out: &mut [f32]) {
-        let channels = RadianceMap::channels(self);
-        let from = &self.pixels()[pixel * channels..];
-        if channels == 3 {
-            // Whole pixels of a constant size, so that the gather is vectorised.
-            for (v, rgb) in out.iter_mut().zip(from.chunks_exact(3)) {
-                *v = rgb[channel];
-            }
-        } else {
-            for (v, &s) in out.iter_mut().zip(from[channel..].iter().step_by(channels)) {
-                *v = s;
-            }
-        }
-    }
-    fn max_value(&self) -> f32 {
-        // Sixteen running maxima per stretch of samples, each updated by a compare and a
-        // select, which vectorises (a fold with `f32::max` does not); the maximum of
-        // finite values does not depend on the order.
-        const LANES: usize = 16;
-        self.pixels()
-            .par_chunks(1 << 16)
-            .map(|stretch| {
-                let mut lanes = [0f32; LANES];
-                let blocks = stretch.chunks_exact(LANES);
-                let rest = blocks.remainder();
-                for block in blocks {
-                    for (m, &v) in lanes.iter_mut().zip(block) {
-                        *m = if v.is_finite() && v > *m { v } else { *m };
-                    }
-                }
-                for (m, &v) in lanes.iter_mut().zip(rest) {
-                    *m = if v.is_finite() && v > *m { v } else { *m };
-                }
-                lanes.into_iter().fold(0.0, f32::max)
-            })
-            .reduce(|| 0.0, f32::max)
-    }
-}
 
 impl RadianceSource for PairMerge<'_> {
     fn width(&self) -> u32 {
@@ -147,6 +70,13 @@ impl RadianceSource for PairMerge<'_> {
     }
     fn max_value(&self) -> f32 {
         PairMerge::max_value(self)
+    }
+    #[inline]
+    fn pixels_into(&self, pixel: usize, out: &mut [f32]) {
+        PairMerge::pixels_into(self, pixel, out)
+    }
+    fn code_pairs(&self) -> Option<CodePairs<'_>> {
+        Some(PairMerge::code_pairs(self))
     }
 }
 

@@ -10,7 +10,7 @@ use super::{Look, RenderingError, SourceExif, jpeg};
 use crate::atomic::{self, Overwrite, PublishError};
 use crate::display::{Depth, DisplayImage, srgb_icc_profile};
 use crate::film;
-use crate::radiance::RadianceMap;
+use crate::radiance::RadianceSource;
 use exif::{Field, In, Tag, Value};
 
 /// Output encodings.
@@ -214,7 +214,7 @@ fn decorate(
 /// Renders `look` and encodes it in `format`; to JPEG, film looks and tone maps are
 /// developed band by band while the encoder runs ([`encode_film_jpeg`]).
 pub fn encode_look(
-    map: &RadianceMap,
+    map: &dyn RadianceSource,
     look: &Look,
     format: Format,
     exif: &SourceExif,

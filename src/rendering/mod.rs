@@ -15,7 +15,7 @@ use std::path::{Path, PathBuf};
 use crate::atomic::{self, Overwrite, PublishError};
 use crate::display::{Depth, DisplayImage};
 use crate::film::{self, Catalogue, ColourMode, FilmError, Key, Stock};
-use crate::radiance::RadianceMap;
+use crate::radiance::RadianceSource;
 use crate::tonemap;
 
 mod encode;
@@ -116,8 +116,21 @@ impl Look {
         }
     }
 
+    /// Whether the look spreads light between pixels (a film's MTF or halation), so that
+    /// it is developed from the whole map at once rather than a band of rows at a time.
+    pub fn has_optics(&self) -> bool {
+        match self {
+            Look::Film { options, .. } => options.has_optics(),
+            Look::Tonemap(_) => false,
+        }
+    }
+
     /// Renders `map` in this look at `depth` bits per sample.
-    pub fn render(&self, map: &RadianceMap, depth: Depth) -> Result<DisplayImage, RenderingError> {
+    pub fn render(
+        &self,
+        map: &dyn RadianceSource,
+        depth: Depth,
+    ) -> Result<DisplayImage, RenderingError> {
         match self {
             Look::Film { .. } => Ok(self.emulsion(map)?.render(map, depth)),
             Look::Tonemap(op) => Ok(op.apply(map).at_depth(depth)),
@@ -128,7 +141,7 @@ impl Look {
 impl Look {
     /// The emulsion of a film look set up for `map` (its key and size); an error for a
     /// tone map.
-    pub fn emulsion(&self, map: &RadianceMap) -> Result<film::Emulsion, RenderingError> {
+    pub fn emulsion(&self, map: &dyn RadianceSource) -> Result<film::Emulsion, RenderingError> {
         match self {
             Look::Film {
                 stock,
@@ -211,7 +224,7 @@ pub struct Outputs<'a> {
 /// Returns the paths written, in the order of `looks`. Stops at the first error; files
 /// already written stay (each is complete).
 pub fn render_all(
-    map: &RadianceMap,
+    map: &dyn RadianceSource,
     looks: &[Look],
     outputs: &Outputs<'_>,
 ) -> Result<Vec<PathBuf>, RenderingError> {
