@@ -36,12 +36,20 @@ pub(super) struct SortedHeader<W> {
     inner: W,
     /// The bytes held back while the header is incomplete (empty once it is written).
     held: Vec<u8>,
-    /// The byte range of each complete attribute in `held`, in the order written.
-    attributes: Vec<Range<usize>>,
+    /// The complete attributes in `held`, in the order written.
+    attributes: Vec<Attribute>,
     /// Where the next attribute starts in `held` (0 until the preamble is checked).
     scanned: usize,
     /// The header is written: bytes pass straight through.
     passing: bool,
+}
+
+/// Where one attribute is in the held bytes.
+struct Attribute {
+    /// Its name (without the NUL).
+    name: Range<usize>,
+    /// The whole attribute: name, type, size and value.
+    bytes: Range<usize>,
 }
 
 fn refuse(reason: impl std::fmt::Display) -> io::Error {
@@ -122,7 +130,10 @@ impl<W> SortedHeader<W> {
             if held.len() < end {
                 return Ok(None);
             }
-            self.attributes.push(start..end);
+            self.attributes.push(Attribute {
+                name: start..name_end,
+                bytes: start..end,
+            });
             self.scanned = end;
         }
     }
@@ -131,22 +142,19 @@ impl<W> SortedHeader<W> {
     /// checked by reading both with the exr crate.
     fn sorted(&self, len: usize) -> io::Result<Vec<u8>> {
         let held = &self.held[..len];
-        let name = |r: &Range<usize>| {
-            let end = nul(held, r.start).expect("a scanned attribute has a name");
-            &held[r.start..end]
-        };
-        let mut order = self.attributes.clone();
+        let name = |a: &Attribute| &held[a.name.clone()];
+        let mut order: Vec<&Attribute> = self.attributes.iter().collect();
         order.sort_by(|a, b| name(a).cmp(name(b)));
-        if let Some(twice) = order.windows(2).find(|w| name(&w[0]) == name(&w[1])) {
+        if let Some(twice) = order.windows(2).find(|w| name(w[0]) == name(w[1])) {
             return Err(refuse(format!(
                 "attribute {} appears twice",
-                String::from_utf8_lossy(name(&twice[0]))
+                String::from_utf8_lossy(name(twice[0]))
             )));
         }
         let mut sorted = Vec::with_capacity(len);
         sorted.extend_from_slice(&held[..PREAMBLE]);
-        for r in &order {
-            sorted.extend_from_slice(&held[r.clone()]);
+        for a in &order {
+            sorted.extend_from_slice(&held[a.bytes.clone()]);
         }
         sorted.push(0);
         if sorted.len() != len {
