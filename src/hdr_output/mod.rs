@@ -29,6 +29,9 @@
 //! blocks are compressed by filmback's own encoder (`piz`: the same format and size as
 //! exr's, faster; `docs/performance.md`); everything else by the exr crate.
 //!
+//! The same input gives the same file, byte for byte: the header's attributes are
+//! written sorted by name (`attribute_order`), the blocks in increasing line order.
+//!
 //! Every file is published through [`crate::atomic`]: a failure (unwritable
 //! folder, full disk, encoder error) leaves no partial file.
 
@@ -49,6 +52,7 @@ use crate::merge::{BracketMerge, PairMerge};
 use crate::metadata::{Camera, CaptureTime, Exposure};
 use crate::radiance::{CodePairs, RadianceMap, RadianceSource};
 
+mod attribute_order;
 mod header;
 mod piz;
 
@@ -425,7 +429,9 @@ pub fn encode_exr<W: Write + Seek, S: RadianceSource + ?Sized>(
         }
     };
     let piz_half = options.compression == ExrCompression::Piz && sample == SampleType::F16;
-    exr::block::write(writer, smallvec_of(header), true, |meta, chunks| {
+    // The header's attributes sorted by name, so that the same input gives the same bytes.
+    let mut sorted = attribute_order::SortedHeader::new(writer);
+    exr::block::write(&mut sorted, smallvec_of(header), true, |meta, chunks| {
         let indices: Vec<(usize, BlockIndex)> =
             meta.enumerate_ordered_header_block_indices().collect();
         if piz_half {
@@ -487,6 +493,9 @@ pub fn encode_exr<W: Write + Seek, S: RadianceSource + ?Sized>(
             .compress_all_blocks_parallel(&meta, blocks)
     })
     .map_err(|e| OutputError::Exr(e.to_string()))?;
+    sorted
+        .finish()
+        .map_err(|e| OutputError::Exr(e.to_string()))?;
     Ok(Written { scale, warnings })
 }
 

@@ -602,3 +602,213 @@ fn a_maps_maximum_and_lines_are_its_samples() {
     grey.line(40, 0, &mut line);
     assert_eq!(line, pixels[40..70]);
 }
+
+/// Everything the header can say: camera, capture time, four frames, a luminance scale
+/// (so twelve attributes of filmback's own beside the standard ones).
+fn full_provenance() -> Provenance {
+    let frame = |k: i32| FrameRecord {
+        name: format!("IMG_{k:04}.JPG"),
+        exposure: Exposure {
+            time_s: Some(2f64.powi(k - 3)),
+            f_number: Some(8.0),
+            iso: Some(100.0),
+        },
+        relative: 2f64.powi(k - 3) * 100.0 / 64.0,
+    };
+    Provenance {
+        camera: Camera {
+            make: Some("Canon".into()),
+            model: Some("EOS 5D Mark II".into()),
+            serial: Some("0123".into()),
+            lens: Some("EF 24-70mm f/2.8L".into()),
+        },
+        captured_at: Some(crate::metadata::CaptureTime {
+            year: 2026,
+            month: 11,
+            day: 25,
+            hour: 9,
+            minute: 30,
+            second: 5,
+            nanos: None,
+            offset_minutes: Some(60),
+        }),
+        frames: (0..4).map(frame).collect(),
+        response: "fitted polynomial, degree 5".into(),
+        weighting: "hat".into(),
+        clipped: (12, 3),
+        scale: crate::merge::Scale::Luminance { calibration: 1.0 },
+    }
+}
+
+#[test]
+fn the_same_map_gives_the_same_bytes() {
+    let map = ramp(40, 37, 3000.0);
+    let conf = noise(40 * 37, 3);
+    let provenance = full_provenance();
+    // Filmback's PIZ encoder and the exr crate's compressors both.
+    let options = [
+        ExrOptions::default(),
+        ExrOptions {
+            sample: SampleFormat::Float,
+            compression: ExrCompression::Zip,
+            primaries: Primaries::Ap1,
+            ..ExrOptions::default()
+        },
+    ];
+    for options in options {
+        let encode = || {
+            let mut bytes = Cursor::new(Vec::new());
+            encode_exr(&mut bytes, &map, Some(&conf), &provenance, options).unwrap();
+            bytes.into_inner()
+        };
+        let first = encode();
+        for _ in 0..3 {
+            assert!(encode() == first, "{options:?}: two files differ");
+        }
+    }
+}
+
+/// The names of the attributes of a single-part OpenEXR file's header, in file order,
+/// and the header's length (parsed here independently of `attribute_order`).
+fn header_names(bytes: &[u8]) -> (Vec<String>, usize) {
+    let mut at = 8;
+    let mut names = Vec::new();
+    let until_nul = |at: usize| at + bytes[at..].iter().position(|&b| b == 0).unwrap();
+    while bytes[at] != 0 {
+        let name_end = until_nul(at);
+        names.push(String::from_utf8(bytes[at..name_end].to_vec()).unwrap());
+        let type_end = until_nul(name_end + 1);
+        let size = i32::from_le_bytes(bytes[type_end + 1..type_end + 5].try_into().unwrap());
+        at = type_end + 5 + size as usize;
+    }
+    (names, at + 1)
+}
+
+#[test]
+fn a_file_with_its_header_sorted_reads_as_the_crates_own() {
+    // An image written by the exr crate alone, and the same through `SortedHeader`.
+    let (width, height) = (23, 41);
+    let values = noise(width * height, 11);
+    let channels = x::AnyChannels::sort(SmallVec::from_vec(vec![
+        x::AnyChannel::new("R", x::FlatSamples::F32(values.clone())),
+        x::AnyChannel::new(
+            "G",
+            x::FlatSamples::F16(values.iter().map(|&v| f16::from_f32(v)).collect()),
+        ),
+    ]));
+    let layer = x::Layer::new(
+        (width, height),
+        header::layer_attributes(&full_provenance(), 1.0, Primaries::Ap0),
+        x::Encoding::SMALL_LOSSLESS,
+        channels,
+    );
+    let image = x::Image::from_layer(layer);
+    let mut plain = Cursor::new(Vec::new());
+    image.write().to_buffered(&mut plain).unwrap();
+    let mut sorted = attribute_order::SortedHeader::new(Cursor::new(Vec::new()));
+    image.write().to_buffered(&mut sorted).unwrap();
+    let (plain, sorted) = (plain.into_inner(), sorted.finish().unwrap().into_inner());
+
+    assert_eq!(plain.len(), sorted.len());
+    let (plain_names, plain_len) = header_names(&plain);
+    let (sorted_names, sorted_len) = header_names(&sorted);
+    assert_eq!(plain_len, sorted_len);
+    assert!(sorted_names.is_sorted(), "{sorted_names:?}");
+    let mut names = plain_names;
+    names.sort();
+    assert_eq!(names, sorted_names);
+    assert!(names.iter().any(|n| n == "filmbackFrame3"));
+    // Offset tables and blocks are untouched, and both files read as the same image.
+    assert!(plain[plain_len..] == sorted[sorted_len..]);
+    assert_eq!(read_back(plain), read_back(sorted));
+}
+
+/// An OpenEXR preamble (magic number, version 2 with `flags`) and `attributes` as
+/// `(name, type, value)`, ended by the empty name.
+fn raw_header(flags: u32, attributes: &[(&str, &str, &[u8])]) -> Vec<u8> {
+    let mut bytes = vec![0x76, 0x2f, 0x31, 0x01];
+    bytes.extend_from_slice(&(2 | flags).to_le_bytes());
+    for (name, kind, value) in attributes {
+        for text in [name, kind] {
+            bytes.extend_from_slice(text.as_bytes());
+            bytes.push(0);
+        }
+        bytes.extend_from_slice(&(value.len() as i32).to_le_bytes());
+        bytes.extend_from_slice(value);
+    }
+    bytes.push(0);
+    bytes
+}
+
+/// What `SortedHeader` says about `bytes` written one at a time, then flushed and finished.
+fn sort_bytewise(bytes: &[u8]) -> std::io::Result<Vec<u8>> {
+    use std::io::Write as _;
+    let mut sorted = attribute_order::SortedHeader::new(Cursor::new(Vec::new()));
+    for b in bytes {
+        sorted.write_all(std::slice::from_ref(b))?;
+    }
+    sorted.flush()?;
+    Ok(sorted.finish()?.into_inner())
+}
+
+#[test]
+fn sorted_header_refuses_what_it_does_not_expect() {
+    use std::io::{Seek as _, SeekFrom, Write as _};
+    let int = 7i32.to_le_bytes();
+    let refused = |bytes: &[u8], why: &str| {
+        let err = sort_bytewise(bytes).unwrap_err();
+        assert_eq!(err.kind(), std::io::ErrorKind::InvalidData, "{err}");
+        assert!(err.to_string().contains(why), "{err} (wanted {why:?})");
+    };
+    let mut not_exr = raw_header(0, &[("b", "int", &int)]);
+    not_exr[0] = b'P';
+    refused(&not_exr, "magic number");
+    refused(&raw_header(1 << 12, &[("b", "int", &int)]), "multi-part");
+    let mut negative = raw_header(0, &[("b", "int", &int)]);
+    negative[8 + 6..8 + 10].copy_from_slice(&(-4i32).to_le_bytes());
+    refused(&negative, "size -4");
+    refused(
+        &raw_header(0, &[("a", "int", &int), ("a", "int", &int)]),
+        "a appears twice",
+    );
+    // The exr crate reads neither (no required attributes), so nothing is written.
+    refused(
+        &raw_header(0, &[("b", "int", &int), ("a", "int", &int)]),
+        "cannot read",
+    );
+    let whole = raw_header(0, &[("b", "int", &int)]);
+    refused(&whole[..whole.len() - 1], "before the header was complete");
+    let mut unfinished = attribute_order::SortedHeader::new(Cursor::new(Vec::new()));
+    unfinished.write_all(&whole[..12]).unwrap();
+    let err = unfinished.seek(SeekFrom::Start(0)).unwrap_err();
+    assert!(err.to_string().contains("seek before the header"), "{err}");
+    let err = unfinished.finish().unwrap_err();
+    assert!(err.to_string().contains("ended inside the header"), "{err}");
+}
+
+#[test]
+fn sorted_header_passes_a_real_header_written_bytewise_and_seeks_after_it() {
+    use std::io::{Seek as _, SeekFrom, Write as _};
+    let map = ramp(9, 5, 10.0);
+    let mut bytes = Cursor::new(Vec::new());
+    encode_exr(
+        &mut bytes,
+        &map,
+        None,
+        &full_provenance(),
+        ExrOptions::default(),
+    )
+    .unwrap();
+    let file = bytes.into_inner();
+    // Already sorted: unchanged, whether written at once or a byte at a time.
+    assert!(sort_bytewise(&file).unwrap() == file);
+    let (_, header_len) = header_names(&file);
+    let mut sorted = attribute_order::SortedHeader::new(Cursor::new(Vec::new()));
+    sorted.write_all(&file[..header_len]).unwrap();
+    sorted.write_all(b"abcd").unwrap();
+    sorted.seek(SeekFrom::Start(header_len as u64 + 1)).unwrap();
+    sorted.write_all(b"X").unwrap();
+    let out = sorted.finish().unwrap().into_inner();
+    assert_eq!(out[..header_len], file[..header_len]);
+    assert_eq!(&out[header_len..], b"aXcd");
+}
