@@ -199,19 +199,45 @@ pub fn srgb_encode_u8(x: f32) -> u8 {
 /// The sRGB ICC profile embedded in every output: built by the `moxcms` crate (already in
 /// the build through `image`) from the IEC 61966-2.1 colorants (primaries x,y = 0.64,0.33 /
 /// 0.30,0.60 / 0.15,0.06, D65 white, adapted to the D50 PCS) and the sRGB parametric
-/// tone curve (γ 2.4, linear toe below 0.04045). About 0.5 kB.
+/// tone curve (γ 2.4, linear toe below 0.04045). About 0.5 kB. Its header's creation
+/// date (bytes 24–35, which the encoder sets to the time of encoding; the profile carries
+/// no MD5 ID that would cover it) is fixed at IEC 61966-2-1's publication, 1999-10-18
+/// 00:00:00, so that the same rendering gives the same file.
 pub fn srgb_icc_profile() -> &'static [u8] {
     static PROFILE: OnceLock<Vec<u8>> = OnceLock::new();
     PROFILE.get_or_init(|| {
-        moxcms::ColorProfile::new_srgb()
+        let mut profile = moxcms::ColorProfile::new_srgb()
             .encode()
-            .unwrap_or_else(|e| panic!("moxcms cannot encode its own sRGB profile: {e:?}"))
+            .unwrap_or_else(|e| panic!("moxcms cannot encode its own sRGB profile: {e:?}"));
+        let date: Vec<u8> = [1999u16, 10, 18, 0, 0, 0]
+            .iter()
+            .flat_map(|v| v.to_be_bytes())
+            .collect();
+        profile[24..36].copy_from_slice(&date);
+        profile
     })
 }
 
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// The profile is an sRGB display profile whose header reads back with the fixed
+    /// creation date and no profile ID.
+    #[test]
+    fn the_icc_profile_has_a_fixed_date() {
+        let icc = srgb_icc_profile();
+        assert_eq!(&icc[36..40], b"acsp");
+        assert_eq!(&icc[12..20], b"mntrRGB ");
+        let read = moxcms::ColorProfile::new_from_slice(icc).unwrap();
+        let date = read.creation_date_time;
+        assert_eq!(
+            (date.year, date.month, date.day_of_the_month),
+            (1999, 10, 18)
+        );
+        assert_eq!((date.hours, date.minutes, date.seconds), (0, 0, 0));
+        assert!(icc[84..100].iter().all(|&b| b == 0), "no MD5 profile ID");
+    }
 
     /// The 8-bit table gives exactly the 16-bit encoder's value at 8 bits, for every
     /// bucket of the table and the values around and outside it.
