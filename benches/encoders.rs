@@ -26,7 +26,7 @@
 //! 14-bit count of the synthetic scene with shot and read noise, σ² = 9 + DN/2 DN²,
 //! divided by 2¹⁴), the kind of halves a raw bracket's merge writes. It prints each
 //! file's size and the FNV-1a hash of its offset table and blocks (equal hashes: the same
-//! pixels bytes; the header's attributes come in no fixed order) and writes them as
+//! pixels' bytes, whatever the header says) and writes them as
 //! `piz-merged.exr` and `piz-noisy.exr` beside the other outputs.
 
 use std::io::Cursor;
@@ -373,8 +373,7 @@ fn piz_only(dir: &Path, runs: usize, rounds: usize) {
                 })
             });
             *kept = (kept.0.min(ms), kept.1.min(cpu));
-            // FNV-1a, 64 bits, of the offset table and blocks (the header's attributes
-            // come in no fixed order).
+            // FNV-1a, 64 bits, of the offset table and blocks (the pixels' bytes).
             let hash = bytes[header_end(&bytes)..]
                 .iter()
                 .fold(0xcbf2_9ce4_8422_2325_u64, |h, &b| {

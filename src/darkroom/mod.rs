@@ -398,7 +398,10 @@ fn write_radiance_files(
         let t = Instant::now();
         let path = prints.hdr_path();
         let mut hdr = Vec::new();
-        hdr_output::encode_radiance_hdr(&mut hdr, source)?;
+        hdr_output::encode_radiance_hdr(&mut hdr, source).map_err(|e| PublishError::Content {
+            path: path.clone(),
+            reason: e.to_string(),
+        })?;
         atomic::publish(&path, &hdr, prints.overwrite)?;
         outputs.push(path);
         stages.push(("hdr", t.elapsed()));
@@ -428,10 +431,15 @@ fn write_radiance(
     };
     let samples = source.width() as usize * source.height() as usize * planes;
     let mut exr = Cursor::new(Vec::with_capacity(samples * bytes + (1 << 16)));
-    let written = hdr_output::encode_exr(&mut exr, source, confidence, provenance, options)?;
+    let path = prints.exr_path();
+    // An encoder failure names the file it was for, as publishing's failures do.
+    let written = hdr_output::encode_exr(&mut exr, source, confidence, provenance, options)
+        .map_err(|e| PublishError::Content {
+            path: path.clone(),
+            reason: e.to_string(),
+        })?;
     stages.push(("encode", t.elapsed()));
     let t = Instant::now();
-    let path = prints.exr_path();
     atomic::publish(&path, exr.get_ref(), prints.overwrite)?;
     stages.push(("write", t.elapsed()));
     Ok(written)
