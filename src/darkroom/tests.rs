@@ -308,10 +308,19 @@ fn an_exr_only_bracket_is_merged_in_bands_with_the_maps_values() {
 fn a_pair_with_looks_is_developed_from_the_merge_with_the_maps_files() {
     let truth = scene(130, 90, 5);
     let sensor = Sensor::noiseless(ResponseCurve::Srgb, BitDepth::Eight);
-    let frames = [
+    let rgb = [
         loaded("a.png", expose(&truth, 1.0, &sensor)),
         loaded("b.png", expose(&truth, 4.0, &sensor)),
     ];
+    // The same frames' green channel as grey frames.
+    let grey = rgb.each_ref().map(|f| {
+        let Samples::Eight(codes) = f.frame.samples() else {
+            unreachable!("8-bit frames")
+        };
+        let green = codes.iter().skip(1).step_by(3).copied().collect();
+        let frame = Frame::new(f.frame.width(), f.frame.height(), 1, Samples::Eight(green));
+        loaded("grey.png", frame.unwrap())
+    });
     let exposures = [1.0, 4.0];
     let catalogue = crate::film::Catalogue::builtin().unwrap();
     let films = [
@@ -331,7 +340,7 @@ fn a_pair_with_looks_is_developed_from_the_merge_with_the_maps_files() {
     .unwrap();
     let exif = SourceExif::default();
     let dir = tempfile::tempdir().unwrap();
-    let develop_with = |stem: &str, looks: &[Look], format: Format, confidence: bool| {
+    let develop_with = |frames: &[LoadedFrame], stem: &str, looks: &[Look], format, confidence| {
         let prints = Prints {
             dir: dir.path(),
             stem,
@@ -354,7 +363,7 @@ fn a_pair_with_looks_is_developed_from_the_merge_with_the_maps_files() {
             pool: None,
         };
         develop(
-            &frames,
+            frames,
             &exposures,
             RatioSource::Argument,
             policy,
@@ -364,22 +373,31 @@ fn a_pair_with_looks_is_developed_from_the_merge_with_the_maps_files() {
         .unwrap()
     };
     let bytes = |name: String| std::fs::read(dir.path().join(name)).unwrap();
-    for format in [Format::Jpeg { quality: 92 }, Format::Tiff16] {
-        let (lazy, map) = (format!("lazy{format:?}"), format!("map{format:?}"));
-        let fused = develop_with(&lazy, &looks, format, false);
-        let buffered = develop_with(&map, &looks, format, true);
+    let formats = [Format::Jpeg { quality: 92 }, Format::Tiff16];
+    for ((kind, frames), format) in [("rgb", &rgb), ("grey", &grey)]
+        .into_iter()
+        .flat_map(|frames| formats.map(|format| (frames, format)))
+    {
+        let (lazy, map) = (
+            format!("lazy-{kind}-{format:?}"),
+            format!("map-{kind}-{format:?}"),
+        );
+        let fused = develop_with(frames, &lazy, &looks, format, false);
+        let buffered = develop_with(frames, &map, &looks, format, true);
         assert!(fused.fused && !buffered.fused);
         assert_eq!(fused.outputs.len(), 1 + looks.len());
         for look in &looks {
             let name = |stem: &str| format!("{stem}.{}.{}", look.name(), format.extension());
             assert!(
                 bytes(name(&lazy)) == bytes(name(&map)),
-                "{} differs between the lazy merge and the map ({format:?})",
+                "{} differs between the lazy merge and the map ({kind}, {format:?})",
                 look.name()
             );
         }
         let read = |stem: &str| hdr_output::read_exr(&dir.path().join(format!("{stem}.exr")));
-        assert_eq!(read(&lazy).unwrap(), read(&map).unwrap());
+        if kind == "rgb" {
+            assert_eq!(read(&lazy).unwrap(), read(&map).unwrap());
+        }
     }
     let halation = rendering::looks(
         &catalogue,
@@ -390,5 +408,12 @@ fn a_pair_with_looks_is_developed_from_the_merge_with_the_maps_files() {
         crate::film::Key::LogAverage,
     )
     .unwrap();
-    assert!(!develop_with("optics", &halation, Format::Jpeg { quality: 92 }, false).fused);
+    let optics = develop_with(
+        &rgb,
+        "optics",
+        &halation,
+        Format::Jpeg { quality: 92 },
+        false,
+    );
+    assert!(!optics.fused);
 }
