@@ -63,14 +63,6 @@ pub struct CodePairs<'a> {
     pub values: &'a [f32],
 }
 
-impl CodePairs<'_> {
-    /// The index into `values` of interleaved sample `i`.
-    #[inline(always)]
-    pub fn index(&self, i: usize) -> usize {
-        ((i % self.channels) << 16) | (usize::from(self.dark[i]) << 8) | usize::from(self.bright[i])
-    }
-}
-
 thread_local! {
     /// Pixels evaluated by [`with_pixels`], per thread (kept between calls).
     static EVALUATED: std::cell::RefCell<Vec<f32>> = std::cell::RefCell::default();

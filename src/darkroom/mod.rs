@@ -478,8 +478,8 @@ fn print_looks(
 /// `frames·S·bytes_per_sample` (the decoded frames, held as codes; the merge makes no
 /// per-frame float buffer) `+` [`working_memory_bytes`]: with looks, `4·S` (the
 /// radiance map, `f32`; an 8-bit pair whose looks have no optics needs none, so its
-/// peak stays `4·S` under the bound) `+ 2·S` (the EXR encoded in memory before it is published, at
-/// most its uncompressed half-float size) `+ 8·P` (the largest working set of one look:
+/// peak stays `4·S` under the bound) `+ 2·S` (the EXR encoded in memory before it is
+/// published, at most its uncompressed half-float size) `+ 8·P` (the largest working set of one look:
 /// a tone map's luminances and percentile bucket, or the optics' half-resolution pyramid
 /// of three layers; looks render one after another, beside the EXR, and stream to their
 /// encoder) `+ 18·64·width` (the JPEG bands in flight); without looks (the EXR alone, no
