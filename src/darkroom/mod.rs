@@ -7,16 +7,16 @@
 //!
 //! # Memory
 //!
-//! Two 8-bit frames are merged through one table per code pair ([`PairMerge`]), a lookup
-//! per sample, evaluated where it is read: while the EXR is encoded, a PIZ block of lines
-//! at a time on each thread, and while each look is developed, a band of rows at a time.
-//! Any other bracket written only as EXR is merged the same way through the per-frame
-//! tables ([`BracketMerge`]). Then no radiance buffer exists; the peak is the decoded
-//! frames the caller holds plus the EXR and the looks' working sets. The map is built
-//! once (`width × height × channels × 4` bytes) beside the decoded frames, and every
-//! output reads it, for a confidence layer, a look with optics (MTF, halation: it reads
-//! the whole map) and looks of any other bracket (each would merge all its frames again).
-//! The renderings are made on a second thread while the EXR is encoded.
+//! Unless a confidence layer is asked for or a look has optics (MTF, halation: it reads
+//! the whole map), the merge is evaluated where it is read, with no radiance buffer: two
+//! 8-bit frames through one table per code pair ([`PairMerge`], a lookup a sample),
+//! while the EXR is encoded (a PIZ block of lines at a time on each thread) and while
+//! each look is developed (a band of rows at a time); any other bracket through the
+//! per-frame tables ([`BracketMerge`]) when it is written as EXR without looks (each look
+//! would merge all its frames again). The peak is then the decoded frames the caller
+//! holds plus the EXR and the looks' working sets. Otherwise the map is built once
+//! (`width × height × channels × 4` bytes) beside the decoded frames and every output
+//! reads it. The renderings are made on a second thread while the EXR is encoded.
 //! [`job_memory_bytes`] bounds the peak.
 
 use std::io::Cursor;
@@ -61,6 +61,15 @@ pub enum DarkroomError {
     /// The OpenEXR or Radiance HDR file could not be encoded or published.
     #[error(transparent)]
     Output(#[from] OutputError),
+    /// The OpenEXR or Radiance HDR encoder refused the radiance (not a failure to write:
+    /// developing again would fail again).
+    #[error("{}: {source}", path.display())]
+    Encode {
+        /// The file it was encoding.
+        path: PathBuf,
+        /// Why.
+        source: OutputError,
+    },
     /// A rendering could not be made or published.
     #[error(transparent)]
     Rendering(#[from] RenderingError),
@@ -398,9 +407,11 @@ fn write_radiance_files(
         let t = Instant::now();
         let path = prints.hdr_path();
         let mut hdr = Vec::new();
-        hdr_output::encode_radiance_hdr(&mut hdr, source).map_err(|e| PublishError::Content {
-            path: path.clone(),
-            reason: e.to_string(),
+        hdr_output::encode_radiance_hdr(&mut hdr, source).map_err(|source| {
+            DarkroomError::Encode {
+                path: path.clone(),
+                source,
+            }
         })?;
         atomic::publish(&path, &hdr, prints.overwrite)?;
         outputs.push(path);
@@ -432,11 +443,10 @@ fn write_radiance(
     let samples = source.width() as usize * source.height() as usize * planes;
     let mut exr = Cursor::new(Vec::with_capacity(samples * bytes + (1 << 16)));
     let path = prints.exr_path();
-    // An encoder failure names the file it was for, as publishing's failures do.
     let written = hdr_output::encode_exr(&mut exr, source, confidence, provenance, options)
-        .map_err(|e| PublishError::Content {
+        .map_err(|source| DarkroomError::Encode {
             path: path.clone(),
-            reason: e.to_string(),
+            source,
         })?;
     stages.push(("encode", t.elapsed()));
     let t = Instant::now();

@@ -417,3 +417,21 @@ fn a_pair_with_looks_is_developed_from_the_merge_with_the_maps_files() {
     );
     assert!(!optics.fused);
 }
+
+/// An encoder's refusal names the file but is not a failure to write: the daemon records
+/// the bracket as failed rather than retrying it, while a failed publish is retried.
+#[test]
+fn an_encoder_refusal_is_not_retried_as_a_failed_write() {
+    let path = PathBuf::from("/out/b.exr");
+    let refused = DarkroomError::Encode {
+        path: path.clone(),
+        source: OutputError::Exr("header refused".into()),
+    };
+    assert_eq!(refused.output_path(), None);
+    assert!(refused.to_string().contains("/out/b.exr"), "{refused}");
+    let full = DarkroomError::Publish(PublishError::Io {
+        path: path.clone(),
+        source: std::io::Error::from_raw_os_error(28),
+    });
+    assert_eq!(full.output_path(), Some(path.as_path()));
+}
