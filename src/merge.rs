@@ -102,7 +102,7 @@ use rayon::prelude::*;
 
 use crate::frame::{BitDepth, Frame, Samples};
 use crate::metadata::Camera;
-use crate::radiance::{CodePairs, RadianceMap};
+use crate::radiance::{CodePairs, RadianceMap, RadianceSource};
 use crate::response::InverseResponse;
 
 /// How much each frame's sample is trusted (see the module docs for when to use which).
@@ -923,6 +923,61 @@ impl<'a> PairMerge<'a> {
         );
         RadianceMap::new(self.width, self.height, self.table.channels, pixels)
             .expect("buffer sized from the frames")
+    }
+}
+
+impl RadianceSource for PairMerge<'_> {
+    fn width(&self) -> u32 {
+        PairMerge::width(self)
+    }
+    fn height(&self) -> u32 {
+        PairMerge::height(self)
+    }
+    fn channels(&self) -> usize {
+        PairMerge::channels(self)
+    }
+    #[inline]
+    fn sample(&self, pixel: usize, channel: usize) -> f32 {
+        PairMerge::sample(self, pixel, channel)
+    }
+    fn max_value(&self) -> f32 {
+        PairMerge::max_value(self)
+    }
+    #[inline]
+    fn pixels_into(&self, pixel: usize, out: &mut [f32]) {
+        PairMerge::pixels_into(self, pixel, out)
+    }
+    fn code_pairs(&self) -> Option<CodePairs<'_>> {
+        Some(PairMerge::code_pairs(self))
+    }
+}
+
+impl RadianceSource for BracketMerge<'_> {
+    fn width(&self) -> u32 {
+        BracketMerge::width(self)
+    }
+    fn height(&self) -> u32 {
+        BracketMerge::height(self)
+    }
+    fn channels(&self) -> usize {
+        BracketMerge::channels(self)
+    }
+    #[inline]
+    fn sample(&self, pixel: usize, channel: usize) -> f32 {
+        BracketMerge::sample(self, pixel, channel)
+    }
+    #[inline]
+    fn line(&self, pixel: usize, channel: usize, out: &mut [f32]) {
+        BracketMerge::line(self, pixel, channel, out)
+    }
+    /// The tables' bound ([`BracketMerge::max_bound`]).
+    fn max_value(&self) -> f32 {
+        self.max_bound()
+    }
+    /// One more pass over the frames' codes ([`BracketMerge::max_value`]), so that half
+    /// overflow is handled exactly as for the merged map.
+    fn exact_max(&self) -> f32 {
+        BracketMerge::max_value(self)
     }
 }
 

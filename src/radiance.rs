@@ -24,8 +24,13 @@ pub trait RadianceSource: Sync {
             *v = self.sample(pixel + k, channel);
         }
     }
-    /// An upper bound of the finite values (decides half-overflow handling).
+    /// An upper bound of the finite values, cheap (from a merge's tables where it can).
     fn max_value(&self) -> f32;
+    /// The largest finite value, for when the bound is not enough (half overflow): the
+    /// bound itself unless the source can do better with one more pass.
+    fn exact_max(&self) -> f32 {
+        self.max_value()
+    }
     /// The `out.len()/channels` whole pixels from `pixel` on, channels interleaved.
     #[inline]
     fn pixels_into(&self, pixel: usize, out: &mut [f32]) {

@@ -48,72 +48,14 @@ use half::slice::{HalfBitsSliceExt, HalfFloatSliceExt};
 use rayon::prelude::*;
 
 use crate::atomic::{self, Overwrite, PublishError};
-use crate::merge::{BracketMerge, PairMerge};
 use crate::metadata::{Camera, CaptureTime, Exposure};
-use crate::radiance::{CodePairs, RadianceMap, RadianceSource};
+use crate::radiance::{RadianceMap, RadianceSource};
 
 mod attribute_order;
 mod header;
 mod piz;
 
 use header::{image_attributes, layer_attributes, text};
-
-impl RadianceSource for PairMerge<'_> {
-    fn width(&self) -> u32 {
-        PairMerge::width(self)
-    }
-    fn height(&self) -> u32 {
-        PairMerge::height(self)
-    }
-    fn channels(&self) -> usize {
-        PairMerge::channels(self)
-    }
-    #[inline]
-    fn sample(&self, pixel: usize, channel: usize) -> f32 {
-        PairMerge::sample(self, pixel, channel)
-    }
-    fn max_value(&self) -> f32 {
-        PairMerge::max_value(self)
-    }
-    #[inline]
-    fn pixels_into(&self, pixel: usize, out: &mut [f32]) {
-        PairMerge::pixels_into(self, pixel, out)
-    }
-    fn code_pairs(&self) -> Option<CodePairs<'_>> {
-        Some(PairMerge::code_pairs(self))
-    }
-}
-
-impl RadianceSource for BracketMerge<'_> {
-    fn width(&self) -> u32 {
-        BracketMerge::width(self)
-    }
-    fn height(&self) -> u32 {
-        BracketMerge::height(self)
-    }
-    fn channels(&self) -> usize {
-        BracketMerge::channels(self)
-    }
-    #[inline]
-    fn sample(&self, pixel: usize, channel: usize) -> f32 {
-        BracketMerge::sample(self, pixel, channel)
-    }
-    #[inline]
-    fn line(&self, pixel: usize, channel: usize, out: &mut [f32]) {
-        BracketMerge::line(self, pixel, channel, out)
-    }
-    /// The tables' bound while it is within half's range (then nothing can overflow),
-    /// else the exact maximum (one more pass over the frames' codes), so half overflow is
-    /// handled exactly as for the merged map.
-    fn max_value(&self) -> f32 {
-        let bound = self.max_bound();
-        if bound <= HALF_MAX {
-            bound
-        } else {
-            BracketMerge::max_value(self)
-        }
-    }
-}
 
 /// The largest finite half-precision value.
 pub const HALF_MAX: f32 = 65504.0;
@@ -564,10 +506,10 @@ fn overflow<S: RadianceSource + ?Sized>(map: &S, options: ExrOptions) -> (f32, f
     if options.sample == SampleFormat::Float {
         return (1.0, f32::MAX, Vec::new());
     }
-    let max = map.max_value();
-    if max <= HALF_MAX {
+    if map.max_value() <= HALF_MAX {
         return (1.0, HALF_MAX, Vec::new());
     }
+    let max = map.exact_max();
     match options.overflow {
         Overflow::Scale => {
             let n = (max / HALF_MAX).log2().ceil() as i32;
