@@ -10,7 +10,7 @@ use filmback::daemon::cache::{CachedResponse, ResponseCache};
 use filmback::response::InverseResponse;
 use image::RgbImage;
 
-mod common;
+use crate::common;
 use common::filmback;
 
 /// Panel width of the figure (one panel per channel) and its height (title strip + panel).

@@ -12,7 +12,7 @@ use filmback::response::{
 };
 use filmback::synthetic::{self, Encoding, ResponseCurve, Sensor, Shot, measure};
 
-mod common;
+use crate::common;
 use common::filmback;
 
 const W: u32 = 384;

@@ -16,7 +16,7 @@ use image::codecs::png::PngEncoder;
 use image::{ExtendedColorType, ImageEncoder};
 use serde_json::Value as Json;
 
-mod common;
+use crate::common;
 use common::filmback;
 
 // ---------------------------------------------------------------------------------------

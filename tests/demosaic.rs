@@ -3,7 +3,7 @@
 //! description), by a bilinear baseline written here and by rawler's PPG (the
 //! interpolator filmback used before, LGPL-2.1, called through its public API).
 //!
-//! `cargo test --test demosaic -- --nocapture` prints the table of `docs/accuracy.md`.
+//! `cargo test --test all demosaic:: -- --nocapture` prints the table of `docs/accuracy.md`.
 #![cfg(feature = "raw")]
 
 use filmback::raw::Cfa;

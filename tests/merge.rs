@@ -11,7 +11,7 @@ use filmback::radiance::RadianceMap;
 use filmback::response::{self, Degree, InverseResponse, Ratio, RatioSource};
 use filmback::synthetic::{ResponseCurve, SceneKind, Sensor, expose, measure, scene};
 
-mod common;
+use crate::common;
 use common::filmback;
 
 const WIDTH: u32 = 256;

@@ -14,7 +14,7 @@ use filmback::raw::mosaic::{self, Linear, Noise, Signal};
 use filmback::raw::{self, Cfa, RawExposure, RawInfo};
 use filmback::synthetic::{self, RawSensor, Shot, demo};
 
-mod common;
+use crate::common;
 use common::filmback;
 
 const W: u32 = 240;

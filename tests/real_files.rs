@@ -12,7 +12,7 @@ use std::path::{Path, PathBuf};
 use filmback::frame::{self, Limits};
 use serde_json::Value as Json;
 
-mod common;
+use crate::common;
 use common::filmback;
 
 fn testdata() -> Option<PathBuf> {

@@ -201,7 +201,7 @@ fn dorf_database_loads_when_present() {
 }
 
 /// Time and dynamic range of a full-size (24 MP) scene and one noisy 16-bit exposure.
-/// Prints its figures; run with `cargo test --release --test synthetic -- --ignored --nocapture`.
+/// Prints its figures; run with `cargo test --release --test all synthetic:: -- --ignored --nocapture`.
 #[test]
 #[ignore = "one-off measurement at 6000×4000; run in release"]
 fn full_size_scene_timing_and_range() {

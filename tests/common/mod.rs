@@ -1,4 +1,4 @@
-//! What the integration tests share.
+//! What the integration tests share (`crate::common` in each module of `tests/all.rs`).
 
 use std::path::Path;
 use std::process::Command;
@@ -10,7 +10,6 @@ pub fn filmback() -> Command {
 
 /// The interleaved RGB samples (through the library's reader, as `render` reads a map)
 /// and the layer attributes of the OpenEXR file at `path`.
-#[allow(dead_code)] // only the test crates that write EXRs read them back
 pub fn read_exr(path: &Path) -> (Vec<f32>, exr::prelude::LayerAttributes) {
     let map = filmback::hdr_output::read_exr(path).unwrap();
     let meta = exr::meta::MetaData::read_from_file(path, false).unwrap();
