@@ -60,11 +60,12 @@ pub fn scene_key(map: &(impl RadianceSource + ?Sized), key: Key) -> f64 {
     let (sum, n) = (0..count.div_ceil(stride))
         .into_par_iter()
         .map(|j| {
-            let i = j * stride;
+            let mut p = [0f32; 3];
+            map.pixels_into(j * stride, &mut p[..ch]);
             if ch == 3 {
-                luminance(map.sample(i, 0), map.sample(i, 1), map.sample(i, 2))
+                luminance(p[0], p[1], p[2])
             } else {
-                map.sample(i, 0)
+                p[0]
             }
         })
         .filter(|l| l.is_finite() && *l > 0.0)
