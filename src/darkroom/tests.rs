@@ -435,3 +435,67 @@ fn an_encoder_refusal_is_not_retried_as_a_failed_write() {
     });
     assert_eq!(full.output_path(), Some(path.as_path()));
 }
+
+/// Frames of one pixel, one row or one column develop with looks from the lazy pair as
+/// from the map (bands shorter than a band, a single sample for the scene key).
+#[test]
+fn tiny_pairs_develop_their_looks_from_the_merge_as_from_the_map() {
+    let catalogue = crate::film::Catalogue::builtin().unwrap();
+    let films = ["velvia50".to_string()];
+    let tonemaps = ["linear".to_string(), "histogram".to_string()];
+    let looks = rendering::looks(
+        &catalogue,
+        &films,
+        &tonemaps,
+        0.0,
+        crate::film::ColourMode::PerLayer,
+        crate::film::Key::LogAverage,
+    )
+    .unwrap();
+    let exif = SourceExif::default();
+    let dir = tempfile::tempdir().unwrap();
+    let sensor = Sensor::noiseless(ResponseCurve::Srgb, BitDepth::Eight);
+    for (w, h) in [(1, 1), (5, 1), (1, 7)] {
+        let truth = scene(w, h, 3);
+        let frames = [
+            loaded("a.png", expose(&truth, 1.0, &sensor)),
+            loaded("b.png", expose(&truth, 4.0, &sensor)),
+        ];
+        let develop_with = |stem: &str, confidence: bool| {
+            let prints = Prints {
+                dir: dir.path(),
+                stem,
+                exr: Some(ExrOptions::default()),
+                radiance_hdr: false,
+                looks: &looks,
+                format: Format::Jpeg { quality: 92 },
+                exif: &exif,
+                overwrite: Overwrite::Refuse,
+                luminance_calibration: 1.0,
+            };
+            let options = MergeOptions {
+                confidence,
+                ..MergeOptions::default()
+            };
+            let policy = ResponsePolicy::Use(GivenResponse::standard(3));
+            develop(
+                &frames,
+                &[1.0, 4.0],
+                RatioSource::Argument,
+                policy,
+                options,
+                &prints,
+            )
+            .unwrap()
+        };
+        let (lazy, map) = (format!("lazy{w}x{h}"), format!("map{w}x{h}"));
+        assert!(develop_with(&lazy, false).fused);
+        assert!(!develop_with(&map, true).fused);
+        for look in &looks {
+            let read = |stem: &str| {
+                std::fs::read(dir.path().join(format!("{stem}.{}.jpg", look.name()))).unwrap()
+            };
+            assert!(read(&lazy) == read(&map), "{} at {w}×{h}", look.name());
+        }
+    }
+}
