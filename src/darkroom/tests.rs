@@ -19,6 +19,44 @@ fn loaded(name: &str, frame: Frame) -> LoadedFrame {
     }
 }
 
+/// Where the tests' developments go: `dir/STEM.exr` (half PIZ) and `looks` in `format`,
+/// never replacing a file, on the nominal luminance scale.
+fn prints<'a>(
+    dir: &'a Path,
+    stem: &'a str,
+    looks: &'a [Look],
+    format: Format,
+    exif: &'a SourceExif,
+) -> Prints<'a> {
+    Prints {
+        dir,
+        stem,
+        exr: Some(ExrOptions::default()),
+        radiance_hdr: false,
+        looks,
+        format,
+        exif,
+        overwrite: Overwrite::Refuse,
+        luminance_calibration: 1.0,
+    }
+}
+
+/// The built-in stocks' `films` and the tone maps `tonemaps`, per layer, metered on the
+/// log-average.
+fn looks_of(films: &[&str], tonemaps: &[&str]) -> Vec<Look> {
+    let catalogue = crate::film::Catalogue::builtin().unwrap();
+    let owned = |names: &[&str]| names.iter().map(|n| n.to_string()).collect::<Vec<_>>();
+    rendering::looks(
+        &catalogue,
+        &owned(films),
+        &owned(tonemaps),
+        0.0,
+        crate::film::ColourMode::PerLayer,
+        crate::film::Key::LogAverage,
+    )
+    .unwrap()
+}
+
 /// The response `policy` chooses for a noiseless 8-bit pair of scene `seed` through
 /// `curve`, exposed 1 and 4.
 fn choose_for_pair(curve: ResponseCurve, seed: u64, policy: ResponsePolicy) -> ChosenResponse {
@@ -258,17 +296,7 @@ fn an_exr_only_bracket_is_merged_in_bands_with_the_maps_values() {
     let dir = tempfile::tempdir().unwrap();
     let exif = SourceExif::default();
     let develop_with = |stem: &str, confidence: bool| {
-        let prints = Prints {
-            dir: dir.path(),
-            stem,
-            exr: Some(ExrOptions::default()),
-            radiance_hdr: false,
-            looks: &[],
-            format: Format::Jpeg { quality: 90 },
-            exif: &exif,
-            overwrite: Overwrite::Refuse,
-            luminance_calibration: 1.0,
-        };
+        let prints = prints(dir.path(), stem, &[], Format::Jpeg { quality: 90 }, &exif);
         let options = MergeOptions {
             confidence,
             ..MergeOptions::default()
@@ -322,36 +350,14 @@ fn a_pair_with_looks_is_developed_from_the_merge_with_the_maps_files() {
         loaded("grey.png", frame.unwrap())
     });
     let exposures = [1.0, 4.0];
-    let catalogue = crate::film::Catalogue::builtin().unwrap();
-    let films = [
-        "velvia50".to_string(),
-        "provia100f+grain".to_string(),
-        "portra400".to_string(),
-    ];
-    let tonemaps = ["linear".to_string(), "histogram".to_string()];
-    let looks = rendering::looks(
-        &catalogue,
-        &films,
-        &tonemaps,
-        0.0,
-        crate::film::ColourMode::PerLayer,
-        crate::film::Key::LogAverage,
-    )
-    .unwrap();
+    let looks = looks_of(
+        &["velvia50", "provia100f+grain", "portra400"],
+        &["linear", "histogram"],
+    );
     let exif = SourceExif::default();
     let dir = tempfile::tempdir().unwrap();
     let develop_with = |frames: &[LoadedFrame], stem: &str, looks: &[Look], format, confidence| {
-        let prints = Prints {
-            dir: dir.path(),
-            stem,
-            exr: Some(ExrOptions::default()),
-            radiance_hdr: false,
-            looks,
-            format,
-            exif: &exif,
-            overwrite: Overwrite::Refuse,
-            luminance_calibration: 1.0,
-        };
+        let prints = prints(dir.path(), stem, looks, format, &exif);
         let options = MergeOptions {
             confidence,
             ..MergeOptions::default()
@@ -399,15 +405,7 @@ fn a_pair_with_looks_is_developed_from_the_merge_with_the_maps_files() {
             assert_eq!(read(&lazy).unwrap(), read(&map).unwrap());
         }
     }
-    let halation = rendering::looks(
-        &catalogue,
-        &["velvia50+halation".to_string()],
-        &[],
-        0.0,
-        crate::film::ColourMode::PerLayer,
-        crate::film::Key::LogAverage,
-    )
-    .unwrap();
+    let halation = looks_of(&["velvia50+halation"], &[]);
     let optics = develop_with(
         &rgb,
         "optics",
@@ -440,18 +438,7 @@ fn an_encoder_refusal_is_not_retried_as_a_failed_write() {
 /// from the map (bands shorter than a band, a single sample for the scene key).
 #[test]
 fn tiny_pairs_develop_their_looks_from_the_merge_as_from_the_map() {
-    let catalogue = crate::film::Catalogue::builtin().unwrap();
-    let films = ["velvia50".to_string()];
-    let tonemaps = ["linear".to_string(), "histogram".to_string()];
-    let looks = rendering::looks(
-        &catalogue,
-        &films,
-        &tonemaps,
-        0.0,
-        crate::film::ColourMode::PerLayer,
-        crate::film::Key::LogAverage,
-    )
-    .unwrap();
+    let looks = looks_of(&["velvia50"], &["linear", "histogram"]);
     let exif = SourceExif::default();
     let dir = tempfile::tempdir().unwrap();
     let sensor = Sensor::noiseless(ResponseCurve::Srgb, BitDepth::Eight);
@@ -462,17 +449,13 @@ fn tiny_pairs_develop_their_looks_from_the_merge_as_from_the_map() {
             loaded("b.png", expose(&truth, 4.0, &sensor)),
         ];
         let develop_with = |stem: &str, confidence: bool| {
-            let prints = Prints {
-                dir: dir.path(),
+            let prints = prints(
+                dir.path(),
                 stem,
-                exr: Some(ExrOptions::default()),
-                radiance_hdr: false,
-                looks: &looks,
-                format: Format::Jpeg { quality: 92 },
-                exif: &exif,
-                overwrite: Overwrite::Refuse,
-                luminance_calibration: 1.0,
-            };
+                &looks,
+                Format::Jpeg { quality: 92 },
+                &exif,
+            );
             let options = MergeOptions {
                 confidence,
                 ..MergeOptions::default()
