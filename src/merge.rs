@@ -739,25 +739,36 @@ impl PairTable {
 
 /// Fills `out` from two 8-bit frames through a [`PairTable`], rows in parallel.
 fn fill_pair(dark: &[u8], bright: &[u8], table: &PairTable, width: usize, out: &mut [f32]) {
-    let channels = table.channels;
-    let row_len = width * channels;
+    let row_len = width * table.channels;
     out.par_chunks_mut(row_len)
         .enumerate()
         .for_each(|(y, row)| {
             let start = y * row_len;
-            let (d, b) = (
-                &dark[start..start + row_len],
-                &bright[start..start + row_len],
-            );
-            let pixels = row
-                .chunks_exact_mut(channels)
-                .zip(d.chunks_exact(channels).zip(b.chunks_exact(channels)));
-            for (o, (dp, bp)) in pixels {
-                for c in 0..channels {
-                    o[c] = table.value[table.index(c, dp[c], bp[c])];
-                }
-            }
+            let codes = start..start + row_len;
+            gather_pair(&dark[codes.clone()], &bright[codes], table, row);
         });
+}
+
+/// Each sample of `out` (whole pixels, channels interleaved) from its codes `dark`,
+/// `bright` (the same samples) through a [`PairTable`]: one lookup a sample.
+#[inline]
+fn gather_pair(dark: &[u8], bright: &[u8], table: &PairTable, out: &mut [f32]) {
+    let value = &table.value;
+    if table.channels == 3 {
+        // Whole pixels of a constant size: each channel's index without a modulo.
+        let pixels = out
+            .chunks_exact_mut(3)
+            .zip(dark.chunks_exact(3).zip(bright.chunks_exact(3)));
+        for (o, (d, b)) in pixels {
+            for c in 0..3 {
+                o[c] = value[table.index(c, d[c], b[c])];
+            }
+        }
+    } else {
+        for ((o, &d), &b) in out.iter_mut().zip(dark).zip(bright) {
+            *o = value[table.index(0, d, b)];
+        }
+    }
 }
 
 /// Samples clipped high and low in both frames. Weights vanish only at codes 0 and 255,
@@ -864,28 +875,13 @@ impl<'a> PairMerge<'a> {
     /// table lookup per sample.
     #[inline]
     pub fn pixels_into(&self, pixel: usize, out: &mut [f32]) {
-        let channels = self.table.channels;
-        let start = pixel * channels;
-        let (dark, bright) = (
-            &self.dark[start..start + out.len()],
-            &self.bright[start..start + out.len()],
+        let codes = pixel * self.table.channels..pixel * self.table.channels + out.len();
+        gather_pair(
+            &self.dark[codes.clone()],
+            &self.bright[codes],
+            &self.table,
+            out,
         );
-        let value = &self.table.value;
-        if channels == 3 {
-            // Whole pixels of a constant size: each channel's index without a modulo.
-            let pixels = out
-                .chunks_exact_mut(3)
-                .zip(dark.chunks_exact(3).zip(bright.chunks_exact(3)));
-            for (o, (d, b)) in pixels {
-                for c in 0..3 {
-                    o[c] = value[self.table.index(c, d[c], b[c])];
-                }
-            }
-        } else {
-            for ((o, &d), &b) in out.iter_mut().zip(dark).zip(bright) {
-                *o = value[self.table.index(0, d, b)];
-            }
-        }
     }
 
     /// The frames' codes and the table by code pair ([`CodePairs`]).

@@ -256,9 +256,10 @@ pub fn develop(
             // every look evaluate it again; any other bracket is evaluated so only for the
             // EXR alone, since each look would evaluate all its frames again.
             let lazy = !options.confidence && !prints.looks.iter().any(Look::has_optics);
-            let pair = match lazy {
-                true => PairMerge::new(&bracket, &chosen.response, options.weighting)?,
-                false => None,
+            let pair = if lazy {
+                PairMerge::new(&bracket, &chosen.response, options.weighting)?
+            } else {
+                None
             };
             let merged = match pair {
                 Some(pair) => Radiance::Pair(pair),
