@@ -1,7 +1,7 @@
 //! `cargo bench --bench encoders`: filmback's two encoders against the fastest available
 //! implementations of the same formats, on the same pixels, in one run, as ratios.
 //!
-//! * JPEG q92: the banded `jpeg-encoder` of `rendering::encode` (4:4:4 from quality 90,
+//! * JPEG q92: the banded `rusty_jpeg` of `rendering::encode` (4:4:4 from quality 90,
 //!   standard Huffman tables) against libjpeg-turbo through Pillow (same quality, same
 //!   4:4:4, no Huffman optimisation), on one thread and on two (libjpeg-turbo banded the
 //!   same way: bands of 64 rows joined by restart markers, two Python threads);
@@ -452,13 +452,13 @@ fn merged_map(dir: &Path) -> RadianceMap {
                 let Samples::Eight(codes) = frame.samples() else {
                     unreachable!("8-bit sensor")
                 };
-                jpeg_encoder::Encoder::new_file(&path, 95)
+                rusty_jpeg::encode::Encoder::new_file(&path, 95)
                     .expect("frame file")
                     .encode(
                         codes,
                         WIDTH as u16,
                         HEIGHT as u16,
-                        jpeg_encoder::ColorType::Rgb,
+                        rusty_jpeg::encode::ColorType::Rgb,
                     )
                     .expect("frame encodes");
             }

@@ -346,12 +346,12 @@ fn main() {
     // The `image` crate's baseline encoder on the same 8-bit buffer, quality 95.
     let (t_ours, ours) = best(|| {
         let mut out = Vec::new();
-        jpeg_encoder::Encoder::new(&mut out, 95)
+        rusty_jpeg::encode::Encoder::new(&mut out, 95)
             .encode(
                 &reference_u8,
                 w as u16,
                 h as u16,
-                jpeg_encoder::ColorType::Rgb,
+                rusty_jpeg::encode::ColorType::Rgb,
             )
             .expect("encodes");
         out
@@ -365,7 +365,7 @@ fn main() {
     });
     println!("\nJPEG encoder, q95, same 8-bit 24 MP buffer:");
     println!(
-        "  jpeg-encoder (simd)   {:>7.1} ms  {:>6.2} MB  PSNR {:.2} dB",
+        "  rusty_jpeg (simd)     {:>7.1} ms  {:>6.2} MB  PSNR {:.2} dB",
         ms(t_ours),
         ours.len() as f64 / 1e6,
         psnr(&reference_u8, &ours)
@@ -432,15 +432,15 @@ fn looks_alone(map: &RadianceMap, catalogue: &Catalogue) {
             ms(t_all) - ms(t_jpeg)
         );
         if name == "velvia50" {
-            // The same image through one `jpeg-encoder` on one thread (the file before
+            // The same image through one `rusty_jpeg` encoder on one thread (the file before
             // banding), for the encoder's own speed-up.
             let rgb = image.to_u8();
             let (t_single, _) = best(|| {
                 let mut out = Vec::with_capacity(8 << 20);
-                let encoder = jpeg_encoder::Encoder::new(&mut out, 92);
+                let encoder = rusty_jpeg::encode::Encoder::new(&mut out, 92);
                 let (w, h) = (map.width() as u16, map.height() as u16);
                 encoder
-                    .encode(&rgb, w, h, jpeg_encoder::ColorType::Rgb)
+                    .encode(&rgb, w, h, rusty_jpeg::encode::ColorType::Rgb)
                     .expect("encodes");
                 out.len()
             });

@@ -261,13 +261,13 @@ fn make_frames(dir: &Path, truth: &RadianceMap) -> Vec<PathBuf> {
                 let Samples::Eight(codes) = frame.samples() else {
                     unreachable!("8-bit sensor")
                 };
-                let encoder = jpeg_encoder::Encoder::new_file(&path, 95).unwrap();
+                let encoder = rusty_jpeg::encode::Encoder::new_file(&path, 95).unwrap();
                 encoder
                     .encode(
                         codes,
                         WIDTH as u16,
                         HEIGHT as u16,
-                        jpeg_encoder::ColorType::Rgb,
+                        rusty_jpeg::encode::ColorType::Rgb,
                     )
                     .unwrap();
             }
@@ -432,13 +432,13 @@ fn stop_frames(dir: &Path, width: u32, height: u32, n: usize, seed: u64) -> Vec<
         let Samples::Eight(codes) = frame.samples() else {
             unreachable!("8-bit sensor")
         };
-        let encoder = jpeg_encoder::Encoder::new_file(path, 95).unwrap();
+        let encoder = rusty_jpeg::encode::Encoder::new_file(path, 95).unwrap();
         encoder
             .encode(
                 codes,
                 width as u16,
                 height as u16,
-                jpeg_encoder::ColorType::Rgb,
+                rusty_jpeg::encode::ColorType::Rgb,
             )
             .unwrap();
     });

@@ -196,8 +196,7 @@ pub fn srgb_encode_u8(x: f32) -> u8 {
     table[((x.to_bits() >> SHIFT) - base) as usize]
 }
 
-/// The sRGB ICC profile embedded in every output: built by the `moxcms` crate (already in
-/// the build through `image`) from the IEC 61966-2.1 colorants (primaries x,y = 0.64,0.33 /
+/// The sRGB ICC profile embedded in every output: built by the `moxcms` crate from the IEC 61966-2.1 colorants (primaries x,y = 0.64,0.33 /
 /// 0.30,0.60 / 0.15,0.06, D65 white, adapted to the D50 PCS) and the sRGB parametric
 /// tone curve (γ 2.4, linear toe below 0.04045). About 0.5 kB. Its header's creation
 /// date (bytes 24–35, which the encoder sets to the time of encoding; the profile carries
@@ -262,6 +261,19 @@ mod tests {
         assert_eq!(&p[12..16], b"mntr");
         assert_eq!(&p[16..20], b"RGB ");
         assert_eq!(&p[20..24], b"XYZ ");
+        // ICC.1 §7.2.16: the PCS illuminant is D50 exactly, as s15Fixed16 numbers.
+        let be = |at: usize| u32::from_be_bytes([p[at], p[at + 1], p[at + 2], p[at + 3]]);
+        assert_eq!([be(68), be(72), be(76)], [0xF6D6, 0x1_0000, 0xD32D]);
+        // §7.3.1: every tagged element starts on a 4-byte boundary, inside the profile.
+        let tags = be(128) as usize;
+        for k in 0..tags {
+            let (offset, length) = (be(132 + 12 * k + 4) as usize, be(132 + 12 * k + 8) as usize);
+            assert_eq!(offset % 4, 0, "tag {k} at {offset}");
+            assert!(
+                offset >= 132 + 12 * tags && offset + length <= size,
+                "tag {k}"
+            );
+        }
         let profile = moxcms::ColorProfile::new_from_slice(p).expect("parses back");
         // Published D50-adapted colorants of IEC 61966-2.1 (red X,Y,Z).
         let r = profile.red_colorant;

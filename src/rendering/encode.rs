@@ -201,8 +201,10 @@ fn stream_jpeg(
 /// Adds the sRGB profile (APP2) and the EXIF block (APP1) to a JPEG encoder.
 fn decorate(
     block: &[u8],
-) -> impl Fn(&mut jpeg_encoder::Encoder<&mut Vec<u8>>) -> Result<(), jpeg_encoder::EncodingError> + Sync
-{
+) -> impl Fn(
+    &mut rusty_jpeg::encode::Encoder<&mut Vec<u8>>,
+) -> Result<(), rusty_jpeg::encode::EncodingError>
++ Sync {
     move |encoder| {
         encoder.add_icc_profile(srgb_icc_profile())?;
         let mut app1 = b"Exif\0\0".to_vec();

@@ -1,5 +1,5 @@
 //! Baseline JPEG on every core: the image is cut into horizontal bands of whole MCU rows,
-//! each band is encoded on its own by `jpeg-encoder` with the same quantisation and
+//! each band is encoded on its own by `rusty_jpeg` with the same quantisation and
 //! (standard) Huffman tables, and the bands' entropy-coded segments are joined by restart
 //! markers `RST0..RST7` under one header whose `DRI` restart interval is the MCU count of
 //! a band.
@@ -13,8 +13,8 @@
 use std::io::Write;
 use std::ops::Range;
 
-use jpeg_encoder::{ColorType, Encoder, EncodingError, SamplingFactor};
 use rayon::prelude::*;
+use rusty_jpeg::encode::{ColorType, Encoder, EncodingError, SamplingFactor};
 
 /// Rows per band at most (a multiple of both MCU heights, 8 and 16 rows): 64 rows of a
 /// 24 MP frame are 1.1 MB of RGB, so a band in flight per core stays in cache-sized work.
@@ -23,7 +23,7 @@ const BAND_ROWS: usize = 64;
 /// The largest restart interval the `DRI` segment can state, in MCUs.
 const MAX_INTERVAL: usize = u16::MAX as usize;
 
-/// The chroma sampling `jpeg-encoder` chooses by itself at this quality, stated so that
+/// The chroma sampling `rusty_jpeg` chooses by itself at this quality, stated so that
 /// every band agrees: 4:2:0 (16 × 16-pixel MCUs) below quality 90, 4:4:4 (8 × 8) from 90.
 pub(super) fn sampling(quality: u8) -> SamplingFactor {
     if quality < 90 {
@@ -115,7 +115,7 @@ pub(super) fn encode_bands(
 }
 
 /// The start of the `SOF0` segment and the entropy-coded segment of a baseline JPEG as
-/// `jpeg-encoder` writes it (marker segments up to `SOS`, one scan, `EOI` last).
+/// `rusty_jpeg` writes it (marker segments up to `SOS`, one scan, `EOI` last).
 fn scan_of(bytes: &[u8]) -> Result<(usize, Range<usize>), String> {
     let bad = |what: &str| format!("unexpected encoder output: {what}");
     if bytes.get(..2) != Some(&[0xFF, 0xD8]) {
