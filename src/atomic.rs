@@ -90,7 +90,10 @@ where
         source,
     };
     let result = (|| {
-        let mut file = File::create(&tmp).map_err(io_err)?;
+        // A leftover of a process that had this one's id goes first; the new file is
+        // created, never opened through whatever (a link) might stand under its name.
+        let _ = fs::remove_file(&tmp);
+        let mut file = File::create_new(&tmp).map_err(io_err)?;
         {
             let mut writer = io::BufWriter::with_capacity(1 << 20, &mut file);
             produce(&mut writer).map_err(|reason| PublishError::Content {
@@ -140,7 +143,8 @@ pub const STAGE_PREFIX: &str = ".filmback-stage-";
 /// Renames `from` to `to` unless `to` exists ([`io::ErrorKind::AlreadyExists`]), in one
 /// step: `renameat2(…, RENAME_NOREPLACE)`. Where the kernel or the file system has no such
 /// rename (`EINVAL`, `ENOSYS`), or off Linux, a hard link under `to` and then `from`
-/// removed: the same guarantee, but a watcher sees a new link rather than a rename.
+/// removed (a failure to remove it is not an error: `to` is in place): the same
+/// guarantee, but a watcher sees a new link rather than a rename.
 pub fn rename_no_replace(from: &Path, to: &Path) -> io::Result<()> {
     #[cfg(target_os = "linux")]
     {
@@ -153,7 +157,8 @@ pub fn rename_no_replace(from: &Path, to: &Path) -> io::Result<()> {
         }
     }
     fs::hard_link(from, to)?;
-    fs::remove_file(from)
+    let _ = fs::remove_file(from);
+    Ok(())
 }
 
 /// Moves the finished file `source` into `dir` under its own name, whole or not at all,
@@ -161,9 +166,10 @@ pub fn rename_no_replace(from: &Path, to: &Path) -> io::Result<()> {
 /// one file system it is a hard link under a temporary name in `dir`, renamed into place
 /// by [`rename_no_replace`], and then the old name removed; across file systems (or where
 /// links are refused) it is a copy published as by [`publish_with`] with
-/// [`Overwrite::Refuse`], keeping `source`'s mtime, and then `source` removed. Either way
-/// a watcher of `dir` sees the file renamed into place from a name [`is_temporary`]
-/// tells as ours (the daemon takes such a frame at once). Returns the new path.
+/// [`Overwrite::Refuse`], keeping `source`'s mtime, and then `source` removed. Where the
+/// file system has `RENAME_NOREPLACE`, an inotify watcher of `dir` sees the file renamed
+/// into place from a name [`is_temporary`] tells as ours (the daemon takes such a frame
+/// at once); elsewhere, and to a polling watcher, it is a new file. Returns the new path.
 pub fn move_into(source: &Path, dir: &Path) -> Result<PathBuf, PublishError> {
     let io_err = |path: &Path| {
         let path = path.to_path_buf();
@@ -376,6 +382,22 @@ mod tests {
         rename_no_replace(&from, &to).unwrap();
         assert_eq!(fs::read(&to).unwrap(), b"new");
         assert!(!from.exists());
+    }
+
+    #[test]
+    fn a_file_that_appears_while_publishing_is_not_replaced() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("a.bin");
+        let err = publish_with(&path, Overwrite::Refuse, |w| {
+            // Another writer takes the name after the check, before the rename.
+            fs::write(&path, b"other").map_err(|e| e.to_string())?;
+            w.write_all(b"ours").map_err(|e| e.to_string())
+        })
+        .unwrap_err();
+        assert!(matches!(err, PublishError::Exists { .. }), "{err}");
+        assert_eq!(fs::read(&path).unwrap(), b"other");
+        let names: Vec<_> = fs::read_dir(dir.path()).unwrap().collect();
+        assert_eq!(names.len(), 1, "no temporary file left behind");
     }
 
     #[test]

@@ -602,8 +602,9 @@ fn a_frame_its_writer_closed_is_taken_without_the_whole_settle_window() {
 #[test]
 fn a_frame_handed_over_by_the_hook_is_taken_at_once() {
     // `filmback hook` (atomic::move_into) renames each download into place from a
-    // filmback temporary name: complete, so not even the quarter second a closed file
-    // waits; a hard link (as before) would have waited the whole minute.
+    // filmback temporary name, which the daemon takes without the settle window; a hard
+    // link (as before) waited the whole minute. (That it skips the quarter second a
+    // closed file waits too is intake's and settling's unit tests' and the bench's.)
     let (calls, lab) = counting_darkroom();
     let mut rig = Rig::start(&[("watch", "settle_ms = 60000")], lab, |root| {
         std::fs::create_dir_all(root.join("downloads")).unwrap();

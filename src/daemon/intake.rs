@@ -551,7 +551,8 @@ mod tests {
         std::fs::write(ingest.join("b.jpg.part"), b"b").unwrap();
         std::fs::rename(ingest.join("b.jpg.part"), ingest.join("b.jpg")).unwrap();
         std::fs::write(ingest.join("c.jpg"), b"c").unwrap();
-        // What each file's notices said, strongest last seen: Delivered > Closed > Writing.
+        // What each file's notices said last, writes aside (as settling keeps it: notify
+        // sends a rename's `To` half, Closed, before the paired event, Delivered).
         let mut said: HashMap<String, Arrival> = HashMap::new();
         let deadline = std::time::Instant::now() + std::time::Duration::from_secs(10);
         while said.len() < 3 || said.get("c.jpg") != Some(&Arrival::Closed) {
@@ -565,9 +566,8 @@ mod tests {
             };
             if let Notice::File { path, arrival } = notice {
                 let name = path.file_name().unwrap().to_string_lossy().into_owned();
-                let rank = |a: &Arrival| *a as u8;
                 let entry = said.entry(name).or_insert(arrival);
-                if rank(&arrival) > rank(entry) {
+                if arrival != Arrival::Writing {
                     *entry = arrival;
                 }
             }

@@ -6,7 +6,9 @@
 //! for `settle` on the daemon's monotonic clock, or for [`FINISHED_QUIET`] (250 ms, at most
 //! `settle`) after its writer closed it or it was renamed into place, or as soon as it is
 //! seen when it was renamed into place from a filmback temporary name (`filmback hook`'s
-//! hand-over, [`atomic::move_into`]: whole, and never written again). Never by its mtime
+//! hand-over, [`atomic::move_into`], with inotify on a file system that has
+//! `RENAME_NOREPLACE`: whole; a write notice after it makes it wait as a closed file).
+//! Never by its mtime
 //! (gphoto2 sets it to the capture time, in the past, and across file systems copies
 //! under the final name); a rewrite just after the close (digiCamControl copies
 //! non-atomically and may rewrite the EXIF), a `utime` or a replacement changes `ctime` or
@@ -118,7 +120,15 @@ impl State {
             finished: None,
         });
         match arrival {
-            Arrival::Writing => {}
+            // Written after a hand-over: another writer's work, which waits as a closed
+            // file does.
+            Arrival::Writing => {
+                if let Some(finished) = &mut cand.finished
+                    && finished.2.is_zero()
+                {
+                    *finished = (None, Instant::now(), FINISHED_QUIET);
+                }
+            }
             Arrival::Closed => cand.finished = Some((None, Instant::now(), FINISHED_QUIET)),
             Arrival::Delivered => cand.finished = Some((None, Instant::now(), Duration::ZERO)),
         }
@@ -263,7 +273,8 @@ impl State {
     }
 
     /// Candidates whose size, mtime, change time and inode were unchanged for `settle`, or
-    /// for [`FINISHED_QUIET`] since their writer closed them (see the module docs).
+    /// for [`FINISHED_QUIET`] since their writer closed them, or handed over by filmback
+    /// and seen once (see the module docs).
     /// Nothing is taken while the queue is full (back-pressure).
     pub(super) fn settle(&mut self) -> Vec<PathBuf> {
         let room = self.config.daemon.queue.saturating_sub(self.queue.len());
@@ -308,6 +319,9 @@ impl State {
                     *since = Instant::now();
                     quiet.is_zero()
                 }
+                // A hand-over once seen stays ready (only a write notice takes that back):
+                // the hook's unlink of the download changes the file's ctime.
+                Some((Some(_), _, quiet)) if quiet.is_zero() => true,
                 Some((Some(first), since, quiet)) if *first == seen => {
                     since.elapsed() >= settle.min(*quiet)
                 }
