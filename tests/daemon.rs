@@ -955,6 +955,9 @@ fn kill_9_mid_merge_then_restart_loses_and_repeats_nothing() {
     std::thread::sleep(Duration::from_millis(800));
     terminate(&mut child);
     assert_eq!(journal::read(&root.join("state")).unwrap().len(), 2);
+    // The last snapshot says it stopped, and so no longer watches.
+    let last = daemon::read_snapshot(&root.join("state")).unwrap();
+    assert!(!last.running && !last.watching, "{last:?}");
 }
 
 #[test]
