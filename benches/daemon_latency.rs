@@ -5,7 +5,8 @@
 //! 1. **Direct**: the lab alone (decode, merge, EXR, two JPEG renderings, Velvia 50 and linear) on a pair,
 //!    called as a function: the work the daemon wraps.
 //! 2. **Latency**: the daemon running; the pair is renamed into the ingest folder the way a
-//!    tethering tool does; time from the rename of the last frame to all outputs (EXR +
+//!    tethering tool does, and then handed over as `filmback hook` does
+//!    (`atomic::move_into`); time from the rename of the last frame to all outputs (EXR +
 //!    two JPEGs) being in place. Printed with its ratio to (1).
 //! 3. **Stream**: `--stream N` pairs renamed in at once; brackets per minute and CPU use
 //!    (user + system time over wall time, in cores; the machine's core count for scale).
@@ -225,6 +226,25 @@ fn main() {
         "latency, last frame renamed in → EXR + JPEG in place (median of 3): {:.2} s = {:.2}× direct",
         lat.as_secs_f64(),
         lat.as_secs_f64() / direct_median.as_secs_f64()
+    );
+    // The same through `filmback hook` (gphoto2's hand-over): complete on arrival, so
+    // taken without the quiet window a renamed file waits.
+    let mut handed = Vec::new();
+    for run in 0..3 {
+        let name = format!("hook{run}");
+        let files = stage(&name, 200 + 20 * run);
+        filmback::atomic::move_into(&files[0].0, &ingest).unwrap();
+        std::thread::sleep(Duration::from_millis(100));
+        filmback::atomic::move_into(&files[1].0, &ingest).unwrap();
+        handed.push(wait_for(&outputs(&name), Duration::from_secs(300)));
+        std::thread::sleep(Duration::from_millis(500));
+    }
+    handed.sort();
+    let hook = handed[1];
+    println!(
+        "latency, last frame handed over by `filmback hook` → EXR + JPEG in place (median of 3): {:.2} s = {:.2}× direct",
+        hook.as_secs_f64(),
+        hook.as_secs_f64() / direct_median.as_secs_f64()
     );
 
     let staged: Vec<(String, Vec<(PathBuf, PathBuf)>)> = (0..stream)

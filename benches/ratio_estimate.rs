@@ -1,6 +1,7 @@
 //! How well the exposure ratio is estimated when a pair has no EXIF.
 //!
-//! `cargo bench --bench ratio_estimate [-- --curves tune|report|all] [--size WxH]`
+//! `cargo bench --bench ratio_estimate [-- --curves tune|report|all] [--size WxH]
+//! [--brackets DIR]`
 //!
 //! Histograms alone fix the inverse response only up to a power (`g^k` with `γ^k`), so the
 //! estimate rests on a prior, [`filmback::response::PRIOR_MID_GREY`]: the value of `g` at
@@ -14,7 +15,8 @@
 //!    cannot be estimated right by any histogram method).
 //! 2. **Real pairs**: the adjacent frames of `../shared/testdata/brackets/` (skipped when
 //!    absent) with their known ratios: `frobisher` (EXIF), `learnopencv` (exposure time
-//!    from EXIF, same aperture, no ISO), `memorial` (`exposure_times_seconds.csv`).
+//!    from EXIF, same aperture, no ISO), `memorial` (`exposure_times_seconds.csv`); with
+//!    `--brackets DIR`, the folders of `DIR` instead (and no synthetic pairs).
 
 use std::path::{Path, PathBuf};
 
@@ -113,51 +115,69 @@ fn synthetic_pairs(split: &str, width: u32, height: u32) {
 /// Two adjacent frames of a real set, darker first, and their true ratio.
 type RealPair = (PathBuf, PathBuf, f64);
 
-/// Each real set's name and adjacent pairs.
+/// Each real set's name and adjacent pairs: every folder under `root`, its frames'
+/// exposures from `exposure_times_seconds.csv` (`file,exposure_seconds`) when it has one,
+/// else from each image's EXIF (`t·S/N²`, the parts a file lacks taken as equal across the
+/// set: learnopencv has no ISO tag).
 fn real_sets(root: &Path) -> Vec<(String, Vec<RealPair>)> {
-    let mut sets = Vec::new();
-    let by_time = |files: Vec<(PathBuf, f64)>| {
-        let mut files = files;
+    let by_time = |mut files: Vec<(PathBuf, f64)>| {
         files.sort_by(|a, b| a.1.total_cmp(&b.1));
         files
             .windows(2)
             .map(|w| (w[0].0.clone(), w[1].0.clone(), w[1].1 / w[0].1))
             .collect::<Vec<_>>()
     };
-    for name in ["frobisher", "learnopencv"] {
-        let dir = root.join(name);
-        let Ok(entries) = std::fs::read_dir(&dir) else {
-            continue;
-        };
-        let files: Vec<(PathBuf, f64)> = entries
-            .filter_map(|e| e.ok().map(|e| e.path()))
-            .filter(|p| p.extension().is_some_and(|e| e == "jpg"))
-            .filter_map(|p| {
-                let bytes = std::fs::read(&p).ok()?;
-                let t = filmback::metadata::read(&bytes).exposure.time_s?;
-                Some((p, t))
-            })
-            .collect();
-        sets.push((name.to_string(), by_time(files)));
-    }
-    let memorial = root.join("memorial");
-    if let Ok(csv) = std::fs::read_to_string(memorial.join("exposure_times_seconds.csv")) {
-        let files: Vec<(PathBuf, f64)> = csv
-            .lines()
-            .skip(1)
-            .filter_map(|l| {
-                let (f, t) = l.split_once(',')?;
-                Some((memorial.join(f.trim()), t.trim().parse().ok()?))
-            })
-            .collect();
-        sets.push(("memorial".to_string(), by_time(files)));
+    let Ok(entries) = std::fs::read_dir(root) else {
+        return Vec::new();
+    };
+    let mut dirs: Vec<PathBuf> = entries
+        .filter_map(|e| e.ok().map(|e| e.path()))
+        .filter(|p| p.is_dir())
+        .collect();
+    dirs.sort();
+    let mut sets = Vec::new();
+    for dir in dirs {
+        let name = dir.file_name().unwrap().to_string_lossy().into_owned();
+        let files: Vec<(PathBuf, f64)> =
+            match std::fs::read_to_string(dir.join("exposure_times_seconds.csv")) {
+                Ok(csv) => csv
+                    .lines()
+                    .skip(1)
+                    .filter_map(|l| {
+                        let (f, t) = l.split_once(',')?;
+                        Some((dir.join(f.trim()), t.trim().parse().ok()?))
+                    })
+                    .collect(),
+                Err(_) => {
+                    let Ok(entries) = std::fs::read_dir(&dir) else {
+                        continue;
+                    };
+                    entries
+                        .filter_map(|e| e.ok().map(|e| e.path()))
+                        .filter(|p| {
+                            p.extension().is_some_and(|e| {
+                                ["jpg", "jpeg", "png", "tif", "tiff"]
+                                    .contains(&e.to_string_lossy().to_lowercase().as_str())
+                            })
+                        })
+                        .filter_map(|p| {
+                            let bytes = std::fs::read(&p).ok()?;
+                            let e = filmback::metadata::read(&bytes).exposure;
+                            let n = e.f_number.unwrap_or(1.0);
+                            Some((p, e.time_s? * e.iso.unwrap_or(100.0) / (n * n)))
+                        })
+                        .collect()
+                }
+            };
+        if files.len() >= 2 {
+            sets.push((name, by_time(files)));
+        }
     }
     sets
 }
 
-fn real_pairs() {
-    let root = Path::new(env!("CARGO_MANIFEST_DIR")).join("../shared/testdata/brackets");
-    let sets = real_sets(&root);
+fn real_pairs(root: &Path) {
+    let sets = real_sets(root);
     if sets.is_empty() {
         eprintln!("(real brackets unavailable: skipped)");
         return;
@@ -215,6 +235,12 @@ fn main() {
         }
         None => (512, 384),
     };
-    synthetic_pairs(&split, width, height);
-    real_pairs();
+    match arg("--brackets") {
+        // Another folder of real brackets: its pairs alone.
+        Some(dir) => real_pairs(Path::new(&dir)),
+        None => {
+            synthetic_pairs(&split, width, height);
+            real_pairs(&Path::new(env!("CARGO_MANIFEST_DIR")).join("../shared/testdata/brackets"));
+        }
+    }
 }

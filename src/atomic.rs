@@ -3,8 +3,11 @@
 //!
 //! The bytes go to a hidden temporary file in the destination folder, are flushed to disk
 //! (`fsync`), and only then appear under the final name: by `rename` when overwriting is
-//! allowed, by `link` (which fails if the name exists, so two writers can never clobber
-//! each other) when it is not. The folder is synced afterwards so the new name survives a
+//! allowed, by a rename that refuses to replace (`renameat2` with `RENAME_NOREPLACE`;
+//! where the file system cannot, a `link`, which fails if the name exists, then the
+//! temporary name removed) when it is not: two writers can never clobber each other. A
+//! watcher of the folder sees the file arrive whole under its name, by a rename from a
+//! name [`is_temporary`] tells as ours. The folder is synced afterwards so the new name survives a
 //! power cut. On any error the temporary file is removed.
 //!
 //! A set of files that belongs together (a bracket's EXR and its renderings) is published
@@ -87,7 +90,10 @@ where
         source,
     };
     let result = (|| {
-        let mut file = File::create(&tmp).map_err(io_err)?;
+        // A leftover of a process that had this one's id goes first; the new file is
+        // created, never opened through whatever (a link) might stand under its name.
+        let _ = fs::remove_file(&tmp);
+        let mut file = File::create_new(&tmp).map_err(io_err)?;
         {
             let mut writer = io::BufWriter::with_capacity(1 << 20, &mut file);
             produce(&mut writer).map_err(|reason| PublishError::Content {
@@ -100,18 +106,15 @@ where
         drop(file);
         match overwrite {
             Overwrite::Replace => fs::rename(&tmp, path).map_err(io_err)?,
-            Overwrite::Refuse => {
-                fs::hard_link(&tmp, path).map_err(|source| {
-                    if source.kind() == io::ErrorKind::AlreadyExists {
-                        PublishError::Exists {
-                            path: path.to_path_buf(),
-                        }
-                    } else {
-                        io_err(source)
+            Overwrite::Refuse => rename_no_replace(&tmp, path).map_err(|source| {
+                if source.kind() == io::ErrorKind::AlreadyExists {
+                    PublishError::Exists {
+                        path: path.to_path_buf(),
                     }
-                })?;
-                fs::remove_file(&tmp).map_err(io_err)?;
-            }
+                } else {
+                    io_err(source)
+                }
+            })?,
         }
         if let Some(dir) = path.parent().filter(|d| !d.as_os_str().is_empty()) {
             // Persist the directory entry; not every file system supports syncing a folder.
@@ -137,12 +140,36 @@ pub fn publish(path: &Path, bytes: &[u8], overwrite: Overwrite) -> Result<(), Pu
 /// Prefix of the hidden staging folders of [`publish_set`] (`.filmback-stage-<key>`).
 pub const STAGE_PREFIX: &str = ".filmback-stage-";
 
+/// Renames `from` to `to` unless `to` exists ([`io::ErrorKind::AlreadyExists`]), in one
+/// step: `renameat2(…, RENAME_NOREPLACE)`. Where the kernel or the file system has no such
+/// rename (`EINVAL`, `ENOSYS`), or off Linux, a hard link under `to` and then `from`
+/// removed (a failure to remove it is not an error: `to` is in place): the same
+/// guarantee, but a watcher sees a new link rather than a rename.
+pub fn rename_no_replace(from: &Path, to: &Path) -> io::Result<()> {
+    #[cfg(target_os = "linux")]
+    {
+        use rustix::fs::{CWD, RenameFlags, renameat_with};
+        use rustix::io::Errno;
+        match renameat_with(CWD, from, CWD, to, RenameFlags::NOREPLACE) {
+            Ok(()) => return Ok(()),
+            Err(e) if e == Errno::INVAL || e == Errno::NOSYS => {}
+            Err(e) => return Err(e.into()),
+        }
+    }
+    fs::hard_link(from, to)?;
+    let _ = fs::remove_file(from);
+    Ok(())
+}
+
 /// Moves the finished file `source` into `dir` under its own name, whole or not at all,
 /// never replacing a file there ([`PublishError::Exists`], `source` left in place). On
-/// one file system it is a hard link under the new name and then the old name removed (a
-/// rename that cannot replace); across file systems (or where links are refused) it is a
-/// copy published as by [`publish_with`] with [`Overwrite::Refuse`], keeping `source`'s
-/// mtime, and then `source` removed. Returns the new path.
+/// one file system it is a hard link under a temporary name in `dir`, renamed into place
+/// by [`rename_no_replace`], and then the old name removed; across file systems (or where
+/// links are refused) it is a copy published as by [`publish_with`] with
+/// [`Overwrite::Refuse`], keeping `source`'s mtime, and then `source` removed. Where the
+/// file system has `RENAME_NOREPLACE`, an inotify watcher of `dir` sees the file renamed
+/// into place from a name [`is_temporary`] tells as ours (the daemon takes such a frame
+/// at once); elsewhere, and to a polling watcher, it is a new file. Returns the new path.
 pub fn move_into(source: &Path, dir: &Path) -> Result<PathBuf, PublishError> {
     let io_err = |path: &Path| {
         let path = path.to_path_buf();
@@ -165,10 +192,20 @@ pub fn move_into(source: &Path, dir: &Path) -> Result<PathBuf, PublishError> {
     if fs::symlink_metadata(&target).is_ok() {
         return Err(PublishError::Exists { path: target });
     }
-    match fs::hard_link(source, &target) {
-        Ok(()) => sync_folder(dir),
-        Err(e) if e.kind() == io::ErrorKind::AlreadyExists => {
-            return Err(PublishError::Exists { path: target });
+    let tmp = temporary_name(&target);
+    // A leftover of a process that had this one's id, never a frame.
+    let _ = fs::remove_file(&tmp);
+    match fs::hard_link(source, &tmp) {
+        Ok(()) => {
+            if let Err(e) = rename_no_replace(&tmp, &target) {
+                let _ = fs::remove_file(&tmp);
+                return Err(if e.kind() == io::ErrorKind::AlreadyExists {
+                    PublishError::Exists { path: target }
+                } else {
+                    io_err(&target)(e)
+                });
+            }
+            sync_folder(dir);
         }
         Err(e) if cannot_link(&e) => {
             let mut from = File::open(source).map_err(io_err(source))?;
@@ -330,6 +367,38 @@ pub fn recover_sets(dir: &Path) -> Vec<Recovered> {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn a_rename_that_cannot_replace_leaves_both_files() {
+        let dir = tempfile::tempdir().unwrap();
+        let (from, to) = (dir.path().join("a"), dir.path().join("b"));
+        fs::write(&from, b"new").unwrap();
+        fs::write(&to, b"old").unwrap();
+        let err = rename_no_replace(&from, &to).unwrap_err();
+        assert_eq!(err.kind(), io::ErrorKind::AlreadyExists, "{err}");
+        assert_eq!(fs::read(&from).unwrap(), b"new");
+        assert_eq!(fs::read(&to).unwrap(), b"old");
+        fs::remove_file(&to).unwrap();
+        rename_no_replace(&from, &to).unwrap();
+        assert_eq!(fs::read(&to).unwrap(), b"new");
+        assert!(!from.exists());
+    }
+
+    #[test]
+    fn a_file_that_appears_while_publishing_is_not_replaced() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("a.bin");
+        let err = publish_with(&path, Overwrite::Refuse, |w| {
+            // Another writer takes the name after the check, before the rename.
+            fs::write(&path, b"other").map_err(|e| e.to_string())?;
+            w.write_all(b"ours").map_err(|e| e.to_string())
+        })
+        .unwrap_err();
+        assert!(matches!(err, PublishError::Exists { .. }), "{err}");
+        assert_eq!(fs::read(&path).unwrap(), b"other");
+        let names: Vec<_> = fs::read_dir(dir.path()).unwrap().collect();
+        assert_eq!(names.len(), 1, "no temporary file left behind");
+    }
 
     #[test]
     fn publishes_and_refuses_to_clobber() {

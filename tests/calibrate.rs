@@ -8,7 +8,8 @@ use filmback::histogram::Histogram;
 use filmback::metadata::{Camera, CaptureTime, Exposure};
 use filmback::radiance::RadianceMap;
 use filmback::response::{
-    self, Calibration, CalibrationError, Degree, Ratio, RatioSource, calibrate, calibrate_bracket,
+    self, Calibration, CalibrationError, Degree, PRIOR_MID_GREY, Ratio, RatioSource, calibrate,
+    calibrate_bracket,
 };
 use filmback::synthetic::{self, Encoding, ResponseCurve, Sensor, Shot, measure};
 
@@ -638,7 +639,13 @@ fn command_prints_the_json_contract_and_writes_toml_and_png() {
 #[test]
 fn command_estimates_the_ratio_without_exif_and_says_so() {
     let dir = tempfile::tempdir().unwrap();
-    let (dark, bright) = pair(&scene(), &sensor(ResponseCurve::Srgb, BitDepth::Eight), 4.0);
+    // A camera whose g(0.5) is the prior's: gamma ln g(0.5) / ln 0.5.
+    let gamma = PRIOR_MID_GREY.ln() / 0.5f64.ln();
+    let (dark, bright) = pair(
+        &scene(),
+        &sensor(ResponseCurve::Gamma(gamma), BitDepth::Eight),
+        4.0,
+    );
     let (a, b) = (dir.path().join("a.png"), dir.path().join("b.png"));
     write_frame(&a, &dark, None);
     write_frame(&b, &bright, None);
@@ -656,8 +663,13 @@ fn command_estimates_the_ratio_without_exif_and_says_so() {
     );
     let json: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
     assert_eq!(json["ratio_source"], "estimated");
-    assert!(json["ratio_prior"].as_str().unwrap().contains("sRGB"));
-    // The scene went through sRGB, so the prior holds and the estimate is close to 4.
+    assert!(
+        json["ratio_prior"]
+            .as_str()
+            .unwrap()
+            .contains("real camera")
+    );
+    // The scene went through a curve the prior describes, so the estimate is close to 4.
     let r = json["ratio"].as_f64().unwrap();
     assert!((r / 4.0).log2().abs() < 0.25, "{r}");
     // The range a user is given holds the estimate and the truth.

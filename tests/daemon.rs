@@ -600,6 +600,29 @@ fn a_frame_its_writer_closed_is_taken_without_the_whole_settle_window() {
 }
 
 #[test]
+fn a_frame_handed_over_by_the_hook_is_taken_at_once() {
+    // `filmback hook` (atomic::move_into) renames each download into place from a
+    // filmback temporary name, which the daemon takes without the settle window; a hard
+    // link (as before) waited the whole minute. (That it skips the quarter second a
+    // closed file waits too is intake's and settling's unit tests' and the bench's.)
+    let (calls, lab) = counting_darkroom();
+    let mut rig = Rig::start(&[("watch", "settle_ms = 60000")], lab, |root| {
+        std::fs::create_dir_all(root.join("downloads")).unwrap();
+    });
+    let downloads = rig.root.join("downloads");
+    for (name, bytes) in &aeb("Body A", 10, "h") {
+        let download = downloads.join(name);
+        std::fs::write(&download, bytes).unwrap();
+        let moved = atomic::move_into(&download, &rig.ingest()).unwrap();
+        assert_eq!(moved, rig.ingest().join(name));
+    }
+    expect_outputs(&rig.out(), &bracket_outputs(&["h-1"]), T);
+    rig.stop();
+    assert_eq!(calls.load(Ordering::SeqCst), 1);
+    assert_eq!(std::fs::read_dir(&downloads).unwrap().count(), 0);
+}
+
+#[test]
 fn slow_writer_is_taken_only_when_complete() {
     let mut rig = Rig::start(
         &[("watch", "settle_ms = 400")],
@@ -932,6 +955,9 @@ fn kill_9_mid_merge_then_restart_loses_and_repeats_nothing() {
     std::thread::sleep(Duration::from_millis(800));
     terminate(&mut child);
     assert_eq!(journal::read(&root.join("state")).unwrap().len(), 2);
+    // The last snapshot says it stopped, and so no longer watches.
+    let last = daemon::read_snapshot(&root.join("state")).unwrap();
+    assert!(!last.running && !last.watching, "{last:?}");
 }
 
 #[test]

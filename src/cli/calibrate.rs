@@ -294,7 +294,7 @@ fn report(cal: &Calibration) -> Value {
         "ratio": cal.ratio,
         "ratio_source": cal.ratio_source.as_str(),
         "ratio_prior": (cal.ratio_source == RatioSource::Estimated).then(|| format!(
-            "g(0.5) = {PRIOR_MID_GREY:.4} as on the sRGB curve (g and the ratio trade off as g^k, ratio^k)"
+            "g(0.5) = {PRIOR_MID_GREY:.4}, a real camera's on the median (g and the ratio trade off as g^k, ratio^k)"
         )),
         "ratio_range": cal.ratio_range().map(|(lo, hi)| [lo, hi]),
         "channels": channels,

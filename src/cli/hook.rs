@@ -6,9 +6,10 @@
 //! has just finished saving (renamed from its `tmpfileXXXXXX` and given the capture time
 //! as mtime). Only `download` does anything here: the file moves into the ingest folder
 //! under its own name, whole or not at all, so the daemon never sees it partly written:
-//! on one file system a link under the final name and the old name removed, across file
-//! systems a copy to a hidden temporary name in the ingest folder (which the daemon never
-//! takes), synced and then linked into place ([`atomic::move_into`]). An existing file
+//! a link (on one file system) or a synced copy (across file systems) under a hidden
+//! temporary name in the ingest folder (which the daemon never takes), renamed into place
+//! by a rename that cannot replace anything, and then the old name removed
+//! ([`atomic::move_into`]). An existing file
 //! of that name in the ingest folder is never replaced: the hook fails naming both files
 //! and leaves the download where it is.
 

@@ -16,6 +16,7 @@ use notify::event::{AccessKind, AccessMode, ModifyKind, RenameMode};
 use notify::{EventKind, RecursiveMode, Watcher};
 use tokio::sync::mpsc::UnboundedSender;
 
+use crate::atomic;
 use crate::daemon::Footprint;
 use crate::daemon::bracket::{CameraId, Capture, Input};
 use crate::daemon::config::{Watch, WatchMode};
@@ -26,11 +27,23 @@ use crate::metadata;
 /// What the watcher reports to the daemon loop.
 #[derive(Debug)]
 pub(crate) enum Notice {
-    /// Something happened to this file (created, written); `finished` when its writer
-    /// closed it or it was renamed into place.
-    File { path: PathBuf, finished: bool },
+    /// Something happened to this file: what it says of the file's writer.
+    File { path: PathBuf, arrival: Arrival },
     /// Events may have been lost (queue overflow): rescan the folder.
     Rescan,
+}
+
+/// What a notice says of its file's writer.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub(crate) enum Arrival {
+    /// Created or written: the writer may not be done.
+    Writing,
+    /// Its writer closed it, or it was renamed into place: done unless the writer comes
+    /// back at once (a tool that rewrites the EXIF just after the copy).
+    Closed,
+    /// Renamed into place from a filmback temporary name ([`atomic::is_temporary`]): handed
+    /// over whole by `filmback hook` or another filmback process, never written again.
+    Delivered,
 }
 
 /// A running watcher; dropping it stops watching.
@@ -59,9 +72,21 @@ pub(crate) fn watch(
             if matches!(event.kind, EventKind::Access(_)) && !finished {
                 return;
             }
+            // notify pairs a rename's two halves into one event, source first.
+            let delivered = matches!(
+                event.kind,
+                EventKind::Modify(ModifyKind::Name(RenameMode::Both))
+            ) && event.paths.first().is_some_and(|p| atomic::is_temporary(p));
+            let arrival = if delivered {
+                Arrival::Delivered
+            } else if finished {
+                Arrival::Closed
+            } else {
+                Arrival::Writing
+            };
             for path in event.paths {
                 if takes.takes_path(&root, &path) {
-                    let _ = tx.send(Notice::File { path, finished });
+                    let _ = tx.send(Notice::File { path, arrival });
                 }
             }
         }
@@ -509,6 +534,48 @@ fn capture(before: Input, meta: metadata::Metadata, footprint: Footprint, bytes:
 mod tests {
     use super::*;
     use crate::synthetic::demo;
+
+    /// The watcher tells a file handed over by filmback (renamed from its temporary
+    /// name) from one renamed into place by another writer, and both from a new file.
+    #[test]
+    fn a_hand_over_by_filmback_is_told_from_other_arrivals() {
+        let dir = tempfile::tempdir().unwrap();
+        let (ingest, elsewhere) = (dir.path().join("ingest"), dir.path().join("dl"));
+        std::fs::create_dir_all(&ingest).unwrap();
+        std::fs::create_dir_all(&elsewhere).unwrap();
+        let watch = crate::daemon::config::Config::defaults().watch;
+        let (tx, mut rx) = tokio::sync::mpsc::unbounded_channel();
+        let _watcher = super::watch(&watch, &ingest, tx).unwrap();
+        std::fs::write(elsewhere.join("a.jpg"), b"a").unwrap();
+        atomic::move_into(&elsewhere.join("a.jpg"), &ingest).unwrap();
+        std::fs::write(ingest.join("b.jpg.part"), b"b").unwrap();
+        std::fs::rename(ingest.join("b.jpg.part"), ingest.join("b.jpg")).unwrap();
+        std::fs::write(ingest.join("c.jpg"), b"c").unwrap();
+        // What each file's notices said last, writes aside (as settling keeps it: notify
+        // sends a rename's `To` half, Closed, before the paired event, Delivered).
+        let mut said: HashMap<String, Arrival> = HashMap::new();
+        let deadline = std::time::Instant::now() + std::time::Duration::from_secs(10);
+        while said.len() < 3 || said.get("c.jpg") != Some(&Arrival::Closed) {
+            assert!(
+                std::time::Instant::now() < deadline,
+                "notices so far: {said:?}"
+            );
+            let Ok(notice) = rx.try_recv() else {
+                std::thread::sleep(std::time::Duration::from_millis(10));
+                continue;
+            };
+            if let Notice::File { path, arrival } = notice {
+                let name = path.file_name().unwrap().to_string_lossy().into_owned();
+                let entry = said.entry(name).or_insert(arrival);
+                if arrival != Arrival::Writing {
+                    *entry = arrival;
+                }
+            }
+        }
+        assert_eq!(said["a.jpg"], Arrival::Delivered);
+        assert_eq!(said["b.jpg"], Arrival::Closed);
+        assert_eq!(said.len(), 3, "{said:?}");
+    }
 
     #[cfg(feature = "raw")]
     #[test]

@@ -181,8 +181,9 @@ struct Candidate {
     seen: Option<intake::Observed>,
     stable_since: Instant,
     /// Its writer closed it or it was renamed into place: the state first observed after
-    /// that notice (`None` until settling has looked) and since when it has held.
-    finished: Option<(Option<intake::Observed>, Instant)>,
+    /// that notice (`None` until settling has looked), since when it has held, and how
+    /// long it must hold ([`FINISHED_QUIET`], or zero when delivered by filmback).
+    finished: Option<(Option<intake::Observed>, Instant, Duration)>,
 }
 
 /// How long a file must stay unchanged after its writer closed it or it was renamed into

@@ -4,7 +4,11 @@
 //! **Settling** trusts no single signal of the writer: a candidate is taken once what
 //! [`intake::observe`] reads of it (size, mtime, `ctime`, device and inode) has not changed
 //! for `settle` on the daemon's monotonic clock, or for [`FINISHED_QUIET`] (250 ms, at most
-//! `settle`) after its writer closed it or it was renamed into place. Never by its mtime
+//! `settle`) after its writer closed it or it was renamed into place, or as soon as it is
+//! seen when it was renamed into place from a filmback temporary name (`filmback hook`'s
+//! hand-over, [`atomic::move_into`], with inotify on a file system that has
+//! `RENAME_NOREPLACE`: whole; a write notice after it makes it wait as a closed file).
+//! Never by its mtime
 //! (gphoto2 sets it to the capture time, in the past, and across file systems copies
 //! under the final name); a rewrite just after the close (digiCamControl copies
 //! non-atomically and may rewrite the EXIF), a `utime` or a replacement changes `ctime` or
@@ -32,7 +36,7 @@ use std::time::{Duration, Instant};
 use tracing::{error, info, warn};
 
 use super::bracket::{Alone, Bracket, Capture, Closed, Input};
-use super::intake::{self, Notice, Probe};
+use super::intake::{self, Arrival, Notice, Probe};
 use super::journal::{self, Entry};
 use super::{
     Candidate, DaemonError, FINISHED_QUIET, Held, MAX_RETRY, REDO_FOLDER, State, Superseded,
@@ -78,13 +82,12 @@ impl State {
         self.last_rescan = Instant::now();
         self.stems.clear();
         for path in intake::scan(&self.config.watch, &self.config.folders.ingest) {
-            self.consider(path, false);
+            self.consider(path, Arrival::Writing);
         }
     }
 
-    /// Makes `path` a candidate (again); `finished` when its writer just closed it or it
-    /// was renamed into place.
-    pub(super) fn consider(&mut self, path: PathBuf, finished: bool) {
+    /// Makes `path` a candidate (again), as its notice's `arrival` says.
+    pub(super) fn consider(&mut self, path: PathBuf, arrival: Arrival) {
         // Reached through a linked folder (a watcher that followed it): not in ingest.
         if intake::through_link(&self.config.folders.ingest, &path) {
             tracing::debug!(file = %path.display(), "reached through a link; not followed");
@@ -116,8 +119,18 @@ impl State {
             stable_since: Instant::now(),
             finished: None,
         });
-        if finished {
-            cand.finished = Some((None, Instant::now()));
+        match arrival {
+            // Written after a hand-over: another writer's work, which waits as a closed
+            // file does.
+            Arrival::Writing => {
+                if let Some(finished) = &mut cand.finished
+                    && finished.2.is_zero()
+                {
+                    *finished = (None, Instant::now(), FINISHED_QUIET);
+                }
+            }
+            Arrival::Closed => cand.finished = Some((None, Instant::now(), FINISHED_QUIET)),
+            Arrival::Delivered => cand.finished = Some((None, Instant::now(), Duration::ZERO)),
         }
     }
 
@@ -157,7 +170,7 @@ impl State {
         if let Some(input) = self.companion_of_raw.remove(raw) {
             self.companions.remove(&input.path);
             info!(file = %input.path.display(), raw = %raw.display(), "its raw was rejected: the JPEG is the frame");
-            self.consider(input.path, false);
+            self.consider(input.path, Arrival::Writing);
         }
     }
 
@@ -186,7 +199,7 @@ impl State {
 
     pub(super) fn notice(&mut self, notice: Notice) {
         match notice {
-            Notice::File { path, finished } => self.consider(path, finished),
+            Notice::File { path, arrival } => self.consider(path, arrival),
             Notice::Rescan => {
                 warn!("file events may have been lost; rescanning the ingest folder");
                 self.rescan();
@@ -248,7 +261,7 @@ impl State {
             .map(|(p, _)| p.clone())
             .collect();
         for path in again {
-            self.consider(path, false);
+            self.consider(path, Arrival::Writing);
         }
         if let Some(interval) = self.watchdog
             && self.last_watchdog.elapsed() >= interval / 2
@@ -260,7 +273,8 @@ impl State {
     }
 
     /// Candidates whose size, mtime, change time and inode were unchanged for `settle`, or
-    /// for [`FINISHED_QUIET`] since their writer closed them (see the module docs).
+    /// for [`FINISHED_QUIET`] since their writer closed them, or handed over by filmback
+    /// and seen once (see the module docs).
     /// Nothing is taken while the queue is full (back-pressure).
     pub(super) fn settle(&mut self) -> Vec<PathBuf> {
         let room = self.config.daemon.queue.saturating_sub(self.queue.len());
@@ -268,7 +282,6 @@ impl State {
             return Vec::new();
         }
         let settle = self.config.watch.settle;
-        let quiet = settle.min(FINISHED_QUIET);
         let mut ready = Vec::new();
         let mut gone = Vec::new();
         let mut paths: Vec<&PathBuf> = self.candidates.keys().collect();
@@ -297,25 +310,34 @@ impl State {
                 gone.push(path);
                 continue;
             }
-            // Since the close: unchanged for `quiet`, or changed (the fast way is off
+            // Since the close: unchanged for its quiet window (at most `settle`; none for
+            // a delivered file, taken as first seen), or changed (the fast way is off
             // until the writer closes it again).
             let finished = match &mut cand.finished {
-                Some((first @ None, since)) => {
+                Some((first @ None, since, quiet)) => {
                     *first = Some(seen.clone());
                     *since = Instant::now();
-                    false
+                    quiet.is_zero()
                 }
-                Some((Some(first), since)) if *first == seen => since.elapsed() >= quiet,
+                // A hand-over once seen stays ready (only a write notice takes that back):
+                // the hook's unlink of the download changes the file's ctime.
+                Some((Some(_), _, quiet)) if quiet.is_zero() => true,
+                Some((Some(first), since, quiet)) if *first == seen => {
+                    since.elapsed() >= settle.min(*quiet)
+                }
                 Some(_) => {
                     cand.finished = None;
                     false
                 }
                 None => false,
             };
-            if cand.seen.as_ref() != Some(&seen) {
+            if finished {
+                cand.seen = Some(seen);
+                ready.push(path);
+            } else if cand.seen.as_ref() != Some(&seen) {
                 cand.seen = Some(seen);
                 cand.stable_since = Instant::now();
-            } else if finished || cand.stable_since.elapsed() >= settle {
+            } else if cand.stable_since.elapsed() >= settle {
                 ready.push(path);
             }
         }
@@ -399,7 +421,7 @@ impl State {
                     }
                 }
                 Probe::Unreadable(reason) => self.unreadable_for_now(path, reason),
-                Probe::Changed => self.consider(path, false),
+                Probe::Changed => self.consider(path, Arrival::Writing),
                 Probe::Gone => {}
             }
         }

@@ -29,7 +29,7 @@ pub struct Snapshot {
     pub ingest: PathBuf,
     /// Output folder.
     pub out: PathBuf,
-    /// True while the ingest folder exists and is watched.
+    /// True while the daemon runs and the ingest folder exists and is watched.
     pub watching: bool,
     /// Files seen, not yet complete.
     pub settling: usize,
@@ -77,7 +77,7 @@ impl State {
             updated: journal::unix_now(),
             ingest: self.config.folders.ingest.clone(),
             out: self.config.folders.out.clone(),
-            watching: self.watcher.is_some(),
+            watching: running && self.watcher.is_some(),
             settling: self.candidates.len(),
             grouping: self.grouper.waiting() + self.held.len(),
             queued: self.queue.len(),

@@ -6,6 +6,7 @@ use std::io::Cursor;
 use std::path::{Path, PathBuf};
 use std::str::FromStr;
 
+use super::source_exif::Storage;
 use super::{Look, RenderingError, SourceExif, jpeg};
 use crate::atomic::{self, Overwrite, PublishError};
 use crate::display::{Depth, DisplayImage, srgb_icc_profile};
@@ -83,10 +84,10 @@ pub fn encode(
     exif: &SourceExif,
     out: &mut impl std::io::Write,
 ) -> Result<(), String> {
-    let block = exif.tiff_block()?;
     let (w, h) = (image.width(), image.height());
     match format {
         Format::Jpeg { quality } => {
+            let block = exif.tiff_block(w, h, Storage::Jpeg)?;
             let rgb = image.to_u8();
             let row = w as usize * 3;
             let copy = |first: usize, band: &mut [u8]| {
@@ -96,6 +97,7 @@ pub fn encode(
         }
         Format::Png8 | Format::Png16 => {
             use image::ImageEncoder;
+            let block = exif.tiff_block(w, h, Storage::Rgb)?;
             let mut encoder = image::codecs::png::PngEncoder::new(out);
             encoder
                 .set_icc_profile(srgb_icc_profile().to_vec())
@@ -150,7 +152,7 @@ fn tiff16(image: &DisplayImage, exif: &SourceExif) -> Result<Vec<u8>, String> {
         tiff(284, Value::Short(vec![1])),
         tiff(34675, Value::Undefined(srgb_icc_profile().to_vec(), 0)),
     ];
-    fields.extend(exif.with_software());
+    fields.extend(exif.rendering_fields(w, h, Storage::Rgb));
     let mut writer = exif::experimental::Writer::new();
     for f in &fields {
         writer.push_field(f);
@@ -194,11 +196,12 @@ fn stream_jpeg(
     exif: &SourceExif,
     out: &mut impl std::io::Write,
 ) -> Result<(), String> {
-    let block = exif.tiff_block()?;
+    let block = exif.tiff_block(w, h, Storage::Jpeg)?;
     jpeg::encode_bands(w, h, quality, decorate(&block), develop, out)
 }
 
-/// Adds the sRGB profile (APP2) and the EXIF block (APP1) to a JPEG encoder.
+/// Adds the EXIF block (APP1) and then the sRGB profile (APP2) to a JPEG encoder, in the
+/// order Exif (CIPA DC-008) asks: APP1 first after the JFIF header.
 fn decorate(
     block: &[u8],
 ) -> impl Fn(
@@ -206,10 +209,10 @@ fn decorate(
 ) -> Result<(), rusty_jpeg::encode::EncodingError>
 + Sync {
     move |encoder| {
-        encoder.add_icc_profile(srgb_icc_profile())?;
         let mut app1 = b"Exif\0\0".to_vec();
         app1.extend_from_slice(block);
-        encoder.add_app_segment(1, app1)
+        encoder.add_app_segment(1, app1)?;
+        encoder.add_icc_profile(srgb_icc_profile())
     }
 }
 

@@ -6,6 +6,15 @@ use exif::{Field, In, Tag, Value};
 
 use crate::metadata::Metadata;
 
+/// How a rendering's pixels are stored, which decides the EXIF tags it must carry.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Storage {
+    /// Baseline JPEG (Y′CbCr).
+    Jpeg,
+    /// Uncompressed or losslessly compressed RGB samples (PNG, TIFF).
+    Rgb,
+}
+
 /// The EXIF fields carried from the source frame into every rendering.
 #[derive(Debug, Clone, Default)]
 pub struct SourceExif {
@@ -117,25 +126,52 @@ impl SourceExif {
         &self.fields
     }
 
-    /// Carried fields plus `Software = filmback <version>`.
-    pub(super) fn with_software(&self) -> Vec<Field> {
+    /// The carried fields and the rendering's own, those Exif 2.32 (CIPA DC-008 §4.6.8)
+    /// requires of a `width × height` image stored as `storage`: `Software = filmback
+    /// <version>`, ExifVersion 2.32, FlashpixVersion 1.0, ColorSpace sRGB (the embedded
+    /// profile's), the pixel dimensions, 72 pixels per inch (no physical size is known),
+    /// and for JPEG the Y′CbCr component order and centred chroma siting.
+    pub(super) fn rendering_fields(&self, width: u32, height: u32, storage: Storage) -> Vec<Field> {
+        let field = |tag: Tag, value: Value| Field {
+            tag,
+            ifd_num: In::PRIMARY,
+            value,
+        };
+        let mut own = vec![
+            ascii(
+                Tag::Software,
+                concat!("filmback ", env!("CARGO_PKG_VERSION")),
+            ),
+            field(Tag::ExifVersion, Value::Undefined(b"0232".to_vec(), 0)),
+            field(Tag::FlashpixVersion, Value::Undefined(b"0100".to_vec(), 0)),
+            field(Tag::ColorSpace, Value::Short(vec![1])),
+            field(Tag::PixelXDimension, Value::Long(vec![width])),
+            field(Tag::PixelYDimension, Value::Long(vec![height])),
+            field(Tag::XResolution, Value::Rational(vec![(72, 1).into()])),
+            field(Tag::YResolution, Value::Rational(vec![(72, 1).into()])),
+            field(Tag::ResolutionUnit, Value::Short(vec![2])),
+        ];
+        if storage == Storage::Jpeg {
+            own.push(field(
+                Tag::ComponentsConfiguration,
+                Value::Undefined(vec![1, 2, 3, 0], 0),
+            ));
+            own.push(field(Tag::YCbCrPositioning, Value::Short(vec![1])));
+        }
         let mut fields: Vec<Field> = self
             .fields
             .iter()
-            .filter(|f| f.tag != Tag::Software)
+            .filter(|f| own.iter().all(|o| o.tag != f.tag))
             .cloned()
             .collect();
-        fields.push(ascii(
-            Tag::Software,
-            concat!("filmback ", env!("CARGO_PKG_VERSION")),
-        ));
+        fields.extend(own);
         fields
     }
 
-    /// A TIFF-structured EXIF block (as embedded in JPEG APP1 after `Exif\0\0`, or in a
-    /// PNG `eXIf` chunk).
-    pub fn tiff_block(&self) -> Result<Vec<u8>, String> {
-        let fields = self.with_software();
+    /// A TIFF-structured EXIF block of [`SourceExif::rendering_fields`] (as embedded in
+    /// JPEG APP1 after `Exif\0\0`, or in a PNG `eXIf` chunk).
+    pub fn tiff_block(&self, width: u32, height: u32, storage: Storage) -> Result<Vec<u8>, String> {
+        let fields = self.rendering_fields(width, height, storage);
         let mut writer = exif::experimental::Writer::new();
         for f in &fields {
             writer.push_field(f);

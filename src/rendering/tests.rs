@@ -74,6 +74,24 @@ fn every_format_carries_profile_and_exif() {
             Some("1/125"),
             "{format:?}"
         );
+        // What Exif 2.32 requires of every image (JPEG: the Y'CbCr tags as well).
+        let mut required = vec![
+            (Tag::ExifVersion, "2.32"),
+            (Tag::FlashpixVersion, "1.0"),
+            (Tag::ColorSpace, "sRGB"),
+            (Tag::PixelXDimension, "32"),
+            (Tag::PixelYDimension, "8"),
+            (Tag::XResolution, "72"),
+            (Tag::YResolution, "72"),
+            (Tag::ResolutionUnit, "inch"),
+        ];
+        if let Format::Jpeg { .. } = format {
+            required.push((Tag::ComponentsConfiguration, "YCbCr_"));
+            required.push((Tag::YCbCrPositioning, "centered"));
+        }
+        for (tag, value) in required {
+            assert_eq!(get(tag).as_deref(), Some(value), "{format:?} {tag}");
+        }
         let icc_tag = b"ICC_PROFILE";
         let has_icc = match format {
             Format::Jpeg { .. } => bytes.windows(icc_tag.len()).any(|w| w == icc_tag),
@@ -83,6 +101,11 @@ fn every_format_carries_profile_and_exif() {
                 .is_some(),
         };
         assert!(has_icc, "{format:?} lacks the ICC profile");
+        if let Format::Jpeg { .. } = format {
+            // Exif's APP1 comes first after the JFIF header, before the profile's APP2.
+            let at = |tag: &[u8]| bytes.windows(tag.len()).position(|w| w == tag);
+            assert!(at(b"Exif\0\0") < at(icc_tag), "APP1 after APP2");
+        }
     }
 }
 

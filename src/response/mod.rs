@@ -158,15 +158,20 @@ impl Preset {
 /// Number of samples per channel in a calibrated [`InverseResponse`] (`g(i/1023)`).
 pub const CALIBRATED_SAMPLES: usize = 1024;
 
-/// `g(0.5)` of the sRGB curve: the prior used when the ratio must be estimated.
-pub const PRIOR_MID_GREY: f64 = 0.214_041_140_482_232_55;
+/// The prior used when the ratio must be estimated: `g(0.5)`, the relative radiance at
+/// code 128 of a real camera's JPEG, 0.138 (mid grey 2.86 stops below white; the sRGB
+/// curve's is 0.214, 2.22 stops). It is the value that makes the median estimate exact,
+/// `exp(ln 0.214 / median κ_sRGB)`, over the tuning half of the real brackets
+/// (`docs/accuracy.md`, "The exposure ratio without EXIF": 46 adjacent pairs of seven
+/// sets from phones, a tablet, a compact and one unnamed body; the other half is kept
+/// for reporting).
+pub const PRIOR_MID_GREY: f64 = 0.1379;
 
 /// How far the prior can be off: the 10th and 90th percentiles of
-/// `κ = ln PRIOR_MID_GREY / ln g(0.5)` over the DoRF curves the prior is checked on (the
-/// even records ≡ 0 mod 4 of `dorf-even.csv`). A curve with exponent `κ` gives an estimate
-/// `γ̂ = γ^κ`, so for four curves in five the true ratio lies in
+/// `κ = ln PRIOR_MID_GREY / ln g(0.5)` over the same tuning pairs. A curve with exponent
+/// `κ` gives an estimate `γ̂ = γ^κ`, so for four pairs in five the true ratio lies in
 /// `γ̂^(1/κ₉₀) ..= γ̂^(1/κ₁₀)` ([`Calibration::ratio_range`]).
-pub const PRIOR_EXPONENTS: [f64; 2] = [0.797, 1.585];
+pub const PRIOR_EXPONENTS: [f64; 2] = [0.800, 1.297];
 
 /// Where the exposure ratio `γ = e_bright / e_dark` came from.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
