@@ -8,7 +8,7 @@ use crate::metadata::Metadata;
 
 /// How a rendering's pixels are stored, which decides the EXIF tags it must carry.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub enum Storage {
+pub(super) enum Storage {
     /// Baseline JPEG (Y′CbCr).
     Jpeg,
     /// Uncompressed or losslessly compressed RGB samples (PNG, TIFF).
@@ -170,7 +170,12 @@ impl SourceExif {
 
     /// A TIFF-structured EXIF block of [`SourceExif::rendering_fields`] (as embedded in
     /// JPEG APP1 after `Exif\0\0`, or in a PNG `eXIf` chunk).
-    pub fn tiff_block(&self, width: u32, height: u32, storage: Storage) -> Result<Vec<u8>, String> {
+    pub(super) fn tiff_block(
+        &self,
+        width: u32,
+        height: u32,
+        storage: Storage,
+    ) -> Result<Vec<u8>, String> {
         let fields = self.rendering_fields(width, height, storage);
         let mut writer = exif::experimental::Writer::new();
         for f in &fields {

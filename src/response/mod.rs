@@ -561,17 +561,20 @@ fn finish(
 /// Exposures closer than this factor are one exposure: their pair tells the fit nothing.
 const SAME_EXPOSURE: f64 = 1.01;
 
+/// Frames at most this factor (four stops) apart are fitted as a pair even when others lie
+/// between them.
+pub const WIDEST_PAIR: f64 = 16.0;
+
 /// Recovers one inverse response per channel from **every** frame of a bracket at once:
 /// `frames` are the histograms with their relative exposures `e = t·S/N²` (any order,
-/// all known). Every two frames adjacent in exposure (`e_j > 1.01·e_i`, no distinct
-/// exposure between them) give their tone pairs `g(τ_ij(b)) = (e_j/e_i)·g(b)`, and all of
-/// them are fitted as one curve per channel ([`fit::fit_joint`]): the frames' tonal
-/// ranges add up and a tone seen in several pairs is constrained several times. Wider
-/// pairs are left out: their mapping is the composition of the adjacent ones
-/// (`τ_02 = τ_12 ∘ τ_01`), so they repeat the same histograms' evidence through fewer
-/// shared tones, with the codec's errors magnified by the larger ratio (on the 3-frame
-/// JPEG demo bracket, ±2 EV, they took the green channel's confidence from 0.80 to 0.39).
-/// Two frames give exactly [`calibrate`] at the known ratio.
+/// all known). Every two frames of distinct exposures (`e_j > 1.01·e_i`) that are adjacent
+/// or at most [`WIDEST_PAIR`] apart (`e_j ≤ 16·1.01·e_i`, four stops) give their tone pairs
+/// `g(τ_ij(b)) = (e_j/e_i)·g(b)`, and all of them are fitted as one curve per channel
+/// ([`fit::fit_joint`], each pair weighted by its own misfit): the frames' tonal ranges add
+/// up, and a tone seen in several pairs is constrained several times and over longer
+/// lever arms — a dark frame's toe meets the bright frames' mid tones directly rather than
+/// through a chain of small ratios. Pairs wider than four stops share few tones that both
+/// frames expose well. Two frames give exactly [`calibrate`] at the known ratio.
 ///
 /// The result's `ratio` is the bracket's span, brightest over darkest exposure; each
 /// channel's [`ChannelCalibration::log_ratios`] gives the ratio of each tone pair. A
@@ -608,10 +611,11 @@ pub fn calibrate_bracket(
         .flat_map(|(k, &i)| order[k + 1..].iter().map(move |&j| (i, j)))
         .filter(|&(i, j)| frames[j].1 > SAME_EXPOSURE * frames[i].1)
         .filter(|&(i, j)| {
-            // Adjacent distinct exposures only: no frame strictly between them.
-            !frames
-                .iter()
-                .any(|(_, e)| *e > SAME_EXPOSURE * frames[i].1 && *e * SAME_EXPOSURE < frames[j].1)
+            // Adjacent distinct exposures (no frame strictly between them), or close enough.
+            frames[j].1 <= WIDEST_PAIR * SAME_EXPOSURE * frames[i].1
+                || !frames.iter().any(|(_, e)| {
+                    *e > SAME_EXPOSURE * frames[i].1 && *e * SAME_EXPOSURE < frames[j].1
+                })
         })
         .collect();
     let (darkest, brightest) = (frames[order[0]].1, frames[order[order.len() - 1]].1);
