@@ -210,42 +210,39 @@ fn main() {
             out.join(format!("{name}-1.linear.jpg")),
         ]
     };
-    let mut latency = Vec::new();
-    for run in 0..3 {
-        let name = format!("lat{run}");
-        let files = stage(&name, 100 + 20 * run);
-        std::fs::rename(&files[0].0, &files[0].1).unwrap();
-        std::thread::sleep(Duration::from_millis(100));
-        std::fs::rename(&files[1].0, &files[1].1).unwrap();
-        latency.push(wait_for(&outputs(&name), Duration::from_secs(300)));
-        std::thread::sleep(Duration::from_millis(500));
-    }
-    latency.sort();
-    let lat = latency[1];
-    println!(
-        "latency, last frame renamed in → EXR + JPEG in place (median of 3): {:.2} s = {:.2}× direct",
-        lat.as_secs_f64(),
-        lat.as_secs_f64() / direct_median.as_secs_f64()
-    );
+    // The median of three pairs delivered by `deliver(staged, final)`, the second frame
+    // 100 ms after the first: from its delivery to all outputs in place.
+    let latency = |prefix: &str, second: u32, deliver: &dyn Fn(&Path, &Path)| {
+        let mut took: Vec<Duration> = (0..3)
+            .map(|run| {
+                let name = format!("{prefix}{run}");
+                let files = stage(&name, second + 20 * run);
+                deliver(&files[0].0, &files[0].1);
+                std::thread::sleep(Duration::from_millis(100));
+                deliver(&files[1].0, &files[1].1);
+                let t = wait_for(&outputs(&name), Duration::from_secs(300));
+                std::thread::sleep(Duration::from_millis(500));
+                t
+            })
+            .collect();
+        took.sort();
+        took[1]
+    };
+    let report = |how: &str, t: Duration| {
+        println!(
+            "latency, last frame {how} → EXR + JPEG in place (median of 3): {:.2} s = {:.2}× direct",
+            t.as_secs_f64(),
+            t.as_secs_f64() / direct_median.as_secs_f64()
+        )
+    };
+    let renamed = latency("lat", 100, &|from, to| std::fs::rename(from, to).unwrap());
+    report("renamed in", renamed);
     // The same through `filmback hook` (gphoto2's hand-over): complete on arrival, so
     // taken without the quiet window a renamed file waits.
-    let mut handed = Vec::new();
-    for run in 0..3 {
-        let name = format!("hook{run}");
-        let files = stage(&name, 200 + 20 * run);
-        filmback::atomic::move_into(&files[0].0, &ingest).unwrap();
-        std::thread::sleep(Duration::from_millis(100));
-        filmback::atomic::move_into(&files[1].0, &ingest).unwrap();
-        handed.push(wait_for(&outputs(&name), Duration::from_secs(300)));
-        std::thread::sleep(Duration::from_millis(500));
-    }
-    handed.sort();
-    let hook = handed[1];
-    println!(
-        "latency, last frame handed over by `filmback hook` → EXR + JPEG in place (median of 3): {:.2} s = {:.2}× direct",
-        hook.as_secs_f64(),
-        hook.as_secs_f64() / direct_median.as_secs_f64()
-    );
+    let handed = latency("hook", 200, &|from, _| {
+        filmback::atomic::move_into(from, &ingest).unwrap();
+    });
+    report("handed over by `filmback hook`", handed);
 
     let staged: Vec<(String, Vec<(PathBuf, PathBuf)>)> = (0..stream)
         .map(|i| {
