@@ -267,8 +267,11 @@ pub async fn run(
         folders.state.clone(),
         ResponseCache::new(&folders.state).dir().to_path_buf(),
     ] {
-        remove_temporaries(&dir);
+        remove_temporaries(&dir, Duration::ZERO);
     }
+    // In ingest a `filmback hook` may be handing a frame over right now: only what a
+    // killed hook left (its download is still where gphoto2 saved it).
+    remove_temporaries(&folders.ingest, STALE_HAND_OVER);
     refuse_overlap(&config)?;
     for r in atomic::recover_sets(&folders.out) {
         match r {
@@ -412,13 +415,32 @@ fn refuse_overlap(config: &Config) -> Result<(), DaemonError> {
     Ok(())
 }
 
-/// Removes temporary files of [`atomic`] left by an earlier run that was killed.
-fn remove_temporaries(dir: &Path) {
+/// A filmback temporary file in ingest unchanged for this long (by its `ctime`, which a
+/// link or a write sets; its mtime may be the capture time) was left by a killed hook.
+const STALE_HAND_OVER: Duration = Duration::from_secs(3600);
+
+/// Removes temporary files of [`atomic`] left by an earlier run that was killed: those in
+/// `dir` whose status (`ctime`) has not changed for `min_age`.
+fn remove_temporaries(dir: &Path, min_age: Duration) {
+    use std::os::unix::fs::MetadataExt;
     let Ok(entries) = std::fs::read_dir(dir) else {
         return;
     };
+    let now = std::time::SystemTime::now()
+        .duration_since(std::time::UNIX_EPOCH)
+        .unwrap_or_default();
+    let old_enough = |path: &Path| {
+        min_age.is_zero()
+            || std::fs::symlink_metadata(path).is_ok_and(|m| {
+                let changed = Duration::new(
+                    m.ctime().max(0) as u64,
+                    m.ctime_nsec().clamp(0, 999_999_999) as u32,
+                );
+                now.saturating_sub(changed) >= min_age
+            })
+    };
     for path in entries.filter_map(Result::ok).map(|e| e.path()) {
-        if atomic::is_temporary(&path) {
+        if atomic::is_temporary(&path) && old_enough(&path) {
             match std::fs::remove_file(&path) {
                 Ok(()) => {
                     info!(file = %path.display(), "removed temporary file of an interrupted run")
@@ -463,5 +485,26 @@ impl State {
             self.check_folder();
         }
         info!(source = ?self.config.source, "configuration reloaded");
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Out, state and cache lose every leftover; ingest only those a killed hook left,
+    /// not one a running hook is renaming into place.
+    #[test]
+    fn leftover_temporaries_are_removed_and_a_fresh_hand_over_is_not() {
+        let dir = tempfile::tempdir().unwrap();
+        let tmp = atomic::temporary_name(&dir.path().join("IMG_1.jpg"));
+        let frame = dir.path().join("IMG_2.jpg");
+        std::fs::write(&tmp, b"half").unwrap();
+        std::fs::write(&frame, b"frame").unwrap();
+        remove_temporaries(dir.path(), STALE_HAND_OVER);
+        assert!(tmp.exists(), "a hand-over in progress is left alone");
+        remove_temporaries(dir.path(), Duration::ZERO);
+        assert!(!tmp.exists());
+        assert!(frame.exists(), "frames are never touched");
     }
 }
