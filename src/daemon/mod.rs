@@ -426,18 +426,11 @@ fn remove_temporaries(dir: &Path, min_age: Duration) {
     let Ok(entries) = std::fs::read_dir(dir) else {
         return;
     };
-    let now = std::time::SystemTime::now()
-        .duration_since(std::time::UNIX_EPOCH)
-        .unwrap_or_default();
+    let now = journal::unix_now() as i64;
     let old_enough = |path: &Path| {
         min_age.is_zero()
-            || std::fs::symlink_metadata(path).is_ok_and(|m| {
-                let changed = Duration::new(
-                    m.ctime().max(0) as u64,
-                    m.ctime_nsec().clamp(0, 999_999_999) as u32,
-                );
-                now.saturating_sub(changed) >= min_age
-            })
+            || std::fs::symlink_metadata(path)
+                .is_ok_and(|m| now - m.ctime() >= min_age.as_secs() as i64)
     };
     for path in entries.filter_map(Result::ok).map(|e| e.path()) {
         if atomic::is_temporary(&path) && old_enough(&path) {
