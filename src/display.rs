@@ -205,7 +205,11 @@ pub fn srgb_encode_u8(x: f32) -> u8 {
 pub fn srgb_icc_profile() -> &'static [u8] {
     static PROFILE: OnceLock<Vec<u8>> = OnceLock::new();
     PROFILE.get_or_init(|| {
-        let mut profile = moxcms::ColorProfile::new_srgb()
+        let mut srgb = moxcms::ColorProfile::new_srgb();
+        // moxcms tags it with coding-independent code points for limited-range Y'CbCr
+        // video (matrix BT.709, narrow range); the colorants and curves say all there is.
+        srgb.cicp = None;
+        let mut profile = srgb
             .encode()
             .unwrap_or_else(|e| panic!("moxcms cannot encode its own sRGB profile: {e:?}"));
         let date: Vec<u8> = [1999u16, 10, 18, 0, 0, 0]
@@ -273,6 +277,11 @@ mod tests {
                 offset >= 132 + 12 * tags && offset + length <= size,
                 "tag {k}"
             );
+            // ICC.1:2022 §10.3: on RGB data a `cicp` tag says identity matrix, full range;
+            // anything else tells a reader the pixels are limited-range video.
+            if &p[132 + 12 * k..136 + 12 * k] == b"cicp" {
+                assert_eq!(&p[offset + 10..offset + 12], &[0, 1], "cicp matrix, range");
+            }
         }
         let profile = moxcms::ColorProfile::new_from_slice(p).expect("parses back");
         // Published D50-adapted colorants of IEC 61966-2.1 (red X,Y,Z).
