@@ -207,14 +207,16 @@ def failure(run):
 
 
 def filmback_calibrate(binary, args):
-    """(curves 3x256, confidences) from `filmback calibrate --json ARGS`, or (None, reason)."""
+    """(curves 3x256, confidences, channels' JSON) from `filmback calibrate --json ARGS`, or
+    (None, reason)."""
     r = subprocess.run([binary, 'calibrate', '--json', *args], capture_output=True, text=True)
     if r.returncode != 0:
         return None, failure(r)
     d = json.loads(r.stdout)
     curves = np.array([np.nan_to_num(np.asarray(ch['inverse_response'], float))
                        for ch in d['channels']])
-    return curves, [float(ch.get('confidence', float('nan'))) for ch in d['channels']]
+    return (curves, [float(ch.get('confidence', float('nan'))) for ch in d['channels']],
+            d['channels'])
 
 
 def filmback_pair(binary, dark, bright, ratio, stride=1):
@@ -450,6 +452,7 @@ def run_bracket(binary, name, folder, workdir, times_mode):
         fb = filmback_pair(binary, paths[k], paths[k + 1], ratio, b['fit_stride'])
         pair = {'k': k, 'ratio': ratio,
                 'filmback-2': fb[0], 'confidence': fb[1] if fb[0] is not None else None,
+                'channels': fb[2] if fb[0] is not None else None,
                 'failure': None if fb[0] is not None else fb[1],
                 'debevec-2': opencv_curve('debevec', b['images'][k:k + 2], exposures[k:k + 2]),
                 'robertson-2': opencv_curve('robertson', b['images'][k:k + 2], exposures[k:k + 2])}
@@ -525,9 +528,27 @@ def confidence_rows(b):
             n = sum(r['filmback-2'][c][1] for r in rows)
             if n == 0:
                 continue
-            out.append({'pair': p['k'], 'channel': 'RGB'[c], 'confidence': p['confidence'][c],
+            out.append({'pair': p['k'], 'ratio': p['ratio'], 'channel': 'RGB'[c],
+                        'confidence': p['confidence'][c], 'fit': p['channels'][c],
                         'rms2': math.sqrt(s2 / n), 'rmsall': math.sqrt(sa / n)})
     return out
+
+
+CHANNEL_FIELDS = ['confidence', 'misfit', 'top_span_stops', 'predicted_error_stops', 'coverage',
+                  'residual_rms', 'effective_parameters', 'equations']
+
+
+def write_channels(brackets, path):
+    """One row per two-frame fit channel: bracket, pair, ratio, channel, the fit's own
+    figures (`CHANNEL_FIELDS`), its RMS over the pair's triples and the all-frame curve's."""
+    with open(path, 'w', newline='') as f:
+        w = csv.writer(f)
+        w.writerow(['bracket', 'pair', 'ratio', 'channel', *CHANNEL_FIELDS, 'rms2', 'rmsall'])
+        for b in brackets:
+            for r in confidence_rows(b):
+                w.writerow([b['name'], r['pair'], f"{r['ratio']:.4f}", r['channel'],
+                            *(r['fit'].get(k) for k in CHANNEL_FIELDS),
+                            f"{r['rms2']:.4f}", f"{r['rmsall']:.4f}"])
 
 
 def report(brackets, args):
@@ -715,6 +736,8 @@ def main():
     ap.add_argument('--times', choices=['listed', 'measured', 'cut'], default='listed',
                     help='exposure times of frames that contradict them (see the docstring)')
     ap.add_argument('--worst', type=int, default=8, help='worst triples to list')
+    ap.add_argument('--channels-csv', help='write each two-frame fit channel (what its '
+                    '`calibrate --json` says of itself, its RMS and the all-frame RMS) to this CSV')
     args = ap.parse_args()
     binary = os.path.abspath(args.bin)
     if not os.access(binary, os.X_OK):
@@ -733,6 +756,8 @@ def main():
         brackets = [run_bracket(binary, n, os.path.join(args.brackets, n), workdir, args.times)
                     for n in names]
     report(brackets, args)
+    if args.channels_csv:
+        write_channels(brackets, args.channels_csv)
     print(f'\n({time.time() - t0:.0f} s, load {os.getloadavg()[0]:.2f})')
 
 
