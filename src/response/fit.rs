@@ -29,7 +29,9 @@
 //! **Solve.** Weighted non-negative least squares `min ‖W(A d − ln γ)‖`, `d ≥ 0`: the
 //! weighted design is reduced by a Householder QR to its triangle, and the Lawson–Hanson
 //! active-set method runs on that triangle with SVD solves of the free columns. No normal
-//! equations are formed.
+//! equations are formed. Down the cross-validation grid each fold's solve starts from
+//! the previous smoothness's solution, whose free set is usually the answer's (the
+//! minimum is the same from any feasible start).
 //!
 //! **Weights** are inverse variances: an error `σ_b` in a tone moves `ln g` by
 //! `s(b)·σ_b/b` (`s = d ln g / d ln b`), so `σ² = (s_b σ_b/b)² + (s_τ σ_τ/τ)²`, with `σ_b,
@@ -138,9 +140,10 @@ pub const DEEPEST_STOPS: f64 = 32.0;
 /// brightnesses across the covered range, is below `−DEEPEST_STOPS` or not finite.
 fn check_degenerate(fit: &ChannelFit) -> Result<(), FitError> {
     let (lo, hi) = fit.covered;
+    let curve = fit.curve();
     for i in 0..=64 {
         let b = lo + (hi - lo) * f64::from(i) / 64.0;
-        let stops = -fit.log_g(b) / std::f64::consts::LN_2;
+        let stops = -curve.log_g(b) / std::f64::consts::LN_2;
         if stops.is_nan() || stops > DEEPEST_STOPS {
             return Err(FitError::Degenerate { stops, at: b });
         }
@@ -235,13 +238,7 @@ impl ChannelFit {
 
     /// `ln g(b)` for `b > 0`.
     pub fn log_g(&self, b: f64) -> f64 {
-        let x = b.min(1.0).ln();
-        let basis = self.basis();
-        if x < self.log_floor {
-            let s = self.end_slope(&basis);
-            return basis.eval(&self.coefficients, self.log_floor) + s * (x - self.log_floor);
-        }
-        basis.eval(&self.coefficients, x)
+        self.curve().log_g(b)
     }
 
     /// `g(b)`, with `g(0) = 0` and `g(1) = 1`.
@@ -252,15 +249,18 @@ impl ChannelFit {
         self.log_g(b).exp().min(1.0)
     }
 
-    /// Log–log slope used below the fit domain: the fitted slope at `b₀`, at least 0.5.
-    fn end_slope(&self, basis: &Basis) -> f64 {
-        basis.slope(&self.coefficients, self.log_floor).max(0.5)
-    }
-
     /// `d ln g / d ln b` at brightness `b` (within the fit domain; clamped to it).
     pub fn log_slope(&self, b: f64) -> f64 {
-        let x = b.clamp(self.log_floor.exp(), 1.0).ln();
-        self.basis().slope(&self.coefficients, x)
+        self.curve().log_slope(b)
+    }
+
+    /// The curve with its basis built once, to evaluate at many tones.
+    pub fn curve(&self) -> Curve {
+        Curve {
+            basis: self.basis(),
+            coefficients: self.coefficients.clone(),
+            log_floor: self.log_floor,
+        }
     }
 
     /// What the fit knows about its own error, the inputs of [`CONFIDENCE_MODEL`]:
@@ -278,6 +278,37 @@ impl ChannelFit {
             self.misfit.max(0.1).ln(),
             self.log_ratio.clamp(2f64.ln(), 16f64.ln()).ln(),
         ]
+    }
+}
+
+/// A fitted `ln g` with its spline basis built once, to evaluate at many tones
+/// ([`ChannelFit::curve`]).
+#[derive(Debug, Clone)]
+pub struct Curve {
+    basis: Basis,
+    coefficients: Vec<f64>,
+    log_floor: f64,
+}
+
+impl Curve {
+    /// `ln g(b)` for `b > 0`: the spline of `x = ln b` on `[x₀, 0]`, and below `b₀` the
+    /// power law `g(b₀)·(b/b₀)^s` with the end slope `s = max(0.5, u'(x₀))`.
+    pub fn log_g(&self, b: f64) -> f64 {
+        let x = b.min(1.0).ln();
+        if x < self.log_floor {
+            let s = self
+                .basis
+                .slope(&self.coefficients, self.log_floor)
+                .max(0.5);
+            return self.basis.eval(&self.coefficients, self.log_floor) + s * (x - self.log_floor);
+        }
+        self.basis.eval(&self.coefficients, x)
+    }
+
+    /// `d ln g / d ln b` at brightness `b` (within the fit domain; clamped to it).
+    pub fn log_slope(&self, b: f64) -> f64 {
+        let x = b.clamp(self.log_floor.exp(), 1.0).ln();
+        self.basis.slope(&self.coefficients, x)
     }
 }
 
@@ -343,15 +374,61 @@ fn curvature(basis: &Basis, slope: Option<&dyn Fn(f64) -> f64>) -> DMatrix<f64> 
 /// gamma-2 curve (see the module docs).
 pub const SLOPE_SCALE: f64 = 2.0;
 
-/// `min ‖A x − y‖` subject to `x ≥ 0` (Lawson–Hanson), after a QR reduction of `A`.
-fn nnls(a: &DMatrix<f64>, y: &DVector<f64>) -> DVector<f64> {
+/// `min ‖A x − y‖` subject to `x ≥ 0` (Lawson–Hanson), after a QR reduction of `A`,
+/// from the feasible point `start` (non-negative; `None`: the origin).
+///
+/// The active-set iterations move between feasible points, so any feasible start reaches
+/// the same minimum (unique where `A` has full column rank, as with the curvature rows):
+/// started from the solution of a neighbouring problem (the next smoothness of a
+/// cross-validation grid), whose free set is usually already the answer's, it takes one
+/// or two subproblem solves instead of one per free variable.
+fn nnls(a: &DMatrix<f64>, y: &DVector<f64>, start: Option<&DVector<f64>>) -> DVector<f64> {
     let n = a.ncols();
     let qr = a.clone().qr();
     let r = qr.r();
     let z = qr.q().transpose() * y;
     let tol = 1e-12 * (1.0 + r.norm() * z.norm());
-    let mut x = DVector::zeros(n);
-    let mut free = vec![false; n];
+    let mut x = match start {
+        Some(s) if s.len() == n && s.iter().all(|&v| v >= 0.0) => s.clone(),
+        _ => DVector::zeros(n),
+    };
+    let mut free: Vec<bool> = x.iter().map(|&v| v > 0.0).collect();
+    // Solves on the free set, stepping back towards the feasible `x` (and freeing what
+    // reaches zero) until the free set's solution is positive.
+    let settle = |x: &mut DVector<f64>, free: &mut Vec<bool>| loop {
+        let cols: Vec<usize> = (0..n).filter(|&j| free[j]).collect();
+        let sub = r.select_columns(&cols);
+        let sol = sub
+            .svd(true, true)
+            .solve(&z, 1e-13)
+            .unwrap_or_else(|_| DVector::zeros(cols.len()));
+        if sol.iter().all(|&v| v > 0.0) {
+            x.fill(0.0);
+            for (k, &c) in cols.iter().enumerate() {
+                x[c] = sol[k];
+            }
+            break;
+        }
+        let mut alpha = 1.0f64;
+        for (k, &c) in cols.iter().enumerate() {
+            if sol[k] <= 0.0 {
+                alpha = alpha.min(x[c] / (x[c] - sol[k]));
+            }
+        }
+        for (k, &c) in cols.iter().enumerate() {
+            x[c] += alpha * (sol[k] - x[c]);
+            if x[c] <= 1e-15 {
+                x[c] = 0.0;
+                free[c] = false;
+            }
+        }
+        if !free.iter().any(|&f| f) {
+            break;
+        }
+    };
+    if free.iter().any(|&f| f) {
+        settle(&mut x, &mut free);
+    }
     for _ in 0..3 * n + 3 {
         let grad = r.transpose() * (&z - &r * &x);
         let pick = (0..n)
@@ -359,37 +436,7 @@ fn nnls(a: &DMatrix<f64>, y: &DVector<f64>) -> DVector<f64> {
             .max_by(|&i, &j| grad[i].total_cmp(&grad[j]));
         let Some(j) = pick else { break };
         free[j] = true;
-        loop {
-            let cols: Vec<usize> = (0..n).filter(|&j| free[j]).collect();
-            let sub = r.select_columns(&cols);
-            let sol = sub
-                .svd(true, true)
-                .solve(&z, 1e-13)
-                .unwrap_or_else(|_| DVector::zeros(cols.len()));
-            if sol.iter().all(|&v| v > 0.0) {
-                x.fill(0.0);
-                for (k, &c) in cols.iter().enumerate() {
-                    x[c] = sol[k];
-                }
-                break;
-            }
-            let mut alpha = 1.0f64;
-            for (k, &c) in cols.iter().enumerate() {
-                if sol[k] <= 0.0 {
-                    alpha = alpha.min(x[c] / (x[c] - sol[k]));
-                }
-            }
-            for (k, &c) in cols.iter().enumerate() {
-                x[c] += alpha * (sol[k] - x[c]);
-                if x[c] <= 1e-15 {
-                    x[c] = 0.0;
-                    free[c] = false;
-                }
-            }
-            if !free.iter().any(|&f| f) {
-                break;
-            }
-        }
+        settle(&mut x, &mut free);
     }
     x
 }
@@ -504,9 +551,29 @@ impl Problem {
 
     /// The non-negative solution of the reduced data rows `(r, z)` (see
     /// [`Problem::reduce`]) with the penalty rows times `√λ`.
-    fn solve_reduced(&self, lambda: f64, r: &DMatrix<f64>, z: &DVector<f64>) -> DVector<f64> {
+    /// `start` is a feasible point to begin from (see [`nnls`]).
+    fn solve_reduced(
+        &self,
+        lambda: f64,
+        r: &DMatrix<f64>,
+        z: &DVector<f64>,
+        start: Option<&DVector<f64>>,
+    ) -> DVector<f64> {
         let (a, y) = self.with_penalty(lambda, r, z);
-        nnls(&a, &y)
+        nnls(&a, &y, start)
+    }
+
+    /// The curve of the penalised solution at smoothness `λ` on all equations (what
+    /// [`finish`] reports on, without the report).
+    fn curve(&self, lambda: f64, log_floor: f64) -> Curve {
+        let rows: Vec<usize> = (0..self.equations()).collect();
+        let (a, y) = self.system(lambda, &rows);
+        let d = nnls(&a, &y, None);
+        Curve {
+            basis: self.basis.clone(),
+            coefficients: self.basis.coefficients(d.as_slice()),
+            log_floor,
+        }
     }
 
     /// Sum of squared weighted data residuals of `d` on `rows`.
@@ -536,30 +603,32 @@ impl Problem {
             .copied()
             .chain((floor < SMOOTHING_GRID[0]).then_some(floor))
             .collect();
-        let folds: Vec<Fold> = (0..FOLDS)
+        // Held-out misfit per equation of every fold at every λ: the folds in parallel,
+        // each running down the grid from one solution to the next (see [`nnls`]).
+        let held_out: Vec<Vec<f64>> = (0..FOLDS)
             .into_par_iter()
             .map(|f| {
                 let train: Vec<usize> = (0..m).filter(|&i| fold_of(i) != f).collect();
+                let test: Vec<usize> = (0..m).filter(|&i| fold_of(i) == f).collect();
                 let (r, z) = self.reduce(&train);
-                Fold {
-                    test: (0..m).filter(|&i| fold_of(i) == f).collect(),
-                    r,
-                    z,
-                }
+                let mut previous: Option<DVector<f64>> = None;
+                grid.iter()
+                    .map(|&k| {
+                        let d = self.solve_reduced(scale * k, &r, &z, previous.as_ref());
+                        let score = self.misfit(&d, &test) / test.len() as f64;
+                        previous = Some(d);
+                        score
+                    })
+                    .collect()
             })
             .collect();
         // (λ, mean held-out misfit per equation, its standard error, allowed by the
         // floor); λ descending, except for the floor itself, appended last.
         let scores: Vec<(f64, f64, f64, bool)> = grid
-            .par_iter()
-            .map(|&k| {
-                let per_fold: Vec<f64> = folds
-                    .iter()
-                    .map(|fold| {
-                        let d = self.solve_reduced(scale * k, &fold.r, &fold.z);
-                        self.misfit(&d, &fold.test) / fold.test.len() as f64
-                    })
-                    .collect();
+            .iter()
+            .enumerate()
+            .map(|(g, &k)| {
+                let per_fold: Vec<f64> = held_out.iter().map(|fold| fold[g]).collect();
                 let mean = per_fold.iter().sum::<f64>() / FOLDS as f64;
                 let var =
                     per_fold.iter().map(|s| (s - mean).powi(2)).sum::<f64>() / (FOLDS - 1) as f64;
@@ -601,14 +670,6 @@ impl Problem {
 /// indistinguishable curves has fewer ripples and a smaller predicted error. How the
 /// choice trades accuracy against confidence is measured in `docs/accuracy.md`.
 pub const STANDARD_ERRORS: f64 = 0.5;
-
-/// One cross-validation fold: the equations it holds out, and the others reduced by
-/// [`Problem::reduce`].
-struct Fold {
-    test: Vec<usize>,
-    r: DMatrix<f64>,
-    z: DVector<f64>,
-}
 
 /// The smoothness cross-validation chose, and the one it scored best with no floor.
 #[derive(Debug, Clone, Copy)]
@@ -722,7 +783,7 @@ pub fn fit_joint(
     };
     let mut smoothing = problem.choose_smoothing();
     for _ in 0..2 {
-        let previous = finish(&problem, smoothing.chosen, log_floor, (darkest, brightest));
+        let previous = problem.curve(smoothing.chosen, log_floor);
         problem.sqrt_w = weights(&|b| previous.log_slope(b));
         problem.penalty = curvature(&problem.basis, Some(&|x| previous.log_slope(x.exp())));
         smoothing = problem.choose_smoothing();
@@ -733,7 +794,7 @@ pub fn fit_joint(
         // HUBER robust standard deviations counts as that much noisier, so that a few
         // equations no smooth curve explains (a codec's ringing next to white, a sparse
         // bin) cannot choose the smoothness of the whole curve.
-        let fitted = finish(&problem, smoothing.chosen, log_floor, (darkest, brightest));
+        let fitted = problem.curve(smoothing.chosen, log_floor);
         let residuals: Vec<f64> = pairs
             .iter()
             .enumerate()
@@ -761,7 +822,7 @@ pub fn fit_joint(
         // more than the best-fitting pair's (a codec's ringing in one frame, a frame that
         // does not follow its listed time) has its variance scaled by the ratio of the two
         // mean squared weighted residuals, so it cannot pull the curve of the others.
-        let joint = finish(&problem, smoothing.chosen, log_floor, (darkest, brightest));
+        let joint = problem.curve(smoothing.chosen, log_floor);
         let mut scatter = vec![(0.0, 0usize); sets.len()];
         for (i, p) in pairs.iter().enumerate() {
             let r = problem.sqrt_w[i]
@@ -784,12 +845,13 @@ pub fn fit_joint(
     let mut fit = finish(&problem, smoothing.chosen, log_floor, (darkest, brightest));
     // The misfit the confidence reads is against the noise model, as the model was fitted:
     // without the robust factors.
+    let curve = fit.curve();
     let chi2: f64 = pairs
         .iter()
         .enumerate()
         .map(|(i, p)| {
             let w = problem.sqrt_w[i] / robust[i];
-            (w * (fit.log_g(p.bright) - fit.log_g(p.dark) - problem.log_ratios[i])).powi(2)
+            (w * (curve.log_g(p.bright) - curve.log_g(p.dark) - problem.log_ratios[i])).powi(2)
         })
         .sum();
     fit.misfit = chi2 / (pairs.len() as f64 - fit.effective_parameters).max(1.0);
@@ -797,13 +859,13 @@ pub fn fit_joint(
     if smoothing.best != smoothing.chosen {
         // The data cannot choose between the two curves: their difference is part of
         // the error to expect.
-        let other = finish(&problem, smoothing.best, log_floor, (darkest, brightest));
+        let (fitted, other) = (fit.curve(), problem.curve(smoothing.best, log_floor));
         let codes = 16..=239;
         let count = codes.clone().count() as f64;
         let spread = (codes
             .map(|k| {
                 let b = f64::from(k) / 255.0;
-                ((fit.log_g(b) - other.log_g(b)) / std::f64::consts::LN_2).powi(2)
+                ((fitted.log_g(b) - other.log_g(b)) / std::f64::consts::LN_2).powi(2)
             })
             .sum::<f64>()
             / count)
@@ -856,7 +918,7 @@ fn finish(problem: &Problem, lambda: f64, log_floor: f64, covered: (f64, f64)) -
     let (m, n) = (problem.equations(), problem.unknowns());
     let rows: Vec<usize> = (0..m).collect();
     let (a, y) = problem.system(lambda, &rows);
-    let d = nnls(&a, &y);
+    let d = nnls(&a, &y, None);
     let data_a = a.rows(0, m).into_owned();
     let resid = &data_a * &d - y.rows(0, m);
     let chi2 = resid.norm_squared();
@@ -1024,12 +1086,39 @@ mod tests {
     fn nnls_matches_unconstrained_when_interior_and_clamps_otherwise() {
         let a = DMatrix::from_row_slice(3, 2, &[1.0, 0.0, 0.0, 1.0, 1.0, 1.0]);
         let y = DVector::from_vec(vec![1.0, 2.0, 3.0]);
-        let x = nnls(&a, &y);
+        let x = nnls(&a, &y, None);
         assert!((x[0] - 1.0).abs() < 1e-12 && (x[1] - 2.0).abs() < 1e-12);
         let y = DVector::from_vec(vec![-1.0, 2.0, 1.0]);
-        let x = nnls(&a, &y);
+        let x = nnls(&a, &y, None);
         assert_eq!(x[0], 0.0);
         assert!((x[1] - 1.5).abs() < 1e-12);
+    }
+
+    #[test]
+    fn nnls_reaches_the_same_minimum_from_any_feasible_start() {
+        // 40 equations in 10 unknowns whose unconstrained optimum has entries of both
+        // signs, so that some bounds are active at the answer.
+        let mut state = 0x2545_f491_4f6c_dd1du64;
+        let mut next = || {
+            state ^= state << 13;
+            state ^= state >> 7;
+            state ^= state << 17;
+            (state >> 11) as f64 / (1u64 << 53) as f64 - 0.5
+        };
+        let a = DMatrix::from_fn(40, 10, |_, _| next());
+        let truth = DVector::from_fn(10, |j, _| if j % 3 == 0 { -1.0 } else { 1.0 + j as f64 });
+        let y = &a * &truth + DVector::from_fn(40, |_, _| 0.01 * next());
+        let cold = nnls(&a, &y, None);
+        let active = cold.iter().filter(|&&v| v == 0.0).count();
+        assert!((1..10).contains(&active), "{cold}");
+        // From a neighbouring problem's answer (as down a smoothness grid), from every
+        // variable free, and from an infeasible point (ignored: the origin).
+        let neighbour = nnls(&a, &(&y * 1.1), None);
+        let starts = [neighbour, DVector::from_element(10, 1.0), -cold.clone()];
+        for start in starts {
+            let warm = nnls(&a, &y, Some(&start));
+            assert!((&warm - &cold).amax() < 1e-10, "{warm} against {cold}");
+        }
     }
 
     #[test]

@@ -497,11 +497,12 @@ fn balance(channels: &[ChannelCalibration]) -> Vec<f64> {
         return none;
     }
     let level = |c: &ChannelCalibration| {
+        let curve = c.fit.curve();
         let (mut sum, mut total) = (0.0, 0.0);
         for k in 0..BALANCE_POINTS {
             let b = lo + (hi - lo) * (k as f64 + 0.5) / BALANCE_POINTS as f64;
             let w = 1.0 - (2.0 * b - 1.0).abs();
-            sum += w * c.fit.log_g(b);
+            sum += w * curve.log_g(b);
             total += w;
         }
         sum / total
@@ -536,12 +537,13 @@ fn finish(
         .zip(&offsets)
         .map(|(ch, &offset)| {
             let top = ch.fit.covered.1.min(BALANCE_TOP);
+            let curve = ch.fit.curve();
             sample_curve(
                 |b| {
                     // The offset in full up to the channel's brightest tone, fading
                     // linearly in `b` to nothing at `b = 1`, which stays `g(1) = 1`.
                     let fade = ((1.0 - b) / (1.0 - top)).clamp(0.0, 1.0);
-                    (ch.fit.log_g(b) - offset * fade).exp()
+                    (curve.log_g(b) - offset * fade).exp()
                 },
                 CALIBRATED_SAMPLES,
             )
