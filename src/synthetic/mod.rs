@@ -1,6 +1,7 @@
 //! Synthetic ground truth: HDR scenes (a procedural landscape, a studio set, flat patches:
-//! [`SceneKind`]), exposed through a known camera response
-//! with noise and quantisation, written as JPEG, PNG or TIFF with EXIF exposure tags.
+//! [`SceneKind`]; a real place's radiance map: [`real_place`]), exposed through a known
+//! camera response with noise and quantisation, written as JPEG, PNG or TIFF with EXIF
+//! exposure tags.
 //!
 //! Every stage downstream (histograms, response recovery, merge, film rendering, the
 //! daemon) can be tested end to end against numbers known exactly: the scene radiance
@@ -23,6 +24,7 @@ pub mod measure;
 mod curve;
 mod encode;
 mod kinds;
+mod place;
 #[cfg(feature = "raw")]
 mod raw;
 mod scene;
@@ -36,6 +38,7 @@ use crate::metadata::{Camera, CaptureTime, Exposure};
 pub use curve::{ResponseCurve, dorf_curves};
 pub use encode::{Encoding, encode, write};
 pub use kinds::{SceneKind, flat_patches, studio};
+pub use place::real_place;
 #[cfg(feature = "raw")]
 pub use raw::{RawSensor, dng, raw_codes, raw_signal};
 pub use scene::{MID_GREY, scene};
@@ -125,6 +128,9 @@ pub enum SyntheticError {
     /// The encoded file could not be published (the error names the path).
     #[error(transparent)]
     Publish(#[from] PublishError),
+    /// A real bracket could not be made into a scene ([`real_place`]).
+    #[error("cannot make a scene of the bracket: {0}")]
+    Place(String),
 }
 
 #[cfg(test)]

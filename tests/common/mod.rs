@@ -3,6 +3,8 @@
 use std::path::Path;
 use std::process::Command;
 
+pub mod brackets;
+
 /// The `filmback` binary Cargo built for these tests.
 pub fn filmback() -> Command {
     Command::new(env!("CARGO_BIN_EXE_filmback"))
