@@ -115,65 +115,18 @@ fn synthetic_pairs(split: &str, width: u32, height: u32) {
 /// Two adjacent frames of a real set, darker first, and their true ratio.
 type RealPair = (PathBuf, PathBuf, f64);
 
-/// Each real set's name and adjacent pairs: every folder under `root`, its frames'
-/// exposures from `exposure_times_seconds.csv` (`file,exposure_seconds`) when it has one,
-/// else from each image's EXIF (`t·S/N²`, the parts a file lacks taken as equal across the
-/// set: learnopencv has no ISO tag).
+/// Each real set's name and adjacent pairs ([`common::real_brackets`]).
 fn real_sets(root: &Path) -> Vec<(String, Vec<RealPair>)> {
-    let by_time = |mut files: Vec<(PathBuf, f64)>| {
-        files.sort_by(|a, b| a.1.total_cmp(&b.1));
-        files
-            .windows(2)
-            .map(|w| (w[0].0.clone(), w[1].0.clone(), w[1].1 / w[0].1))
-            .collect::<Vec<_>>()
-    };
-    let Ok(entries) = std::fs::read_dir(root) else {
-        return Vec::new();
-    };
-    let mut dirs: Vec<PathBuf> = entries
-        .filter_map(|e| e.ok().map(|e| e.path()))
-        .filter(|p| p.is_dir())
-        .collect();
-    dirs.sort();
-    let mut sets = Vec::new();
-    for dir in dirs {
-        let name = dir.file_name().unwrap().to_string_lossy().into_owned();
-        let files: Vec<(PathBuf, f64)> =
-            match std::fs::read_to_string(dir.join("exposure_times_seconds.csv")) {
-                Ok(csv) => csv
-                    .lines()
-                    .skip(1)
-                    .filter_map(|l| {
-                        let (f, t) = l.split_once(',')?;
-                        Some((dir.join(f.trim()), t.trim().parse().ok()?))
-                    })
-                    .collect(),
-                Err(_) => {
-                    let Ok(entries) = std::fs::read_dir(&dir) else {
-                        continue;
-                    };
-                    entries
-                        .filter_map(|e| e.ok().map(|e| e.path()))
-                        .filter(|p| {
-                            p.extension().is_some_and(|e| {
-                                ["jpg", "jpeg", "png", "tif", "tiff"]
-                                    .contains(&e.to_string_lossy().to_lowercase().as_str())
-                            })
-                        })
-                        .filter_map(|p| {
-                            let bytes = std::fs::read(&p).ok()?;
-                            let e = filmback::metadata::read(&bytes).exposure;
-                            let n = e.f_number.unwrap_or(1.0);
-                            Some((p, e.time_s? * e.iso.unwrap_or(100.0) / (n * n)))
-                        })
-                        .collect()
-                }
-            };
-        if files.len() >= 2 {
-            sets.push((name, by_time(files)));
-        }
-    }
-    sets
+    common::real_brackets(root)
+        .into_iter()
+        .map(|(name, files)| {
+            let pairs = files
+                .windows(2)
+                .map(|w| (w[0].0.clone(), w[1].0.clone(), w[1].1 / w[0].1))
+                .collect();
+            (name, pairs)
+        })
+        .collect()
 }
 
 fn real_pairs(root: &Path) {
@@ -240,7 +193,7 @@ fn main() {
         Some(dir) => real_pairs(Path::new(&dir)),
         None => {
             synthetic_pairs(&split, width, height);
-            real_pairs(&Path::new(env!("CARGO_MANIFEST_DIR")).join("../shared/testdata/brackets"));
+            real_pairs(&common::testdata_brackets());
         }
     }
 }

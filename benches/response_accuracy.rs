@@ -8,7 +8,11 @@
 //!
 //! `--quick` takes every tenth DoRF curve (`--every N`: every N-th); `--ratio` and
 //! `--encoding` restrict the sweep to one ratio or one encoding; `--scene` to some scene
-//! kinds (`procedural`, `studio`, `studio-falloff`, `flat-patches`; default all);
+//! kinds (`procedural`, `studio`, `studio-falloff`, `flat-patches`; default these four),
+//! or adds **real places**: `real` makes a scene of every real bracket in
+//! `../shared/testdata/brackets` (its radiance map, scaled to mid grey; see
+//! `common::real_scene`) and `real:NAME` of one (skipped where the test data are absent;
+//! `--real-brackets DIR` takes the bracket folders of `DIR` instead);
 //! `--curves tune` keeps the DoRF records whose index is a multiple of 4 and `report` the
 //! others (index ≡ 2 mod 4), the split between curves a change is tuned on and curves its
 //! accuracy is reported on; `--seed` renders another realisation of each scene kind
@@ -178,9 +182,17 @@ fn errors(curve: &Curve, g: impl Fn(usize, usize) -> f64) -> (f64, f64) {
     (rms(|x| x.own), rms(|x| x.shape))
 }
 
+/// A scene brackets are rendered from: a synthetic kind, or a real place
+/// ([`common::real_scene`]).
+struct Scene {
+    name: String,
+    radiance: RadianceMap,
+}
+
 struct Outcome {
     curve: String,
-    scene: SceneKind,
+    /// Index into the scenes.
+    scene: usize,
     ratio: f64,
     enc: Encoding,
     own: f64,
@@ -233,13 +245,6 @@ fn main() {
         .unwrap_or(if quick { 10 } else { 1 });
     dorf = dorf.into_iter().step_by(every.max(1)).collect();
     curves.extend(dorf);
-    let scenes: Vec<SceneKind> = match arg("--scene") {
-        Some(list) => list
-            .split(',')
-            .map(|k| k.parse().unwrap_or_else(|e: String| panic!("{e}")))
-            .collect(),
-        None => SceneKind::ALL.to_vec(),
-    };
     let scene_seed: u64 = arg("--seed")
         .map(|n| n.parse().expect("--seed takes a whole number"))
         .unwrap_or(7);
@@ -254,6 +259,14 @@ fn main() {
         }
         None => (WIDTH, HEIGHT),
     };
+    let names: Vec<String> = match arg("--scene") {
+        Some(list) => list.split(',').map(str::to_string).collect(),
+        None => SceneKind::ALL
+            .iter()
+            .map(|k| k.name().to_string())
+            .collect(),
+    };
+    let scenes = scenes(&names, width, height, scene_seed);
     // `--curve NAME` restricts to one curve and prints its fitted and true g per 16 codes.
     let only = args
         .iter()
@@ -300,8 +313,8 @@ fn main() {
     let mut outcomes = Vec::new();
     let mut peer_cases = Vec::new();
     let started = std::time::Instant::now();
-    for (si, &kind) in scenes.iter().enumerate() {
-        let radiance = kind.render(width, height, scene_seed);
+    for (si, scene) in scenes.iter().enumerate() {
+        let radiance = &scene.radiance;
         for (ci, (name, curve)) in curves.iter().enumerate() {
             let g_true = measure::true_response(curve, 4096);
             for &enc in &encodings {
@@ -317,7 +330,7 @@ fn main() {
                     let rendered: Vec<(Frame, Option<Vec<u8>>)> = exposures
                         .iter()
                         .enumerate()
-                        .map(|(k, &e)| expose(&radiance, e, curve, enc, seed + 50 * k as u64, true))
+                        .map(|(k, &e)| expose(radiance, e, curve, enc, seed + 50 * k as u64, true))
                         .collect();
                     let histograms: Vec<Histogram> = rendered
                         .iter()
@@ -370,11 +383,11 @@ fn main() {
                     let merge_true = if fits_only {
                         f64::NAN
                     } else {
-                        merged_error(&radiance, &frames, &g_true).unwrap_or(f64::NAN)
+                        merged_error(radiance, &frames, &g_true).unwrap_or(f64::NAN)
                     };
                     let mut outcome = Outcome {
                         curve: name.clone(),
-                        scene: kind,
+                        scene: si,
                         ratio,
                         enc,
                         own: f64::NAN,
@@ -398,7 +411,7 @@ fn main() {
                             .enumerate()
                             .map(|(k, &e)| {
                                 let f =
-                                    expose(&radiance, e, curve, enc, seed + 50 * k as u64, false).0;
+                                    expose(radiance, e, curve, enc, seed + 50 * k as u64, false).0;
                                 Histogram::of_frame(&f, 1)
                             })
                             .collect();
@@ -434,7 +447,7 @@ fn main() {
                             .enumerate()
                         {
                             records.push(ChannelRecord {
-                                scene: kind.name().to_string(),
+                                scene: scene.name.clone(),
                                 curve: name.clone(),
                                 enc: enc.name().to_string(),
                                 ratio,
@@ -496,7 +509,7 @@ fn main() {
                             outcome.cast = scales.iter().fold(f64::NEG_INFINITY, |a, &s| a.max(s))
                                 - scales.iter().fold(f64::INFINITY, |a, &s| a.min(s));
                             if !fits_only {
-                                outcome.gap = merged_error(&radiance, &frames, &cal.response)
+                                outcome.gap = merged_error(radiance, &frames, &cal.response)
                                     .map_or(f64::NAN, |e| e - merge_true);
                             }
                             outcome.confidence = cal
@@ -574,7 +587,7 @@ fn main() {
         curves.len() - 4,
         scenes
             .iter()
-            .map(|k| k.name())
+            .map(|s| s.name.as_str())
             .collect::<Vec<_>>()
             .join(", ")
     );
@@ -591,7 +604,7 @@ fn main() {
     );
     let use_dorf = outcomes.iter().any(|o| o.curve.starts_with("dorf-"));
     for &enc in &encodings {
-        for &kind in &scenes {
+        for (kind, scene) in scenes.iter().enumerate() {
             for &ratio in &ratios {
                 let set: Vec<&Outcome> = outcomes
                     .iter()
@@ -649,7 +662,7 @@ fn main() {
                 println!(
                     "| {} | {} | {ratio} | {} | {} | {:.4} | {:.4} | {:.3} | {:.4} | {:.4} | {:.4} | {:.4} | {:.4} | {:.2} % | {:.2} | {:.2} | {low} | {wrong} | {:.1} | {pm} | {pp} | {better} |",
                     enc.name(),
-                    kind.name(),
+                    scene.name,
                     set.len(),
                     set.len() - ok.len(),
                     quantile(&mut shape, 0.5),
@@ -688,7 +701,7 @@ fn main() {
         );
         println!("|---|---|---|---|---|---|---|---|---|---|---|---|---|---|");
         for &enc in &encodings {
-            for &kind in &scenes {
+            for (kind, scene) in scenes.iter().enumerate() {
                 for &ratio in &ratios {
                     let ok: Vec<&Outcome> = outcomes
                         .iter()
@@ -711,7 +724,7 @@ fn main() {
                     println!(
                         "| {} | {} | {ratio} | {} | {:.4} | {:.4} | {:.2} | {} | {:.4} | {:.4} | {:.2} | {:.4} | {:.2} | {} |",
                         enc.name(),
-                        kind.name(),
+                        scene.name,
                         ok.len(),
                         quantile(&mut scale, 0.5),
                         quantile(&mut scale, 0.9),
@@ -738,7 +751,7 @@ fn main() {
             println!(
                 "| {} | {} | {} | {} | {:.4} | {:.4} | {:.4} | {:.2} | {:.2} | {} |",
                 o.curve,
-                o.scene.name(),
+                scenes[o.scene].name,
                 o.enc.name(),
                 o.ratio,
                 o.own,
@@ -764,7 +777,7 @@ fn main() {
         println!(
             "| {} | {} | {} | {:.4} | {:.4} | {:.2} | {:.1} | {} |",
             o.curve,
-            o.scene.name(),
+            scenes[o.scene].name,
             o.enc.name(),
             o.own,
             o.shape,
@@ -788,11 +801,7 @@ fn main() {
             .iter()
             .map(|o| format!(
                 "{} on {} {:.3} (conf {:.2}, {:.1} eff. parameters)",
-                o.curve,
-                o.scene.name(),
-                o.shape,
-                o.confidence,
-                o.parameters
+                o.curve, scenes[o.scene].name, o.shape, o.confidence, o.parameters
             ))
             .collect::<Vec<_>>()
             .join("; ")
@@ -811,6 +820,48 @@ fn main() {
 /// Good: scale error ≤ 0.05 stop and shape error ≤ 0.1 stop (what the confidence predicts).
 fn good(e: &measure::CurveError) -> bool {
     e.scale.abs() <= 0.05 && e.shape <= 0.1
+}
+
+/// The scenes named on the command line, in order: a [`SceneKind`] by its name, rendered
+/// at `width × height` with `seed`; `real` every real bracket of
+/// `../shared/testdata/brackets` (or of `--real-brackets DIR`) made into a scene of about
+/// as many pixels ([`common::real_scene`]), `real:NAME` one of them. Real scenes that
+/// cannot be made (no test data here, an unreadable frame) are skipped with a message.
+fn scenes(names: &[String], width: u32, height: u32, seed: u64) -> Vec<Scene> {
+    let pixels = f64::from(width) * f64::from(height);
+    let mut out = Vec::new();
+    for name in names {
+        let real = name
+            .strip_prefix("real")
+            .filter(|rest| rest.is_empty() || rest.starts_with(':'));
+        let Some(rest) = real else {
+            let kind: SceneKind = name.parse().unwrap_or_else(|e: String| panic!("{e}"));
+            out.push(Scene {
+                name: kind.name().to_string(),
+                radiance: kind.render(width, height, seed),
+            });
+            continue;
+        };
+        let only = rest.strip_prefix(':');
+        let root = arg("--real-brackets").map_or_else(common::testdata_brackets, PathBuf::from);
+        let brackets = common::real_brackets(&root);
+        if brackets.is_empty() {
+            eprintln!("(real brackets unavailable: the real scenes are skipped)");
+        }
+        for (bracket, frames) in brackets {
+            if only.is_some_and(|o| o != bracket) {
+                continue;
+            }
+            match common::real_scene(&frames, pixels) {
+                Ok(radiance) => out.push(Scene {
+                    name: format!("real:{bracket}"),
+                    radiance,
+                }),
+                Err(e) => eprintln!("(real scene {bracket}: {e}: skipped)"),
+            }
+        }
+    }
+    out
 }
 
 /// One channel of one fit: what the fit knew and how it came out.

@@ -1,10 +1,18 @@
-//! What the benchmarks share: the DoRF curves and their split, the synthetic shot's EXIF,
-//! quantiles. Each bench uses part of it.
+//! What the benchmarks share: the DoRF curves and their split, the real brackets and the
+//! scenes made from them, the synthetic shot's EXIF, quantiles. Each bench uses part of it.
 #![allow(dead_code)]
 
-use std::path::Path;
+use std::path::{Path, PathBuf};
 
+use filmback::frame::{self, Frame, Limits};
+
+// The real brackets' listing, shared with the integration tests (not every bench uses it).
+#[path = "../../tests/common/brackets.rs"]
+mod brackets;
+#[allow(unused_imports)]
+pub use brackets::real_brackets;
 use filmback::metadata::{Camera, CaptureTime, Exposure};
+use filmback::radiance::RadianceMap;
 use filmback::synthetic::{self, ResponseCurve, Shot, SyntheticError};
 
 /// The DoRF curves of `../shared/testdata/response-curves/dorf-even.csv`, found beside
@@ -74,4 +82,24 @@ pub fn shot(exposure: f64) -> Shot {
             offset_minutes: None,
         },
     }
+}
+
+/// `../shared/testdata/brackets`, the real brackets beside the repository.
+pub fn testdata_brackets() -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR")).join("../shared/testdata/brackets")
+}
+
+/// A scene of a real place ([`synthetic::real_place`]) from a real bracket's files with
+/// their relative exposures, of about `pixels` pixels.
+pub fn real_scene(frames: &[(PathBuf, f64)], pixels: f64) -> Result<RadianceMap, String> {
+    let loaded: Vec<(Frame, f64)> = frames
+        .iter()
+        .map(|(p, e)| {
+            frame::load(p, Limits::default())
+                .map(|l| (l.frame, *e))
+                .map_err(|e| e.to_string())
+        })
+        .collect::<Result<_, _>>()?;
+    let borrowed: Vec<(&Frame, f64)> = loaded.iter().map(|(f, e)| (f, *e)).collect();
+    synthetic::real_place(&borrowed, pixels).map_err(|e| e.to_string())
 }
