@@ -581,7 +581,10 @@ fn main() {
         let curve = &curves.iter().find(|(n, _)| *n == o.curve)?.1;
         Some(errors(curve, |c, k| pc[k][c]).1)
     };
-    let dorf_count = curves.iter().filter(|(n, _)| n.starts_with("dorf-")).count();
+    let dorf_count = curves
+        .iter()
+        .filter(|(n, _)| n.starts_with("dorf-"))
+        .count();
     println!(
         "# Response recovery accuracy ({width}x{height} RGB pairs, degree auto, {} curves: {} built-in + {} DoRF; scenes {}; render+calibrate+merge {ours_s:.1} s)",
         curves.len(),
