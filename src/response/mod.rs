@@ -473,12 +473,16 @@ const BALANCE_POINTS: usize = 64;
 /// applied here where it is measured: over the tones `[b_lo, b_hi]` that every fitted
 /// channel's equations cover, `L_c = Σ_b w(b)·ln g_c(b) / Σ_b w(b)` at [`BALANCE_POINTS`]
 /// points, weighted as the merge weighs a code (`w(b) = 1 − |2b − 1|`, the hat), and
-/// `o_c = L_c − mean_c L_c` (fitted channels; a borrowed channel has its donor's curve
-/// and so its offset), so a tone that is neutral in codes is neutral in radiance there,
-/// most of all at the codes the merge takes its radiance from.
+/// `o_c = L_c − L` (a borrowed channel has its donor's curve and so its offset), so a
+/// tone that is neutral in codes is neutral in radiance there, most of all at the codes
+/// the merge takes its radiance from. The common level is the fitted channels' mean,
+/// `L = mean_c L_c`, unless a channel cannot rise to it: `o_c ≥ ln g_c(b_c)` keeps
+/// `g_c(b_c) ≤ 1`, so `L = min(mean_c L_c, min_c (L_c − ln g_c(b_c)))`, the highest level
+/// every channel reaches (a channel extrapolated far above its brightest tone lowers the
+/// common level rather than leaving a cast).
 /// Above its brightest tone `b_c` the offset fades linearly in `b` to 0 at `b = 1`, so
-/// `g(1) = 1` still holds; `o_c` is never below `ln g_c(b_c)`, so `g_c(b_c) ≤ 1`. One
-/// channel, a single fitted channel, or no common tones: no offsets.
+/// `g(1) = 1` still holds. One channel, a single fitted channel, or no common tones: no
+/// offsets.
 fn balance(channels: &[ChannelCalibration]) -> Vec<f64> {
     let none = vec![0.0; channels.len()];
     let fitted: Vec<&ChannelCalibration> = channels
@@ -508,20 +512,29 @@ fn balance(channels: &[ChannelCalibration]) -> Vec<f64> {
         sum / total
     };
     let levels: Vec<f64> = channels.iter().map(level).collect();
-    let reference = channels
+    let top = |c: &ChannelCalibration| c.fit.log_g(c.fit.covered.1.min(BALANCE_TOP));
+    let mean = channels
         .iter()
         .zip(&levels)
         .filter(|(c, _)| c.borrowed_from.is_none())
         .map(|(_, l)| l)
         .sum::<f64>()
         / fitted.len() as f64;
+    // The highest common level every channel can reach without rising above 1 at its
+    // brightest tone: `o_c ≥ ln g_c(b_c)` for all `c`.
+    let reachable = channels
+        .iter()
+        .zip(&levels)
+        .map(|(c, l)| l - top(c))
+        .fold(f64::INFINITY, f64::min);
+    let reference = mean.min(reachable);
     if !reference.is_finite() {
         return none;
     }
     channels
         .iter()
         .zip(&levels)
-        .map(|(c, l)| (l - reference).max(c.fit.log_g(c.fit.covered.1.min(BALANCE_TOP))))
+        .map(|(c, l)| (l - reference).max(top(c)))
         .collect()
 }
 
@@ -712,6 +725,65 @@ mod tests {
         let mid = g.eval(1, 0.5);
         assert!((mid - 0.214).abs() < 1e-3, "{mid}");
         assert_eq!(g.eval(0, f64::NAN), 0.0);
+    }
+
+    #[test]
+    fn a_channel_without_headroom_lowers_the_common_level_rather_than_casting() {
+        // R and G: the exact tone pairs of g = b^2.2 at ratio 4. B: the same curve six
+        // stops lower below its top piece (every coefficient but the last), so that it sits
+        // far below the others and yet rises to within a fraction of a stop of white at its
+        // brightest tone: it cannot be raised to the channels' mean level.
+        let pairs: Vec<TonePair> = (3..=250)
+            .map(|c| f64::from(c) / 255.0)
+            .map(|b| (b, b * 4f64.powf(1.0 / 2.2)))
+            .filter(|&(_, t)| t <= 250.0 / 255.0)
+            .enumerate()
+            .map(|(i, (dark, bright))| TonePair {
+                dark,
+                bright,
+                sigma_dark: 0.001,
+                sigma_bright: 0.001,
+                quantile: i as f64,
+            })
+            .collect();
+        let r = fit::fit(&pairs, 4f64.ln(), Degree::Auto).unwrap();
+        let mut b = r.clone();
+        let last = b.coefficients.len() - 1;
+        for c in &mut b.coefficients[..last] {
+            *c -= 6.0 * std::f64::consts::LN_2;
+        }
+        let channel = |name, fit| ChannelCalibration {
+            name,
+            fit,
+            borrowed_from: None,
+            pairs: Vec::new(),
+            log_ratios: Vec::new(),
+            set_lengths: Vec::new(),
+        };
+        let b_knot = b.knots.last().unwrap().exp();
+        let top = b.covered.1.min(BALANCE_TOP);
+        let headroom = -b.log_g(top);
+        let mid = |f: &ChannelFit| f.log_g(0.5);
+        // The mean level is four stops above B's; B may rise only by its headroom.
+        assert!(
+            (mid(&r) - mid(&b)) * 2.0 / 3.0 > headroom + 0.5,
+            "headroom {headroom}"
+        );
+        let cal = finish(
+            4.0,
+            RatioSource::Argument,
+            vec![channel("R", r.clone()), channel("G", r), channel("B", b)],
+        )
+        .unwrap();
+        // Below B's top piece (its last interior knot), where the two curves differ by
+        // their level alone.
+        let knee = (b_knot * 255.0).floor() as i32;
+        for k in [16, 64, 128, 192, knee] {
+            let x = f64::from(k) / 255.0;
+            let (gr, gb) = (cal.response.eval(0, x), cal.response.eval(2, x));
+            assert!((gr / gb).log2().abs() < 0.05, "code {k}: R {gr}, B {gb}");
+        }
+        assert!(cal.response.samples(2).iter().all(|&g| g <= 1.0));
     }
 
     #[test]
