@@ -169,6 +169,47 @@ fn accuracy(name: &str, curve: ResponseCurve) {
     );
 }
 
+/// A pair at ratio 4 of a scene through a curve, and what its recovered response costs.
+struct PairOutcome {
+    dark: Frame,
+    bright: Frame,
+    /// Median relative radiance error of the merge given the true response.
+    floor: f64,
+    /// The same with the recovered response, minus `floor`.
+    gap: f64,
+    /// Each channel's scale error, stops.
+    scale: Vec<f64>,
+}
+
+/// `truth` exposed at [`DARK`] and [`BRIGHT`] through `curve` (8-bit, 1 DN read noise,
+/// noise seed `seed`), the response recovered from the pair, and its cost.
+fn pair_outcome(truth: &RadianceMap, curve: &ResponseCurve, seed: u64) -> PairOutcome {
+    let s = sensor(curve.clone(), BitDepth::Eight, seed);
+    let dark = expose(truth, DARK, &s);
+    let bright = expose(truth, BRIGHT, &s);
+    let error = |g: &InverseResponse| {
+        let merged = merge_frames(&[(&dark, DARK), (&bright, BRIGHT)], g, Weighting::Hat);
+        measure::radiance_error(&merged.radiance, truth, BRIGHT, &[&dark, &bright]).unwrap()
+    };
+    let g_fit = recovered(&dark, &bright);
+    let floor = error(&measure::true_response(curve, 256));
+    let gap = error(&g_fit) - floor;
+    let scale = measure::scale_errors(&g_fit, curve);
+    PairOutcome {
+        dark,
+        bright,
+        floor,
+        gap,
+        scale,
+    }
+}
+
+/// Largest minus smallest of the channels' scale errors: the colour cast, stops.
+fn spread(scale: &[f64]) -> f64 {
+    scale.iter().fold(f64::NEG_INFINITY, |a, &b| a.max(b))
+        - scale.iter().fold(f64::INFINITY, |a, &b| a.min(b))
+}
+
 /// The user's metric on the scenes a studio shoots (a seamless backdrop over most of the
 /// frame, a grey card, a product with speculars; and flat patches, one channel each):
 /// 8-bit, 1 DN read noise, ratio 4. On the studio sets the merge with the recovered
@@ -185,25 +226,16 @@ fn studio_and_flat_patch_merges_stay_near_the_true_response() {
     ] {
         let truth = kind.render(WIDTH, HEIGHT, 3);
         for curve in [ResponseCurve::Srgb, ResponseCurve::FilmS] {
-            let s = sensor(curve.clone(), BitDepth::Eight, 9);
-            let dark = expose(&truth, DARK, &s);
-            let bright = expose(&truth, BRIGHT, &s);
-            let frames = [(&dark, DARK), (&bright, BRIGHT)];
-            let codes = [&dark, &bright];
-            let error = |g: &InverseResponse| {
-                let merged = merge_frames(&frames, g, Weighting::Hat);
-                measure::radiance_error(&merged.radiance, &truth, BRIGHT, &codes).unwrap()
-            };
-            let g_fit = recovered(&dark, &bright);
-            let floor = error(&measure::true_response(&curve, 256));
-            let fitted = error(&g_fit);
-            let scale = measure::scale_errors(&g_fit, &curve);
+            let PairOutcome {
+                floor, gap, scale, ..
+            } = pair_outcome(&truth, &curve, 9);
+            let fitted = floor + gap;
             eprintln!(
                 "{} {curve:?}: true g {:.2} %, recovered {:.2} % (gap {:+.2} pp); channel scale {scale:+.4?} stops",
                 kind.name(),
                 100.0 * floor,
                 100.0 * fitted,
-                100.0 * (fitted - floor)
+                100.0 * gap
             );
             let bound = if kind == SceneKind::FlatPatches {
                 0.005
@@ -211,10 +243,10 @@ fn studio_and_flat_patch_merges_stay_near_the_true_response() {
                 0.003
             };
             assert!(
-                fitted - floor <= bound,
+                gap <= bound,
                 "{} {curve:?}: gap {:.2} pp",
                 kind.name(),
-                100.0 * (fitted - floor)
+                100.0 * gap
             );
             assert!(
                 scale.iter().all(|s| s.abs() <= 0.06),
@@ -290,21 +322,14 @@ fn real_places_merge_near_the_true_response() {
             ResponseCurve::FilmS,
             ResponseCurve::StrongToe,
         ] {
-            let s = sensor(curve.clone(), BitDepth::Eight, 13);
-            let dark = expose(&truth, DARK, &s);
-            let bright = expose(&truth, BRIGHT, &s);
-            let pair = [(&dark, DARK), (&bright, BRIGHT)];
-            let codes = [&dark, &bright];
-            let error = |g: &InverseResponse| {
-                let merged = merge_frames(&pair, g, Weighting::Hat);
-                measure::radiance_error(&merged.radiance, &truth, BRIGHT, &codes).unwrap()
-            };
-            let g_fit = recovered(&dark, &bright);
-            let floor = error(&measure::true_response(&curve, 256));
-            let gap = error(&g_fit) - floor;
-            let scale = measure::scale_errors(&g_fit, &curve);
-            let cast = scale.iter().fold(f64::NEG_INFINITY, |a, &b| a.max(b))
-                - scale.iter().fold(f64::INFINITY, |a, &b| a.min(b));
+            let PairOutcome {
+                dark,
+                bright,
+                floor,
+                gap,
+                scale,
+            } = pair_outcome(&truth, &curve, 13);
+            let cast = spread(&scale);
             eprintln!(
                 "{name} {curve:?}: true g {:.2} %, gap {:+.2} pp, channel scale {scale:+.4?} stops",
                 100.0 * floor,
@@ -317,8 +342,7 @@ fn real_places_merge_near_the_true_response() {
             );
             let g_jpeg = recovered(&through_jpeg(&dark, DARK), &through_jpeg(&bright, BRIGHT));
             let scale = measure::scale_errors(&g_jpeg, &curve);
-            let cast = scale.iter().fold(f64::NEG_INFINITY, |a, &b| a.max(b))
-                - scale.iter().fold(f64::INFINITY, |a, &b| a.min(b));
+            let cast = spread(&scale);
             eprintln!("{name} {curve:?} JPEG q90: channel scale {scale:+.4?} stops");
             assert!(
                 cast <= 0.05,
