@@ -5,15 +5,15 @@
 use std::path::{Path, PathBuf};
 
 use filmback::frame::{self, Frame, Limits};
+use filmback::metadata::{Camera, CaptureTime, Exposure};
+use filmback::radiance::RadianceMap;
+use filmback::synthetic::{self, ResponseCurve, Shot, SyntheticError};
 
 // The real brackets' listing, shared with the integration tests (not every bench uses it).
 #[path = "../../tests/common/brackets.rs"]
 mod brackets;
 #[allow(unused_imports)]
 pub use brackets::real_brackets;
-use filmback::metadata::{Camera, CaptureTime, Exposure};
-use filmback::radiance::RadianceMap;
-use filmback::synthetic::{self, ResponseCurve, Shot, SyntheticError};
 
 /// The DoRF curves of `../shared/testdata/response-curves/dorf-even.csv`, found beside
 /// the repository or, for a git worktree in a folder, beside its parent.
