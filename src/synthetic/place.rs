@@ -5,6 +5,8 @@ use std::path::Path;
 
 use super::SyntheticError;
 use super::scene::MID_GREY;
+use crate::darkroom::CALIBRATION_PIXELS;
+use crate::display::luminance;
 use crate::frame::Frame;
 use crate::histogram::Histogram;
 use crate::merge::{self, BracketFrame, MergeOptions};
@@ -12,16 +14,13 @@ use crate::metadata::Camera;
 use crate::radiance::RadianceMap;
 use crate::response::{Degree, RatioSource, calibrate_bracket};
 
-/// Pixels per frame the place's calibration histograms look at (as the darkroom does).
-const CALIBRATION_PIXELS: f64 = 3e6;
-
 /// The radiance map of a real bracket as a scene: `frames` with their relative exposures
 /// `e = t·S/N²` (any order), merged with filmback's own bracket pipeline — the joint fit of
-/// every frame ([`calibrate_bracket`], histograms of about three million pixels a frame,
+/// every frame ([`calibrate_bracket`], histograms of [`CALIBRATION_PIXELS`] a frame,
 /// degree auto) and the hat-weighted merge —, box-averaged by the whole factor `k =
 /// round(√(pixels_in / pixels))` (at least 1) that brings it nearest `pixels` pixels, and
-/// scaled so that its median Rec. 709 luminance `0.2126 R + 0.7152 G + 0.0722 B` is
-/// [`MID_GREY`], where a photographer's middle exposure puts a scene's middle.
+/// scaled so that its median Rec. 709 luminance ([`luminance`]) is [`MID_GREY`], where a
+/// photographer's middle exposure puts a scene's middle.
 ///
 /// What it lends an accuracy measurement is a real scene's statistics — its radiance
 /// histogram, colours, flat and textured areas, highlights — rather than its exact
@@ -79,12 +78,12 @@ pub fn real_place(frames: &[(&Frame, f64)], pixels: f64) -> Result<RadianceMap, 
             *v = (sum / (k * k) as f64) as f32;
         }
     }
-    let mut luminance: Vec<f64> = out
+    let mut lum: Vec<f64> = out
         .chunks_exact(3)
-        .map(|p| 0.2126 * f64::from(p[0]) + 0.7152 * f64::from(p[1]) + 0.0722 * f64::from(p[2]))
+        .map(|p| f64::from(luminance(p[0], p[1], p[2])))
         .collect();
-    let mid = luminance.len() / 2;
-    let median = *luminance.select_nth_unstable_by(mid, f64::total_cmp).1;
+    let mid = lum.len() / 2;
+    let median = *lum.select_nth_unstable_by(mid, f64::total_cmp).1;
     if !(median.is_finite() && median > 0.0) {
         return Err(failed(format!("its median luminance is {median}")));
     }
@@ -115,9 +114,7 @@ mod tests {
             (place.width(), place.height(), place.channels()),
             (64, 48, 3)
         );
-        let y = |p: &[f32]| {
-            0.2126 * f64::from(p[0]) + 0.7152 * f64::from(p[1]) + 0.0722 * f64::from(p[2])
-        };
+        let y = |p: &[f32]| f64::from(luminance(p[0], p[1], p[2]));
         let mut lum: Vec<f64> = place.pixels().chunks_exact(3).map(y).collect();
         lum.sort_by(f64::total_cmp);
         assert!((lum[lum.len() / 2] - MID_GREY).abs() < 1e-6);
