@@ -17,6 +17,8 @@
 //! `stride`-th row once; frames above about a megapixel are split into row bands counted
 //! on all cores (rayon) and summed.
 
+use std::borrow::Cow;
+
 use rayon::prelude::*;
 
 use crate::frame::{BitDepth, Compression, Frame, Samples};
@@ -145,6 +147,214 @@ impl Histogram {
     pub fn cumulative(&self, c: usize) -> Cumulative {
         Cumulative::new(self.depth, &self.counts[c])
     }
+}
+
+/// Side in pixels of the blocks a lossy frame is judged by: a JPEG's largest coding unit
+/// (16×16 at 4:2:0 chroma subsampling, four 8×8 blocks at 4:4:4), on the grid that starts
+/// at the image's top-left corner. The DCT's ringing around a clipped sample stays inside
+/// its coding unit.
+pub const CODING_BLOCK: usize = 16;
+
+/// Side in pixels of the cells that share one chroma sample at 4:2:0, the unit by which a
+/// block's pixels are left out ([`shared_counts`]).
+const CHROMA_CELL: usize = 2;
+
+/// Cells per row of a coding block.
+const CELLS_PER_ROW: usize = CODING_BLOCK / CHROMA_CELL;
+
+/// How far below full scale, as a fraction of it, a block's darkest sample must lie for a
+/// clipped sample in it to make a hard edge (96/255: a sample at code 159 or darker of an
+/// 8-bit frame). The ringing of a block grows with the step the codec must encode; a
+/// highlight that clips softly, over a smooth gradient, leaves its block's near-white
+/// tones where they were, and those tones are what shows the top of the curve.
+pub const HARD_EDGE: f64 = 96.0 / 255.0;
+
+/// What one coding block of a lossy frame holds: how many of its cells hold a clipped
+/// sample (saturating at 2) and, when that is one, which (row-major within the block);
+/// whether it holds a sample [`HARD_EDGE`] below full scale.
+#[derive(Debug, Clone, Copy, Default, PartialEq)]
+struct BlockClip {
+    clipped_cells: u8,
+    clipped_cell: u8,
+    dark: bool,
+}
+
+impl BlockClip {
+    /// True if the block clips over a hard edge.
+    fn hard(self) -> bool {
+        self.dark && self.clipped_cells > 0
+    }
+
+    /// True if cell `k` of the block is left out: the block clips over a hard edge and a
+    /// cell other than `k` holds a clipped sample.
+    fn leaves_out(self, k: usize) -> bool {
+        self.dark
+            && (self.clipped_cells >= 2
+                || (self.clipped_cells == 1 && usize::from(self.clipped_cell) != k))
+    }
+
+    /// Records that cell `k` holds a clipped sample.
+    fn clip(&mut self, k: usize) {
+        match self.clipped_cells {
+            0 => {
+                self.clipped_cells = 1;
+                self.clipped_cell = k as u8;
+            }
+            1 if usize::from(self.clipped_cell) != k => self.clipped_cells = 2,
+            _ => {}
+        }
+    }
+}
+
+/// A frame's histogram together with what pairing it with another frame needs: for a
+/// lossy frame, its coding blocks that clip over a hard edge ([`shared_counts`]).
+#[derive(Debug, Clone)]
+pub struct FrameCounts<'a> {
+    frame: &'a Frame,
+    stride: usize,
+    histogram: Histogram,
+    /// Per block, row-major; empty when no block clips over a hard edge (always for a
+    /// lossless frame).
+    blocks: Vec<BlockClip>,
+}
+
+impl<'a> FrameCounts<'a> {
+    /// Counts `frame` as [`Histogram::of_frame`] does and, if it is lossy, finds its
+    /// blocks that clip over a hard edge (every pixel is looked at, whatever the stride).
+    pub fn of_frame(frame: &'a Frame, stride: usize) -> FrameCounts<'a> {
+        let stride = stride.max(1);
+        let histogram = Histogram::of_frame(frame, stride);
+        let blocks = match frame.compression() {
+            Compression::Lossless => Vec::new(),
+            Compression::Lossy => hard_clipped_blocks(frame),
+        };
+        FrameCounts {
+            frame,
+            stride,
+            histogram,
+            blocks,
+        }
+    }
+
+    /// The whole frame's histogram.
+    pub fn histogram(&self) -> &Histogram {
+        &self.histogram
+    }
+
+    /// Number of coding blocks that clip over a hard edge (0 for a lossless frame).
+    pub fn hard_clipped_blocks(&self) -> usize {
+        self.blocks.iter().filter(|b| b.hard()).count()
+    }
+
+    /// The histogram of the sampled pixels that neither `self`'s blocks nor `other`'s
+    /// (a frame of the same size) leave out.
+    fn without(&self, other: &FrameCounts<'_>) -> Histogram {
+        let frame = self.frame;
+        let (w, h) = (frame.width() as usize, frame.height() as usize);
+        let blocks_x = w.div_ceil(CODING_BLOCK);
+        let channels = frame.channels();
+        let shift = frame.bit_depth().bits() - self.histogram.bins().trailing_zeros();
+        let mut counts = self.histogram.counts.clone();
+        let s = self.stride;
+        let block = |blocks: &[BlockClip], i: usize| blocks.get(i).copied().unwrap_or_default();
+        for i in 0..blocks_x * h.div_ceil(CODING_BLOCK) {
+            let (a, b) = (block(&self.blocks, i), block(&other.blocks, i));
+            if !a.hard() && !b.hard() {
+                continue;
+            }
+            let (x0, y0) = ((i % blocks_x) * CODING_BLOCK, (i / blocks_x) * CODING_BLOCK);
+            // The sampled rows and columns are the multiples of the stride.
+            let first = |v0: usize| v0.div_ceil(s) * s;
+            for y in (first(y0)..(y0 + CODING_BLOCK).min(h)).step_by(s) {
+                for x in (first(x0)..(x0 + CODING_BLOCK).min(w)).step_by(s) {
+                    let k = (y - y0) / CHROMA_CELL * CELLS_PER_ROW + (x - x0) / CHROMA_CELL;
+                    if !a.leaves_out(k) && !b.leaves_out(k) {
+                        continue;
+                    }
+                    let at = (y * w + x) * channels;
+                    for (c, bins) in counts.iter_mut().enumerate() {
+                        let bin = match frame.samples() {
+                            Samples::Eight(v) => usize::from(v[at + c]),
+                            Samples::Sixteen(v) => usize::from(v[at + c]) >> shift,
+                        };
+                        bins[bin] -= 1;
+                    }
+                }
+            }
+        }
+        Histogram {
+            depth: self.histogram.depth,
+            compression: self.histogram.compression,
+            counts,
+        }
+    }
+}
+
+/// `frame`'s coding blocks ([`BlockClip`], row-major); empty if none clips over a hard
+/// edge. A pixel is clipped if any of its samples is at full scale, dark if any is at
+/// least [`HARD_EDGE`] below it.
+fn hard_clipped_blocks(frame: &Frame) -> Vec<BlockClip> {
+    let (w, h) = (frame.width() as usize, frame.height() as usize);
+    let channels = frame.channels();
+    let blocks_x = w.div_ceil(CODING_BLOCK);
+    let max = frame.bit_depth().max_code();
+    let dark_below = max - (f64::from(max) * HARD_EDGE).round() as u32;
+    let mut blocks = vec![BlockClip::default(); blocks_x * h.div_ceil(CODING_BLOCK)];
+    blocks
+        .par_chunks_mut(blocks_x)
+        .enumerate()
+        .for_each(|(by, row_of_blocks)| {
+            for y in by * CODING_BLOCK..((by + 1) * CODING_BLOCK).min(h) {
+                for x in 0..w {
+                    let at = (y * w + x) * channels;
+                    let (lo, hi) = match frame.samples() {
+                        Samples::Eight(v) => {
+                            v[at..at + channels].iter().fold((max, 0), |(lo, hi), &c| {
+                                (lo.min(c.into()), hi.max(c.into()))
+                            })
+                        }
+                        Samples::Sixteen(v) => {
+                            v[at..at + channels].iter().fold((max, 0), |(lo, hi), &c| {
+                                (lo.min(c.into()), hi.max(c.into()))
+                            })
+                        }
+                    };
+                    let block = &mut row_of_blocks[x / CODING_BLOCK];
+                    block.dark |= lo <= dark_below;
+                    if hi == max {
+                        let k = y % CODING_BLOCK / CHROMA_CELL * CELLS_PER_ROW
+                            + x % CODING_BLOCK / CHROMA_CELL;
+                        block.clip(k);
+                    }
+                }
+            }
+        });
+    if blocks.iter().any(|b| b.hard()) {
+        blocks
+    } else {
+        Vec::new()
+    }
+}
+
+/// The histograms of two frames of one scene counted over the same pixels. Where either
+/// frame is lossy, a pixel is left out of both when its [`CODING_BLOCK`], in either frame,
+/// clips over a hard edge (holds a clipped sample and one [`HARD_EDGE`] below full scale)
+/// outside the pixel's own chroma cell (the 2×2 pixels that share a chroma sample at
+/// 4:2:0). The codec's ringing next to clipped highlights then enters neither frame,
+/// `τ = H_B⁻¹ ∘ H_A` still matches the same scene points, and whether a pixel is counted
+/// does not depend on its own noise: a rule that looked at the pixel itself would keep,
+/// next to white, only the pixels whose noise held them below it, and bias the top of `τ`
+/// low. The frames must be aligned (a tripod bracket); frames of different sizes, or
+/// without such blocks, give their whole histograms.
+pub fn shared_counts<'h>(
+    a: &'h FrameCounts<'_>,
+    b: &'h FrameCounts<'_>,
+) -> (Cow<'h, Histogram>, Cow<'h, Histogram>) {
+    let same_size = a.frame.width() == b.frame.width() && a.frame.height() == b.frame.height();
+    if !same_size || (a.blocks.is_empty() && b.blocks.is_empty()) {
+        return (Cow::Borrowed(&a.histogram), Cow::Borrowed(&b.histogram));
+    }
+    (Cow::Owned(a.without(b)), Cow::Owned(b.without(a)))
 }
 
 /// A normalised cumulative histogram `H(b)`, piecewise linear between bin edges.
@@ -454,6 +664,69 @@ mod tests {
         for p in pairs {
             assert!((p.bright - p.dark - 40.0 / 255.0).abs() < 1e-9, "{p:?}");
         }
+    }
+
+    /// A 32×16 lossy RGB frame (two coding blocks) at code `base`, with `set` codes.
+    fn lossy_blocks(base: u8, set: &[(usize, usize, u8)]) -> Frame {
+        let mut codes = vec![base; 32 * 16 * 3];
+        for &(x, y, code) in set {
+            codes[(y * 32 + x) * 3..(y * 32 + x + 1) * 3].fill(code);
+        }
+        Frame::new(32, 16, 3, Samples::Eight(codes))
+            .unwrap()
+            .with_compression(Compression::Lossy)
+    }
+
+    #[test]
+    fn a_hard_clipped_block_of_either_frame_is_left_out_of_both() {
+        // The bright frame's first block clips next to a dark sample; its second block
+        // clips softly (nothing below 159). The dark frame clips nowhere.
+        let bright = lossy_blocks(200, &[(3, 3, 255), (9, 12, 255), (5, 5, 40), (20, 4, 255)]);
+        let dark = lossy_blocks(100, &[]);
+        let (b, d) = (
+            FrameCounts::of_frame(&bright, 1),
+            FrameCounts::of_frame(&dark, 1),
+        );
+        assert_eq!((b.hard_clipped_blocks(), d.hard_clipped_blocks()), (1, 0));
+        let (hd, hb) = shared_counts(&d, &b);
+        assert_eq!((hd.total(), hb.total()), (256, 256));
+        // The soft block keeps its clipped pixel; the hard one is gone from both frames.
+        assert_eq!(hb.counts(0)[255], 1);
+        assert_eq!(hb.counts(0)[40], 0);
+        assert_eq!(hd.counts(0)[100], 256);
+        // The same frames stored losslessly are counted whole.
+        let (bright, dark) = (
+            bright.clone().with_compression(Compression::Lossless),
+            dark.clone().with_compression(Compression::Lossless),
+        );
+        let (b, d) = (
+            FrameCounts::of_frame(&bright, 1),
+            FrameCounts::of_frame(&dark, 1),
+        );
+        let (hd, hb) = shared_counts(&d, &b);
+        assert!(matches!((&hd, &hb), (Cow::Borrowed(_), Cow::Borrowed(_))));
+        assert_eq!(hb.total(), 512);
+    }
+
+    #[test]
+    fn a_pixel_is_not_left_out_for_its_own_clipping() {
+        // One clipped pixel in the block (its 2×2 chroma cell at x 6–7, y 2–3) and a dark
+        // sample: the block's other cells go, the clipped pixel's cell stays — whether a
+        // pixel is counted must not depend on its own noise.
+        let f = lossy_blocks(230, &[(7, 2, 255), (12, 12, 10)]);
+        let c = FrameCounts::of_frame(&f, 1);
+        let (h, _) = shared_counts(&c, &c);
+        assert_eq!(h.total(), 256 + 4);
+        assert_eq!(h.counts(1)[255], 1);
+        assert_eq!(h.counts(1)[230], 256 + 3);
+        // A second clipped cell in the block leaves out every cell, both clipped ones too.
+        let f = lossy_blocks(230, &[(7, 2, 255), (0, 0, 255), (12, 12, 10)]);
+        let c = FrameCounts::of_frame(&f, 1);
+        assert_eq!(shared_counts(&c, &c).0.total(), 256);
+        // With a stride the same pixels are left out among those sampled.
+        let c = FrameCounts::of_frame(&f, 2);
+        let (h, _) = shared_counts(&c, &c);
+        assert_eq!((c.histogram().total(), h.total()), (128, 64));
     }
 
     #[test]
