@@ -128,8 +128,19 @@ impl Rig {
 
 /// A three-frame AEB of `model` at `second`, named `<prefix>-1.jpg` …
 fn aeb(model: &str, second: u32, prefix: &str) -> Vec<(String, Vec<u8>)> {
+    aeb_at(model, second, prefix, u32::from(W), u32::from(H))
+}
+
+/// [`aeb`] at `width × height`.
+fn aeb_at(
+    model: &str,
+    second: u32,
+    prefix: &str,
+    width: u32,
+    height: u32,
+) -> Vec<(String, Vec<u8>)> {
     let shots = demo::aeb(model, None, second);
-    demo::jpegs(u32::from(W), u32::from(H), &shots, u64::from(second))
+    demo::jpegs(width, height, &shots, u64::from(second))
         .unwrap()
         .into_iter()
         .enumerate()
@@ -163,6 +174,16 @@ fn listing(dir: &Path) -> BTreeSet<String> {
 /// Waits until `out` holds exactly `expected`, then a little longer to see that nothing
 /// else appears; checks no temporary file is left and every EXR reads back.
 fn expect_outputs(out: &Path, expected: &BTreeSet<String>, timeout: Duration) {
+    expect_outputs_of_size(out, expected, timeout, (W, H));
+}
+
+/// [`expect_outputs`] of brackets whose frames are `size` (width, height).
+fn expect_outputs_of_size(
+    out: &Path,
+    expected: &BTreeSet<String>,
+    timeout: Duration,
+    size_of: (u16, u16),
+) {
     let start = Instant::now();
     while listing(out) != *expected {
         assert!(
@@ -180,7 +201,7 @@ fn expect_outputs(out: &Path, expected: &BTreeSet<String>, timeout: Duration) {
         let size = image.layer_data[0].size;
         assert_eq!(
             (size.x(), size.y()),
-            (usize::from(W), usize::from(H)),
+            (usize::from(size_of.0), usize::from(size_of.1)),
             "{name}"
         );
     }
@@ -1493,7 +1514,7 @@ fn the_darkroom_fits_renders_each_cameras_looks_and_refines_the_cache() {
     use filmback::darkroom::Source;
     // Films at t = 1 stop on top of the request's own @1/2: velvia50 at t = 1. Body P's
     // preset replaces the films and drops the tone map, and never recalibrates. The
-    // demo camera's q90 JPEG brackets fit to about 0.4–0.7 per channel (the calibrated
+    // demo camera's q90 JPEG brackets fit to about 0.8–0.9 per channel (the calibrated
     // probability of a channel within 0.05 stop; docs/accuracy.md), so the bar is set
     // under that: this test is about the cache's refinement, not about the bar.
     let mut rig = Rig::start_with(
@@ -1506,8 +1527,12 @@ fn the_darkroom_fits_renders_each_cameras_looks_and_refines_the_cache() {
         Arc::new(DarkroomLab),
         |_| {},
     );
-    put(&rig.ingest(), &aeb("Body A", 10, "a"));
-    put(&rig.ingest(), &aeb("Body P", 10, "p"));
+    // The brackets at 192×128: at the rig's 96×64 the frames share too few pixels
+    // outside their hard-clipped JPEG blocks for the contradiction check (an unweighted
+    // RMS over the tone pairs), which then finds the second bracket 0.08 stop off the
+    // first (own misfits 0.17–0.26 stop; at 192×128 0.07–0.08, no contradiction).
+    put(&rig.ingest(), &aeb_at("Body A", 10, "a", 192, 128));
+    put(&rig.ingest(), &aeb_at("Body P", 10, "p", 192, 128));
     let expected: BTreeSet<String> = [
         "a-1.exr",
         "a-1.velvia50-t1.jpg",
@@ -1517,18 +1542,23 @@ fn the_darkroom_fits_renders_each_cameras_looks_and_refines_the_cache() {
     ]
     .map(String::from)
     .into();
-    expect_outputs(&rig.out(), &expected, T);
-    put(&rig.ingest(), &aeb("Body A", 30, "b"));
+    expect_outputs_of_size(&rig.out(), &expected, T, (192, 128));
+    put(&rig.ingest(), &aeb_at("Body A", 30, "b", 192, 128));
     let mut expected = expected;
     expected.extend(["b-1.exr", "b-1.velvia50-t1.jpg", "b-1.linear.jpg"].map(String::from));
-    expect_outputs(&rig.out(), &expected, T);
+    expect_outputs_of_size(&rig.out(), &expected, T, (192, 128));
     let state = rig.state();
     rig.stop();
     // Body A: a noiseless sRGB bracket at ±2 EV fits above the bar and starts the body's
-    // pool; the second is merged with one fit over both brackets' tone pairs. Body P
-    // never fits, has no cache, and takes sRGB.
+    // pool. The second is merged with the pool if the pool is at least as sure as the
+    // second's own fit, else with that fit (the two scenes fit about equally surely;
+    // `darkroom::tests` covers the choice); either way its tone pairs join the pool,
+    // refitted over both brackets. Body P never fits, has no cache, and takes sRGB.
     assert_eq!(response_of(&state, "a-1"), Source::Fitted);
-    assert_eq!(response_of(&state, "b-1"), Source::Pooled);
+    assert!(matches!(
+        response_of(&state, "b-1"),
+        Source::Pooled | Source::Fitted
+    ));
     assert_eq!(response_of(&state, "p-1"), Source::Standard);
     let cache = filmback::daemon::cache::ResponseCache::new(&state);
     let entry = cache.find("Body A").unwrap();
@@ -1552,10 +1582,7 @@ fn the_darkroom_fits_renders_each_cameras_looks_and_refines_the_cache() {
         .map(|f| f.display_value().to_string());
     assert!(model.is_some_and(|m| m.contains("Body A")), "model carried");
     let decoded = image::load_from_memory(&jpeg).unwrap();
-    assert_eq!(
-        (decoded.width(), decoded.height()),
-        (u32::from(W), u32::from(H))
-    );
+    assert_eq!((decoded.width(), decoded.height()), (192, 128));
 }
 
 /// `out/<name>` of the rig whose state folder is `state` (they are siblings).
@@ -1806,11 +1833,11 @@ fn watch_demo_on_embedded_defaults_develops_its_bracket_and_keeps_watching() {
         }
     }
     // What the README shows: the demo camera is an sRGB one at JPEG q90 and one fixed
-    // scene; its fit's blue channel is 0.41 sure (under the 0.5 the daemon trusts), so
-    // the daemon takes the sRGB fallback, that camera's exact curve. A change of the fit
+    // scene; its three frames fit to within 0.01 stop of sRGB at confidence 0.84 or more
+    // (above the 0.5 the daemon trusts), so the daemon uses the fit. A change of the fit
     // that moves this changes the README's first command's output too.
     assert!(
-        lines[0].starts_with("demo bracket developed (response: standard (sRGB))"),
+        lines[0].starts_with("demo bracket developed (response: fitted)"),
         "{lines:?}"
     );
     let out: BTreeSet<String> = listing(&dir.path().join("out"));

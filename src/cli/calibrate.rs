@@ -9,7 +9,7 @@ use std::process::ExitCode;
 use anyhow::{Context, bail};
 use filmback::atomic::Overwrite;
 use filmback::frame::{self, Limits, LoadedFrame};
-use filmback::histogram::Histogram;
+use filmback::histogram::{FrameCounts, Histogram, shared_counts};
 use filmback::response::{self, Calibration, Degree, PRIOR_MID_GREY, Ratio, RatioSource};
 use serde_json::{Value, json};
 
@@ -105,9 +105,9 @@ pub fn run(args: Args) -> anyhow::Result<ExitCode> {
             );
         }
     }
-    let hists: Vec<Histogram> = loaded
+    let counts: Vec<FrameCounts> = loaded
         .iter()
-        .map(|l| Histogram::of_frame(&l.frame, args.stride))
+        .map(|l| FrameCounts::of_frame(&l.frame, args.stride))
         .collect();
     let exif: Vec<Option<f64>> = loaded
         .iter()
@@ -129,7 +129,7 @@ pub fn run(args: Args) -> anyhow::Result<ExitCode> {
         })
         .collect::<anyhow::Result<Vec<f64>>>()?;
     if loaded.len() > 2 {
-        return run_bracket(&args, &loaded, &hists, &exif, times);
+        return run_bracket(&args, &loaded, &counts, &exif, times);
     }
     let (exif, given_source) = if times.is_empty() {
         (exif, RatioSource::Exif)
@@ -143,7 +143,9 @@ pub fn run(args: Args) -> anyhow::Result<ExitCode> {
             }
             let dark = match (exif[0], exif[1]) {
                 (Some(a), Some(b)) if a != b => usize::from(b < a),
-                _ => usize::from(mean_brightness(&hists[1]) < mean_brightness(&hists[0])),
+                _ => usize::from(
+                    mean_brightness(counts[1].histogram()) < mean_brightness(counts[0].histogram()),
+                ),
             };
             (dark, Ratio::Known(r, RatioSource::Argument))
         }
@@ -157,13 +159,18 @@ pub fn run(args: Args) -> anyhow::Result<ExitCode> {
             (dark, Ratio::Known(a.max(b) / a.min(b), given_source))
         }
         _ => (
-            usize::from(mean_brightness(&hists[1]) < mean_brightness(&hists[0])),
+            usize::from(
+                mean_brightness(counts[1].histogram()) < mean_brightness(counts[0].histogram()),
+            ),
             Ratio::Estimate,
         ),
     };
     let bright = 1 - dark;
-    let calibration = response::calibrate(&hists[dark], &hists[bright], ratio, args.degree)
-        .with_context(|| {
+    // The two frames' histograms over the pixels they share (a JPEG's hard-clipped
+    // blocks left out of both).
+    let (h_dark, h_bright) = shared_counts(&counts[dark], &counts[bright]);
+    let calibration =
+        response::calibrate(&h_dark, &h_bright, ratio, args.degree).with_context(|| {
             format!(
                 "calibrating {} (dark) against {} (bright)",
                 loaded[dark].path.display(),
@@ -174,7 +181,7 @@ pub fn run(args: Args) -> anyhow::Result<ExitCode> {
         response::save(path, &calibration.record(), Overwrite::Replace)?;
     }
     if let Some(path) = &args.plot {
-        plot::write(path, &hists[dark], &hists[bright], &calibration)?;
+        plot::write(path, &h_dark, &h_bright, &calibration)?;
     }
     let mut report = report(&calibration);
     report["dark"] = json!(loaded[dark].path.display().to_string());
@@ -183,11 +190,11 @@ pub fn run(args: Args) -> anyhow::Result<ExitCode> {
 }
 
 /// More than two frames: one joint fit over every two frames adjacent in exposure
-/// ([`response::calibrate_bracket`]), with the exposures from `--times` or EXIF.
+/// ([`response::calibrate_frames`]), with the exposures from `--times` or EXIF.
 fn run_bracket(
     args: &Args,
     loaded: &[LoadedFrame],
-    hists: &[Histogram],
+    counts: &[FrameCounts],
     exif: &[Option<f64>],
     times: Vec<f64>,
 ) -> anyhow::Result<ExitCode> {
@@ -212,8 +219,8 @@ fn run_bracket(
     } else {
         (times, RatioSource::Argument)
     };
-    let frames: Vec<(&Histogram, f64)> = hists.iter().zip(exposures.iter().copied()).collect();
-    let calibration = response::calibrate_bracket(&frames, source, args.degree)
+    let frames: Vec<(&FrameCounts, f64)> = counts.iter().zip(exposures.iter().copied()).collect();
+    let calibration = response::calibrate_frames(&frames, source, args.degree)
         .with_context(|| format!("calibrating the {} frames jointly", loaded.len()))?;
     if let Some(path) = &args.output {
         response::save(path, &calibration.record(), Overwrite::Replace)?;

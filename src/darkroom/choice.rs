@@ -26,11 +26,13 @@
 use std::path::Path;
 use std::time::Instant;
 
+use rayon::prelude::*;
+
 use super::{DarkroomError, Stages, file_name};
-use crate::histogram::Histogram;
+use crate::histogram::FrameCounts;
 use crate::merge::BracketFrame;
 use crate::response::pool::{self, Evidence};
-use crate::response::{self, Calibration, Degree, InverseResponse, Ratio, RatioSource};
+use crate::response::{self, Calibration, Degree, InverseResponse, RatioSource};
 
 /// Pixels per frame the calibration histograms look at (a speed knob measured in
 /// `benches/calibrate_speed.rs`: beyond a few million pixels the histograms of a
@@ -195,46 +197,34 @@ pub fn choose_response(
     // More than two distinct exposures: every frame, every pair, one curve per channel.
     let distinct = (1..order.len()).filter(distinct).count() + 1;
     let joint = distinct > 2;
-    let (fitted, ratio, pair, sources) = if joint {
-        use rayon::prelude::*;
-        let histograms: Vec<Histogram> = bracket
-            .par_iter()
-            .map(|f| Histogram::of_frame(f.frame, stride))
-            .collect();
-        stages.push(("histogram", t.elapsed()));
-        let t = Instant::now();
-        let frames: Vec<(&Histogram, f64)> = histograms
-            .iter()
-            .zip(bracket)
-            .map(|(h, f)| (h, f.exposure))
-            .collect();
-        let fitted = response::calibrate_bracket(&frames, ratio_source, Degree::Auto);
-        stages.push(("fit", t.elapsed()));
-        let ratio = bracket[order[order.len() - 1]].exposure / bracket[order[0]].exposure;
-        let sources: Vec<&Path> = order.iter().map(|&i| bracket[i].source).collect();
-        let pair = format!("all {} frames", bracket.len());
-        (fitted, ratio, pair, sources)
+    let chosen: Vec<&BracketFrame<'_>> = if joint {
+        order.iter().map(|&i| &bracket[i]).collect()
     } else {
-        let (h_dark, h_bright) = rayon::join(
-            || Histogram::of_frame(dark.frame, stride),
-            || Histogram::of_frame(bright.frame, stride),
-        );
-        stages.push(("histogram", t.elapsed()));
-        let t = Instant::now();
-        let ratio = bright.exposure / dark.exposure;
-        let fitted = response::calibrate(
-            &h_dark,
-            &h_bright,
-            Ratio::Known(ratio, ratio_source),
-            Degree::Auto,
-        );
-        stages.push(("fit", t.elapsed()));
-        let pair = format!(
+        vec![dark, bright]
+    };
+    let counts: Vec<FrameCounts> = chosen
+        .par_iter()
+        .map(|f| FrameCounts::of_frame(f.frame, stride))
+        .collect();
+    stages.push(("histogram", t.elapsed()));
+    let t = Instant::now();
+    let frames: Vec<(&FrameCounts, f64)> = counts
+        .iter()
+        .zip(&chosen)
+        .map(|(c, f)| (c, f.exposure))
+        .collect();
+    let fitted = response::calibrate_frames(&frames, ratio_source, Degree::Auto);
+    stages.push(("fit", t.elapsed()));
+    let ratio = chosen[chosen.len() - 1].exposure / chosen[0].exposure;
+    let sources: Vec<&Path> = chosen.iter().map(|f| f.source).collect();
+    let pair = if joint {
+        format!("all {} frames", bracket.len())
+    } else {
+        format!(
             "{} and {}",
             file_name(dark.source),
             file_name(bright.source)
-        );
-        (fitted, ratio, pair, vec![dark.source, bright.source])
+        )
     };
     let (calibration, mut fallback) = match (fitted, fallback) {
         (Ok(c), fallback) => (c, fallback),

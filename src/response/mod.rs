@@ -10,9 +10,11 @@
 //! give `g(τ(b)) = γ·g(b)`, fitted per channel by [`mod@fit`]. [`save`] and [`load`] keep the
 //! result in a versioned TOML file (see [`mod@file`]).
 
+use std::borrow::Cow;
+
 use rayon::prelude::*;
 
-use crate::histogram::{Histogram, TonePair, UsableTones, tone_pairs};
+use crate::histogram::{FrameCounts, Histogram, TonePair, UsableTones, shared_counts, tone_pairs};
 
 pub mod file;
 pub mod fit;
@@ -600,6 +602,34 @@ pub fn calibrate_bracket(
     ratio_source: RatioSource,
     degree: Degree,
 ) -> Result<Calibration, CalibrationError> {
+    calibrate_pairs(frames, ratio_source, degree, |i, j| {
+        (Cow::Borrowed(frames[i].0), Cow::Borrowed(frames[j].0))
+    })
+}
+
+/// [`calibrate_bracket`] from frames counted with their hard-clipped JPEG blocks
+/// ([`FrameCounts`]): each pair of frames is matched over the pixels both share
+/// ([`shared_counts`]), so that the codec's ringing next to clipped highlights enters no
+/// pair. Lossless frames give exactly [`calibrate_bracket`]. The frames must be aligned.
+pub fn calibrate_frames(
+    frames: &[(&FrameCounts<'_>, f64)],
+    ratio_source: RatioSource,
+    degree: Degree,
+) -> Result<Calibration, CalibrationError> {
+    let histograms: Vec<(&Histogram, f64)> =
+        frames.iter().map(|(f, e)| (f.histogram(), *e)).collect();
+    calibrate_pairs(&histograms, ratio_source, degree, |i, j| {
+        shared_counts(frames[i].0, frames[j].0)
+    })
+}
+
+/// [`calibrate_bracket`] with each pair's histograms from `pair(dark, bright)`.
+fn calibrate_pairs<'h>(
+    frames: &[(&'h Histogram, f64)],
+    ratio_source: RatioSource,
+    degree: Degree,
+    pair: impl Fn(usize, usize) -> (Cow<'h, Histogram>, Cow<'h, Histogram>) + Sync,
+) -> Result<Calibration, CalibrationError> {
     let Some(&(first, _)) = frames.first() else {
         return Err(CalibrationError::Mismatch("no frames".into()));
     };
@@ -649,20 +679,22 @@ pub fn calibrate_bracket(
         Vec<f64>,
         Vec<usize>,
     );
+    let counted: Vec<(Cow<Histogram>, Cow<Histogram>)> = pairs_of_frames
+        .par_iter()
+        .map(|&(i, j)| pair(i, j))
+        .collect();
     let fitted: Vec<Fitted> = (0..names.len())
         .into_par_iter()
         .map(|c| {
-            let cumulative: Vec<_> = frames.iter().map(|(h, _)| h.cumulative(c)).collect();
-            let usable: Vec<_> = frames
-                .iter()
-                .zip(&cumulative)
-                .map(|((h, _), cum)| UsableTones::detect(cum, h.compression()))
-                .collect();
             let sets: Vec<(Vec<TonePair>, f64)> = pairs_of_frames
                 .iter()
-                .map(|&(i, j)| {
+                .zip(&counted)
+                .map(|(&(i, j), (dark, bright))| {
+                    let (a, b) = (dark.cumulative(c), bright.cumulative(c));
+                    let usable_a = UsableTones::detect(&a, dark.compression());
+                    let usable_b = UsableTones::detect(&b, bright.compression());
                     (
-                        tone_pairs(&cumulative[i], &cumulative[j], usable[i], usable[j]),
+                        tone_pairs(&a, &b, usable_a, usable_b),
                         (frames[j].1 / frames[i].1).ln(),
                     )
                 })

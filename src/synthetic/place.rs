@@ -8,15 +8,15 @@ use super::scene::MID_GREY;
 use crate::darkroom::CALIBRATION_PIXELS;
 use crate::display::luminance;
 use crate::frame::Frame;
-use crate::histogram::Histogram;
+use crate::histogram::FrameCounts;
 use crate::merge::{self, BracketFrame, MergeOptions};
 use crate::metadata::Camera;
 use crate::radiance::RadianceMap;
-use crate::response::{Degree, RatioSource, calibrate_bracket};
+use crate::response::{Degree, RatioSource, calibrate_frames};
 
 /// The radiance map of a real bracket as a scene: `frames` with their relative exposures
 /// `e = t·S/N²` (any order), merged with filmback's own bracket pipeline — the joint fit of
-/// every frame ([`calibrate_bracket`], histograms of [`CALIBRATION_PIXELS`] a frame,
+/// every frame ([`calibrate_frames`], histograms of [`CALIBRATION_PIXELS`] a frame,
 /// degree auto) and the hat-weighted merge —, box-averaged by the whole factor `k =
 /// round(√(pixels_in / pixels))` (at least 1) that brings it nearest `pixels` pixels, and
 /// scaled so that its median Rec. 709 luminance ([`luminance`]) is [`MID_GREY`], where a
@@ -37,12 +37,12 @@ pub fn real_place(frames: &[(&Frame, f64)], pixels: f64) -> Result<RadianceMap, 
     let stride = ((f64::from(first.width()) * f64::from(first.height())) / CALIBRATION_PIXELS)
         .sqrt()
         .max(1.0) as usize;
-    let histograms: Vec<Histogram> = frames
+    let counts: Vec<FrameCounts> = frames
         .iter()
-        .map(|(f, _)| Histogram::of_frame(f, stride))
+        .map(|(f, _)| FrameCounts::of_frame(f, stride))
         .collect();
-    let input: Vec<(&Histogram, f64)> = histograms.iter().zip(frames.iter().map(|f| f.1)).collect();
-    let calibration = calibrate_bracket(&input, RatioSource::Argument, Degree::Auto)
+    let input: Vec<(&FrameCounts, f64)> = counts.iter().zip(frames.iter().map(|f| f.1)).collect();
+    let calibration = calibrate_frames(&input, RatioSource::Argument, Degree::Auto)
         .map_err(|e| failed(e.to_string()))?;
     let camera = Camera::default();
     let bracket: Vec<BracketFrame<'_>> = frames
