@@ -4,7 +4,7 @@
 //! `cargo bench --bench response_accuracy [-- --quick] [--ratio R] [--encoding lossless|jpeg|16]
 //! [--scene KIND[,KIND]] [--curves all|tune|report] [--every N] [--size WxH] [--curve NAME]
 //! [--frames N] [--seed N] [--per-curve] [--noise-free] [--fits-only] [--features FILE]
-//! [--fit-confidence FILE[,FILE]]`
+//! [--fit-confidence FILE[,FILE]] [--whole-frames]`
 //!
 //! `--quick` takes every tenth DoRF curve (`--every N`: every N-th); `--ratio` and
 //! `--encoding` restrict the sweep to one ratio or one encoding; `--scene` to some scene
@@ -20,6 +20,10 @@
 //! (N ≥ 3) renders a bracket of N frames `γ` apart (exposures `γ^(k − (N−1)/2)`), fits it
 //! jointly (`calibrate_bracket`) and compares with each adjacent pair fitted alone.
 //! `--ratio` and `--encoding` (`lossless`, `jpeg` = q95, `jpeg90`, `16`) take comma lists.
+//! Fits match each pair of frames over the pixels both share, as the darkroom does
+//! (`calibrate_frames`); `--whole-frames` fits from the frames' whole histograms
+//! (`calibrate_bracket`) instead, to measure what leaving out a JPEG's hard-clipped
+//! blocks changes (lossless frames fit the same either way).
 //!
 //! **Confidence.** Every run ends with a reliability table: per channel of every DoRF fit,
 //! by confidence band, the share really bad (scale error > 0.05 stop or shape error > 0.1
@@ -51,13 +55,14 @@ use std::path::{Path, PathBuf};
 use std::process::Command;
 
 use filmback::frame::{self, BitDepth, Frame, Limits};
-use filmback::histogram::Histogram;
+use filmback::histogram::{FrameCounts, Histogram};
 use filmback::merge::{self, BracketFrame, MergeOptions};
 use filmback::metadata::Camera;
 use filmback::radiance::RadianceMap;
 use filmback::response::fit::{FEATURES, logistic_confidence};
 use filmback::response::{
-    Calibration, Degree, InverseResponse, Ratio, RatioSource, calibrate, calibrate_bracket,
+    Calibration, CalibrationError, Degree, InverseResponse, RatioSource, calibrate_bracket,
+    calibrate_frames,
 };
 use filmback::synthetic::{
     self, Encoding as FileEncoding, ResponseCurve as Curve, SceneKind, Sensor, measure,
@@ -170,6 +175,28 @@ fn expose(
                 .frame;
             (decoded, Some(bytes))
         }
+    }
+}
+
+/// Fits `frames` jointly at their exposures ([`calibrate_frames`]: each pair over the
+/// pixels both share), or from the frames' whole histograms ([`calibrate_bracket`]) with
+/// `whole`. Two frames give the pair's fit at its known ratio.
+fn fit_frames(frames: &[(&Frame, f64)], whole: bool) -> Result<Calibration, CalibrationError> {
+    let counts: Vec<FrameCounts> = frames
+        .iter()
+        .map(|(f, _)| FrameCounts::of_frame(f, 1))
+        .collect();
+    if whole {
+        let input: Vec<(&Histogram, f64)> = counts
+            .iter()
+            .map(|c| c.histogram())
+            .zip(frames.iter().map(|f| f.1))
+            .collect();
+        calibrate_bracket(&input, RatioSource::Argument, Degree::Auto)
+    } else {
+        let input: Vec<(&FrameCounts, f64)> =
+            counts.iter().zip(frames.iter().map(|f| f.1)).collect();
+        calibrate_frames(&input, RatioSource::Argument, Degree::Auto)
     }
 }
 
@@ -294,6 +321,7 @@ fn main() {
     let noise_free = args.iter().any(|a| a == "--noise-free");
     // Only the fits and their curve errors: no merges, no single pairs of a bracket.
     let fits_only = args.iter().any(|a| a == "--fits-only");
+    let whole_frames = args.iter().any(|a| a == "--whole-frames");
     let has_dorf = curves.iter().any(|(n, _)| n.starts_with("dorf-"));
     let features_out = arg("--features");
     let mut records: Vec<ChannelRecord> = Vec::new();
@@ -332,25 +360,13 @@ fn main() {
                         .enumerate()
                         .map(|(k, &e)| expose(radiance, e, curve, enc, seed + 50 * k as u64, true))
                         .collect();
-                    let histograms: Vec<Histogram> = rendered
+                    let frames: Vec<(&Frame, f64)> = rendered
                         .iter()
-                        .map(|(f, _)| Histogram::of_frame(f, 1))
+                        .map(|r| &r.0)
+                        .zip(exposures.iter().copied())
                         .collect();
-                    let pair_fit = |i: usize| {
-                        calibrate(
-                            &histograms[i],
-                            &histograms[i + 1],
-                            Ratio::Known(ratio, RatioSource::Argument),
-                            Degree::Auto,
-                        )
-                    };
-                    let result = if frame_count > 2 {
-                        let frames: Vec<(&Histogram, f64)> =
-                            histograms.iter().zip(exposures.iter().copied()).collect();
-                        calibrate_bracket(&frames, RatioSource::Argument, Degree::Auto)
-                    } else {
-                        pair_fit(0)
-                    };
+                    let pair_fit = |i: usize| fit_frames(&frames[i..i + 2], whole_frames);
+                    let result = fit_frames(&frames, whole_frames);
                     let summary = |cal: &Calibration| -> (f64, f64) {
                         (
                             measure::scale_errors(&cal.response, curve)
@@ -375,11 +391,6 @@ fn main() {
                         .copied()
                         .min_by(|a, b| a.0.total_cmp(&b.0));
                     let middle_pair = pairs.get(frame_count / 2 - 1).copied().flatten();
-                    let frames: Vec<(&Frame, f64)> = rendered
-                        .iter()
-                        .map(|r| &r.0)
-                        .zip(exposures.iter().copied())
-                        .collect();
                     let merge_true = if fits_only {
                         f64::NAN
                     } else {
@@ -406,27 +417,16 @@ fn main() {
                     // The same frames without noise, fitted the same way: is a good fit
                     // possible from them at all?
                     let noise_free_good: Option<Vec<bool>> = noise_free.then(|| {
-                        let clean: Vec<Histogram> = exposures
+                        let clean: Vec<Frame> = exposures
                             .iter()
                             .enumerate()
                             .map(|(k, &e)| {
-                                let f =
-                                    expose(radiance, e, curve, enc, seed + 50 * k as u64, false).0;
-                                Histogram::of_frame(&f, 1)
+                                expose(radiance, e, curve, enc, seed + 50 * k as u64, false).0
                             })
                             .collect();
-                        let cal = if frame_count > 2 {
-                            let frames: Vec<(&Histogram, f64)> =
-                                clean.iter().zip(exposures.iter().copied()).collect();
-                            calibrate_bracket(&frames, RatioSource::Argument, Degree::Auto)
-                        } else {
-                            calibrate(
-                                &clean[0],
-                                &clean[1],
-                                Ratio::Known(ratio, RatioSource::Argument),
-                                Degree::Auto,
-                            )
-                        };
+                        let clean: Vec<(&Frame, f64)> =
+                            clean.iter().zip(exposures.iter().copied()).collect();
+                        let cal = fit_frames(&clean, whole_frames);
                         match cal {
                             Ok(cal) => measure::response_errors(&cal.response, curve)
                                 .iter()
