@@ -295,44 +295,59 @@ impl<'a> FrameCounts<'a> {
 /// least [`HARD_EDGE`] below it.
 fn hard_clipped_blocks(frame: &Frame) -> Vec<BlockClip> {
     let (w, h) = (frame.width() as usize, frame.height() as usize);
-    let channels = frame.channels();
     let blocks_x = w.div_ceil(CODING_BLOCK);
-    let max = frame.bit_depth().max_code();
-    let dark_below = max - (f64::from(max) * HARD_EDGE).round() as u32;
     let mut blocks = vec![BlockClip::default(); blocks_x * h.div_ceil(CODING_BLOCK)];
     blocks
         .par_chunks_mut(blocks_x)
         .enumerate()
-        .for_each(|(by, row_of_blocks)| {
-            for y in by * CODING_BLOCK..((by + 1) * CODING_BLOCK).min(h) {
-                for x in 0..w {
-                    let at = (y * w + x) * channels;
-                    let (lo, hi) = match frame.samples() {
-                        Samples::Eight(v) => {
-                            v[at..at + channels].iter().fold((max, 0), |(lo, hi), &c| {
-                                (lo.min(c.into()), hi.max(c.into()))
-                            })
-                        }
-                        Samples::Sixteen(v) => {
-                            v[at..at + channels].iter().fold((max, 0), |(lo, hi), &c| {
-                                (lo.min(c.into()), hi.max(c.into()))
-                            })
-                        }
-                    };
-                    let block = &mut row_of_blocks[x / CODING_BLOCK];
-                    block.dark |= lo <= dark_below;
-                    if hi == max {
-                        let k = y % CODING_BLOCK / CHROMA_CELL * CELLS_PER_ROW
-                            + x % CODING_BLOCK / CHROMA_CELL;
-                        block.clip(k);
-                    }
-                }
-            }
+        .for_each(|(by, row_of_blocks)| match frame.samples() {
+            Samples::Eight(v) => mark_blocks(frame, v, by, row_of_blocks),
+            Samples::Sixteen(v) => mark_blocks(frame, v, by, row_of_blocks),
         });
     if blocks.iter().any(|b| b.hard()) {
         blocks
     } else {
         Vec::new()
+    }
+}
+
+/// Marks the blocks of block row `by` of `frame` (samples `v`): each 16-pixel run of a
+/// row is scanned for its darkest and brightest sample at once (a vectorised pass), and
+/// only a run that reaches full scale is looked at pixel by pixel for its clipped cells.
+fn mark_blocks<T: Copy + Ord + Into<u32>>(
+    frame: &Frame,
+    v: &[T],
+    by: usize,
+    row_of_blocks: &mut [BlockClip],
+) {
+    let (w, h) = (frame.width() as usize, frame.height() as usize);
+    let channels = frame.channels();
+    let max = frame.bit_depth().max_code();
+    let dark_below = max - (f64::from(max) * HARD_EDGE).round() as u32;
+    let row_len = w * channels;
+    for y in by * CODING_BLOCK..((by + 1) * CODING_BLOCK).min(h) {
+        let row = &v[y * row_len..(y + 1) * row_len];
+        for (block, run) in row_of_blocks
+            .iter_mut()
+            .zip(row.chunks(CODING_BLOCK * channels))
+        {
+            if block.dark && block.clipped_cells >= 2 {
+                continue;
+            }
+            let first = run[0];
+            let lo = run.iter().copied().fold(first, Ord::min);
+            let hi = run.iter().copied().fold(first, Ord::max);
+            block.dark |= lo.into() <= dark_below;
+            if hi.into() < max || block.clipped_cells >= 2 {
+                continue;
+            }
+            for (x, pixel) in run.chunks_exact(channels).enumerate() {
+                if pixel.iter().any(|&c| c.into() == max) {
+                    let k = y % CODING_BLOCK / CHROMA_CELL * CELLS_PER_ROW + x / CHROMA_CELL;
+                    block.clip(k);
+                }
+            }
+        }
     }
 }
 
