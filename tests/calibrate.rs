@@ -853,7 +853,7 @@ fn a_jpegs_ringing_next_to_white_does_not_bend_the_curve() {
     assert!(worst < 0.04, "shape error {worst:.4} stop");
 }
 
-/// A room lit through windows: a textured wall (radiance 0.02–0.3, warm, its brightest
+/// A room lit through windows: a textured wall (radiance 0.02–0.4, warm, its brightest
 /// tones a little below white at exposure 2) and three windows of bright sky (1.2, 1.44,
 /// 1.73) crossed by dark mullions (0.02), off the codec's 16-pixel grid. At exposure 2 the
 /// sky clips, and every block along a window's edges and mullions clips over a hard edge.
