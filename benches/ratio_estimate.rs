@@ -21,7 +21,7 @@
 use std::path::{Path, PathBuf};
 
 use filmback::frame::{self, BitDepth, Limits};
-use filmback::histogram::Histogram;
+use filmback::histogram::{FrameCounts, Histogram, shared_counts};
 use filmback::response::{Degree, PRIOR_MID_GREY, Ratio, calibrate};
 use filmback::synthetic::{self, SceneKind, Sensor};
 
@@ -148,10 +148,13 @@ fn real_pairs(root: &Path) {
             let stride = ((d.width() as f64 * d.height() as f64) / 3e6)
                 .sqrt()
                 .max(1.0) as usize;
-            let est = estimate(
-                &Histogram::of_frame(&d, stride),
-                &Histogram::of_frame(&b, stride),
+            // As `filmback calibrate` counts a pair: over the pixels both frames share.
+            let (cd, cb) = (
+                FrameCounts::of_frame(&d, stride),
+                FrameCounts::of_frame(&b, stride),
             );
+            let (hd, hb) = shared_counts(&cd, &cb);
+            let est = estimate(&hd, &hb);
             let stem = |p: &Path| p.file_stem().unwrap().to_string_lossy().into_owned();
             let (est_s, rel, range) = match est {
                 Some((e, (lo, hi))) => {
