@@ -745,6 +745,47 @@ mod tests {
     }
 
     #[test]
+    fn frames_off_the_block_grid_and_of_one_channel_are_counted_without_panic() {
+        // 19×5 grey frames: one partial block column and row. The bright one clips next
+        // to black in its first block and in its partial last column.
+        let grey = |codes: Vec<u8>| {
+            Frame::new(19, 5, 1, Samples::Eight(codes))
+                .unwrap()
+                .with_compression(Compression::Lossy)
+        };
+        let mut bright = vec![120u8; 19 * 5];
+        bright[0] = 255;
+        bright[2] = 0;
+        bright[17] = 255;
+        bright[19 + 18] = 255;
+        bright[4 * 19 + 16] = 3;
+        let (bright, dark) = (grey(bright), grey(vec![60u8; 19 * 5]));
+        for stride in [1, 2, 3] {
+            let (b, d) = (
+                FrameCounts::of_frame(&bright, stride),
+                FrameCounts::of_frame(&dark, stride),
+            );
+            assert_eq!(b.hard_clipped_blocks(), 2);
+            let (hd, hb) = shared_counts(&d, &b);
+            assert_eq!(hd.total(), hb.total());
+            assert!(hb.total() < b.histogram().total());
+        }
+        // Frames of different sizes are counted whole.
+        let wide = grey(vec![60u8; 19 * 4].into_iter().chain([0; 19]).collect());
+        let tall = Frame::new(5, 19, 1, Samples::Eight(vec![60u8; 95]))
+            .unwrap()
+            .with_compression(Compression::Lossy);
+        let (a, b) = (
+            FrameCounts::of_frame(&wide, 1),
+            FrameCounts::of_frame(&tall, 1),
+        );
+        assert!(matches!(
+            shared_counts(&a, &b),
+            (Cow::Borrowed(_), Cow::Borrowed(_))
+        ));
+    }
+
+    #[test]
     fn clipping_spike_moves_the_ceiling() {
         let mut codes: Vec<u8> = (0..10000u32).map(|i| (i % 200) as u8).collect();
         codes.extend(std::iter::repeat_n(230u8, 3000));
