@@ -18,7 +18,7 @@
 //! accuracy is reported on; `--seed` renders another realisation of each scene kind
 //! (default 7; colours, positions, textures); `--size` renders smaller scenes for quick runs. `--frames N`
 //! (N ≥ 3) renders a bracket of N frames `γ` apart (exposures `γ^(k − (N−1)/2)`), fits it
-//! jointly (`calibrate_bracket`) and compares with each adjacent pair fitted alone.
+//! jointly and compares with each adjacent pair fitted alone.
 //! `--ratio` and `--encoding` (`lossless`, `jpeg` = q95, `jpeg90`, `16`) take comma lists.
 //! Fits match each pair of frames over the pixels both share, as the darkroom does
 //! (`calibrate_frames`); `--whole-frames` fits from the frames' whole histograms
