@@ -178,26 +178,28 @@ fn expose(
     }
 }
 
-/// Fits `frames` jointly at their exposures ([`calibrate_frames`]: each pair over the
-/// pixels both share), or from the frames' whole histograms ([`calibrate_bracket`]) with
-/// `whole`. Two frames give the pair's fit at its known ratio.
-fn fit_frames(frames: &[(&Frame, f64)], whole: bool) -> Result<Calibration, CalibrationError> {
-    let counts: Vec<FrameCounts> = frames
-        .iter()
-        .map(|(f, _)| FrameCounts::of_frame(f, 1))
-        .collect();
+/// Fits `frames` (counted, with their exposures) jointly ([`calibrate_frames`]: each pair
+/// over the pixels both share), or from the frames' whole histograms
+/// ([`calibrate_bracket`]) with `whole`. Two frames give the pair's fit at its known ratio.
+fn fit_frames(
+    frames: &[(&FrameCounts, f64)],
+    whole: bool,
+) -> Result<Calibration, CalibrationError> {
     if whole {
-        let input: Vec<(&Histogram, f64)> = counts
-            .iter()
-            .map(|c| c.histogram())
-            .zip(frames.iter().map(|f| f.1))
-            .collect();
+        let input: Vec<(&Histogram, f64)> =
+            frames.iter().map(|(c, e)| (c.histogram(), *e)).collect();
         calibrate_bracket(&input, RatioSource::Argument, Degree::Auto)
     } else {
-        let input: Vec<(&FrameCounts, f64)> =
-            counts.iter().zip(frames.iter().map(|f| f.1)).collect();
-        calibrate_frames(&input, RatioSource::Argument, Degree::Auto)
+        calibrate_frames(frames, RatioSource::Argument, Degree::Auto)
     }
+}
+
+/// Each frame counted once ([`FrameCounts`], every pixel), with its exposure.
+fn count<'a>(frames: &[(&'a Frame, f64)]) -> Vec<(FrameCounts<'a>, f64)> {
+    frames
+        .iter()
+        .map(|&(f, e)| (FrameCounts::of_frame(f, 1), e))
+        .collect()
 }
 
 /// (own, shape) error in stops, RMS over the three channels, of `g(channel, code)`.
@@ -365,8 +367,11 @@ fn main() {
                         .map(|r| &r.0)
                         .zip(exposures.iter().copied())
                         .collect();
-                    let pair_fit = |i: usize| fit_frames(&frames[i..i + 2], whole_frames);
-                    let result = fit_frames(&frames, whole_frames);
+                    let counts = count(&frames);
+                    let counted: Vec<(&FrameCounts, f64)> =
+                        counts.iter().map(|(c, e)| (c, *e)).collect();
+                    let pair_fit = |i: usize| fit_frames(&counted[i..i + 2], whole_frames);
+                    let result = fit_frames(&counted, whole_frames);
                     let summary = |cal: &Calibration| -> (f64, f64) {
                         (
                             measure::scale_errors(&cal.response, curve)
@@ -426,7 +431,10 @@ fn main() {
                             .collect();
                         let clean: Vec<(&Frame, f64)> =
                             clean.iter().zip(exposures.iter().copied()).collect();
-                        let cal = fit_frames(&clean, whole_frames);
+                        let counts = count(&clean);
+                        let counted: Vec<(&FrameCounts, f64)> =
+                            counts.iter().map(|(c, e)| (c, *e)).collect();
+                        let cal = fit_frames(&counted, whole_frames);
                         match cal {
                             Ok(cal) => measure::response_errors(&cal.response, curve)
                                 .iter()

@@ -815,14 +815,6 @@ fn confidence_is_calibrated_on_held_out_pairs() {
     assert!(low_but_clean.len() <= 3, "{low_but_clean:?}");
 }
 
-/// `f` through a q90 JPEG file and back, as a frame decoded from a JPEG is (lossy).
-fn jpeg_q90(f: &Frame) -> Frame {
-    let bytes = synthetic::encode(f, &shot(Some(0.01)), Encoding::Jpeg { quality: 90 }).unwrap();
-    filmback::frame::decode(Path::new("x.jpg"), &bytes, Default::default())
-        .unwrap()
-        .frame
-}
-
 /// A JPEG's pixels handed over as a lossless file (a PNG or TIFF made from a JPEG): its
 /// highlights ring next to white, where a lossless file is trusted to half a code, and
 /// those few equations must not bend the whole curve. sRGB and gamma 2.2 through q90, two
@@ -830,7 +822,8 @@ fn jpeg_q90(f: &Frame) -> Frame {
 #[test]
 fn a_jpegs_ringing_next_to_white_does_not_bend_the_curve() {
     let scene = scene();
-    let as_lossless = |f: &Frame| Frame::new(W, H, 3, jpeg_q90(f).samples().clone()).unwrap();
+    let as_lossless =
+        |f: &Frame| Frame::new(W, H, 3, common::through_jpeg(f, 0.01).samples().clone()).unwrap();
     let mut worst: f64 = 0.0;
     for curve in [ResponseCurve::Srgb, ResponseCurve::Gamma(2.2)] {
         let s = sensor(curve.clone(), BitDepth::Eight);
@@ -910,7 +903,12 @@ fn hard_clipped_jpeg_blocks_do_not_move_the_level() {
         let s = sensor(curve.clone(), BitDepth::Eight);
         let frames: Vec<(Frame, f64)> = [0.5, 2.0]
             .iter()
-            .map(|&e| (jpeg_q90(&synthetic::expose(&scene, e, &s)), e))
+            .map(|&e| {
+                (
+                    common::through_jpeg(&synthetic::expose(&scene, e, &s), e),
+                    e,
+                )
+            })
             .collect();
         let counts: Vec<(FrameCounts, f64)> = frames
             .iter()

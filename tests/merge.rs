@@ -293,29 +293,6 @@ fn real_brackets() -> Vec<(String, Vec<(Frame, f64)>)> {
         .collect()
 }
 
-/// `frame` (exposed `exposure` s at f/1, ISO 100) encoded as a JPEG of quality 90 and
-/// decoded again.
-fn through_jpeg(frame: &Frame, exposure: f64) -> Frame {
-    use filmback::metadata::CaptureTime;
-    use filmback::synthetic::{Encoding, Shot, encode};
-    let first = CaptureTime {
-        year: 2026,
-        month: 11,
-        day: 26,
-        hour: 12,
-        minute: 0,
-        second: 0,
-        nanos: None,
-        offset_minutes: None,
-    };
-    let shot = &Shot::series(&Camera::default(), first, &[exposure], 1.0, 100.0, 0.0)[0];
-    let bytes = encode(frame, shot, Encoding::Jpeg { quality: 90 }).unwrap();
-    let limits = filmback::frame::Limits::default();
-    filmback::frame::decode(Path::new("place.jpg"), &bytes, limits)
-        .unwrap()
-        .frame
-}
-
 /// The user's metric on scenes of real places (`synthetic::real_place`: the radiance maps
 /// of the real brackets of `../shared/testdata/brackets`; skipped where they are absent):
 /// a pair at ratio 4 rendered from each through curves that are not DoRF's, 8-bit, 1 DN
@@ -361,7 +338,10 @@ fn real_places_merge_near_the_true_response() {
                 cast <= 0.01,
                 "{name} {curve:?}: channels {cast:.4} stop apart"
             );
-            let (g_jpeg, sure) = fitted(&through_jpeg(&dark, DARK), &through_jpeg(&bright, BRIGHT));
+            let (g_jpeg, sure) = fitted(
+                &common::through_jpeg(&dark, DARK),
+                &common::through_jpeg(&bright, BRIGHT),
+            );
             let scale = measure::scale_errors(&g_jpeg, &curve);
             let cast = spread(&scale);
             let level = scale.iter().fold(0.0f64, |a, s| a.max(s.abs()));

@@ -3,6 +3,8 @@
 use std::path::Path;
 use std::process::Command;
 
+use filmback::frame::Frame;
+
 pub mod brackets;
 
 /// The `filmback` binary Cargo built for these tests.
@@ -19,4 +21,27 @@ pub fn read_exr(path: &Path) -> (Vec<f32>, exr::prelude::LayerAttributes) {
         map.pixels().to_vec(),
         meta.headers[0].own_attributes.clone(),
     )
+}
+
+/// `frame` (exposed `exposure` s at f/1, ISO 100) encoded as a JPEG of quality 90 and
+/// decoded again.
+pub fn through_jpeg(frame: &Frame, exposure: f64) -> Frame {
+    use filmback::metadata::{Camera, CaptureTime};
+    use filmback::synthetic::{Encoding, Shot, encode};
+    let first = CaptureTime {
+        year: 2026,
+        month: 11,
+        day: 26,
+        hour: 12,
+        minute: 0,
+        second: 0,
+        nanos: None,
+        offset_minutes: None,
+    };
+    let shot = &Shot::series(&Camera::default(), first, &[exposure], 1.0, 100.0, 0.0)[0];
+    let bytes = encode(frame, shot, Encoding::Jpeg { quality: 90 }).unwrap();
+    let limits = filmback::frame::Limits::default();
+    filmback::frame::decode(Path::new("frame.jpg"), &bytes, limits)
+        .unwrap()
+        .frame
 }
