@@ -32,7 +32,7 @@ use super::{DarkroomError, Stages, file_name};
 use crate::histogram::FrameCounts;
 use crate::merge::BracketFrame;
 use crate::response::pool::{self, Evidence};
-use crate::response::{self, Calibration, Degree, InverseResponse, RatioSource};
+use crate::response::{self, Degree, InverseResponse, RatioSource};
 
 /// Pixels per frame the calibration histograms look at (a speed knob measured in
 /// `benches/calibrate_speed.rs`: beyond a few million pixels the histograms of a
@@ -272,8 +272,8 @@ pub fn choose_response(
     if confidence >= min_confidence
         && let Some(cached) = fallback.as_ref().filter(|g| g.source == Source::Cached)
     {
-        let fit_misfit = misfit(&calibration, &calibration.response);
-        let cached_misfit = misfit(&calibration, &cached.response);
+        let fit_misfit = pool::misfit(&calibration, &calibration.response);
+        let cached_misfit = pool::misfit(&calibration, &cached.response);
         if cached_misfit > fit_misfit + CONTRADICTION_STOPS {
             contradicts_cache = true;
             notes.push(format!(
@@ -288,8 +288,8 @@ pub fn choose_response(
         && let Some(given) = fallback.take()
     {
         // A fallback is only better than a weak fit if the bracket does not contradict it.
-        let fit_misfit = misfit(&calibration, &calibration.response);
-        let given_misfit = misfit(&calibration, &given.response);
+        let fit_misfit = pool::misfit(&calibration, &calibration.response);
+        let given_misfit = pool::misfit(&calibration, &given.response);
         if given_misfit <= fit_misfit + CONTRADICTION_STOPS {
             let note = format!(
                 "the fit from {pair} has confidence {confidence:.2} < {min_confidence:.2}; used the {}",
@@ -389,29 +389,11 @@ fn use_pooled(
     }
 }
 
-/// How much worse (RMS, stops) a fallback may explain the bracket's tone pairs than the
+/// How much worse (weighted RMS, stops: [`pool::misfit`]) a fallback may explain the bracket's tone pairs than the
 /// bracket's own fit before it counts as contradicted. A ripple the two exposures cannot
 /// resolve costs a few hundredths of a stop; a wrong curve family (sRGB for a film
 /// shoulder) costs tenths.
 pub const CONTRADICTION_STOPS: f64 = 0.05;
-
-/// RMS over the calibration's tone pairs of `log₂(g(τ(b)) / (γ·g(b)))`, stops, each pair
-/// at its own ratio `γ`: how far `g` is from explaining the frames' histograms. Pairs
-/// where `g` is 0 are skipped; no pairs gives 0.
-fn misfit(calibration: &Calibration, g: &InverseResponse) -> f64 {
-    let (mut sum, mut n) = (0.0, 0usize);
-    for (c, channel) in calibration.channels.iter().enumerate() {
-        let c = c.min(g.channels().saturating_sub(1));
-        for (p, log_ratio) in channel.pairs.iter().zip(&channel.log_ratios) {
-            let (lo, hi) = (g.eval(c, p.dark), g.eval(c, p.bright));
-            if lo > 0.0 && hi > 0.0 {
-                sum += ((hi / lo).ln() - log_ratio).powi(2) / std::f64::consts::LN_2.powi(2);
-                n += 1;
-            }
-        }
-    }
-    if n == 0 { 0.0 } else { (sum / n as f64).sqrt() }
-}
 
 pub(super) fn use_given(
     given: GivenResponse,

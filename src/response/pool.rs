@@ -10,8 +10,9 @@
 //! to the pairs of every bracket at once with [`fit::fit_joint`] (each frame pair a set,
 //! so a bracket that scatters more than the others is down-weighted, not followed).
 //!
-//! [`agreement`] says how well a curve explains one bracket's evidence: the weighted RMS
-//! of `log₂(g(τ)/(γ·g(b)))` in stops, as the darkroom's contradiction test measures it.
+//! [`agreement`] says how well a curve explains one bracket's evidence, [`misfit`] a
+//! calibration's own tone pairs: the same weighted RMS of `log₂(g(τ)/(γ·g(b)))` in stops
+//! ([`weighted_misfit`]), the measure of the darkroom's and the cache's contradiction tests.
 
 use rayon::prelude::*;
 
@@ -153,26 +154,59 @@ pub fn refit(pool: &[&Evidence], degree: Degree) -> Result<Calibration, Calibrat
     finish(span.exp().max(1.0), RatioSource::Exif, calibrated)
 }
 
-/// How far `g` is from explaining `evidence`: the RMS over its tone pairs of
-/// `log₂(g(τ)/(γ·g(b)))`, stops (pairs where `g` is 0 skipped; no pairs gives 0).
+/// How far `g` is from explaining `evidence`: [`weighted_misfit`] over its tone pairs.
 pub fn agreement(evidence: &Evidence, g: &super::InverseResponse) -> f64 {
-    let (mut sum, mut n) = (0.0, 0usize);
-    for (c, sets) in evidence.channels.iter().enumerate() {
+    weighted_misfit(
+        evidence.channels.iter().enumerate().flat_map(|(c, sets)| {
+            sets.iter()
+                .flat_map(move |set| set.pairs.iter().map(move |p| (c, p, set.log_ratio)))
+        }),
+        g,
+    )
+}
+
+/// How far `g` is from explaining `calibration`'s own tone pairs, each at its own ratio:
+/// [`weighted_misfit`].
+pub fn misfit(calibration: &Calibration, g: &super::InverseResponse) -> f64 {
+    weighted_misfit(
+        calibration.channels.iter().enumerate().flat_map(|(c, ch)| {
+            ch.pairs
+                .iter()
+                .zip(&ch.log_ratios)
+                .map(move |(p, &log_ratio)| (c, p, log_ratio))
+        }),
+        g,
+    )
+}
+
+/// The weighted RMS, stops, of `r = log₂(g(τ)/(γ·g(b)))` over tone pairs
+/// `(channel, b ↦ τ, ln γ)`: `√(Σ w·r² / Σ w)` with `w = 1/(v_b/b² + v_τ/τ²)`, the inverse
+/// variance of `ln τ − ln b` from each side's standard deviation and 1 DN
+/// (`v = σ² + (1/255)²`, brightness units). The weights do not depend on `g`, so two
+/// curves are judged on the same terms; a sparse or dark tone, whose match the histograms'
+/// noise moves most, counts least (on a thumbnail most of all). Pairs where `g` is 0 are
+/// skipped; no pairs gives 0.
+fn weighted_misfit<'a>(
+    pairs: impl Iterator<Item = (usize, &'a TonePair, f64)>,
+    g: &super::InverseResponse,
+) -> f64 {
+    const DN: f64 = 1.0 / 255.0;
+    let (mut sum, mut total) = (0.0, 0.0);
+    for (c, p, log_ratio) in pairs {
         let c = c.min(g.channels().saturating_sub(1));
-        for set in sets {
-            for p in &set.pairs {
-                let (lo, hi) = (g.eval(c, p.dark), g.eval(c, p.bright));
-                if lo > 0.0 && hi > 0.0 {
-                    sum += ((hi / lo).ln() - set.log_ratio).powi(2);
-                    n += 1;
-                }
-            }
+        let (lo, hi) = (g.eval(c, p.dark), g.eval(c, p.bright));
+        if lo > 0.0 && hi > 0.0 && p.dark > 0.0 && p.bright > 0.0 {
+            let v_b = p.sigma_dark.powi(2) + DN * DN;
+            let v_t = p.sigma_bright.powi(2) + DN * DN;
+            let w = 1.0 / (v_b / (p.dark * p.dark) + v_t / (p.bright * p.bright));
+            sum += w * ((hi / lo).ln() - log_ratio).powi(2);
+            total += w;
         }
     }
-    if n == 0 {
-        0.0
+    if total > 0.0 {
+        (sum / total).sqrt() / std::f64::consts::LN_2
     } else {
-        (sum / n as f64).sqrt() / std::f64::consts::LN_2
+        0.0
     }
 }
 
