@@ -4,7 +4,7 @@
 //! `cargo bench --bench response_accuracy [-- --quick] [--ratio R] [--encoding lossless|jpeg|16]
 //! [--scene KIND[,KIND]] [--curves all|tune|report] [--every N] [--size WxH] [--curve NAME]
 //! [--frames N] [--seed N] [--per-curve] [--noise-free] [--fits-only] [--features FILE]
-//! [--fit-confidence FILE[,FILE]] [--whole-frames]`
+//! [--fit-confidence FILE[,FILE] [--target colour|scale]] [--whole-frames]`
 //!
 //! `--quick` takes every tenth DoRF curve (`--every N`: every N-th); `--ratio` and
 //! `--encoding` restrict the sweep to one ratio or one encoding; `--scene` to some scene
@@ -25,15 +25,18 @@
 //! (`calibrate_bracket`) instead, to measure what leaving out a JPEG's hard-clipped
 //! blocks changes (lossless frames fit the same either way).
 //!
-//! **Confidence.** Every run ends with a reliability table: per channel of every DoRF fit,
-//! by confidence band, the share really bad (scale error > 0.05 stop or shape error > 0.1
-//! stop) and the share worse than the sRGB inverse (own error, both `g(1) = 1`);
-//! `--noise-free` also fits the same frames rendered without noise and counts channels
-//! flagged low whose noise-free fit is good. `--features FILE` appends each channel's
+//! **Confidence.** Every run ends with two reliability tables: per channel of every DoRF
+//! fit, by confidence band, the share really bad and the share worse than the sRGB inverse
+//! (own error, both `g(1) = 1`), first by the measure (scale error > 0.05 stop or
+//! shape error > 0.1 stop), then by what the confidence predicts, what a relative map
+//! shows (shape error > 0.1 stop or the scale more than 0.05 stop from the mean of the
+//! fit's channels, the map's level); `--noise-free` also fits the same frames rendered
+//! without noise and counts channels flagged low whose noise-free fit is good.
+//! `--features FILE` appends each channel's
 //! [`ChannelFit::features`](filmback::response::ChannelFit::features) and outcome to a
-//! CSV; `--fit-confidence FILES` refits the logistic model
-//! (`filmback::response::fit::CONFIDENCE_MODEL`) on such files and prints it with its
-//! reliability there. `--fits-only` skips the merges and a bracket's single pairs (for
+//! CSV; `--fit-confidence FILES [--target colour|scale]` refits the logistic model
+//! (`filmback::response::fit::CONFIDENCE_MODEL`, `colour`) on such files and prints it with
+//! its reliability there. `--fits-only` skips the merges and a bracket's single pairs (for
 //! collecting features quickly).
 //!
 //! Each scene kind (`filmback::synthetic::SceneKind`, default 1024×768) is exposed at `1/√γ` and `√γ` through a
@@ -306,7 +309,12 @@ fn main() {
         curves.retain(|(n, _)| n == name);
     }
     if let Some(files) = arg("--fit-confidence") {
-        fit_confidence(&files);
+        let criterion = match arg("--target").as_deref() {
+            Some("scale") => Criterion::Scale,
+            None | Some("colour") => Criterion::Colour,
+            Some(other) => panic!("--target takes scale or colour, not {other}"),
+        };
+        fit_confidence(&files, criterion);
         return;
     }
     let ratios: Vec<f64> = match arg("--ratio") {
@@ -421,7 +429,8 @@ fn main() {
                     };
                     // The same frames without noise, fitted the same way: is a good fit
                     // possible from them at all?
-                    let noise_free_good: Option<Vec<bool>> = noise_free.then(|| {
+                    // Per channel: (good, good in colour) — see `ChannelRecord::off_colour`.
+                    let noise_free_good: Option<Vec<(bool, bool)>> = noise_free.then(|| {
                         let clean: Vec<Frame> = exposures
                             .iter()
                             .enumerate()
@@ -436,24 +445,32 @@ fn main() {
                             counts.iter().map(|(c, e)| (c, *e)).collect();
                         let cal = fit_frames(&counted, whole_frames);
                         match cal {
-                            Ok(cal) => measure::response_errors(&cal.response, curve)
-                                .iter()
-                                .zip(&cal.channels)
-                                .map(|(e, ch)| ch.borrowed_from.is_none() && good(e))
-                                .collect(),
-                            Err(_) => vec![false; 3],
+                            Ok(cal) => {
+                                let errors = measure::response_errors(&cal.response, curve);
+                                let level = errors.iter().map(|e| e.scale).sum::<f64>()
+                                    / errors.len() as f64;
+                                errors
+                                    .iter()
+                                    .zip(&cal.channels)
+                                    .map(|(e, ch)| {
+                                        let fitted = ch.borrowed_from.is_none();
+                                        let colour =
+                                            (e.scale - level).abs() <= 0.05 && e.shape <= 0.1;
+                                        (fitted && good(e), fitted && colour)
+                                    })
+                                    .collect()
+                            }
+                            Err(_) => vec![(false, false); 3],
                         }
                     });
                     if let Ok(cal) = &result
                         && (!has_dorf || name.starts_with("dorf-"))
                     {
                         let srgb_errors = measure::response_errors(&srgb, curve);
-                        for (c, (ch, e)) in cal
-                            .channels
-                            .iter()
-                            .zip(measure::response_errors(&cal.response, curve))
-                            .enumerate()
-                        {
+                        let errors = measure::response_errors(&cal.response, curve);
+                        let level =
+                            errors.iter().map(|e| e.scale).sum::<f64>() / errors.len() as f64;
+                        for (c, (ch, e)) in cal.channels.iter().zip(errors).enumerate() {
                             records.push(ChannelRecord {
                                 scene: scene.name.clone(),
                                 curve: name.clone(),
@@ -466,10 +483,12 @@ fn main() {
                                 coverage: ch.fit.coverage,
                                 confidence: ch.fit.confidence,
                                 scale: e.scale,
+                                level,
                                 shape: e.shape,
                                 own: e.own,
                                 srgb_own: srgb_errors[c.min(srgb_errors.len() - 1)].own,
-                                noise_free_good: noise_free_good.as_ref().map(|g| g[c]),
+                                noise_free_good: noise_free_good.as_ref().map(|g| g[c].0),
+                                noise_free_colour_good: noise_free_good.as_ref().map(|g| g[c].1),
                             });
                             if let Some(file) = &mut features_file {
                                 use std::io::Write;
@@ -830,7 +849,8 @@ fn main() {
     }
 }
 
-/// Good: scale error ≤ 0.05 stop and shape error ≤ 0.1 stop (what the confidence predicts).
+/// Good by the measure: scale error ≤ 0.05 stop and shape error ≤ 0.1 stop (the
+/// confidence predicts the part a relative map shows: [`ChannelRecord::off_colour`]).
 fn good(e: &measure::CurveError) -> bool {
     e.scale.abs() <= 0.05 && e.shape <= 0.1
 }
@@ -890,17 +910,27 @@ struct ChannelRecord {
     coverage: f64,
     confidence: f64,
     scale: f64,
+    /// The map's level error: the mean of the fit's channels' scale errors (stops).
+    level: f64,
     shape: f64,
     own: f64,
     /// The own error of the sRGB inverse against the same true curve.
     srgb_own: f64,
     /// Whether the same frames without noise give a good fit of this channel.
     noise_free_good: Option<bool>,
+    /// Whether they give a channel good in colour (not [`ChannelRecord::off_colour`]).
+    noise_free_colour_good: Option<bool>,
 }
 
 impl ChannelRecord {
     fn bad(&self) -> bool {
         !(self.scale.abs() <= 0.05 && self.shape <= 0.1)
+    }
+
+    /// Bad in what a relative radiance map shows: shape error > 0.1 stop or the channel's
+    /// scale more than 0.05 stop from the map's level (its part of the colour cast).
+    fn off_colour(&self) -> bool {
+        !((self.scale - self.level).abs() <= 0.05 && self.shape <= 0.1)
     }
 
     fn worse_than_srgb(&self) -> bool {
@@ -927,6 +957,7 @@ impl ChannelRecord {
                 self.coverage,
                 self.confidence,
                 self.scale,
+                self.level,
                 self.shape,
                 self.own,
                 self.srgb_own,
@@ -934,19 +965,26 @@ impl ChannelRecord {
             .iter()
             .map(|x| format!("{x:.6}")),
         );
-        v.push(match self.noise_free_good {
-            None => "-".into(),
-            Some(g) => u8::from(g).to_string(),
-        });
+        for flag in [self.noise_free_good, self.noise_free_colour_good] {
+            v.push(match flag {
+                None => "-".into(),
+                Some(g) => u8::from(g).to_string(),
+            });
+        }
         v.join(",")
     }
 
     fn from_csv(line: &str) -> Option<ChannelRecord> {
         let f: Vec<&str> = line.split(',').collect();
-        if f.len() != 7 + FEATURES + 7 {
+        if f.len() != 7 + FEATURES + 9 {
             return None;
         }
         let num = |i: usize| f[i].parse::<f64>().ok();
+        let flag = |s: &str| match s {
+            "1" => Some(true),
+            "0" => Some(false),
+            _ => None,
+        };
         let mut features = [0.0; FEATURES];
         for (k, x) in features.iter_mut().enumerate() {
             *x = num(7 + k)?;
@@ -964,22 +1002,62 @@ impl ChannelRecord {
             coverage: num(o - 1)?,
             confidence: num(o)?,
             scale: num(o + 1)?,
-            shape: num(o + 2)?,
-            own: num(o + 3)?,
-            srgb_own: num(o + 4)?,
-            noise_free_good: match f[o + 5] {
-                "1" => Some(true),
-                "0" => Some(false),
-                _ => None,
-            },
+            level: num(o + 2)?,
+            shape: num(o + 3)?,
+            own: num(o + 4)?,
+            srgb_own: num(o + 5)?,
+            noise_free_good: flag(f[o + 6]),
+            noise_free_colour_good: flag(f[o + 7]),
         })
     }
 }
 
-/// Prints the reliability table of `records`: per confidence band, how many channels,
-/// the share really bad (scale > 0.05 or shape > 0.1 stop), the share worse than the sRGB
-/// inverse (own error), and per encoding and number of frames the three checks.
+/// What "bad" means for a channel in the reliability tables and the confidence's fit.
+#[derive(Clone, Copy, PartialEq)]
+enum Criterion {
+    /// The issue's: scale error > 0.05 stop or shape error > 0.1 stop.
+    Scale,
+    /// What a relative radiance map shows: [`ChannelRecord::off_colour`].
+    Colour,
+}
+
+impl Criterion {
+    fn bad(self, r: &ChannelRecord) -> bool {
+        match self {
+            Criterion::Scale => r.bad(),
+            Criterion::Colour => r.off_colour(),
+        }
+    }
+
+    fn noise_free_good(self, r: &ChannelRecord) -> Option<bool> {
+        match self {
+            Criterion::Scale => r.noise_free_good,
+            Criterion::Colour => r.noise_free_colour_good,
+        }
+    }
+
+    fn words(self) -> &'static str {
+        match self {
+            Criterion::Scale => "bad = scale error > 0.05 stop or shape error > 0.1 stop",
+            Criterion::Colour => {
+                "bad = the channel's scale error more than 0.05 stop from the mean of its fit's channels (the map's level) or shape error > 0.1 stop"
+            }
+        }
+    }
+}
+
+/// Prints the reliability tables of `records` under both [`Criterion`]s.
 fn reliability(records: &[ChannelRecord]) {
+    for criterion in [Criterion::Scale, Criterion::Colour] {
+        reliability_by(records, criterion);
+        println!();
+    }
+}
+
+/// Prints the reliability table of `records`: per confidence band, how many channels,
+/// the share really bad under `criterion`, the share worse than the sRGB inverse (own
+/// error), and per encoding and number of frames the three checks.
+fn reliability_by(records: &[ChannelRecord], criterion: Criterion) {
     const BANDS: [(f64, f64); 6] = [
         (0.0, 0.1),
         (0.1, 0.3),
@@ -995,6 +1073,7 @@ fn reliability(records: &[ChannelRecord]) {
             format!("{:.1} %", 100.0 * n as f64 / of as f64)
         }
     };
+    let bad = |r: &ChannelRecord| criterion.bad(r);
     let mut groups: Vec<(String, usize)> = Vec::new();
     for r in records {
         if !groups.iter().any(|g| g.0 == r.enc && g.1 == r.frames) {
@@ -1002,7 +1081,8 @@ fn reliability(records: &[ChannelRecord]) {
         }
     }
     println!(
-        "Per channel; bad = scale error > 0.05 stop or shape error > 0.1 stop; worse than sRGB = own error above the sRGB inverse's (both g(1) = 1)."
+        "Per channel; {}; worse than sRGB = own error above the sRGB inverse's (both g(1) = 1).",
+        criterion.words()
     );
     println!();
     println!(
@@ -1019,12 +1099,15 @@ fn reliability(records: &[ChannelRecord]) {
                 .iter()
                 .filter(|r| r.confidence >= lo && r.confidence < hi)
                 .collect();
-            let clean: Vec<bool> = band.iter().filter_map(|r| r.noise_free_good).collect();
+            let clean: Vec<bool> = band
+                .iter()
+                .filter_map(|r| criterion.noise_free_good(r))
+                .collect();
             println!(
                 "| {enc} | {frames} | {lo:.1}–{:.1} | {} | {} | {} | {} |",
                 hi.min(1.0),
                 band.len(),
-                share(band.iter().filter(|r| r.bad()).count(), band.len()),
+                share(band.iter().filter(|r| bad(r)).count(), band.len()),
                 share(
                     band.iter().filter(|r| r.worse_than_srgb()).count(),
                     band.len()
@@ -1047,35 +1130,35 @@ fn reliability(records: &[ChannelRecord]) {
             set.iter().partition(|r| r.confidence >= 0.5);
         let low_clean = low
             .iter()
-            .filter(|r| r.noise_free_good == Some(true))
+            .filter(|r| criterion.noise_free_good(r) == Some(true))
             .count();
         println!(
             "| {enc} | {frames} | {} | {} | {} | {} | {} | {} | {} | {} |",
             set.len(),
             sure.len(),
-            share(sure.iter().filter(|r| r.bad()).count(), sure.len()),
+            share(sure.iter().filter(|r| bad(r)).count(), sure.len()),
             low.len(),
             share(
                 low.iter().filter(|r| r.worse_than_srgb()).count(),
                 low.len()
             ),
-            share(low.iter().filter(|r| r.bad()).count(), low.len()),
-            if low.iter().any(|r| r.noise_free_good.is_some()) {
+            share(low.iter().filter(|r| bad(r)).count(), low.len()),
+            if low.iter().any(|r| criterion.noise_free_good(r).is_some()) {
                 low_clean.to_string()
             } else {
                 "-".into()
             },
-            share(set.iter().filter(|r| r.bad()).count(), set.len()),
+            share(set.iter().filter(|r| bad(r)).count(), set.len()),
         );
     }
 }
 
 /// Fits the logistic confidence model (`filmback::response::fit::CONFIDENCE_MODEL`) by
 /// maximum likelihood (Newton's method, a small ridge) to the records of the CSV `files`
-/// (comma separated, written by `--features`), outcome "good", borrowed channels left
+/// (comma separated, written by `--features`), outcome "good" under `criterion` (`--target scale` or `colour`), borrowed channels left
 /// out; prints the coefficients and the reliability of the refitted model (times the
 /// coverage, as the library applies it) on the same records.
-fn fit_confidence(files: &str) {
+fn fit_confidence(files: &str, criterion: Criterion) {
     let mut records: Vec<ChannelRecord> = files
         .split(',')
         .flat_map(|f| {
@@ -1100,7 +1183,7 @@ fn fit_confidence(files: &str) {
         for r in &records {
             let x = DVector::from_vec(row(r));
             let p = 1.0 / (1.0 + (-x.dot(&beta)).exp());
-            let y = if r.bad() { 0.0 } else { 1.0 };
+            let y = if criterion.bad(r) { 0.0 } else { 1.0 };
             gradient += &x * (y - p);
             hessian += &x * x.transpose() * (p * (1.0 - p)).max(1e-9);
         }
@@ -1116,7 +1199,7 @@ fn fit_confidence(files: &str) {
     println!(
         "CONFIDENCE_MODEL (fitted on {} channels, {} bad): [{}]",
         records.len(),
-        records.iter().filter(|r| r.bad()).count(),
+        records.iter().filter(|r| criterion.bad(r)).count(),
         beta.iter()
             .map(|b| format!("{b:.3}"))
             .collect::<Vec<_>>()
