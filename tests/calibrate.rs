@@ -754,8 +754,9 @@ fn histogram_inversion_agrees_with_colour_hdri_on_frobisher() {
 
 /// The confidence means what it says on pairs it was not tuned on (the built-in curves
 /// and two power laws, not DoRF; scenes at another seed): among channels at confidence
-/// ≥ 0.5 few are bad (scale error > 0.05 stop or shape error > 0.1 stop), and a channel
-/// whose fit from the same frames without noise is good is not flagged low.
+/// ≥ 0.5 few are bad in what the radiance map shows (shape error > 0.1 stop, or a scale
+/// error more than 0.05 stop from the mean of the three channels': a colour cast), and a
+/// channel whose fit from the same frames without noise is good is not flagged low.
 #[test]
 fn confidence_is_calibrated_on_held_out_pairs() {
     use filmback::synthetic::SceneKind;
@@ -766,7 +767,14 @@ fn confidence_is_calibrated_on_held_out_pairs() {
         ResponseCurve::FilmS,
         ResponseCurve::StrongToe,
     ];
-    let good = |e: &measure::CurveError| e.scale.abs() <= 0.05 && e.shape <= 0.1;
+    // Per channel: good in shape and in its balance to the map's level.
+    let good = |errors: &[measure::CurveError]| -> Vec<bool> {
+        let level = errors.iter().map(|e| e.scale).sum::<f64>() / errors.len() as f64;
+        errors
+            .iter()
+            .map(|e| (e.scale - level).abs() <= 0.05 && e.shape <= 0.1)
+            .collect()
+    };
     let (mut confident, mut confident_bad, mut low_but_clean) = (0, 0, Vec::new());
     for kind in [
         SceneKind::Procedural,
@@ -783,19 +791,22 @@ fn confidence_is_calibrated_on_held_out_pairs() {
                 let (dark, bright) = pair(&scene, &clean, ratio);
                 let reference = run(&dark, &bright, ratio, Degree::Auto).unwrap();
                 let errors = measure::response_errors(&cal.response, curve);
-                let clean_errors = measure::response_errors(&reference.response, curve);
+                let (fine, clean) = (
+                    good(&errors),
+                    good(&measure::response_errors(&reference.response, curve)),
+                );
                 for c in 0..3 {
                     let confidence = cal.channels[c].fit.confidence;
                     if confidence >= 0.5 {
                         confident += 1;
-                        if !good(&errors[c]) {
+                        if !fine[c] {
                             confident_bad += 1;
                             eprintln!(
                                 "confident and bad: {kind:?} {curve:?} {ratio} {c}: {:?} {confidence:.2}",
                                 errors[c]
                             );
                         }
-                    } else if good(&clean_errors[c]) && good(&errors[c]) {
+                    } else if clean[c] && fine[c] {
                         low_but_clean.push(format!(
                             "{kind:?} {curve:?} ratio {ratio} channel {c}: {confidence:.2}"
                         ));
@@ -807,12 +818,13 @@ fn confidence_is_calibrated_on_held_out_pairs() {
     eprintln!(
         "{confident} confident channels, {confident_bad} bad; low but good: {low_but_clean:?}"
     );
-    assert!(confident >= 90, "{confident} of 135 channels confident");
+    // Measured: 134 confident, none of them bad; one good channel flagged low.
+    assert!(confident >= 120, "{confident} of 135 channels confident");
     assert!(
         confident_bad * 50 <= confident,
         "{confident_bad} of {confident}"
     );
-    assert!(low_but_clean.len() <= 3, "{low_but_clean:?}");
+    assert!(low_but_clean.len() <= 2, "{low_but_clean:?}");
 }
 
 /// A JPEG's pixels handed over as a lossless file (a PNG or TIFF made from a JPEG): its

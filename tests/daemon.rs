@@ -1493,9 +1493,8 @@ fn the_darkroom_fits_renders_each_cameras_looks_and_refines_the_cache() {
     use filmback::darkroom::Source;
     // Films at t = 1 stop on top of the request's own @1/2: velvia50 at t = 1. Body P's
     // preset replaces the films and drops the tone map, and never recalibrates. The
-    // demo camera's q90 JPEG brackets fit to about 0.8–0.9 per channel (the calibrated
-    // probability of a channel within 0.05 stop; docs/accuracy.md), so the bar is set
-    // under that: this test is about the cache's refinement, not about the bar.
+    // confidence bar is set low (0.25): this test is about the cache's refinement, not
+    // about the bar, and its thumbnails are noisier than the demo's own frames.
     let mut rig = Rig::start_with(
         &[
             ("render", "films = [\"velvia50@1/2\"]"),
@@ -1814,7 +1813,7 @@ fn watch_demo_on_embedded_defaults_develops_its_bracket_and_keeps_watching() {
         }
     }
     // What the README shows: the demo camera is an sRGB one at JPEG q90 and one fixed
-    // scene; its three frames fit to within 0.01 stop of sRGB at confidence 0.84 or more
+    // scene; its three frames fit to within 0.01 stop of sRGB at confidence 0.98 or more
     // (above the 0.5 the daemon trusts), so the daemon uses the fit. A change of the fit
     // that moves this changes the README's first command's output too.
     assert!(
