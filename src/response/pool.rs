@@ -11,8 +11,8 @@
 //! so a bracket that scatters more than the others is down-weighted, not followed).
 //!
 //! [`agreement`] says how well a curve explains one bracket's evidence, [`misfit`] a
-//! calibration's own tone pairs: the same weighted RMS of `log₂(g(τ)/(γ·g(b)))` in stops
-//! ([`weighted_misfit`]), the measure of the darkroom's and the cache's contradiction tests.
+//! calibration's own tone pairs: the same weighted RMS of `log₂(g(τ)/(γ·g(b)))` in stops,
+//! the measure of the darkroom's and the cache's contradiction tests.
 
 use rayon::prelude::*;
 
@@ -154,7 +154,7 @@ pub fn refit(pool: &[&Evidence], degree: Degree) -> Result<Calibration, Calibrat
     finish(span.exp().max(1.0), RatioSource::Exif, calibrated)
 }
 
-/// How far `g` is from explaining `evidence`: [`weighted_misfit`] over its tone pairs.
+/// How far `g` is from explaining `evidence`: the [`misfit`] measure over its tone pairs.
 pub fn agreement(evidence: &Evidence, g: &super::InverseResponse) -> f64 {
     weighted_misfit(
         evidence.channels.iter().enumerate().flat_map(|(c, sets)| {
@@ -165,8 +165,14 @@ pub fn agreement(evidence: &Evidence, g: &super::InverseResponse) -> f64 {
     )
 }
 
-/// How far `g` is from explaining `calibration`'s own tone pairs, each at its own ratio:
-/// [`weighted_misfit`].
+/// How far `g` is from explaining `calibration`'s own tone pairs `(channel, b ↦ τ, ln γ)`,
+/// each at its own ratio: the weighted RMS, stops, of `r = log₂(g(τ)/(γ·g(b)))`,
+/// `√(Σ w·r² / Σ w)` with `w = 1/(v_b/b² + v_τ/τ²)`, the inverse variance of
+/// `ln τ − ln b` from each side's standard deviation and 1 DN (`v = σ² + (1/255)²`,
+/// brightness units). The weights do not depend on `g`, so two curves are judged on the
+/// same terms; a sparse or dark tone, whose match the histograms' noise moves most,
+/// counts least (on a thumbnail most of all). Pairs where `g` is 0 are skipped; no pairs
+/// gives 0.
 pub fn misfit(calibration: &Calibration, g: &super::InverseResponse) -> f64 {
     weighted_misfit(
         calibration.channels.iter().enumerate().flat_map(|(c, ch)| {
@@ -179,13 +185,7 @@ pub fn misfit(calibration: &Calibration, g: &super::InverseResponse) -> f64 {
     )
 }
 
-/// The weighted RMS, stops, of `r = log₂(g(τ)/(γ·g(b)))` over tone pairs
-/// `(channel, b ↦ τ, ln γ)`: `√(Σ w·r² / Σ w)` with `w = 1/(v_b/b² + v_τ/τ²)`, the inverse
-/// variance of `ln τ − ln b` from each side's standard deviation and 1 DN
-/// (`v = σ² + (1/255)²`, brightness units). The weights do not depend on `g`, so two
-/// curves are judged on the same terms; a sparse or dark tone, whose match the histograms'
-/// noise moves most, counts least (on a thumbnail most of all). Pairs where `g` is 0 are
-/// skipped; no pairs gives 0.
+/// The weighted RMS of [`misfit`] over any tone pairs `(channel, pair, ln γ)`.
 fn weighted_misfit<'a>(
     pairs: impl Iterator<Item = (usize, &'a TonePair, f64)>,
     g: &super::InverseResponse,
