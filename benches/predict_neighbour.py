@@ -534,8 +534,9 @@ def confidence_rows(b):
     return out
 
 
-CHANNEL_FIELDS = ['confidence', 'misfit', 'top_span_stops', 'predicted_error_stops', 'coverage',
-                  'residual_rms', 'effective_parameters', 'equations']
+CHANNEL_FIELDS = ['confidence', 'misfit', 'top_span_stops', 'predicted_error_stops',
+                  'predicted_shape_error_stops', 'coverage', 'residual_rms',
+                  'effective_parameters', 'equations']
 
 
 def write_channels(brackets, path):

@@ -818,7 +818,7 @@ fn confidence_is_calibrated_on_held_out_pairs() {
     eprintln!(
         "{confident} confident channels, {confident_bad} bad; low but good: {low_but_clean:?}"
     );
-    // Measured: 134 confident, none of them bad; one good channel flagged low.
+    // Measured: all 135 confident, none of them bad.
     assert!(confident >= 120, "{confident} of 135 channels confident");
     assert!(
         confident_bad * 50 <= confident,

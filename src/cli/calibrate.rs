@@ -291,6 +291,7 @@ fn report(cal: &Calibration) -> Value {
                 "equations": f.equations,
                 "condition_number": number(f.condition),
                 "predicted_error_stops": number(f.predicted_error),
+                "predicted_shape_error_stops": number(f.predicted_shape_error),
                 "misfit": number(f.misfit),
                 "top_span_stops": number(f.top_span),
                 "coverage": number(f.coverage),

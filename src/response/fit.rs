@@ -178,8 +178,13 @@ pub struct ChannelFit {
     /// Condition number of the weighted design matrix (ratio of extreme singular values).
     pub condition: f64,
     /// Predicted standard error of `log₂ g` over codes 16..239 (stops), from the fit's
-    /// covariance scaled by the residual misfit.
+    /// covariance scaled by the residual misfit: the curve's level (its anchor `g(1) = 1`
+    /// extrapolated down to the codes) and its shape together.
     pub predicted_error: f64,
+    /// The part of [`ChannelFit::predicted_error`] that is shape: the standard error of
+    /// `log₂ g(b) − mean_b log₂ g(b)` over the same codes (stops), what is left after the
+    /// level that the channels' balance and the map's own scale take out.
+    pub predicted_shape_error: f64,
     /// Fraction of the tones 16/255..239/255 inside [`ChannelFit::covered`].
     pub coverage: f64,
     /// Weighted misfit per degree of freedom, `χ² / (m − p_eff)` (dimensionless): about
@@ -269,14 +274,15 @@ impl ChannelFit {
     ///
     /// 1. `ln(top_span + 0.01)`: the extrapolated span above the brightest tone (stops),
     ///    which sets the channel's level before the channels' balance;
-    /// 2. `ln(predicted_error + 0.001)`: the covariance's standard error of `log₂ g`;
+    /// 2. `ln(predicted_shape_error + 0.001)`: the covariance's standard error of the
+    ///    curve's shape (`log₂ g` less its mean over the codes);
     /// 3. `ln(max(misfit, 0.1))`: the misfit relative to the noise model;
     /// 4. `ln ln γ`, `γ` clamped to 2..=16, the ratios the model was fitted on (small
     ///    ratios leave the chain ambiguity loose, large ones few shared tones).
     pub fn features(&self) -> [f64; FEATURES] {
         [
             (self.top_span.max(0.0) + 0.01).ln(),
-            (self.predicted_error.min(1e6) + 0.001).ln(),
+            (self.predicted_shape_error.min(1e6) + 0.001).ln(),
             self.misfit.max(0.1).ln(),
             self.log_ratio.clamp(2f64.ln(), 16f64.ln()).ln(),
         ]
@@ -329,12 +335,12 @@ pub const FEATURES: usize = 4;
 /// at seed 7, every scene kind, 512×384, 8-bit lossless, JPEG q95 and 16-bit at ratios
 /// 2–16 and 3-frame brackets at ratio 4, lossless and JPEG q90); `--fit-confidence FILES
 /// --target colour` refits it, and docs/accuracy.md gives its reliability on the report
-/// split. A larger predicted error, a larger misfit and a larger ratio make a bad channel
-/// likelier: on the tuning split the channels that are bad this way are almost all shape
-/// errors of pairs 8–16 apart, whose few shared tones leave the curve between them
-/// loose. The confidence is `p·coverage`: the tuning scenes almost always cover the codes
-/// 16..239, so the model has not seen what an uncovered curve does.
-pub const CONFIDENCE_MODEL: [f64; FEATURES + 1] = [18.895, 0.284, -1.169, -2.028, -19.863];
+/// split. A larger predicted shape error, a larger misfit and a larger ratio make a bad
+/// channel likelier: on the tuning split the channels that are bad this way are almost
+/// all shape errors of pairs 8–16 apart, whose few shared tones leave the curve between
+/// them loose. The confidence is `p·coverage`: the tuning scenes almost always cover the
+/// codes 16..239, so the model has not seen what an uncovered curve does.
+pub const CONFIDENCE_MODEL: [f64; FEATURES + 1] = [17.852, 0.184, -1.220, -2.128, -19.635];
 
 /// The confidence of features `x` under the logistic model `beta` (see
 /// [`CONFIDENCE_MODEL`]).
@@ -868,17 +874,24 @@ pub fn fit_joint(
         // The data cannot choose between the two curves: their difference is part of
         // the error to expect.
         let (fitted, other) = (fit.curve(), problem.curve(smoothing.best, log_floor));
-        let codes = 16..=239;
-        let count = codes.clone().count() as f64;
-        let spread = (codes
+        let differences: Vec<f64> = (16..=239)
             .map(|k| {
                 let b = f64::from(k) / 255.0;
-                ((fitted.log_g(b) - other.log_g(b)) / std::f64::consts::LN_2).powi(2)
+                (fitted.log_g(b) - other.log_g(b)) / std::f64::consts::LN_2
             })
-            .sum::<f64>()
-            / count)
-            .sqrt();
-        fit.predicted_error = fit.predicted_error.hypot(spread);
+            .collect();
+        let count = differences.len() as f64;
+        let mean = differences.iter().sum::<f64>() / count;
+        let rms = |offset: f64| {
+            (differences
+                .iter()
+                .map(|d| (d - offset).powi(2))
+                .sum::<f64>()
+                / count)
+                .sqrt()
+        };
+        fit.predicted_error = fit.predicted_error.hypot(rms(0.0));
+        fit.predicted_shape_error = fit.predicted_shape_error.hypot(rms(mean));
         fit.confidence = confidence(&fit);
     }
     check_degenerate(&fit)?;
@@ -948,31 +961,40 @@ fn finish(problem: &Problem, lambda: f64, log_floor: f64, covered: (f64, f64)) -
     let free: Vec<usize> = (0..n).filter(|&j| d[j] > 0.0).collect();
     let p = free.len().max(1);
     let scale2 = 2.0 * problem.dependence * (chi2 / (m.saturating_sub(p).max(1)) as f64).max(1.0);
-    let (predicted_error, effective_parameters) = if free.is_empty() {
-        (f64::INFINITY, 0.0)
+    let (predicted_error, predicted_shape_error, effective_parameters) = if free.is_empty() {
+        (f64::INFINITY, f64::INFINITY, 0.0)
     } else {
         let svd = a.select_columns(&free).svd(false, true);
         let vt = svd.v_t.unwrap_or_else(|| DMatrix::identity(p, p));
+        // Per code, `Σ⁻¹Vᵀφ(b)`: its squared norm is the variance of `ln g(b)` (over s²),
+        // and that of its deviation from the codes' mean the variance of the shape.
         let codes = 16..=239;
         let count = codes.clone().count() as f64;
-        let var_sum: f64 = codes
+        let whitened: Vec<DVector<f64>> = codes
             .map(|k| {
                 let x = (f64::from(k) / 255.0).ln().max(log_floor);
                 let r = problem.basis.ramps(x);
                 let phi = DVector::from_iterator(p, free.iter().map(|&j| r[j]));
-                (&vt * phi)
-                    .iter()
-                    .zip(svd.singular_values.iter())
-                    .map(|(v, s)| {
-                        if *s > 0.0 {
-                            (v / s).powi(2)
-                        } else {
-                            f64::INFINITY
-                        }
-                    })
-                    .sum::<f64>()
+                let mut w = &vt * phi;
+                for (v, s) in w.iter_mut().zip(svd.singular_values.iter()) {
+                    *v = if *s > 0.0 {
+                        *v / s
+                    } else if *v == 0.0 {
+                        0.0
+                    } else {
+                        f64::INFINITY
+                    };
+                }
+                w
             })
-            .sum();
+            .collect();
+        let var_sum: f64 = whitened.iter().map(|w| w.norm_squared()).sum();
+        let mean = whitened.iter().fold(DVector::zeros(p), |acc, w| acc + w) / count;
+        let shape_sum: f64 = if var_sum.is_finite() {
+            whitened.iter().map(|w| (w - &mean).norm_squared()).sum()
+        } else {
+            f64::INFINITY
+        };
         // tr(A (SᵀS)⁻¹ Aᵀ) = ‖A V Σ⁻¹‖²_F for the stacked system S = U Σ Vᵀ.
         let mut projected = data_a.select_columns(&free) * vt.transpose();
         for (mut column, s) in projected.column_iter_mut().zip(svd.singular_values.iter()) {
@@ -982,6 +1004,7 @@ fn finish(problem: &Problem, lambda: f64, log_floor: f64, covered: (f64, f64)) -
         }
         (
             (scale2 * var_sum / count).sqrt() / std::f64::consts::LN_2,
+            (scale2 * shape_sum / count).sqrt() / std::f64::consts::LN_2,
             projected.norm_squared(),
         )
     };
@@ -1001,6 +1024,7 @@ fn finish(problem: &Problem, lambda: f64, log_floor: f64, covered: (f64, f64)) -
         effective_parameters,
         condition,
         predicted_error,
+        predicted_shape_error,
         coverage,
         misfit: chi2 / dof,
         log_ratio: problem.ripple_log_ratio,
@@ -1012,16 +1036,19 @@ fn finish(problem: &Problem, lambda: f64, log_floor: f64, covered: (f64, f64)) -
     fit
 }
 
-/// `coverage · min(p, 1 / (1 + (predicted_error / 0.2 stop)²))` with `p` the
+/// `coverage · min(p, 1 / (1 + (predicted_shape_error / 0.2 stop)²))` with `p` the
 /// [`logistic_confidence`] of the fit's features under [`CONFIDENCE_MODEL`]: the second
-/// term caps it where the covariance alone puts the curve's standard error at twice the
+/// term caps it where the covariance alone puts the shape's standard error at twice the
 /// 0.1-stop tolerance or beyond, outside the errors the model was fitted on (it is 0.5
 /// at 0.2 stop and above 0.9 below 0.06, so it rarely binds inside them). 0 for an
 /// undetermined curve (no free increment, or a non-finite feature).
 fn confidence(fit: &ChannelFit) -> f64 {
     let x = fit.features();
-    if fit.predicted_error.is_finite() && x.iter().all(|v| v.is_finite()) {
-        let precision = 1.0 / (1.0 + (fit.predicted_error / 0.2).powi(2));
+    if fit.predicted_error.is_finite()
+        && fit.predicted_shape_error.is_finite()
+        && x.iter().all(|v| v.is_finite())
+    {
+        let precision = 1.0 / (1.0 + (fit.predicted_shape_error / 0.2).powi(2));
         fit.coverage * logistic_confidence(&CONFIDENCE_MODEL, &x).min(precision)
     } else {
         0.0
@@ -1161,11 +1188,41 @@ mod tests {
         );
     }
 
+    /// The shape's predicted error is the curve's less the variance of its level: never
+    /// more, and clearly less when the equations stop well below white, so that `g(1) = 1`
+    /// is reached only by extrapolation.
+    #[test]
+    fn the_shape_is_surer_than_the_level_above_the_brightest_tone() {
+        let full = fit(&power_pairs(2.2, 4.0), 4f64.ln(), Degree::Auto).unwrap();
+        let short: Vec<TonePair> = power_pairs(2.2, 4.0)
+            .into_iter()
+            .filter(|p| p.bright <= 0.6)
+            .map(|p| TonePair {
+                sigma_dark: 0.004,
+                sigma_bright: 0.004,
+                ..p
+            })
+            .collect();
+        let short = fit(&short, 4f64.ln(), Degree::Auto).unwrap();
+        for f in [&full, &short] {
+            assert!(f.predicted_shape_error.is_finite() && f.predicted_shape_error > 0.0);
+            assert!(f.predicted_shape_error <= f.predicted_error, "{f:?}");
+        }
+        eprintln!(
+            "full: {:.5} / {:.5}; short: {:.5} / {:.5}",
+            full.predicted_shape_error,
+            full.predicted_error,
+            short.predicted_shape_error,
+            short.predicted_error
+        );
+        assert!(short.predicted_shape_error < 0.5 * short.predicted_error);
+    }
+
     #[test]
     fn confidence_is_the_logistic_model_of_the_features_times_the_coverage() {
         let good = fit(&power_pairs(2.2, 4.0), 4f64.ln(), Degree::Auto).unwrap();
         let p = logistic_confidence(&CONFIDENCE_MODEL, &good.features());
-        let cap = 1.0 / (1.0 + (good.predicted_error / 0.2).powi(2));
+        let cap = 1.0 / (1.0 + (good.predicted_shape_error / 0.2).powi(2));
         assert!((good.confidence - good.coverage * p.min(cap)).abs() < 1e-12);
         assert!(good.confidence > 0.8, "{good:?}");
         // A larger predicted error, equations scattering further beyond their noise, a
@@ -1177,7 +1234,7 @@ mod tests {
             );
         };
         worse(ChannelFit {
-            predicted_error: 0.05,
+            predicted_shape_error: 0.05,
             ..good.clone()
         });
         worse(ChannelFit {
@@ -1189,10 +1246,10 @@ mod tests {
             ..good.clone()
         });
         // A pair 16× apart whose equations scatter ten times beyond their noise, with a
-        // predicted error of 0.05 stop: a channel to distrust.
+        // predicted shape error of 0.05 stop: a channel to distrust.
         let bad = ChannelFit {
             top_span: 0.3,
-            predicted_error: 0.05,
+            predicted_shape_error: 0.05,
             misfit: 10.0,
             log_ratio: 16f64.ln(),
             ..good.clone()
