@@ -200,9 +200,8 @@ pub struct ChannelFit {
     /// The probability that the channel is good in what a relative radiance map shows:
     /// shape error ≤ 0.1 stop and scale within 0.05 stop of the map's level (the mean of
     /// the channels' scales; see [`CONFIDENCE_MODEL`]): the logistic model of
-    /// [`ChannelFit::features`],
-    /// capped where the predicted error reaches 0.2 stop and times [`ChannelFit::coverage`]
-    /// (see [`ChannelFit::features`]); in `[0, 1]`, below 0.5 is "low".
+    /// [`ChannelFit::features`], capped where the predicted shape error reaches 0.2 stop
+    /// and times [`ChannelFit::coverage`]; in `[0, 1]`, below 0.5 is "low".
     pub confidence: f64,
 }
 
@@ -977,13 +976,7 @@ fn finish(problem: &Problem, lambda: f64, log_floor: f64, covered: (f64, f64)) -
                 let phi = DVector::from_iterator(p, free.iter().map(|&j| r[j]));
                 let mut w = &vt * phi;
                 for (v, s) in w.iter_mut().zip(svd.singular_values.iter()) {
-                    *v = if *s > 0.0 {
-                        *v / s
-                    } else if *v == 0.0 {
-                        0.0
-                    } else {
-                        f64::INFINITY
-                    };
+                    *v = if *s > 0.0 { *v / s } else { f64::INFINITY };
                 }
                 w
             })
@@ -1225,8 +1218,8 @@ mod tests {
         let cap = 1.0 / (1.0 + (good.predicted_shape_error / 0.2).powi(2));
         assert!((good.confidence - good.coverage * p.min(cap)).abs() < 1e-12);
         assert!(good.confidence > 0.8, "{good:?}");
-        // A larger predicted error, equations scattering further beyond their noise, a
-        // wider ratio: each lowers the model's probability.
+        // A larger predicted shape error, equations scattering further beyond their
+        // noise, a wider ratio: each lowers the model's probability.
         let worse = |fit: ChannelFit| {
             assert!(
                 logistic_confidence(&CONFIDENCE_MODEL, &fit.features()) < p,
