@@ -16,9 +16,10 @@
 //!
 //! **A body's pool.** A good fit (confidence at least `min_confidence`) that the cached
 //! curve does not contradict agrees with the body: when that curve is the body's pool
-//! ([`BodyPool`]: one fit over the evidence of its earlier good brackets) and is at least
-//! as confident as the bracket's own fit, the bracket is merged with it
-//! ([`Source::Pooled`]); either way its evidence is returned ([`Pooling`]) for the daemon
+//! ([`BodyPool`]: one fit over the evidence of its earlier good brackets) and is trusted
+//! (confidence at least `min_confidence` and 0.5) or at least as confident as the
+//! bracket's own fit, the bracket is merged with it ([`Source::Pooled`]): one curve for
+//! the body's brackets, steadier from scene to scene than each one's own; either way its evidence is returned ([`Pooling`]) for the daemon
 //! to pool and refit after the outputs are published, off the bracket's critical path. A
 //! bracket that contradicts the cached curve is merged with its own fit and its evidence
 //! returned as a dissent.
@@ -320,8 +321,12 @@ pub fn choose_response(
             pooled: None,
         }
     });
+    // The pool is steadier from scene to scene than one bracket's fit (docs/accuracy.md,
+    // "A body's pool"): used when it is trusted itself, or at least as sure as this fit.
+    let trusted = min_confidence.max(0.5);
     if !contradicts_cache
-        && let Some(body) = body_pool.filter(|b| b.confidence >= confidence)
+        && let Some(body) =
+            body_pool.filter(|b| b.confidence >= trusted || b.confidence >= confidence)
         && let Some(cached) = fallback.take().filter(|g| g.source == Source::Cached)
         && pooling.is_some()
     {
@@ -389,10 +394,10 @@ fn use_pooled(
     }
 }
 
-/// How much worse (weighted RMS, stops: [`pool::misfit`]) a fallback may explain the bracket's tone pairs than the
-/// bracket's own fit before it counts as contradicted. A ripple the two exposures cannot
-/// resolve costs a few hundredths of a stop; a wrong curve family (sRGB for a film
-/// shoulder) costs tenths.
+/// How much worse (weighted RMS, stops: [`pool::misfit`]) a fallback may explain the
+/// bracket's tone pairs than the bracket's own fit before it counts as contradicted. A
+/// ripple the two exposures cannot resolve costs a few hundredths of a stop; a wrong curve
+/// family (sRGB for a film shoulder) costs tenths.
 pub const CONTRADICTION_STOPS: f64 = 0.05;
 
 pub(super) fn use_given(

@@ -200,8 +200,9 @@ fn a_good_fit_that_contradicts_the_cached_curve_is_flagged() {
 }
 
 /// A good fit that agrees with the body's pooled curve is merged with it when the pool
-/// is at least as confident, else with its own fit; either way its evidence comes back
-/// for the pool. One that contradicts the pool keeps its own fit, its evidence a dissent.
+/// is trusted (≥ 0.5) or at least as confident, else with its own fit; either way its
+/// evidence comes back for the pool. One that contradicts the pool keeps its own fit, its
+/// evidence a dissent.
 #[test]
 fn a_good_fit_that_agrees_with_the_bodys_pool_is_merged_with_it() {
     let first = choose_for_pair(
@@ -236,8 +237,13 @@ fn a_good_fit_that_agrees_with_the_bodys_pool_is_merged_with_it() {
     assert!(pooled.summary.contains("agrees"), "{}", pooled.summary);
     assert_eq!(pooled.report["brackets"], 5);
     assert!(pooled.pooling.is_some());
-    // A pool less sure than the bracket's own fit: the own fit, still pooled.
-    let own_better = choose_for_pair(ResponseCurve::Srgb, 8, policy(0.0));
+    // A trusted pool less sure than the bracket's own fit: still the pool.
+    let trusted = choose_for_pair(ResponseCurve::Srgb, 8, policy(0.6));
+    let own_confidence = trusted.fit.as_ref().map_or(0.0, |f| f.1);
+    assert!(own_confidence > 0.6, "{own_confidence}");
+    assert_eq!(trusted.source, Source::Pooled, "{:?}", trusted.notes);
+    // A low pool less sure than the bracket's own fit: the own fit, still pooled.
+    let own_better = choose_for_pair(ResponseCurve::Srgb, 8, policy(0.3));
     assert_eq!(own_better.source, Source::Fitted);
     assert!(own_better.pooling.is_some() && !own_better.contradicts_cache);
     let other = choose_for_pair(ResponseCurve::FilmS, 8, policy(1.0));
