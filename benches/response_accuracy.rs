@@ -481,6 +481,8 @@ fn main() {
                                 borrowed: ch.borrowed_from.is_some(),
                                 features: ch.fit.features(),
                                 coverage: ch.fit.coverage,
+                                equations: ch.fit.equations,
+                                parameters: ch.fit.effective_parameters,
                                 confidence: ch.fit.confidence,
                                 scale: e.scale,
                                 level,
@@ -908,6 +910,9 @@ struct ChannelRecord {
     borrowed: bool,
     features: [f64; FEATURES],
     coverage: f64,
+    /// The fit's equations (tone pairs) and effective parameters, for exploring features.
+    equations: usize,
+    parameters: f64,
     confidence: f64,
     scale: f64,
     /// The map's level error: the mean of the fit's channels' scale errors (stops).
@@ -971,12 +976,14 @@ impl ChannelRecord {
                 Some(g) => u8::from(g).to_string(),
             });
         }
+        v.push(self.equations.to_string());
+        v.push(format!("{:.3}", self.parameters));
         v.join(",")
     }
 
     fn from_csv(line: &str) -> Option<ChannelRecord> {
         let f: Vec<&str> = line.split(',').collect();
-        if f.len() != 7 + FEATURES + 9 {
+        if f.len() != 7 + FEATURES + 11 {
             return None;
         }
         let num = |i: usize| f[i].parse::<f64>().ok();
@@ -1008,6 +1015,8 @@ impl ChannelRecord {
             srgb_own: num(o + 5)?,
             noise_free_good: flag(f[o + 6]),
             noise_free_colour_good: flag(f[o + 7]),
+            equations: f[o + 8].parse().ok()?,
+            parameters: num(o + 9)?,
         })
     }
 }
@@ -1207,8 +1216,8 @@ fn fit_confidence(files: &str, criterion: Criterion) {
     );
     let beta: [f64; FEATURES + 1] = std::array::from_fn(|i| beta[i]);
     for r in &mut records {
-        // As the library applies it: capped by the predicted error, times the coverage.
-        let predicted = r.features[1].exp() - 0.001;
+        // As the library applies it: capped by the predicted shape error, times the coverage.
+        let predicted = r.features[0].exp() - 0.001;
         let cap = 1.0 / (1.0 + (predicted / 0.2).powi(2));
         r.confidence = r.coverage * logistic_confidence(&beta, &r.features).min(cap);
     }

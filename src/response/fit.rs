@@ -271,16 +271,17 @@ impl ChannelFit {
 
     /// What the fit knows about its own error, the inputs of [`CONFIDENCE_MODEL`]:
     ///
-    /// 1. `ln(top_span + 0.01)`: the extrapolated span above the brightest tone (stops),
-    ///    which sets the channel's level before the channels' balance;
-    /// 2. `ln(predicted_shape_error + 0.001)`: the covariance's standard error of the
+    /// 1. `ln(predicted_shape_error + 0.001)`: the covariance's standard error of the
     ///    curve's shape (`log₂ g` less its mean over the codes);
-    /// 3. `ln(max(misfit, 0.1))`: the misfit relative to the noise model;
-    /// 4. `ln ln γ`, `γ` clamped to 2..=16, the ratios the model was fitted on (small
+    /// 2. `ln(max(misfit, 0.1))`: the misfit relative to the noise model;
+    /// 3. `ln ln γ`, `γ` clamped to 2..=16, the ratios the model was fitted on (small
     ///    ratios leave the chain ambiguity loose, large ones few shared tones).
+    ///
+    /// The extrapolated span above the brightest tone ([`ChannelFit::top_span`]) is not
+    /// one: it sets the level, which the confidence does not speak of, and with it the
+    /// model predicted held-out channels worse.
     pub fn features(&self) -> [f64; FEATURES] {
         [
-            (self.top_span.max(0.0) + 0.01).ln(),
             (self.predicted_shape_error.min(1e6) + 0.001).ln(),
             self.misfit.max(0.1).ln(),
             self.log_ratio.clamp(2f64.ln(), 16f64.ln()).ln(),
@@ -320,7 +321,7 @@ impl Curve {
 }
 
 /// Number of [`ChannelFit::features`].
-pub const FEATURES: usize = 4;
+pub const FEATURES: usize = 3;
 
 /// The logistic model of the confidence: `p = 1 / (1 + exp(−(β₀ + Σ_k β_k·x_k)))` with
 /// `x` the [`ChannelFit::features`] and `β = CONFIDENCE_MODEL`, the probability that
@@ -339,7 +340,7 @@ pub const FEATURES: usize = 4;
 /// all shape errors of pairs 8–16 apart, whose few shared tones leave the curve between
 /// them loose. The confidence is `p·coverage`: the tuning scenes almost always cover the
 /// codes 16..239, so the model has not seen what an uncovered curve does.
-pub const CONFIDENCE_MODEL: [f64; FEATURES + 1] = [17.852, 0.184, -1.220, -2.128, -19.635];
+pub const CONFIDENCE_MODEL: [f64; FEATURES + 1] = [17.058, -1.240, -2.147, -19.467];
 
 /// The confidence of features `x` under the logistic model `beta` (see
 /// [`CONFIDENCE_MODEL`]).
