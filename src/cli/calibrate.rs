@@ -406,5 +406,10 @@ fn table(r: &Value) -> String {
         let _ = writeln!(out, "model: {model}");
     }
     out.push_str("outside the covered tones the curve is extrapolated\n");
+    out.push_str(
+        "confidence: the probability that a channel's shape and colour are right; the \
+         common level, set by g(1) = 1 above the brightest tone matched, is not in it \
+         (docs/accuracy.md)\n",
+    );
     out
 }
