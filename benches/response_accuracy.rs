@@ -447,15 +447,13 @@ fn main() {
                         match cal {
                             Ok(cal) => {
                                 let errors = measure::response_errors(&cal.response, curve);
-                                let level = errors.iter().map(|e| e.scale).sum::<f64>()
-                                    / errors.len() as f64;
+                                let level = map_level(&errors);
                                 errors
                                     .iter()
                                     .zip(&cal.channels)
                                     .map(|(e, ch)| {
                                         let fitted = ch.borrowed_from.is_none();
-                                        let colour =
-                                            (e.scale - level).abs() <= 0.05 && e.shape <= 0.1;
+                                        let colour = good_in_colour(e.scale, e.shape, level);
                                         (fitted && good(e), fitted && colour)
                                     })
                                     .collect()
@@ -468,8 +466,7 @@ fn main() {
                     {
                         let srgb_errors = measure::response_errors(&srgb, curve);
                         let errors = measure::response_errors(&cal.response, curve);
-                        let level =
-                            errors.iter().map(|e| e.scale).sum::<f64>() / errors.len() as f64;
+                        let level = map_level(&errors);
                         for (c, (ch, e)) in cal.channels.iter().zip(errors).enumerate() {
                             records.push(ChannelRecord {
                                 scene: scene.name.clone(),
@@ -857,6 +854,17 @@ fn good(e: &measure::CurveError) -> bool {
     e.scale.abs() <= 0.05 && e.shape <= 0.1
 }
 
+/// A fit's map level error: the mean of its channels' scale errors (stops).
+fn map_level(errors: &[measure::CurveError]) -> f64 {
+    errors.iter().map(|e| e.scale).sum::<f64>() / errors.len() as f64
+}
+
+/// Good in what a relative map shows: shape error ≤ 0.1 stop and the scale error within
+/// 0.05 stop of the map's `level` (stops).
+fn good_in_colour(scale: f64, shape: f64, level: f64) -> bool {
+    (scale - level).abs() <= 0.05 && shape <= 0.1
+}
+
 /// The scenes named on the command line, in order: a [`SceneKind`] by its name, rendered
 /// at `width × height` with `seed`; `real` every real bracket of
 /// `../shared/testdata/brackets` (or of `--real-brackets DIR`) made into a scene of about
@@ -935,7 +943,7 @@ impl ChannelRecord {
     /// Bad in what a relative radiance map shows: shape error > 0.1 stop or the channel's
     /// scale more than 0.05 stop from the map's level (its part of the colour cast).
     fn off_colour(&self) -> bool {
-        !((self.scale - self.level).abs() <= 0.05 && self.shape <= 0.1)
+        !good_in_colour(self.scale, self.shape, self.level)
     }
 
     fn worse_than_srgb(&self) -> bool {
