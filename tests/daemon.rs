@@ -851,15 +851,42 @@ fn single_frames_are_rendered_or_reported() {
 
 // --- The real binary as a child process --------------------------------------------
 
-fn spawn_binary(config: &Path) -> Child {
-    Command::new(env!("CARGO_BIN_EXE_filmback"))
-        .args(["watch", "--config"])
-        .arg(config)
-        .env("RUST_LOG", "info")
-        .stdout(Stdio::null())
-        .stderr(std::fs::File::create(config.with_extension("log")).unwrap())
-        .spawn()
-        .unwrap()
+fn spawn_binary(config: &Path) -> Watch {
+    Watch(
+        Command::new(env!("CARGO_BIN_EXE_filmback"))
+            .args(["watch", "--config"])
+            .arg(config)
+            .env("RUST_LOG", "info")
+            .stdout(Stdio::null())
+            .stderr(std::fs::File::create(config.with_extension("log")).unwrap())
+            .spawn()
+            .unwrap(),
+    )
+}
+
+/// A `filmback watch` child that is killed when dropped, so a test that fails before it
+/// stops its daemon leaves none running (one left over loads the machine for the rest).
+struct Watch(Child);
+
+impl std::ops::Deref for Watch {
+    type Target = Child;
+    fn deref(&self) -> &Child {
+        &self.0
+    }
+}
+
+impl std::ops::DerefMut for Watch {
+    fn deref_mut(&mut self) -> &mut Child {
+        &mut self.0
+    }
+}
+
+impl Drop for Watch {
+    fn drop(&mut self) {
+        // Already reaped (stopped by the test): nothing is signalled.
+        let _ = self.0.kill();
+        let _ = self.0.wait();
+    }
 }
 
 fn terminate(child: &mut Child) -> Duration {
