@@ -1172,9 +1172,10 @@ fn reliability_by(records: &[ChannelRecord], criterion: Criterion) {
 
 /// Fits the logistic confidence model (`filmback::response::fit::CONFIDENCE_MODEL`) by
 /// maximum likelihood (Newton's method, a small ridge) to the records of the CSV `files`
-/// (comma separated, written by `--features`), outcome "good" under `criterion` (`--target scale` or `colour`), borrowed channels left
-/// out; prints the coefficients and the reliability of the refitted model (times the
-/// coverage, as the library applies it) on the same records.
+/// (comma separated, written by `--features`), outcome "good" under `criterion`
+/// (`--target scale` or `colour`), borrowed channels left out; prints the coefficients
+/// and the reliability of the refitted model (times the coverage, as the library applies
+/// it) on the same records.
 fn fit_confidence(files: &str, criterion: Criterion) {
     let mut records: Vec<ChannelRecord> = files
         .split(',')

@@ -19,8 +19,9 @@
 //! ([`BodyPool`]: one fit over the evidence of its earlier good brackets) and is trusted
 //! (confidence at least `min_confidence` and 0.5) or at least as confident as the
 //! bracket's own fit, the bracket is merged with it ([`Source::Pooled`]): one curve for
-//! the body's brackets, steadier from scene to scene than each one's own; either way its evidence is returned ([`Pooling`]) for the daemon
-//! to pool and refit after the outputs are published, off the bracket's critical path. A
+//! the body's brackets, steadier from scene to scene than each one's own. Either way its
+//! evidence is returned ([`Pooling`]) for the daemon to pool and refit after the outputs
+//! are published, off the bracket's critical path. A
 //! bracket that contradicts the cached curve is merged with its own fit and its evidence
 //! returned as a dissent.
 
