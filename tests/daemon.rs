@@ -1759,6 +1759,37 @@ fn polling_mode_and_archive_folder() {
     assert_eq!(listing(&archive), expected);
 }
 
+/// A frame on disk before its bracket's gap ran out belongs to it, even when the
+/// watcher has not reported it yet: here a polling interval (4 s) longer than the gap
+/// (1 s) reports the third frame about 3 s after the first two were taken.
+#[test]
+fn a_frame_the_watcher_has_not_reported_still_joins_its_bracket() {
+    let mut rig = Rig::start(
+        &[
+            ("watch", "mode = \"poll\""),
+            ("watch", "poll_ms = 4000"),
+            ("watch", "rescan_s = 0"),
+        ],
+        Arc::new(DarkroomLab),
+        |_| {},
+    );
+    let frames = aeb("Body L", 10, "l");
+    put(&rig.ingest(), &frames[..2]);
+    wait_for_status(&rig.state(), |s| s.grouping == 2);
+    put(&rig.ingest(), &frames[2..]);
+    expect_outputs(&rig.out(), &bracket_outputs(&["l-1"]), T);
+    rig.stop();
+    let entries = journal::read(&rig.state()).unwrap();
+    let developed: Vec<usize> = entries
+        .iter()
+        .map(|e| match e {
+            Entry::Bracket { inputs, .. } => inputs.len(),
+            other => panic!("one bracket of three expected, journaled {other:?}"),
+        })
+        .collect();
+    assert_eq!(developed, [3], "one bracket of three");
+}
+
 #[test]
 fn reload_applies_new_rules_but_keeps_folders() {
     let mut rig = Rig::start(&[], Arc::new(DarkroomLab), |_| {});

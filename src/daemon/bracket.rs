@@ -276,14 +276,18 @@ impl Grouper {
         closed
     }
 
+    /// True when [`Grouper::expire`] at `now` would close a group.
+    pub fn due(&self, now: f64) -> bool {
+        self.open.values().any(|o| self.stale(o, now))
+    }
+
     /// Closes every group whose last frame arrived more than `max_gap_s` before `now`:
     /// no further frame of that bracket can still come.
     pub fn expire(&mut self, now: f64) -> Vec<Closed> {
-        let max_gap = self.rules.max_gap_s;
         let stale: Vec<CameraId> = self
             .open
             .iter()
-            .filter(|(_, o)| now - o.last_arrival > max_gap)
+            .filter(|(_, o)| self.stale(o, now))
             .map(|(k, _)| k.clone())
             .collect();
         stale
@@ -310,6 +314,10 @@ impl Grouper {
             self.open.remove(&camera);
         }
         Some(capture)
+    }
+
+    fn stale(&self, open: &Open, now: f64) -> bool {
+        now - open.last_arrival > self.rules.max_gap_s
     }
 
     /// Restarts the gap clock of every open group: called while the daemon is not taking
@@ -448,7 +456,9 @@ mod tests {
             Closed::Single(shot("a", &c, 0.0, 0.0), Alone::NoPartner)
         );
         // Nothing more arrives: the open pair expires by the arrival clock.
+        assert!(!g.due(1.0));
         assert!(g.expire(1.0).is_empty());
+        assert!(g.due(10.0));
         let late = g.expire(10.0);
         assert_eq!(late.len(), 1);
         assert_eq!(names(&late[0]), ["b", "c"]);

@@ -86,6 +86,31 @@ impl State {
         }
     }
 
+    /// Lists the ingest folder for files that are on disk but not yet reported by the
+    /// watcher (its events queued behind a busy loop, or a polling interval longer than
+    /// the bracket gap), makes each a candidate and returns true when there was one.
+    /// Called before the gap clock closes a bracket: such a file arrived in time and may
+    /// be its next frame. One listing and one `lstat` per unknown file, once per bracket.
+    fn unnoticed_arrivals(&mut self) -> bool {
+        let mut found = false;
+        for path in intake::scan(&self.config.watch, &self.config.folders.ingest) {
+            let known = self.taken.contains(&path)
+                || self.candidates.contains_key(&path)
+                || self.held.contains_key(&path)
+                || self.unreadable.contains_key(&path)
+                || self.companions.contains_key(&path);
+            if known
+                || intake::observe(&path).map_or(true, |seen| self.journal.is_settled(&seen.input))
+            {
+                continue;
+            }
+            info!(file = %path.display(), "on disk but not yet reported: its bracket waits for it");
+            self.consider(path.clone(), Arrival::Writing);
+            found |= self.candidates.contains_key(&path);
+        }
+        found
+    }
+
     /// Makes `path` a candidate (again), as its notice's `arrival` says.
     pub(super) fn consider(&mut self, path: PathBuf, arrival: Arrival) {
         // Reached through a linked folder (a watcher that followed it): not in ingest.
@@ -241,7 +266,10 @@ impl State {
                 .unreadable
                 .values()
                 .any(|u| u.first_seen.elapsed() < WRITER_PATIENCE);
-        if writing || self.queue.len() >= self.config.daemon.queue {
+        if writing
+            || self.queue.len() >= self.config.daemon.queue
+            || (self.grouper.due(now) && self.unnoticed_arrivals())
+        {
             self.grouper.postpone(now);
         }
         for closed in self.grouper.expire(now) {
