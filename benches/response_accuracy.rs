@@ -221,6 +221,28 @@ struct Scene {
     radiance: RadianceMap,
 }
 
+/// One adjacent pair of a bracket fitted alone.
+#[derive(Clone, Copy)]
+struct PairFit {
+    /// Largest |scale error| over channels, stops.
+    scale: f64,
+    /// Largest minus smallest scale error over channels, stops.
+    cast: f64,
+    /// Lowest channel confidence.
+    confidence: f64,
+}
+
+/// The largest |scale error| and the cast (largest minus smallest) of per-channel scale
+/// errors, stops.
+fn scale_and_cast(scales: &[f64]) -> (f64, f64) {
+    let high = scales.iter().fold(f64::NEG_INFINITY, |a, &s| a.max(s));
+    let low = scales.iter().fold(f64::INFINITY, |a, &s| a.min(s));
+    (
+        scales.iter().fold(0.0, |a: f64, s| a.max(s.abs())),
+        high - low,
+    )
+}
+
 struct Outcome {
     curve: String,
     /// Index into the scenes.
@@ -237,10 +259,11 @@ struct Outcome {
     merge_true: f64,
     /// Merged radiance error with the fitted response minus `merge_true`, fraction.
     gap: f64,
-    /// N-frame brackets: the adjacent pairs fitted alone, (largest |scale error|, lowest
-    /// channel confidence) of the pair with the smallest scale error, and of the middle pair.
-    best_pair: Option<(f64, f64)>,
-    middle_pair: Option<(f64, f64)>,
+    /// N-frame brackets: the adjacent pairs fitted alone; the pair with the smallest scale
+    /// error, the pair with the smallest cast (both oracle choices) and the middle pair.
+    best_pair: Option<PairFit>,
+    best_cast_pair: Option<PairFit>,
+    middle_pair: Option<PairFit>,
     confidence: f64,
     /// Effective number of parameters, median over channels.
     parameters: f64,
@@ -380,29 +403,35 @@ fn main() {
                         counts.iter().map(|(c, e)| (c, *e)).collect();
                     let pair_fit = |i: usize| fit_frames(&counted[i..i + 2], whole_frames);
                     let result = fit_frames(&counted, whole_frames);
-                    let summary = |cal: &Calibration| -> (f64, f64) {
-                        (
-                            measure::scale_errors(&cal.response, curve)
-                                .into_iter()
-                                .fold(0.0, |a: f64, s| a.max(s.abs())),
-                            cal.channels
+                    let summary = |cal: &Calibration| -> PairFit {
+                        let (scale, cast) =
+                            scale_and_cast(&measure::scale_errors(&cal.response, curve));
+                        PairFit {
+                            scale,
+                            cast,
+                            confidence: cal
+                                .channels
                                 .iter()
                                 .map(|c| c.fit.confidence)
                                 .fold(1.0, f64::min),
-                        )
+                        }
                     };
-                    let pairs: Vec<Option<(f64, f64)>> = if frame_count > 2 && !fits_only {
+                    let pairs: Vec<Option<PairFit>> = if frame_count > 2 && !fits_only {
                         (0..frame_count - 1)
                             .map(|i| pair_fit(i).ok().map(|c| summary(&c)))
                             .collect()
                     } else {
                         Vec::new()
                     };
-                    let best_pair = pairs
-                        .iter()
-                        .flatten()
-                        .copied()
-                        .min_by(|a, b| a.0.total_cmp(&b.0));
+                    let best_by = |key: fn(&PairFit) -> f64| {
+                        pairs
+                            .iter()
+                            .flatten()
+                            .copied()
+                            .min_by(|a, b| key(a).total_cmp(&key(b)))
+                    };
+                    let best_pair = best_by(|p| p.scale);
+                    let best_cast_pair = best_by(|p| p.cast);
                     let middle_pair = pairs.get(frame_count / 2 - 1).copied().flatten();
                     let merge_true = if fits_only {
                         f64::NAN
@@ -421,6 +450,7 @@ fn main() {
                         merge_true,
                         gap: f64::NAN,
                         best_pair,
+                        best_cast_pair,
                         middle_pair,
                         confidence: 0.0,
                         parameters: f64::NAN,
@@ -530,10 +560,8 @@ fn main() {
                                 errors(curve, |c, k| cal.response.eval(c, k as f64 / 255.0));
                             outcome.own = own;
                             outcome.shape = shape;
-                            let scales = measure::scale_errors(&cal.response, curve);
-                            outcome.scale = scales.iter().fold(0.0, |a: f64, s| a.max(s.abs()));
-                            outcome.cast = scales.iter().fold(f64::NEG_INFINITY, |a, &s| a.max(s))
-                                - scales.iter().fold(f64::INFINITY, |a, &s| a.min(s));
+                            (outcome.scale, outcome.cast) =
+                                scale_and_cast(&measure::scale_errors(&cal.response, curve));
                             if !fits_only {
                                 outcome.gap = merged_error(radiance, &frames, &cal.response)
                                     .map_or(f64::NAN, |e| e - merge_true);
@@ -724,13 +752,13 @@ fn main() {
         );
         println!();
         println!(
-            "Scale = largest |scale error| over channels (stops); confidence = lowest over channels. 'best pair' = the adjacent pair with the smallest scale error (an oracle choice); 'middle pair' = the pair a two-frame darkroom would use."
+            "Scale = largest |scale error| over channels (stops); cast = largest minus smallest scale error over channels (stops); confidence = lowest over channels. 'best pair' = the adjacent pair with the smallest scale error, 'best-cast pair' the one with the smallest cast (oracle choices); 'middle pair' = the pair a two-frame darkroom would use."
         );
         println!();
         println!(
-            "| encoding | scene | ratio | n | joint scale median | joint scale p90 | joint confidence median | joint low conf. | best pair scale median | best pair scale p90 | best pair confidence median | middle pair scale median | middle pair confidence median | middle pair low conf. |"
+            "| encoding | scene | ratio | n | joint scale median | joint scale p90 | joint cast median | joint cast p90 | joint confidence median | joint low conf. | best pair scale median | best pair scale p90 | best-cast pair cast median | best-cast pair cast p90 | middle pair scale median | middle pair cast median | middle pair confidence median | middle pair low conf. |"
         );
-        println!("|---|---|---|---|---|---|---|---|---|---|---|---|---|---|");
+        println!("|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|");
         for &enc in &encodings {
             for (kind, scene) in scenes.iter().enumerate() {
                 for &ratio in &ratios {
@@ -744,29 +772,36 @@ fn main() {
                                 && (!use_dorf || o.curve.starts_with("dorf-"))
                         })
                         .collect();
-                    let mut scale: Vec<f64> = ok.iter().map(|o| o.scale).collect();
-                    let mut confidence: Vec<f64> = ok.iter().map(|o| o.confidence).collect();
-                    let best: Vec<(f64, f64)> = ok.iter().filter_map(|o| o.best_pair).collect();
-                    let middle: Vec<(f64, f64)> = ok.iter().filter_map(|o| o.middle_pair).collect();
-                    let mut best_scale: Vec<f64> = best.iter().map(|b| b.0).collect();
-                    let mut best_conf: Vec<f64> = best.iter().map(|b| b.1).collect();
-                    let mut middle_scale: Vec<f64> = middle.iter().map(|b| b.0).collect();
-                    let mut middle_conf: Vec<f64> = middle.iter().map(|b| b.1).collect();
+                    let column = |f: &dyn Fn(&Outcome) -> Option<f64>| -> Vec<f64> {
+                        ok.iter().filter_map(|o| f(o)).collect()
+                    };
+                    let mut scale = column(&|o| Some(o.scale));
+                    let mut cast = column(&|o| Some(o.cast));
+                    let mut confidence = column(&|o| Some(o.confidence));
+                    let mut best_scale = column(&|o| o.best_pair.map(|p| p.scale));
+                    let mut best_cast = column(&|o| o.best_cast_pair.map(|p| p.cast));
+                    let mut middle_scale = column(&|o| o.middle_pair.map(|p| p.scale));
+                    let mut middle_cast = column(&|o| o.middle_pair.map(|p| p.cast));
+                    let mut middle_conf = column(&|o| o.middle_pair.map(|p| p.confidence));
                     println!(
-                        "| {} | {} | {ratio} | {} | {:.4} | {:.4} | {:.2} | {} | {:.4} | {:.4} | {:.2} | {:.4} | {:.2} | {} |",
+                        "| {} | {} | {ratio} | {} | {:.4} | {:.4} | {:.4} | {:.4} | {:.2} | {} | {:.4} | {:.4} | {:.4} | {:.4} | {:.4} | {:.4} | {:.2} | {} |",
                         enc.name(),
                         scene.name,
                         ok.len(),
                         quantile(&mut scale, 0.5),
                         quantile(&mut scale, 0.9),
+                        quantile(&mut cast, 0.5),
+                        quantile(&mut cast, 0.9),
                         quantile(&mut confidence, 0.5),
                         ok.iter().filter(|o| o.confidence < 0.5).count(),
                         quantile(&mut best_scale, 0.5),
                         quantile(&mut best_scale, 0.9),
-                        quantile(&mut best_conf, 0.5),
+                        quantile(&mut best_cast, 0.5),
+                        quantile(&mut best_cast, 0.9),
                         quantile(&mut middle_scale, 0.5),
+                        quantile(&mut middle_cast, 0.5),
                         quantile(&mut middle_conf, 0.5),
-                        middle.iter().filter(|m| m.1 < 0.5).count(),
+                        middle_conf.iter().filter(|&&c| c < 0.5).count(),
                     );
                 }
             }
