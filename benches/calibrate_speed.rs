@@ -11,8 +11,9 @@
 //! `response_accuracy` (stops over codes 16..239; shape = after the best scale).
 //!
 //! Then a 5-frame bracket (sRGB, exposures 1/4 … 4, one stop apart, 8-bit with 1 DN
-//! read noise, not JPEG-encoded): histograms at the balanced stride and the joint fit of
-//! all ten pairs (`calibrate_frames`), as the darkroom runs it.
+//! read noise), lossless and as JPEG q95: histograms at the balanced stride and the joint
+//! fit of all ten pairs (`calibrate_frames`, which shares a JPEG pair's pixels first), as
+//! the darkroom runs it.
 
 use std::path::Path;
 use std::process::Command;
@@ -183,44 +184,58 @@ fn main() {
         seed: 11,
     };
     let exposures = [0.25, 0.5, 1.0, 2.0, 4.0];
-    let frames: Vec<Frame> = exposures
-        .iter()
-        .map(|&e| synthetic::expose(&scene, e, &sensor))
-        .collect();
     let stride = Preset::Balanced.stride();
-    let mut counts = Vec::new();
-    let hist_ms = median_ms(|| {
-        counts = frames
-            .iter()
-            .map(|f| FrameCounts::of_frame(f, stride))
-            .collect();
-    });
-    let mut result = None;
-    let fit_ms = median_ms(|| {
-        let input: Vec<(&FrameCounts, f64)> = counts.iter().zip(exposures).collect();
-        result = Some(calibrate_frames(
-            &input,
-            RatioSource::Argument,
-            Preset::Balanced.degree(),
-        ));
-    });
-    let cal = result.unwrap().unwrap();
-    let (own, shape) = errors(&ResponseCurve::Srgb, |c, k| {
-        cal.response.eval(c, k as f64 / 255.0)
-    });
     println!("\n## {w}×{h} 5-frame bracket (sRGB, one stop apart), balanced preset\n");
     println!(
-        "| histograms (ms) | joint fit (ms) | total (ms) | own error | shape error | min confidence |"
+        "| frames | histograms (ms) | joint fit (ms) | total (ms) | own error | shape error | min confidence |"
     );
-    println!("|---|---|---|---|---|---|");
-    println!(
-        "| {hist_ms:.1} | {fit_ms:.1} | {:.1} | {own:.4} | {shape:.4} | {:.2} |",
-        hist_ms + fit_ms,
-        cal.channels
+    println!("|---|---|---|---|---|---|---|");
+    for jpeg in [false, true] {
+        let frames: Vec<Frame> = exposures
             .iter()
-            .map(|c| c.fit.confidence)
-            .fold(1.0, f64::min)
-    );
+            .map(|&e| {
+                let f = synthetic::expose(&scene, e, &sensor);
+                if !jpeg {
+                    return f;
+                }
+                let bytes = synthetic::encode(&f, &common::shot(e), Encoding::Jpeg { quality: 95 })
+                    .unwrap();
+                frame::decode(Path::new("frame.jpg"), &bytes, Limits::default())
+                    .unwrap()
+                    .frame
+            })
+            .collect();
+        let mut counts = Vec::new();
+        let hist_ms = median_ms(|| {
+            counts = frames
+                .iter()
+                .map(|f| FrameCounts::of_frame(f, stride))
+                .collect();
+        });
+        // The joint fit shares each pair's pixels (JPEG) before it fits.
+        let mut result = None;
+        let fit_ms = median_ms(|| {
+            let input: Vec<(&FrameCounts, f64)> = counts.iter().zip(exposures).collect();
+            result = Some(calibrate_frames(
+                &input,
+                RatioSource::Argument,
+                Preset::Balanced.degree(),
+            ));
+        });
+        let cal = result.unwrap().unwrap();
+        let (own, shape) = errors(&ResponseCurve::Srgb, |c, k| {
+            cal.response.eval(c, k as f64 / 255.0)
+        });
+        println!(
+            "| {} | {hist_ms:.1} | {fit_ms:.1} | {:.1} | {own:.4} | {shape:.4} | {:.2} |",
+            if jpeg { "JPEG q95" } else { "8-bit lossless" },
+            hist_ms + fit_ms,
+            cal.channels
+                .iter()
+                .map(|c| c.fit.confidence)
+                .fold(1.0, f64::min)
+        );
+    }
     println!(
         "\nPresets: {}",
         [Preset::Fast, Preset::Balanced, Preset::Accurate]
