@@ -486,6 +486,41 @@ fn calibrate_command(args: &[&std::ffi::OsStr]) -> std::process::Output {
     filmback().arg("calibrate").args(args).output().unwrap()
 }
 
+/// Frames further apart than the ratios the confidence was calibrated on (16×) are
+/// reported as such; a pair at 4× is not.
+#[test]
+fn command_warns_of_frames_further_apart_than_the_confidence_knows() {
+    let dir = tempfile::tempdir().unwrap();
+    let report = |step: f64| -> String {
+        let frames = bracket_of(
+            &scene(),
+            &sensor(ResponseCurve::Srgb, BitDepth::Eight),
+            2,
+            step,
+        );
+        let paths: Vec<_> = (0..2)
+            .map(|k| dir.path().join(format!("r{step}-{k}.png")))
+            .collect();
+        for ((frame, exposure), path) in frames.iter().zip(&paths) {
+            write_frame(path, frame, Some(exposure / 60.0));
+        }
+        let out = calibrate_command(&[paths[0].as_os_str(), paths[1].as_os_str()]);
+        assert!(
+            out.status.success(),
+            "{}",
+            String::from_utf8_lossy(&out.stderr)
+        );
+        String::from_utf8(out.stdout).unwrap()
+    };
+    let wide = report(32.0);
+    assert!(
+        wide.contains("warning: frames 5.0 stops apart, beyond the four stops"),
+        "{wide}"
+    );
+    let near = report(4.0);
+    assert!(!near.contains("warning"), "{near}");
+}
+
 #[test]
 fn command_fits_three_frames_jointly_from_exif_or_given_exposures() {
     let dir = tempfile::tempdir().unwrap();

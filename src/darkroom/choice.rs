@@ -308,6 +308,19 @@ pub fn choose_response(
             given.label
         ));
     }
+    // The confidence was calibrated on frames up to four stops apart (docs/accuracy.md,
+    // "Outside the ratios it was fitted on").
+    let widest = chosen
+        .windows(2)
+        .map(|w| w[1].exposure / w[0].exposure)
+        .fold(1.0, f64::max);
+    if widest > response::WIDEST_PAIR * 1.01 {
+        notes.push(format!(
+            "frames {:.1} stops apart in {pair}: the fit's confidence is calibrated on frames \
+             up to four stops apart",
+            widest.log2()
+        ));
+    }
     let pooling = (confidence >= min_confidence).then(|| {
         let evidence = Evidence::of(&calibration, sources.len());
         let own_misfit = pool::agreement(&evidence, &calibration.response);

@@ -131,6 +131,49 @@ fn three_exposures_are_fitted_from_every_frame() {
     );
 }
 
+/// Frames more than four stops apart are fitted, with a note that the confidence does
+/// not reach that far; a pair two stops apart has no such note.
+#[test]
+fn frames_further_apart_than_the_confidence_knows_are_noted() {
+    let truth = scene(240, 160, 6);
+    let sensor = Sensor::noiseless(ResponseCurve::Srgb, BitDepth::Eight);
+    let frames = [
+        loaded("a.png", expose(&truth, 1.0, &sensor)),
+        loaded("b.png", expose(&truth, 32.0, &sensor)),
+    ];
+    let bracket = bracket(&frames, &[1.0, 32.0]);
+    let policy = ResponsePolicy::Fit {
+        fallback: None,
+        min_confidence: 0.0,
+        pool: None,
+    };
+    let chosen =
+        choose_response(&bracket, RatioSource::Argument, policy, &mut Stages::new()).unwrap();
+    assert_eq!(chosen.source, Source::Fitted);
+    assert!(
+        chosen
+            .notes
+            .iter()
+            .any(|n| n.starts_with("frames 5.0 stops apart in a.png and b.png")),
+        "{:?}",
+        chosen.notes
+    );
+    let near = choose_for_pair(
+        ResponseCurve::Srgb,
+        6,
+        ResponsePolicy::Fit {
+            fallback: None,
+            min_confidence: 0.0,
+            pool: None,
+        },
+    );
+    assert!(
+        near.notes.iter().all(|n| !n.contains("stops apart")),
+        "{:?}",
+        near.notes
+    );
+}
+
 /// A weak fit below `min_confidence` gives way to the fallback, and says so; the fit
 /// itself is still reported (the daemon decides whether the cache learns from it).
 #[test]
