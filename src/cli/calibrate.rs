@@ -411,8 +411,7 @@ fn table(r: &Value) -> String {
          common level, set by g(1) = 1 above the brightest tone matched, is not in it \
          (docs/accuracy.md)\n",
     );
-    let step = widest_step(r);
-    if step > response::WIDEST_PAIR * 1.01 {
+    if let Some(step) = response::beyond_calibrated_ratios(&exposures(r)) {
         let _ = writeln!(
             out,
             "warning: frames {:.1} stops apart, beyond the four stops the confidence was \
@@ -424,19 +423,13 @@ fn table(r: &Value) -> String {
     out
 }
 
-/// The largest exposure ratio between frames neighbouring in exposure: the listed
-/// frames' exposures for a bracket, the ratio for a pair.
-fn widest_step(r: &Value) -> f64 {
-    let Some(frames) = r["frames"].as_array() else {
-        return r["ratio"].as_f64().unwrap_or(f64::NAN);
-    };
-    let mut exposures: Vec<f64> = frames
-        .iter()
-        .filter_map(|f| f["exposure"].as_f64())
-        .collect();
-    exposures.sort_by(f64::total_cmp);
-    exposures
-        .windows(2)
-        .map(|w| w[1] / w[0])
-        .fold(f64::NAN, f64::max)
+/// The frames' relative exposures: those listed for a bracket, `[1, ratio]` for a pair.
+fn exposures(r: &Value) -> Vec<f64> {
+    match r["frames"].as_array() {
+        Some(frames) => frames
+            .iter()
+            .filter_map(|f| f["exposure"].as_f64())
+            .collect(),
+        None => r["ratio"].as_f64().map_or_else(Vec::new, |k| vec![1.0, k]),
+    }
 }

@@ -308,13 +308,8 @@ pub fn choose_response(
             given.label
         ));
     }
-    // The confidence was calibrated on frames up to four stops apart (docs/accuracy.md,
-    // "Outside the ratios it was fitted on").
-    let widest = chosen
-        .windows(2)
-        .map(|w| w[1].exposure / w[0].exposure)
-        .fold(1.0, f64::max);
-    if widest > response::WIDEST_PAIR * 1.01 {
+    let exposures: Vec<f64> = chosen.iter().map(|f| f.exposure).collect();
+    if let Some(widest) = response::beyond_calibrated_ratios(&exposures) {
         notes.push(format!(
             "frames {:.1} stops apart in {pair}: the fit's confidence is calibrated on frames \
              up to four stops apart",

@@ -274,8 +274,8 @@ impl ChannelFit {
     /// 1. `ln(predicted_shape_error + 0.001)`: the covariance's standard error of the
     ///    curve's shape (`log₂ g` less its mean over the codes);
     /// 2. `ln(max(misfit, 0.1))`: the misfit relative to the noise model;
-    /// 3. `ln ln γ`, `γ` clamped to 2..=16, the ratios the model was fitted on (small
-    ///    ratios leave the chain ambiguity loose, large ones few shared tones).
+    /// 3. `ln ln γ`, `γ` clamped to [`CALIBRATED_RATIOS`], the ratios the model was fitted
+    ///    on (small ratios leave the chain ambiguity loose, large ones few shared tones).
     ///
     /// The extrapolated span above the brightest tone ([`ChannelFit::top_span`]) is not
     /// one: it sets the level, which the confidence does not speak of, and with it the
@@ -284,7 +284,9 @@ impl ChannelFit {
         [
             (self.predicted_shape_error.min(1e6) + 0.001).ln(),
             self.misfit.max(0.1).ln(),
-            self.log_ratio.clamp(2f64.ln(), 16f64.ln()).ln(),
+            self.log_ratio
+                .clamp(CALIBRATED_RATIOS[0].ln(), CALIBRATED_RATIOS[1].ln())
+                .ln(),
         ]
     }
 }
@@ -341,6 +343,12 @@ pub const FEATURES: usize = 3;
 /// them loose. The confidence is `p·coverage`: the tuning scenes almost always cover the
 /// codes 16..239, so the model has not seen what an uncovered curve does.
 pub const CONFIDENCE_MODEL: [f64; FEATURES + 1] = [17.058, -1.240, -2.147, -19.467];
+
+/// The exposure ratios [`CONFIDENCE_MODEL`] was fitted on (pairs 2× to 16× apart). Beyond
+/// 16× it trusts up to one 8-bit channel in six that is off in shape or colour
+/// (docs/accuracy.md, "Outside the ratios it was fitted on"); callers say so
+/// ([`super::beyond_calibrated_ratios`]).
+pub const CALIBRATED_RATIOS: [f64; 2] = [2.0, 16.0];
 
 /// The confidence of features `x` under the logistic model `beta` (see
 /// [`CONFIDENCE_MODEL`]).

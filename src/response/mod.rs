@@ -578,6 +578,19 @@ fn finish(
 /// Exposures closer than this factor are one exposure: their pair tells the fit nothing.
 const SAME_EXPOSURE: f64 = 1.01;
 
+/// The largest ratio between exposures neighbouring in value when it is beyond the ratios
+/// the confidence was fitted on ([`fit::CALIBRATED_RATIOS`], with the 1 % that EXIF's
+/// rounded times allow), else `None`.
+pub fn beyond_calibrated_ratios(exposures: &[f64]) -> Option<f64> {
+    let mut sorted = exposures.to_vec();
+    sorted.sort_by(f64::total_cmp);
+    let widest = sorted
+        .windows(2)
+        .map(|w| w[1] / w[0])
+        .fold(f64::NAN, f64::max);
+    (widest > fit::CALIBRATED_RATIOS[1] * SAME_EXPOSURE).then_some(widest)
+}
+
 /// Frames at most this factor (four stops) apart are fitted as a pair even when others lie
 /// between them.
 pub const WIDEST_PAIR: f64 = 16.0;
@@ -746,6 +759,23 @@ fn sample_curve(g: impl Fn(f64) -> f64, n: usize) -> Vec<f64> {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn neighbours_beyond_sixteen_times_are_beyond_the_calibrated_ratios() {
+        assert_eq!(beyond_calibrated_ratios(&[1.0, 4.0, 16.0]), None);
+        assert_eq!(
+            beyond_calibrated_ratios(&[1.0, 16.1]),
+            None,
+            "EXIF rounding"
+        );
+        assert_eq!(
+            beyond_calibrated_ratios(&[32.0, 1.0, 2.0]),
+            None,
+            "in order: 2×, 16×"
+        );
+        assert_eq!(beyond_calibrated_ratios(&[4.0, 1.0, 128.0]), Some(32.0));
+        assert_eq!(beyond_calibrated_ratios(&[1.0]), None);
+    }
 
     #[test]
     fn srgb_is_valid_and_interpolates() {
