@@ -60,13 +60,23 @@ fn looks_of(films: &[&str], tonemaps: &[&str]) -> Vec<Look> {
 /// The response `policy` chooses for a noiseless 8-bit pair of scene `seed` through
 /// `curve`, exposed 1 and 4.
 fn choose_for_pair(curve: ResponseCurve, seed: u64, policy: ResponsePolicy) -> ChosenResponse {
+    choose_for_pair_at(curve, seed, 4.0, policy)
+}
+
+/// As [`choose_for_pair`], exposed 1 and `ratio`.
+fn choose_for_pair_at(
+    curve: ResponseCurve,
+    seed: u64,
+    ratio: f64,
+    policy: ResponsePolicy,
+) -> ChosenResponse {
     let truth = scene(240, 160, seed);
     let sensor = Sensor::noiseless(curve, BitDepth::Eight);
     let frames = [
         loaded("a.png", expose(&truth, 1.0, &sensor)),
-        loaded("b.png", expose(&truth, 4.0, &sensor)),
+        loaded("b.png", expose(&truth, ratio, &sensor)),
     ];
-    let bracket = bracket(&frames, &[1.0, 4.0]);
+    let bracket = bracket(&frames, &[1.0, ratio]);
     choose_response(&bracket, RatioSource::Argument, policy, &mut Stages::new()).unwrap()
 }
 
@@ -135,38 +145,21 @@ fn three_exposures_are_fitted_from_every_frame() {
 /// not reach that far; a pair two stops apart has no such note.
 #[test]
 fn frames_further_apart_than_the_confidence_knows_are_noted() {
-    let truth = scene(240, 160, 6);
-    let sensor = Sensor::noiseless(ResponseCurve::Srgb, BitDepth::Eight);
-    let frames = [
-        loaded("a.png", expose(&truth, 1.0, &sensor)),
-        loaded("b.png", expose(&truth, 32.0, &sensor)),
-    ];
-    let bracket = bracket(&frames, &[1.0, 32.0]);
-    let policy = ResponsePolicy::Fit {
+    let fit_only = || ResponsePolicy::Fit {
         fallback: None,
         min_confidence: 0.0,
         pool: None,
     };
-    let chosen =
-        choose_response(&bracket, RatioSource::Argument, policy, &mut Stages::new()).unwrap();
-    assert_eq!(chosen.source, Source::Fitted);
+    let wide = choose_for_pair_at(ResponseCurve::Srgb, 6, 32.0, fit_only());
+    assert_eq!(wide.source, Source::Fitted);
     assert!(
-        chosen
-            .notes
+        wide.notes
             .iter()
             .any(|n| n.starts_with("frames 5.0 stops apart in a.png and b.png")),
         "{:?}",
-        chosen.notes
+        wide.notes
     );
-    let near = choose_for_pair(
-        ResponseCurve::Srgb,
-        6,
-        ResponsePolicy::Fit {
-            fallback: None,
-            min_confidence: 0.0,
-            pool: None,
-        },
-    );
+    let near = choose_for_pair(ResponseCurve::Srgb, 6, fit_only());
     assert!(
         near.notes.iter().all(|n| !n.contains("stops apart")),
         "{:?}",
