@@ -1046,10 +1046,7 @@ fn finish(problem: &Problem, lambda: f64, log_floor: f64, covered: (f64, f64)) -
 /// undetermined curve (no free increment, or a non-finite feature).
 fn confidence(fit: &ChannelFit) -> f64 {
     let x = fit.features();
-    if fit.predicted_error.is_finite()
-        && fit.predicted_shape_error.is_finite()
-        && x.iter().all(|v| v.is_finite())
-    {
+    if fit.predicted_shape_error.is_finite() && x.iter().all(|v| v.is_finite()) {
         let precision = 1.0 / (1.0 + (fit.predicted_shape_error / 0.2).powi(2));
         fit.coverage * logistic_confidence(&CONFIDENCE_MODEL, &x).min(precision)
     } else {
@@ -1250,7 +1247,6 @@ mod tests {
         // A pair 16× apart whose equations scatter ten times beyond their noise, with a
         // predicted shape error of 0.05 stop: a channel to distrust.
         let bad = ChannelFit {
-            top_span: 0.3,
             predicted_shape_error: 0.05,
             misfit: 10.0,
             log_ratio: 16f64.ln(),
