@@ -331,22 +331,22 @@ pub const FEATURES: usize = 3;
 /// its scale error within 0.05 stop of the mean of the calibration's channels' (after the
 /// channels' balance, the part of its scale that is a colour cast). The map's common
 /// level, set by `g(1) = 1` above the brightest tone any equation reaches, is not part of
-/// it: no feature of the histograms predicts it (docs/accuracy.md, "The level is not a
-/// channel's confidence"). Fitted by maximum likelihood on the tuning split of
-/// `benches/response_accuracy.rs` (DoRF records ≡ 0 mod 4, every fourth of them, scenes
+/// it: no feature of the histograms predicts it (docs/accuracy.md states its spread, "How
+/// accurate is a response from a pair?"). Fitted by maximum likelihood on the tuning split
+/// of `benches/response_accuracy.rs` (DoRF records ≡ 0 mod 4, every fourth of them, scenes
 /// at seed 7, every scene kind, 512×384, 8-bit lossless, JPEG q95 and 16-bit at ratios
 /// 2–16 and 3-frame brackets at ratio 4, lossless and JPEG q90); `--fit-confidence FILES
-/// --target colour` refits it, and docs/accuracy.md gives its reliability on the report
-/// split. A larger predicted shape error, a larger misfit and a larger ratio make a bad
-/// channel likelier: on the tuning split the channels that are bad this way are almost
-/// all shape errors of pairs 8–16 apart, whose few shared tones leave the curve between
-/// them loose. The confidence is `p·coverage`: the tuning scenes almost always cover the
+/// --target colour` refits it, and docs/accuracy.md ("When can I trust the confidence?")
+/// gives its reliability on the report split. A larger predicted shape error, a larger
+/// misfit and a larger ratio make a bad channel likelier: on the tuning split the channels
+/// that are bad this way are almost all shape errors of pairs 8–16 apart, whose few shared
+/// tones leave the curve between them loose. The confidence is `p·coverage`: the tuning scenes almost always cover the
 /// codes 16..239, so the model has not seen what an uncovered curve does.
 pub const CONFIDENCE_MODEL: [f64; FEATURES + 1] = [17.058, -1.240, -2.147, -19.467];
 
 /// The exposure ratios [`CONFIDENCE_MODEL`] was fitted on (pairs 2× to 16× apart). Beyond
 /// 16× it trusts up to one 8-bit channel in six that is off in shape or colour
-/// (docs/accuracy.md, "Outside the ratios it was fitted on"); callers say so
+/// (docs/accuracy.md, "When can I trust the confidence?"); callers say so
 /// ([`super::beyond_calibrated_ratios`]).
 pub const CALIBRATED_RATIOS: [f64; 2] = [2.0, 16.0];
 

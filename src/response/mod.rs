@@ -6,7 +6,7 @@
 //! interpolation. How `g` was obtained (a fit, a cache, a default) is recorded beside it.
 //!
 //! [`calibrate`] recovers `g` from the histograms of two exposures of one scene
-//! (`DESIGN.md` §2): the tone pairs `b ↦ τ(b)` of [`crate::histogram::tone_pairs`] each
+//! (`docs/design.md` §2): the tone pairs `b ↦ τ(b)` of [`crate::histogram::tone_pairs`] each
 //! give `g(τ(b)) = γ·g(b)`, fitted per channel by [`mod@fit`]. [`save`] and [`load`] keep the
 //! result in a versioned TOML file (see [`mod@file`]).
 
@@ -125,8 +125,8 @@ impl InverseResponse {
     }
 }
 
-/// Named speed/accuracy settings for calibration that a config can pick (measured in
-/// `benches/calibrate_speed.rs`; the table is in the README).
+/// Named speed/accuracy settings for calibration that a config can pick (measured by
+/// `benches/calibrate_speed.rs`; the table is in `docs/performance.md`).
 #[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
 #[serde(rename_all = "lowercase")]
 pub enum Preset {
@@ -164,9 +164,9 @@ pub const CALIBRATED_SAMPLES: usize = 1024;
 /// code 128 of a real camera's JPEG, 0.138 (mid grey 2.86 stops below white; the sRGB
 /// curve's is 0.214, 2.22 stops). It is the value that makes the median estimate exact,
 /// `exp(ln 0.214 / median κ_sRGB)`, over the tuning half of the real brackets
-/// (`docs/accuracy.md`, "The exposure ratio without EXIF": 46 adjacent pairs of seven
-/// sets from phones, a tablet, a compact and one unnamed body; the other half is kept
-/// for reporting).
+/// (`docs/accuracy.md`, "How good is the exposure ratio without EXIF?": 46 adjacent
+/// pairs of seven sets from phones, a tablet, a compact and one unnamed body; the other
+/// half is kept for reporting).
 pub const PRIOR_MID_GREY: f64 = 0.1379;
 
 /// How far the prior can be off: the 10th and 90th percentiles of
@@ -205,7 +205,8 @@ pub enum Ratio {
     Known(f64, RatioSource),
     /// Estimate `γ`. `g` and `γ` trade off as `g^k, γ^k` (any power of a solution is a
     /// solution), so an estimate needs a prior: the one used here is that mid brightness
-    /// `B = 0.5` is `g = 0.214` of white, as on the sRGB curve (the median over channels).
+    /// `B = 0.5` is `g =` [`PRIOR_MID_GREY`] (0.1379) of white, a real camera's mid grey
+    /// (the median over channels; the sRGB curve's is 0.214).
     Estimate,
 }
 
