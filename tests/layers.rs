@@ -1,6 +1,7 @@
 //! The library reads as the pipeline bottom to top: a module's code (tests aside) uses
 //! only the modules below it in [`LAYERS`], never one above it, so there is no import
-//! circle. The order is the one `src/lib.rs` documents.
+//! circle. The order is the one `src/lib.rs` documents; the module tables of README.md and
+//! docs/design.md state it too, and are checked against [`LAYERS`] here.
 
 use std::path::{Path, PathBuf};
 
@@ -120,4 +121,49 @@ fn every_library_module_has_a_layer() {
         declared, LAYERS,
         "lib.rs declares the modules in layer order"
     );
+}
+
+/// The modules a document's module table names, in its order: the rows of the table whose
+/// header starts `| module |`, each first cell's `name` (or `name/`) spans.
+fn stated_order(document: &str) -> Vec<String> {
+    let path = Path::new(env!("CARGO_MANIFEST_DIR")).join(document);
+    let text = std::fs::read_to_string(&path).expect("the document is readable");
+    text.lines()
+        .skip_while(|l| !l.starts_with("| module |"))
+        .skip(2)
+        .take_while(|l| l.starts_with('|'))
+        .flat_map(|row| {
+            let cell = row.split('|').nth(1).unwrap_or_default();
+            cell.split('`')
+                .skip(1)
+                .step_by(2)
+                .map(|name| name.trim_end_matches('/').to_string())
+                .collect::<Vec<_>>()
+        })
+        .collect()
+}
+
+#[test]
+fn the_readme_and_the_design_doc_state_the_layer_order() {
+    for document in ["README.md", "docs/design.md"] {
+        let levels: Vec<usize> = stated_order(document)
+            .iter()
+            .filter_map(|name| LAYERS.iter().position(|l| l == name))
+            .collect();
+        assert!(
+            levels.len() >= 12,
+            "{document}: only {} layers named in its module table",
+            levels.len()
+        );
+        let out_of_order: Vec<String> = levels
+            .windows(2)
+            .filter(|w| w[0] >= w[1])
+            .map(|w| format!("{} before {}", LAYERS[w[0]], LAYERS[w[1]]))
+            .collect();
+        assert!(
+            out_of_order.is_empty(),
+            "{document} names the modules in another order than LAYERS: {}",
+            out_of_order.join(", ")
+        );
+    }
 }
