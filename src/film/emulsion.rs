@@ -6,6 +6,7 @@ use std::str::FromStr;
 use rayon::prelude::*;
 
 use super::grain::Grain;
+use super::spectral::PrintingDensity;
 use super::{Curve, FilmError, Kind, Options, Stock, optics};
 use crate::display::{Depth, DisplayImage, luminance, srgb_encode, srgb_encode_u16, to_8bit};
 use crate::radiance::{self, CodePairs, RadianceMap, RadianceSource};
@@ -253,6 +254,8 @@ pub struct Emulsion {
     halation: Option<(f32, f64)>,
     /// The printer light per channel (log10), for a negative.
     printer_light: Option<[f64; 3]>,
+    /// A negative's Status M → printing density conversion on its paper.
+    printing_density: Option<PrintingDensity>,
 }
 
 impl Emulsion {
@@ -300,20 +303,26 @@ impl Emulsion {
             Kind::Reversal => (None, None),
             Kind::Negative => {
                 let print = options.print_setup()?;
-                let key_density =
-                    [0, 1, 2].map(|c| stock.layer(c).density((f64::from(scale[c]) * key).log10()));
+                let printing = PrintingDensity::new(stock, &print.paper)?;
+                let key_density = [0, 1, 2].map(|c| {
+                    let d = stock.layer(c).density((f64::from(scale[c]) * key).log10());
+                    printing.of(c, d)
+                });
                 let light = print.printer_light(key_density);
-                (Some(print), Some(light))
+                (Some((print, printing)), Some(light))
             }
         };
-        // Linear display light of density `d` in layer `c`: the slide's transmittance or
-        // the print's reflectance, over the base / paper white.
+        // Linear display light of Status A/M density `d` in layer `c`: the slide's
+        // transmittance or the print's reflectance, over the base / paper white.
         let linear = |c: usize, d: f64| -> f64 {
             match (&print, printer_light) {
-                (Some(print), Some(light)) => print.reflectance(c, light[c], d),
+                (Some((print, printing)), Some(light)) => {
+                    print.reflectance(c, light[c], printing.of(c, d))
+                }
                 _ => 10f64.powf(-(d - stock.layer(c).d_min())),
             }
         };
+        let printing_density = print.as_ref().map(|(_, p)| p.clone());
         let display = [0, 1, 2].map(|c| {
             ExposureTable::new(stock.layer(c), |d| {
                 (srgb_encode(linear(c, d) as f32) * 65535.0).round() as u16
@@ -375,12 +384,19 @@ impl Emulsion {
             kernels,
             halation,
             printer_light,
+            printing_density,
         })
     }
 
     /// The printer light `L_c` (log10) of a negative, `None` for a slide.
     pub fn printer_light(&self) -> Option<[f64; 3]> {
         self.printer_light
+    }
+
+    /// A negative's Status M → printing density conversion on its paper, `None` for a
+    /// slide.
+    pub fn printing_density(&self) -> Option<&PrintingDensity> {
+        self.printing_density.as_ref()
     }
 
     /// Whether the look needs the optics pass ([`Emulsion::expose`]) before developing.
