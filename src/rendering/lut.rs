@@ -537,7 +537,7 @@ pub fn film_lut(look: &Look, spec: LutSpec) -> Result<Lut, RenderingError> {
         }
     };
     Ok(Lut {
-        title: format!("filmback {} {}", look.name(), part_label(spec.part)),
+        title: format!("filmback {}{}", look.name(), part_label(spec.part)),
         comments: comments(stock, *exposure, spec),
         size,
         table,
@@ -595,8 +595,8 @@ fn print_table(
 fn part_label(part: LutPart) -> &'static str {
     match part {
         LutPart::Whole => "",
-        LutPart::Negative => "(negative)",
-        LutPart::Print => "(print)",
+        LutPart::Negative => " (negative)",
+        LutPart::Print => " (print)",
     }
 }
 
