@@ -15,6 +15,7 @@ mod daemon;
 mod demosaic;
 mod film;
 mod layers;
+mod lut;
 mod merge;
 mod raw;
 mod real_files;

@@ -499,6 +499,56 @@ fn negative_through_print_is_neutral_at_mid_grey_and_monotone() {
     }
 }
 
+/// The grey scale of every negative on every paper stays grey off the key: CIELAB of the
+/// print of a neutral ramp from −2 to +2 stops (16 steps a stop) within |a*|, |b*| ≤ 3.
+#[test]
+fn negatives_print_a_grey_scale_grey_from_two_stops_under_to_two_over() {
+    const LIMIT: f64 = 3.0;
+    let cat = catalogue();
+    let map = ramp(16 * 48);
+    let key_pixel = 16 * 40;
+    let mut checked = 0;
+    let mut failures = Vec::new();
+    for stock in cat.stocks().iter().filter(|s| s.kind == Kind::Negative) {
+        for paper in filmback::film::Paper::builtin() {
+            let request = format!("{}+paper={}", stock.id, paper.id);
+            let look = Look::film(&cat, &request, ColourMode::PerLayer, Key::Grey(1.0)).unwrap();
+            let img = look
+                .render(&map, filmback::display::Depth::Sixteen)
+                .unwrap();
+            let s = img.samples();
+            let (mut worst_a, mut worst_b) = (0.0f64, 0.0f64);
+            let mut profile = String::new();
+            for i in key_pixel - 32..=key_pixel + 32 {
+                let [_, a, b] = lab(&s[i * 3..i * 3 + 3]);
+                worst_a = worst_a.max(a.abs());
+                worst_b = worst_b.max(b.abs());
+                let stops = (i as f64 - key_pixel as f64) / 16.0;
+                profile += &format!(" {stops:+.2}:{a:+.1}/{b:+.1}");
+            }
+            let at = |stops: i32| {
+                let i = (key_pixel as i32 + 16 * stops) as usize;
+                lab(&s[i * 3..i * 3 + 3])
+            };
+            println!(
+                "{request}: −1 stop a* {:+.2} b* {:+.2}, +1 stop a* {:+.2} b* {:+.2}; worst over ±2 stops |a*| {worst_a:.2} |b*| {worst_b:.2}",
+                at(-1)[1],
+                at(-1)[2],
+                at(1)[1],
+                at(1)[2]
+            );
+            if !(worst_a <= LIMIT && worst_b <= LIMIT) {
+                failures.push(format!(
+                    "{request}: |a*| {worst_a:.2}, |b*| {worst_b:.2} within ±2 stops; stops:a*/b*{profile}"
+                ));
+            }
+            checked += 1;
+        }
+    }
+    assert_eq!(checked, 4, "two negatives on two papers");
+    assert!(failures.is_empty(), "{}", failures.join("\n"));
+}
+
 #[test]
 fn print_exposure_and_filter_pack_move_the_print_as_in_the_darkroom() {
     let cat = catalogue();
@@ -675,13 +725,13 @@ fn slanted_edge_mtf(cat: &Catalogue, stock: &Stock, c: usize, frequencies: &[f64
     let curve = stock.layer(c);
     let log_h = |v: u16| -> f64 {
         let linear = srgb_decode(v).max(1e-9);
-        let d = match emulsion.printer_light() {
-            None => curve.d_min() - linear.log10(),
-            Some(light) => {
+        let d = match (emulsion.printer_light(), emulsion.printing_density()) {
+            (Some(light), Some(printing)) => {
                 let pc = paper.layer(c);
                 let x = pc.log_h_at(pc.d_min() - linear.log10()).unwrap();
-                light[c] - x
+                printing.status_m(c, light[c] - x)
             }
+            _ => curve.d_min() - linear.log10(),
         };
         curve.log_h_at(d).unwrap()
     };

@@ -10,6 +10,9 @@ use image::Rgb;
 use filmback::atomic::Overwrite;
 use filmback::film::{Catalogue, ColourMode, Key, Stock};
 use filmback::rendering::Look;
+use filmback::rendering::lut::{
+    self, InputEncoding, LUT_MID_GREY, LutPart, LutSpec, OutputEncoding,
+};
 use filmback::tonemap::Operator;
 
 use super::canvas::Canvas;
@@ -30,8 +33,26 @@ pub struct Args {
     /// 1/4, Velvia 50, Ektachrome 100, P1600 at t = 1/8, linear, histogram).
     #[arg(long, conflicts_with = "plot")]
     contact_sheet: bool,
-    /// Output PNG for --plot or --contact-sheet.
-    #[arg(short, long, value_name = "FILE.png")]
+    /// Write this film look as a 3D LUT (`.cube`): `velvia50`, `provia400@1/2`,
+    /// `portra400+print=-1/3+paper=portra-endura` (per-pixel options only).
+    #[arg(long, value_name = "STOCK[@t][+print=...]", conflicts_with_all = ["plot", "contact_sheet"])]
+    lut: Option<String>,
+    /// The LUT's grid points per axis: 33 or 65.
+    #[arg(long, default_value_t = 65, requires = "lut")]
+    lut_size: usize,
+    /// The LUT's input encoding: linear-log (filmback's log2 shaper, working primaries),
+    /// acescct (AP1), logc4 (ARRI Wide Gamut 4), slog3 (S-Gamut3.Cine).
+    #[arg(long, default_value = "acescct", requires = "lut")]
+    input: String,
+    /// The LUT's display encoding: rec709 (BT.1886 gamma 2.4), srgb, p3 (Display P3).
+    #[arg(long, default_value = "rec709", requires = "lut")]
+    display: String,
+    /// For a negative: two LUTs, FILE.negative.cube (scene → Cineon printing density)
+    /// and FILE.print.cube (Cineon → display), instead of one.
+    #[arg(long, requires = "lut")]
+    split: bool,
+    /// Output PNG for --plot or --contact-sheet; the .cube for --lut.
+    #[arg(short, long, value_name = "FILE")]
     output: Option<PathBuf>,
 }
 
@@ -40,6 +61,9 @@ pub fn run(args: Args) -> Result<std::process::ExitCode> {
     let mut catalogue = Catalogue::builtin()?;
     if let Some(dir) = &args.curves {
         catalogue = catalogue.with_folder(dir)?;
+    }
+    if let Some(request) = &args.lut {
+        return write_luts(&catalogue, request, &args);
     }
     if !args.plot.is_empty() || args.contact_sheet {
         let Some(output) = &args.output else {
@@ -120,6 +144,43 @@ pub fn run(args: Args) -> Result<std::process::ExitCode> {
             out,
             "computed: reversal ISO 2240 from the green curve, S = 10/sqrt(H1·H2), H1 at D-min+0.2, H2 at D-min+2.0; negative ISO 5800 speed point only, S = 0.8/H at D-min+0.1"
         )?;
+    }
+    Ok(std::process::ExitCode::SUCCESS)
+}
+
+/// `--lut`: the look's `.cube` (or, with `--split`, the negative's and the print's).
+fn write_luts(catalogue: &Catalogue, request: &str, args: &Args) -> Result<std::process::ExitCode> {
+    let Some(output) = &args.output else {
+        bail!("--lut needs -o FILE.cube");
+    };
+    let look = Look::film(
+        catalogue,
+        request,
+        ColourMode::PerLayer,
+        Key::Grey(LUT_MID_GREY),
+    )
+    .with_context(|| format!("--lut {request}"))?;
+    let input: InputEncoding = args.input.parse().context("--input")?;
+    let display: OutputEncoding = args.display.parse().context("--display")?;
+    let spec = |part| LutSpec {
+        size: args.lut_size,
+        input,
+        output: display,
+        part,
+    };
+    let parts: Vec<(LutPart, PathBuf)> = if args.split {
+        let stem = output.with_extension("");
+        vec![
+            (LutPart::Negative, stem.with_extension("negative.cube")),
+            (LutPart::Print, stem.with_extension("print.cube")),
+        ]
+    } else {
+        vec![(LutPart::Whole, output.clone())]
+    };
+    for (part, path) in parts {
+        let lut = lut::film_lut(&look, spec(part)).with_context(|| format!("--lut {request}"))?;
+        lut.publish(&path, Overwrite::Replace)?;
+        println!("{}", path.display());
     }
     Ok(std::process::ExitCode::SUCCESS)
 }

@@ -6,6 +6,8 @@ use std::str::FromStr;
 use rayon::prelude::*;
 
 use super::grain::Grain;
+use super::print::PrintSetup;
+use super::spectral::PrintingDensity;
 use super::{Curve, FilmError, Kind, Options, Stock, optics};
 use crate::display::{Depth, DisplayImage, luminance, srgb_encode, srgb_encode_u16, to_8bit};
 use crate::radiance::{self, CodePairs, RadianceMap, RadianceSource};
@@ -233,6 +235,38 @@ struct Grained {
     from_density: [DensityTable; 3],
 }
 
+/// A negative's print as set for one map: the paper and knobs, the Status M → printing
+/// density conversion, and the printer light that prints the key at mid grey.
+struct Printer {
+    setup: PrintSetup,
+    printing: PrintingDensity,
+    light: [f64; 3],
+}
+
+impl Printer {
+    /// The printer for `stock` exposed at `scale` (lux·s per unit radiance) on a map whose
+    /// key is `key`: `L_c` from the printing densities of the key ([`super::print`]).
+    fn new(
+        stock: &Stock,
+        options: &Options,
+        scale: &[f32; 3],
+        key: f64,
+    ) -> Result<Printer, FilmError> {
+        let setup = options.print_setup()?;
+        let printing = PrintingDensity::new(stock, &setup.paper)?;
+        let key_density = [0, 1, 2].map(|c| {
+            let d = stock.layer(c).density((f64::from(scale[c]) * key).log10());
+            printing.of(c, d)
+        });
+        let light = setup.printer_light(key_density);
+        Ok(Printer {
+            setup,
+            printing,
+            light,
+        })
+    }
+}
+
 /// Everything the per-pixel loop needs for one stock, exposure, colour mode and options.
 #[derive(Debug, Clone)]
 pub struct Emulsion {
@@ -253,6 +287,8 @@ pub struct Emulsion {
     halation: Option<(f32, f64)>,
     /// The printer light per channel (log10), for a negative.
     printer_light: Option<[f64; 3]>,
+    /// A negative's Status M → printing density conversion on its paper.
+    printing_density: Option<PrintingDensity>,
 }
 
 impl Emulsion {
@@ -296,24 +332,20 @@ impl Emulsion {
                 }
             }
         }
-        let (print, printer_light) = match stock.kind {
-            Kind::Reversal => (None, None),
-            Kind::Negative => {
-                let print = options.print_setup()?;
-                let key_density =
-                    [0, 1, 2].map(|c| stock.layer(c).density((f64::from(scale[c]) * key).log10()));
-                let light = print.printer_light(key_density);
-                (Some(print), Some(light))
-            }
+        let print = match stock.kind {
+            Kind::Reversal => None,
+            Kind::Negative => Some(Printer::new(stock, options, &scale, key)?),
         };
-        // Linear display light of density `d` in layer `c`: the slide's transmittance or
-        // the print's reflectance, over the base / paper white.
+        // Linear display light of Status A/M density `d` in layer `c`: the slide's
+        // transmittance or the print's reflectance, over the base / paper white.
         let linear = |c: usize, d: f64| -> f64 {
-            match (&print, printer_light) {
-                (Some(print), Some(light)) => print.reflectance(c, light[c], d),
-                _ => 10f64.powf(-(d - stock.layer(c).d_min())),
+            match &print {
+                Some(p) => p.setup.reflectance(c, p.light[c], p.printing.of(c, d)),
+                None => 10f64.powf(-(d - stock.layer(c).d_min())),
             }
         };
+        let printer_light = print.as_ref().map(|p| p.light);
+        let printing_density = print.as_ref().map(|p| p.printing.clone());
         let display = [0, 1, 2].map(|c| {
             ExposureTable::new(stock.layer(c), |d| {
                 (srgb_encode(linear(c, d) as f32) * 65535.0).round() as u16
@@ -375,12 +407,19 @@ impl Emulsion {
             kernels,
             halation,
             printer_light,
+            printing_density,
         })
     }
 
     /// The printer light `L_c` (log10) of a negative, `None` for a slide.
     pub fn printer_light(&self) -> Option<[f64; 3]> {
         self.printer_light
+    }
+
+    /// A negative's Status M → printing density conversion on its paper, `None` for a
+    /// slide.
+    pub fn printing_density(&self) -> Option<&PrintingDensity> {
+        self.printing_density.as_ref()
     }
 
     /// Whether the look needs the optics pass ([`Emulsion::expose`]) before developing.

@@ -31,6 +31,7 @@ mod emulsion;
 pub mod grain;
 pub mod optics;
 pub mod print;
+pub mod spectral;
 mod stock;
 
 use std::fmt;
@@ -43,6 +44,7 @@ pub use emulsion::{
     ColourMode, Emulsion, Exposure, ExposureTable, Key, TABLE_MAX_ERROR_D, render, scene_key,
 };
 pub use print::{FilterPack, Paper, PrintSetup};
+pub use spectral::PrintingDensity;
 pub use stock::{Catalogue, Curve, DensityReference, Granularity, Mtf, Speed, Stock};
 
 /// Why a stock could not be loaded or a rendering could not be made.

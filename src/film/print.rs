@@ -1,13 +1,15 @@
 //! Colour negatives through a print: the paper's characteristic curves and the printer's
 //! light.
 //!
-//! A negative's layer `c` has density `D_n,c(log10 H_c)` (Status M). The printer shines a
-//! light through it onto colour paper; each negative dye layer modulates the paper layer
-//! that forms the complementary dye (Status M is defined so that this holds; the small
-//! cross-talk between layers is not modelled). The paper's exposure, in log10 lux·s on the
-//! paper sheet's axis, is
+//! A negative's layer `c` has Status M density `D_n,c(log10 H_c)` (its sheet's curve). The
+//! paper sees it through its own spectral sensitivity, as the printing density above the
+//! film's minimum `P_c = s_c·(D_n,c − D_min,c)` ([`super::spectral`]: `s_c` from the
+//! film's spectral densities and the paper's spectral sensitivity). Each negative dye
+//! layer modulates the paper layer that forms the complementary dye (the small cross-talk
+//! between layers is not modelled). The paper's exposure, in log10 lux·s on the paper
+//! sheet's axis, is
 //!
-//! `log10 H_p,c = L_c − D_n,c`
+//! `log10 H_p,c = L_c − P_c`
 //!
 //! where `L_c` is the printer light of channel `c` (log10, the filter pack included). The
 //! print is viewed by reflection: `R_c = 10^−(D_p,c(log10 H_p,c) − D_min,p,c)`, paper
@@ -16,10 +18,13 @@
 //! **Setting the printer** as a printer does: the scene's key (the metered mid grey) is
 //! printed at the paper's mid grey, 18 % reflectance over paper white
 //! (`D_p,c = D_min,p,c + log10(1/0.18) = D_min,p,c + 0.745`), in every layer, so it is
-//! neutral: `L_c = D_p,c⁻¹(D_min,p,c + 0.745) + D_n,c(log10 H_key,c)`. Like an automatic
+//! neutral: `L_c = D_p,c⁻¹(D_min,p,c + 0.745) + P_c(log10 H_key,c)`. Like an automatic
 //! printer that integrates the negative's density, this prints an under- or over-exposed
 //! negative back to the same mid grey: the film exposure `t` shows in the tone scale's
-//! shape (shadow and highlight compression), not in the print's brightness.
+//! shape (shadow and highlight compression), not in the print's brightness. Off the key,
+//! the grey scale stays grey as far as the three layers' printing densities grow alike
+//! (within 10 % for the built-in negatives on their papers; their Status M densities
+//! do not: the blue grows 1.2× as fast as the green).
 //!
 //! **The photographer's knobs**: the print exposure `P` in stops (`L_c += log10 2^P`:
 //! more printing light gives a denser, darker print) and a filter pack change in Kodak
@@ -34,6 +39,7 @@ use std::sync::LazyLock;
 
 use serde::Deserialize;
 
+use super::spectral::{Sensitivity, SensitivityFile};
 use super::stock::{LayerFile, validate_layer};
 use super::{Curve, FilmError, Kind, LAYERS};
 
@@ -53,6 +59,9 @@ pub struct Paper {
     pub density_measure: String,
     /// The data sheet the curves were read from.
     pub source: String,
+    /// The layers' spectral sensitivity, if given: what a negative's printing density is
+    /// measured by ([`super::spectral`]).
+    pub sensitivity: Option<Sensitivity>,
     layers: [Curve; 3],
 }
 
@@ -65,6 +74,7 @@ struct PaperFile {
     density: String,
     source: String,
     layers: LayerFile,
+    sensitivity: Option<SensitivityFile>,
 }
 
 /// The built-in papers, embedded at build time; the first is the default.
@@ -112,6 +122,7 @@ impl Paper {
             maker: file.maker,
             density_measure: file.density,
             source: file.source,
+            sensitivity: file.sensitivity.map(|s| s.check(origin)).transpose()?,
             layers: layers.map(|p| Curve::new(&p)),
         })
     }
@@ -209,7 +220,7 @@ impl Default for PrintSetup {
 }
 
 impl PrintSetup {
-    /// The printer light `L_c` (log10) per channel for a negative whose layer densities
+    /// The printer light `L_c` (log10) per channel for a negative whose printing densities
     /// at the scene's key are `key_density`: mid grey at `D_min,p + 0.745`, plus the print
     /// exposure, minus the filter pack's density in that channel.
     pub fn printer_light(&self, key_density: [f64; 3]) -> [f64; 3] {
@@ -224,8 +235,9 @@ impl PrintSetup {
         })
     }
 
-    /// Print reflectance over paper white, `R_c = 10^−(D_p,c(L_c − D_n) − D_min,p,c)`, of
-    /// a negative density `d_neg` in channel `c` under printer light `light` (log10).
+    /// Print reflectance over paper white, `R_c = 10^−(D_p,c(L_c − P) − D_min,p,c)`, of
+    /// a negative's printing density `d_neg` (`P`) in channel `c` under printer light
+    /// `light` (log10).
     pub fn reflectance(&self, c: usize, light: f64, d_neg: f64) -> f64 {
         let curve = self.paper.layer(c);
         10f64.powf(-(curve.density(light - d_neg) - curve.d_min()))

@@ -5,6 +5,7 @@ use std::path::{Path, PathBuf};
 
 use serde::Deserialize;
 
+use super::spectral::{SpectralDensity, SpectralDensityFile};
 use super::{FilmError, Kind, LAYERS};
 
 /// A characteristic curve: density `D` against `log10 H` (H in lux·s), interpolated by a
@@ -169,6 +170,9 @@ pub struct Stock {
     pub granularity: Option<Granularity>,
     /// The sheet's modulation transfer function per layer, if it gives one.
     pub mtf: Option<Mtf>,
+    /// A negative's spectral densities (minimum and midscale neutral), if given: what
+    /// converts its Status M curves to a paper's printing densities.
+    pub spectral_density: Option<SpectralDensity>,
     layers: [Curve; 3],
 }
 
@@ -267,6 +271,7 @@ struct StockFile {
     layers: LayerFile,
     grain: Option<Granularity>,
     mtf: Option<MtfFile>,
+    spectral_density: Option<SpectralDensityFile>,
 }
 
 #[derive(Deserialize)]
@@ -325,7 +330,10 @@ impl Stock {
         let mut curves = Vec::with_capacity(3);
         for (name, points) in LAYERS.iter().zip(&layers) {
             validate_layer(origin, name, file.kind, points)?;
-            curves.push(Curve::new(points));
+            curves.push(match file.kind {
+                Kind::Reversal => Curve::new(points),
+                Kind::Negative => Curve::new(&smooth_readings(points)),
+            });
         }
         let [red, green, blue]: [Curve; 3] = curves
             .try_into()
@@ -347,6 +355,7 @@ impl Stock {
             ));
         }
         let mtf = file.mtf.map(|m| check_mtf(m, origin)).transpose()?;
+        let spectral_density = file.spectral_density.map(|s| s.check(origin)).transpose()?;
         Ok(Stock {
             id: file.id,
             name: file.name,
@@ -359,6 +368,7 @@ impl Stock {
             origin: origin.to_path_buf(),
             granularity: file.grain,
             mtf,
+            spectral_density,
             layers: [red, green, blue],
         })
     }
@@ -454,6 +464,27 @@ fn check_mtf(m: MtfFile, origin: &Path) -> Result<Mtf, FilmError> {
         layers: layers.map(|l| l.into_iter().map(|v| v / 100.0).collect()),
         source: m.source,
     })
+}
+
+/// A negative's readings with their rounding smoothed: each interior point becomes
+/// `D'_i = ½·D_i + ½·D̂_i`, `D̂_i` the straight line through its neighbours at `log H_i`
+/// (the binomial filter `[¼, ½, ¼]` on evenly spaced points); the end points are kept.
+///
+/// Why: the sheets' readings are rounded to 0.01 D every 0.1 log H, so the slope between
+/// two readings is off by up to ±0.1 (a fifth of a negative's gradient of about 0.6),
+/// and a print multiplies a negative's density by the paper's gradient (about 4): the
+/// rounding alone swings a grey scale's print by up to 4 ΔE within a stop. The filter
+/// keeps a straight line exactly, keeps monotone readings monotone, moves a point by
+/// `h²/4·D''` (0.001–0.004 D in the toe at `h` = 0.1) and halves the rounding's slope
+/// noise. Slides are viewed directly (gradient 1) and keep their readings.
+pub(super) fn smooth_readings(points: &[(f64, f64)]) -> Vec<(f64, f64)> {
+    let mut out = points.to_vec();
+    for (i, w) in points.windows(3).enumerate() {
+        let [(x0, d0), (x, d), (x1, d1)] = [w[0], w[1], w[2]];
+        let line = d0 + (d1 - d0) * (x - x0) / (x1 - x0);
+        out[i + 1].1 = 0.5 * d + 0.5 * line;
+    }
+    out
 }
 
 pub(super) fn validate_layer(

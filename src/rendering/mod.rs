@@ -20,6 +20,7 @@ use crate::tonemap;
 
 mod encode;
 mod jpeg;
+pub mod lut;
 mod source_exif;
 
 pub use encode::{Format, encode, encode_film_jpeg, encode_look, write};
