@@ -74,6 +74,49 @@ pub fn is_temporary(path: &Path) -> bool {
         .is_some_and(|n| n.starts_with('.') && n.contains(".filmback-tmp-"))
 }
 
+/// Longest file name, in bytes, that Linux file systems take (`NAME_MAX` of ext4, XFS,
+/// Btrfs, tmpfs).
+pub const NAME_MAX: usize = 255;
+
+/// Bytes [`temporary_name`] adds to a name: a leading `.`, `.filmback-tmp-` and a process
+/// id of up to 10 digits.
+pub const TEMPORARY_EXTRA: usize = 1 + ".filmback-tmp-".len() + 10;
+
+/// Bytes kept for what follows an output stem: the longest look and extension
+/// (`.provia400-t0.5+grain+mtf.jpg` is 29) with room for stock names of one's own.
+pub const SUFFIX_ROOM: usize = 64;
+
+/// Longest output stem, in bytes: a stem, [`SUFFIX_ROOM`] and [`TEMPORARY_EXTRA`] fit in
+/// [`NAME_MAX`].
+pub const MAX_STEM: usize = NAME_MAX - SUFFIX_ROOM - TEMPORARY_EXTRA;
+
+/// The output stem for `stem`: `stem` itself when it has at most [`MAX_STEM`] bytes, else
+/// its first bytes (cut at a character boundary), `~` and the 16 hex digits of
+/// [`name_digest`] of the whole stem, [`MAX_STEM`] bytes at most in all: two long names
+/// that differ only in their tails keep different stems.
+pub fn fitting_stem(stem: &str) -> std::borrow::Cow<'_, str> {
+    if stem.len() <= MAX_STEM {
+        return stem.into();
+    }
+    let digest = name_digest(stem.as_bytes());
+    let mut end = MAX_STEM - 1 - digest.len();
+    while !stem.is_char_boundary(end) {
+        end -= 1;
+    }
+    format!("{}~{digest}", &stem[..end]).into()
+}
+
+/// FNV-1a (64 bit) of `bytes` as 16 lower-case hex digits: a short name for them, the
+/// same on every platform and in every version (unlike the standard library's hasher).
+pub fn name_digest(bytes: &[u8]) -> String {
+    let mut h: u64 = 0xcbf2_9ce4_8422_2325;
+    for &b in bytes {
+        h ^= u64::from(b);
+        h = h.wrapping_mul(0x0000_0100_0000_01b3);
+    }
+    format!("{h:016x}")
+}
+
 /// Writes the bytes that `produce` streams into the file, then publishes it at `path`.
 pub fn publish_with<F>(path: &Path, overwrite: Overwrite, produce: F) -> Result<(), PublishError>
 where
@@ -367,6 +410,26 @@ pub fn recover_sets(dir: &Path) -> Vec<Recovered> {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn long_stems_are_shortened_to_fit_a_file_name() {
+        let short = "IMG_0001";
+        assert_eq!(fitting_stem(short), short);
+        let at_limit = "a".repeat(MAX_STEM);
+        assert_eq!(fitting_stem(&at_limit), at_limit);
+        let long = format!("{}-1", "é".repeat(120));
+        let other = format!("{}-2", "é".repeat(120));
+        let (a, b) = (fitting_stem(&long), fitting_stem(&other));
+        assert!(a.len() <= MAX_STEM && b.len() <= MAX_STEM, "{a}");
+        assert_ne!(a, b, "the digest tells the names apart");
+        assert!(a.starts_with("éé") && a.contains('~'), "{a}");
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir
+            .path()
+            .join(format!("{a}.{}", "x".repeat(SUFFIX_ROOM - 1)));
+        publish(&path, b"fits", Overwrite::Refuse).unwrap();
+        assert_eq!(fs::read(&path).unwrap(), b"fits");
+    }
 
     #[test]
     fn a_rename_that_cannot_replace_leaves_both_files() {
