@@ -19,6 +19,7 @@
 
 use std::fs::{self, File};
 use std::io::{self, Write};
+use std::os::unix::ffi::OsStrExt;
 use std::path::{Path, PathBuf};
 
 /// Whether an existing file under the final name may be replaced.
@@ -319,7 +320,11 @@ pub fn publish_set(stage: &Path, dir: &Path) -> Result<Vec<PathBuf>, PublishErro
     result
 }
 
-fn publish_staged(stage: &Path, dir: &Path) -> Result<Vec<PathBuf>, PublishError> {
+/// Seals the set in the staging folder `stage`: syncs its files, then writes the marker
+/// that says the set is complete, listing their names one per line (what
+/// [`interrupted_sets`] compares with what is left to move). Returns the files, sorted.
+/// From here on the set belongs in the destination: [`recover_sets`] finishes it.
+pub fn seal_set(stage: &Path) -> Result<Vec<PathBuf>, PublishError> {
     let io_err = |path: &Path| {
         let path = path.to_path_buf();
         move |source| PublishError::Io { path, source }
@@ -330,10 +335,25 @@ fn publish_staged(stage: &Path, dir: &Path) -> Result<Vec<PathBuf>, PublishError
             .and_then(|h| h.sync_all())
             .map_err(io_err(f))?;
     }
+    let mut manifest = Vec::new();
+    for f in &files {
+        if let Some(name) = f.file_name() {
+            manifest.extend_from_slice(name.as_bytes());
+            manifest.push(b'\n');
+        }
+    }
     File::create(stage.join(COMPLETE))
-        .and_then(|h| h.sync_all())
+        .and_then(|mut h| {
+            h.write_all(&manifest)?;
+            h.sync_all()
+        })
         .map_err(io_err(stage))?;
     sync_folder(stage);
+    Ok(files)
+}
+
+fn publish_staged(stage: &Path, dir: &Path) -> Result<Vec<PathBuf>, PublishError> {
+    let files = seal_set(stage)?;
     // Hard links to the files the set replaces (best effort: without them an undo
     // removes the new files but cannot restore the old ones).
     let previous = stage.join(PREVIOUS);
@@ -374,21 +394,72 @@ pub enum Recovered {
     RolledBack(PathBuf),
 }
 
-/// Finishes or removes the staging folders an interrupted [`publish_set`] left in `dir`.
-pub fn recover_sets(dir: &Path) -> Vec<Recovered> {
+/// A set whose publication was interrupted between its renames (the process killed):
+/// part of it is visible in the destination, the rest waits in its staging folder until
+/// [`recover_sets`] moves it.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct InterruptedSet {
+    /// The staging folder.
+    pub stage: PathBuf,
+    /// Files of the set already under their final names.
+    pub published: Vec<PathBuf>,
+    /// Files still in the staging folder, by their final names.
+    pub pending: Vec<PathBuf>,
+}
+
+/// The sets in `dir` whose publication was interrupted between renames, read without
+/// changing anything (for `filmback status`): sealed staging folders ([`seal_set`]) with
+/// the names their marker lists split into those already in `dir` and those still
+/// staged. A folder sealed by an earlier version (an empty marker) lists no published
+/// files.
+pub fn interrupted_sets(dir: &Path) -> Vec<InterruptedSet> {
+    let mut sets = Vec::new();
+    for stage in stage_folders(dir) {
+        let Ok(manifest) = fs::read(stage.join(COMPLETE)) else {
+            continue;
+        };
+        let pending: Vec<PathBuf> = staged(&stage)
+            .unwrap_or_default()
+            .iter()
+            .filter_map(|f| f.file_name().map(|n| dir.join(n)))
+            .collect();
+        let published: Vec<PathBuf> = manifest
+            .split(|&b| b == b'\n')
+            .filter(|n| !n.is_empty())
+            .map(|n| dir.join(std::ffi::OsStr::from_bytes(n)))
+            .filter(|p| !pending.contains(p) && p.is_file())
+            .collect();
+        sets.push(InterruptedSet {
+            stage,
+            published,
+            pending,
+        });
+    }
+    sets.sort_by(|a, b| a.stage.cmp(&b.stage));
+    sets
+}
+
+/// The staging folders of [`publish_set`] in `dir` (folders, not links).
+fn stage_folders(dir: &Path) -> Vec<PathBuf> {
     let Ok(entries) = fs::read_dir(dir) else {
         return Vec::new();
     };
+    entries
+        .filter_map(Result::ok)
+        .map(|e| e.path())
+        .filter(|p| {
+            p.file_name()
+                .and_then(|n| n.to_str())
+                .is_some_and(|n| n.starts_with(STAGE_PREFIX))
+                && fs::symlink_metadata(p).is_ok_and(|m| m.is_dir())
+        })
+        .collect()
+}
+
+/// Finishes or removes the staging folders an interrupted [`publish_set`] left in `dir`.
+pub fn recover_sets(dir: &Path) -> Vec<Recovered> {
     let mut done = Vec::new();
-    for stage in entries.filter_map(Result::ok).map(|e| e.path()) {
-        let is_stage = stage
-            .file_name()
-            .and_then(|n| n.to_str())
-            .is_some_and(|n| n.starts_with(STAGE_PREFIX));
-        let is_folder = fs::symlink_metadata(&stage).is_ok_and(|m| m.is_dir());
-        if !is_stage || !is_folder {
-            continue;
-        }
+    for stage in stage_folders(dir) {
         if stage.join(COMPLETE).is_file() {
             let mut moved = Vec::new();
             for from in staged(&stage).unwrap_or_default() {
