@@ -19,6 +19,7 @@
 
 use std::fs::{self, File};
 use std::io::{self, Write};
+use std::os::unix::ffi::OsStrExt;
 use std::path::{Path, PathBuf};
 
 /// Whether an existing file under the final name may be replaced.
@@ -72,6 +73,49 @@ pub fn is_temporary(path: &Path) -> bool {
     path.file_name()
         .and_then(|n| n.to_str())
         .is_some_and(|n| n.starts_with('.') && n.contains(".filmback-tmp-"))
+}
+
+/// Longest file name, in bytes, that Linux file systems take (`NAME_MAX` of ext4, XFS,
+/// Btrfs, tmpfs).
+pub const NAME_MAX: usize = 255;
+
+/// Bytes [`temporary_name`] adds to a name: a leading `.`, `.filmback-tmp-` and a process
+/// id of up to 10 digits.
+pub const TEMPORARY_EXTRA: usize = 1 + ".filmback-tmp-".len() + 10;
+
+/// Bytes kept for what follows an output stem: the longest look and extension
+/// (`.provia400-t0.5+grain+mtf.jpg` is 29) with room for stock names of one's own.
+pub const SUFFIX_ROOM: usize = 64;
+
+/// Longest output stem, in bytes: a stem, [`SUFFIX_ROOM`] and [`TEMPORARY_EXTRA`] fit in
+/// [`NAME_MAX`].
+pub const MAX_STEM: usize = NAME_MAX - SUFFIX_ROOM - TEMPORARY_EXTRA;
+
+/// The output stem for `stem`: `stem` itself when it has at most [`MAX_STEM`] bytes, else
+/// its first bytes (cut at a character boundary), `~` and the 16 hex digits of
+/// [`name_digest`] of the whole stem, [`MAX_STEM`] bytes at most in all: two long names
+/// that differ only in their tails keep different stems.
+pub fn fitting_stem(stem: &str) -> std::borrow::Cow<'_, str> {
+    if stem.len() <= MAX_STEM {
+        return stem.into();
+    }
+    let digest = name_digest(stem.as_bytes());
+    let mut end = MAX_STEM - 1 - digest.len();
+    while !stem.is_char_boundary(end) {
+        end -= 1;
+    }
+    format!("{}~{digest}", &stem[..end]).into()
+}
+
+/// FNV-1a (64 bit) of `bytes` as 16 lower-case hex digits: a short name for them, the
+/// same on every platform and in every version (unlike the standard library's hasher).
+pub fn name_digest(bytes: &[u8]) -> String {
+    let mut h: u64 = 0xcbf2_9ce4_8422_2325;
+    for &b in bytes {
+        h ^= u64::from(b);
+        h = h.wrapping_mul(0x0000_0100_0000_01b3);
+    }
+    format!("{h:016x}")
 }
 
 /// Writes the bytes that `produce` streams into the file, then publishes it at `path`.
@@ -276,7 +320,11 @@ pub fn publish_set(stage: &Path, dir: &Path) -> Result<Vec<PathBuf>, PublishErro
     result
 }
 
-fn publish_staged(stage: &Path, dir: &Path) -> Result<Vec<PathBuf>, PublishError> {
+/// Seals the set in the staging folder `stage`: syncs its files, then writes the marker
+/// that says the set is complete, listing their names one per line (what
+/// [`interrupted_sets`] compares with what is left to move). Returns the files, sorted.
+/// From here on the set belongs in the destination: [`recover_sets`] finishes it.
+pub fn seal_set(stage: &Path) -> Result<Vec<PathBuf>, PublishError> {
     let io_err = |path: &Path| {
         let path = path.to_path_buf();
         move |source| PublishError::Io { path, source }
@@ -287,10 +335,25 @@ fn publish_staged(stage: &Path, dir: &Path) -> Result<Vec<PathBuf>, PublishError
             .and_then(|h| h.sync_all())
             .map_err(io_err(f))?;
     }
+    let mut manifest = Vec::new();
+    for f in &files {
+        if let Some(name) = f.file_name() {
+            manifest.extend_from_slice(name.as_bytes());
+            manifest.push(b'\n');
+        }
+    }
     File::create(stage.join(COMPLETE))
-        .and_then(|h| h.sync_all())
+        .and_then(|mut h| {
+            h.write_all(&manifest)?;
+            h.sync_all()
+        })
         .map_err(io_err(stage))?;
     sync_folder(stage);
+    Ok(files)
+}
+
+fn publish_staged(stage: &Path, dir: &Path) -> Result<Vec<PathBuf>, PublishError> {
+    let files = seal_set(stage)?;
     // Hard links to the files the set replaces (best effort: without them an undo
     // removes the new files but cannot restore the old ones).
     let previous = stage.join(PREVIOUS);
@@ -331,21 +394,72 @@ pub enum Recovered {
     RolledBack(PathBuf),
 }
 
-/// Finishes or removes the staging folders an interrupted [`publish_set`] left in `dir`.
-pub fn recover_sets(dir: &Path) -> Vec<Recovered> {
+/// A set whose publication was interrupted between its renames (the process killed):
+/// part of it is visible in the destination, the rest waits in its staging folder until
+/// [`recover_sets`] moves it.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct InterruptedSet {
+    /// The staging folder.
+    pub stage: PathBuf,
+    /// Files of the set already under their final names.
+    pub published: Vec<PathBuf>,
+    /// Files still in the staging folder, by their final names.
+    pub pending: Vec<PathBuf>,
+}
+
+/// The sets in `dir` whose publication was interrupted between renames, read without
+/// changing anything (for `filmback status`): sealed staging folders ([`seal_set`]) with
+/// the names their marker lists split into those already in `dir` and those still
+/// staged. A folder sealed by an earlier version (an empty marker) lists no published
+/// files.
+pub fn interrupted_sets(dir: &Path) -> Vec<InterruptedSet> {
+    let mut sets = Vec::new();
+    for stage in stage_folders(dir) {
+        let Ok(manifest) = fs::read(stage.join(COMPLETE)) else {
+            continue;
+        };
+        let pending: Vec<PathBuf> = staged(&stage)
+            .unwrap_or_default()
+            .iter()
+            .filter_map(|f| f.file_name().map(|n| dir.join(n)))
+            .collect();
+        let published: Vec<PathBuf> = manifest
+            .split(|&b| b == b'\n')
+            .filter(|n| !n.is_empty())
+            .map(|n| dir.join(std::ffi::OsStr::from_bytes(n)))
+            .filter(|p| !pending.contains(p) && p.is_file())
+            .collect();
+        sets.push(InterruptedSet {
+            stage,
+            published,
+            pending,
+        });
+    }
+    sets.sort_by(|a, b| a.stage.cmp(&b.stage));
+    sets
+}
+
+/// The staging folders of [`publish_set`] in `dir` (folders, not links).
+fn stage_folders(dir: &Path) -> Vec<PathBuf> {
     let Ok(entries) = fs::read_dir(dir) else {
         return Vec::new();
     };
+    entries
+        .filter_map(Result::ok)
+        .map(|e| e.path())
+        .filter(|p| {
+            p.file_name()
+                .and_then(|n| n.to_str())
+                .is_some_and(|n| n.starts_with(STAGE_PREFIX))
+                && fs::symlink_metadata(p).is_ok_and(|m| m.is_dir())
+        })
+        .collect()
+}
+
+/// Finishes or removes the staging folders an interrupted [`publish_set`] left in `dir`.
+pub fn recover_sets(dir: &Path) -> Vec<Recovered> {
     let mut done = Vec::new();
-    for stage in entries.filter_map(Result::ok).map(|e| e.path()) {
-        let is_stage = stage
-            .file_name()
-            .and_then(|n| n.to_str())
-            .is_some_and(|n| n.starts_with(STAGE_PREFIX));
-        let is_folder = fs::symlink_metadata(&stage).is_ok_and(|m| m.is_dir());
-        if !is_stage || !is_folder {
-            continue;
-        }
+    for stage in stage_folders(dir) {
         if stage.join(COMPLETE).is_file() {
             let mut moved = Vec::new();
             for from in staged(&stage).unwrap_or_default() {
@@ -367,6 +481,26 @@ pub fn recover_sets(dir: &Path) -> Vec<Recovered> {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn long_stems_are_shortened_to_fit_a_file_name() {
+        let short = "IMG_0001";
+        assert_eq!(fitting_stem(short), short);
+        let at_limit = "a".repeat(MAX_STEM);
+        assert_eq!(fitting_stem(&at_limit), at_limit);
+        let long = format!("{}-1", "é".repeat(120));
+        let other = format!("{}-2", "é".repeat(120));
+        let (a, b) = (fitting_stem(&long), fitting_stem(&other));
+        assert!(a.len() <= MAX_STEM && b.len() <= MAX_STEM, "{a}");
+        assert_ne!(a, b, "the digest tells the names apart");
+        assert!(a.starts_with("éé") && a.contains('~'), "{a}");
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir
+            .path()
+            .join(format!("{a}.{}", "x".repeat(SUFFIX_ROOM - 1)));
+        publish(&path, b"fits", Overwrite::Refuse).unwrap();
+        assert_eq!(fs::read(&path).unwrap(), b"fits");
+    }
 
     #[test]
     fn a_rename_that_cannot_replace_leaves_both_files() {

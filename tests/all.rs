@@ -14,6 +14,7 @@ mod common;
 mod daemon;
 mod demosaic;
 mod film;
+mod hostile;
 mod layers;
 mod lut;
 mod merge;

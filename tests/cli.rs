@@ -961,6 +961,24 @@ fn hook_moves_a_download_into_ingest_and_ignores_other_actions() {
     assert!(String::from_utf8_lossy(&out.stderr).contains("--hook-script"));
 }
 
+/// A download that is not there (gphoto2 named a file since moved or deleted) is said
+/// to be missing, not that something "cannot write".
+#[test]
+fn hook_says_a_missing_download_is_missing() {
+    let dir = tempfile::tempdir().unwrap();
+    let ingest = dir.path().join("ingest");
+    std::fs::create_dir_all(&ingest).unwrap();
+    let out = hook(dir.path(), &ingest, "download", Some("IMG_0009.CR2"));
+    assert_eq!(out.status.code(), Some(1), "{out:?}");
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert!(
+        stderr.contains("IMG_0009.CR2: the downloaded file is missing")
+            && !stderr.contains("cannot write"),
+        "{stderr}"
+    );
+    assert!(names_in(&ingest).is_empty());
+}
+
 #[test]
 fn hook_never_replaces_a_frame_and_leaves_the_download_in_place() {
     let dir = tempfile::tempdir().unwrap();

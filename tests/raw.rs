@@ -404,6 +404,100 @@ fn damaged_raws_are_errors_naming_the_file() {
     }
 }
 
+/// `bytes` of a TIFF-structured file (DNG, TIFF) with the first IFD's "next IFD" offset
+/// pointed back at that IFD: a few bytes of damage that close the chain into a loop.
+fn looping_chain(mut bytes: Vec<u8>) -> Vec<u8> {
+    let big = &bytes[..2] == b"MM";
+    let u16_at = |b: &[u8], at: usize| {
+        let v = [b[at], b[at + 1]];
+        usize::from(if big {
+            u16::from_be_bytes(v)
+        } else {
+            u16::from_le_bytes(v)
+        })
+    };
+    let first: [u8; 4] = bytes[4..8].try_into().unwrap();
+    let offset = if big {
+        u32::from_be_bytes(first)
+    } else {
+        u32::from_le_bytes(first)
+    } as usize;
+    let next = offset + 2 + 12 * u16_at(&bytes, offset);
+    bytes[next..next + 4].copy_from_slice(&first);
+    bytes
+}
+
+/// `filmback ARGS` under a 4 GB address-space limit and a 20 s timeout: a file that makes
+/// it allocate without bound aborts or is killed instead of taking the machine.
+fn capped_filmback(args: &[&std::ffi::OsStr]) -> (std::process::Output, std::time::Duration) {
+    let start = std::time::Instant::now();
+    let o = std::process::Command::new("sh")
+        .arg("-c")
+        .arg(r#"ulimit -v 4000000; exec timeout 20 "$0" "$@""#)
+        .arg(env!("CARGO_BIN_EXE_filmback"))
+        .args(args)
+        .output()
+        .unwrap();
+    (o, start.elapsed())
+}
+
+/// A DNG whose first IFD's "next IFD" points to itself (rawler 0.8 follows such a chain
+/// for ever, allocating as it goes) is refused by `inspect` and `merge` at once, naming
+/// the file and the loop; the EXIF reader stays bounded on it too.
+#[test]
+fn a_dng_whose_ifd_chain_loops_is_refused_at_once() {
+    let b = bracket(29);
+    let looped = b._dir.path().join("loop.dng");
+    let bytes = looping_chain(std::fs::read(&b.paths[0]).unwrap());
+    std::fs::write(&looped, &bytes).unwrap();
+    let _ = filmback::metadata::read(&bytes);
+    let out = b._dir.path().join("out");
+    let inspect = [looped.as_os_str()];
+    let merge = [
+        "merge".as_ref(),
+        looped.as_os_str(),
+        b.paths[1].as_os_str(),
+        "-o".as_ref(),
+        out.as_os_str(),
+    ];
+    for args in [
+        &[&["inspect".as_ref()][..], &inspect[..]].concat(),
+        &merge.to_vec(),
+    ] {
+        let (o, took) = capped_filmback(args);
+        let stderr = String::from_utf8_lossy(&o.stderr);
+        assert_eq!(o.status.code(), Some(1), "{args:?}: {stderr}");
+        assert!(
+            stderr.contains("loop.dng") && stderr.contains("loops back to the IFD"),
+            "{args:?}: {stderr}"
+        );
+        assert!(took.as_secs() < 10, "{args:?} took {took:?}");
+    }
+    assert!(!out.join("loop.exr").exists());
+}
+
+/// A TIFF frame with the same damage is decoded or refused within the same bounds.
+#[test]
+fn a_tiff_whose_ifd_chain_loops_stays_bounded() {
+    use filmback::frame::BitDepth;
+    use filmback::synthetic::{ResponseCurve, Sensor};
+    let shot = &shots()[0];
+    let scene = synthetic::scene(W, H, 31);
+    let frame = synthetic::expose(
+        &scene,
+        1.0,
+        &Sensor::noiseless(ResponseCurve::Srgb, BitDepth::Eight),
+    );
+    let bytes = synthetic::encode(&frame, shot, synthetic::Encoding::Tiff).unwrap();
+    let dir = tempfile::tempdir().unwrap();
+    let looped = dir.path().join("loop.tif");
+    std::fs::write(&looped, looping_chain(bytes)).unwrap();
+    let (o, took) = capped_filmback(&["inspect".as_ref(), looped.as_os_str()]);
+    let stderr = String::from_utf8_lossy(&o.stderr);
+    assert!(o.status.code().is_some_and(|c| c <= 1), "{stderr}");
+    assert!(took.as_secs() < 10, "took {took:?}");
+}
+
 /// `filmback merge` of a raw bracket: one EXR whose header says the response is
 /// "linear (raw)" and states Rec. 709 chromaticities; the JSON report says the same.
 #[test]
@@ -511,6 +605,29 @@ fn a_raw_that_is_not_rgb_is_refused_with_the_camera_and_reason() {
     assert!(message.contains("cygm.dng"), "{message}");
     assert!(message.contains("filmback Raw Body"), "{message}");
     assert!(message.contains("not RGB"), "{message}");
+}
+
+/// A raw refused for what it is, from a file that names no camera, says "an unknown
+/// camera" and names the file (not "raw from  is not supported").
+#[test]
+fn a_refused_raw_without_a_camera_name_says_an_unknown_camera() {
+    let sensor = RawSensor {
+        cfa: "CYGM",
+        ..RawSensor::typical(41)
+    };
+    let shot = Shot {
+        camera: filmback::metadata::Camera::default(),
+        ..shots()[0].clone()
+    };
+    let codes = vec![sensor.black; (W * H) as usize];
+    let bytes = synthetic::dng(&codes, W, H, &sensor, &shot).unwrap();
+    let error = frame::decode(Path::new("nameless.dng"), &bytes, Limits::default())
+        .expect_err("CYGM is refused");
+    let message = error.to_string();
+    assert!(
+        message.contains("nameless.dng: raw from an unknown camera is not supported"),
+        "{message}"
+    );
 }
 
 /// The bracket merged after demosaicking each frame (each frame white-balanced and

@@ -76,7 +76,10 @@ pub fn run(args: Args) -> anyhow::Result<ExitCode> {
                 plot::write_response(path, &c.response, &plot_title(&c))?;
             }
             println!("camera    {}", c.camera);
-            println!("file      {}", cache.path_for(&c.camera).display());
+            let file = cache
+                .file_of(&c.camera)
+                .unwrap_or_else(|| cache.path_for(&c.camera));
+            println!("file      {}", file.display());
             println!("source    {RECOVERED_SOURCE}");
             println!("brackets  {} folded in", c.brackets);
             println!(

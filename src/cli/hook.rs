@@ -62,6 +62,14 @@ fn hand_over(source: &Path, ingest: &Path) -> anyhow::Result<PathBuf> {
     if !fs::metadata(ingest).is_ok_and(|m| m.is_dir()) {
         bail!("{}: the ingest folder does not exist", ingest.display());
     }
+    if let Err(e) = fs::symlink_metadata(source)
+        && e.kind() == std::io::ErrorKind::NotFound
+    {
+        bail!(
+            "{}: the downloaded file is missing (gone since gphoto2 named it); nothing handed over",
+            source.display()
+        );
+    }
     atomic::move_into(source, ingest).map_err(|e| match e {
         PublishError::Exists { path } => anyhow::anyhow!(
             "{} already exists: not replacing it with {} (left in place); rename one of them",

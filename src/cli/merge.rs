@@ -135,8 +135,9 @@ pub fn run(args: Args) -> anyhow::Result<ExitCode> {
     let stem = args.frames[0]
         .file_stem()
         .and_then(|s| s.to_str())
-        .with_context(|| format!("{}: no usable file name", args.frames[0].display()))?
-        .to_string();
+        .with_context(|| format!("{}: no usable file name", args.frames[0].display()))?;
+    // A long frame name is shortened so its outputs' names fit the file system.
+    let stem = filmback::atomic::fitting_stem(stem).into_owned();
     let exif = SourceExif::from_frame_bytes(
         &std::fs::read(&args.frames[0])
             .with_context(|| format!("{}: cannot read", args.frames[0].display()))?,

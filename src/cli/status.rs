@@ -76,8 +76,22 @@ pub fn run(args: Args) -> anyhow::Result<ExitCode> {
             Err(e) => json!({"error": e.to_string()}),
         })
         .collect();
+    // Output sets a killed daemon left half published: the rest appears at its next start.
+    let interrupted: Vec<Value> = snap
+        .as_ref()
+        .map(|s| filmback::atomic::interrupted_sets(&s.out))
+        .unwrap_or_default()
+        .iter()
+        .map(|set| {
+            let paths = |p: &[PathBuf]| -> Vec<String> {
+                p.iter().map(|p| p.display().to_string()).collect()
+            };
+            json!({"staging": set.stage.display().to_string(), "published": paths(&set.published), "pending": paths(&set.pending)})
+        })
+        .collect();
     let report = json!({
         "state": args.state.display().to_string(),
+        "interrupted_sets": interrupted,
         "running": running,
         "daemon": snap.as_ref().map(|s| json!(s)),
         "brackets_done": brackets,
@@ -119,6 +133,18 @@ pub fn run(args: Args) -> anyhow::Result<ExitCode> {
         }
     }
     println!("done          {brackets} brackets, {singles} single frames");
+    if !interrupted.is_empty() {
+        println!(
+            "interrupted   {} output set(s) partly published (the daemon was killed while renaming them); the rest appears at its next start",
+            interrupted.len()
+        );
+        for set in &interrupted {
+            println!(
+                "  published {}; pending {}",
+                set["published"], set["pending"]
+            );
+        }
+    }
     println!("failed        {}", failed.len());
     for f in &failed {
         println!("  {}: {}", f["inputs"], f["reason"].as_str().unwrap_or(""));

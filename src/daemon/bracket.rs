@@ -155,14 +155,16 @@ impl Closed {
         fingerprint(self.frames().iter().map(|c| &c.input))
     }
 
-    /// Output name stem: the first frame's file stem.
+    /// Output name stem: the first frame's file stem, shortened by
+    /// [`crate::atomic::fitting_stem`] when the outputs' names would not fit.
     pub fn stem(&self) -> String {
         let first = self.frames()[0];
-        first
+        let stem = first
             .input
             .path
             .file_stem()
-            .map_or_else(|| "frame".to_string(), |s| s.to_string_lossy().into_owned())
+            .map_or_else(|| "frame".to_string(), |s| s.to_string_lossy().into_owned());
+        crate::atomic::fitting_stem(&stem).into_owned()
     }
 }
 

@@ -354,7 +354,9 @@ pub struct ResponseCache {
     dir: PathBuf,
 }
 
-/// File-name form of a camera: lower-case letters and digits, other runs become `-`.
+/// Readable form of a camera: lower-case letters and digits, other runs become `-`
+/// (`Canon EOS R5 #042` → `canon-eos-r5-042`). Two bodies may share one (`Cam "A"/../x`
+/// and `cam-a-x`): the cache file is named by [`key`].
 pub fn slug(camera: &CameraId) -> String {
     let mut s = String::new();
     for c in camera.to_string().chars() {
@@ -365,6 +367,35 @@ pub fn slug(camera: &CameraId) -> String {
         }
     }
     s.trim_matches('-').to_string()
+}
+
+/// Longest readable part of a cache key, in bytes: an EXIF model may be any length, a
+/// file name may not.
+pub const KEY_SLUG_BYTES: usize = 64;
+
+/// Hex digits of the identity digest in a cache key (32 bits: bodies of one studio never
+/// meet; the file's own `camera` table is compared on reading all the same).
+pub const KEY_DIGEST_DIGITS: usize = 8;
+
+/// A body's cache key, the stem of its file: its [`slug`] (at most [`KEY_SLUG_BYTES`])
+/// and the first [`KEY_DIGEST_DIGITS`] hex digits of [`atomic::name_digest`] of its exact
+/// identity (make, model and serial as EXIF gave them, absent fields told from empty
+/// ones): `canon-eos-r5-042-1a2b3c4d`. Bodies whose names reduce to one slug get
+/// different keys.
+pub fn key(camera: &CameraId) -> String {
+    let slug = slug(camera);
+    let mut end = slug.len().min(KEY_SLUG_BYTES);
+    while !slug.is_char_boundary(end) {
+        end -= 1;
+    }
+    let digest = atomic::name_digest(identity(camera).as_bytes());
+    format!("{}-{}", &slug[..end], &digest[..KEY_DIGEST_DIGITS])
+}
+
+/// The exact identity of a body as [`key`] digests it: its fields as JSON (`null` for an
+/// absent one), so no two bodies give the same text.
+fn identity(camera: &CameraId) -> String {
+    serde_json::json!([camera.make, camera.model, camera.serial]).to_string()
 }
 
 impl ResponseCache {
@@ -380,19 +411,57 @@ impl ResponseCache {
         &self.dir
     }
 
-    /// Where a body's entry lives.
+    /// Where a body's entry is written: `<key>.toml` ([`key`]).
     pub fn path_for(&self, camera: &CameraId) -> PathBuf {
+        self.dir.join(format!("{}.toml", key(camera)))
+    }
+
+    /// Where earlier versions wrote a body's entry, `<slug>.toml`: read when the body has
+    /// no entry under its key and this one holds exactly this body, removed once the
+    /// entry is written under its key.
+    fn legacy_path_for(&self, camera: &CameraId) -> PathBuf {
         self.dir.join(format!("{}.toml", slug(camera)))
     }
 
-    /// The body's cached curve, `None` if there is none.
+    /// The file holding the body's entry: under its key, else its earlier name when that
+    /// holds this body; `None` when neither does.
+    pub fn file_of(&self, camera: &CameraId) -> Option<PathBuf> {
+        let path = self.path_for(camera);
+        if path.is_file() {
+            return Some(path);
+        }
+        let legacy = self.legacy_path_for(camera);
+        matches!(self.read(&legacy), Ok(Some(e)) if e.camera == *camera).then_some(legacy)
+    }
+
+    /// The entry in the file at `path`, `None` if there is none.
+    fn read(&self, path: &Path) -> Result<Option<CachedResponse>, CacheError> {
+        match fs::read_to_string(path) {
+            Ok(text) => parse(path, &text).map(Some),
+            Err(e) if e.kind() == io::ErrorKind::NotFound => Ok(None),
+            Err(source) => Err(CacheError::Io {
+                path: path.to_path_buf(),
+                source,
+            }),
+        }
+    }
+
+    /// The body's cached curve, `None` if there is none: the entry under its key, else
+    /// the one under its earlier name if it holds exactly this body (another body whose
+    /// name reduced to the same slug is not this one).
     pub fn get(&self, camera: &CameraId) -> Result<Option<CachedResponse>, CacheError> {
         let path = self.path_for(camera);
-        match fs::read_to_string(&path) {
-            Ok(text) => parse(&path, &text).map(Some),
-            Err(e) if e.kind() == io::ErrorKind::NotFound => Ok(None),
-            Err(source) => Err(CacheError::Io { path, source }),
+        if let Some(entry) = self.read(&path)? {
+            if entry.camera != *camera {
+                return Err(CacheError::Invalid {
+                    path,
+                    reason: format!("holds the curve of {}, not of {camera}", entry.camera),
+                });
+            }
+            return Ok(Some(entry));
         }
+        let legacy = self.legacy_path_for(camera);
+        Ok(self.read(&legacy)?.filter(|e| e.camera == *camera))
     }
 
     /// Adds a good bracket to the body's pool (see the module docs), with `curve` and
@@ -551,13 +620,18 @@ impl ResponseCache {
         })?;
         let text = format!(
             "# filmback response cache: inverse response g(B) of {}, sampled at B = i/(n-1).\n{text}",
-            entry.camera
+            comment_safe(&entry.camera.to_string())
         );
         atomic::publish(
             &self.path_for(&entry.camera),
             text.as_bytes(),
             Overwrite::Replace,
         )?;
+        // The entry under its earlier name is now superseded.
+        let legacy = self.legacy_path_for(&entry.camera);
+        if matches!(self.read(&legacy), Ok(Some(e)) if e.camera == entry.camera) {
+            let _ = fs::remove_file(&legacy);
+        }
         Ok(())
     }
 
@@ -629,10 +703,25 @@ impl ResponseCache {
     /// Deletes the entry of `query` (see [`ResponseCache::find`]); returns its camera.
     pub fn reset(&self, query: &str) -> Result<CameraId, CacheError> {
         let entry = self.find(query)?;
-        let path = self.path_for(&entry.camera);
-        fs::remove_file(&path).map_err(|source| CacheError::Io { path, source })?;
+        while let Some(path) = self.file_of(&entry.camera) {
+            fs::remove_file(&path).map_err(|source| CacheError::Io { path, source })?;
+        }
         Ok(entry.camera)
     }
+}
+
+/// `text` fit for one TOML comment line: control characters (a newline in an EXIF model)
+/// written as Rust escapes (`\n`), everything else as it is.
+fn comment_safe(text: &str) -> String {
+    text.chars()
+        .map(|c| {
+            if c.is_control() {
+                c.escape_default().to_string()
+            } else {
+                c.to_string()
+            }
+        })
+        .collect()
 }
 
 fn parse(path: &Path, text: &str) -> Result<CachedResponse, CacheError> {
@@ -782,6 +871,96 @@ mod tests {
         let sets: usize = e.pool.iter().map(|b| b.evidence.channels[0].len()).sum();
         assert!(sets <= POOL_SETS, "{sets}");
         assert_eq!(e.pool.last().unwrap().name, "wide");
+    }
+
+    fn model(name: &str) -> CameraId {
+        CameraId {
+            make: None,
+            model: Some(name.to_string()),
+            serial: None,
+        }
+    }
+
+    /// A model with a newline, quotes and a backslash (EXIF says what it likes) is written
+    /// so that the entry reads back, comment line included.
+    #[test]
+    fn a_newline_in_the_model_round_trips() {
+        let dir = tempfile::tempdir().unwrap();
+        let cache = ResponseCache::new(dir.path());
+        let cam = model("EOS\nR5 \"x\" \\ y");
+        cache
+            .pool(&cam, bracket("b0", 2.2, 1), &power(2.2), vec![0.8; 3], 10)
+            .unwrap();
+        let back = cache.get(&cam).unwrap().expect("the entry reads back");
+        assert_eq!(back.camera, cam);
+        let listed = cache.list().unwrap();
+        assert_eq!(listed.len(), 1);
+        assert_eq!(listed[0].as_ref().unwrap().camera, cam);
+    }
+
+    /// Two bodies whose names reduce to one slug keep two files and two pools: the
+    /// second's first bracket is not merged with the first's curve.
+    #[test]
+    fn bodies_of_one_slug_keep_their_own_entries() {
+        let dir = tempfile::tempdir().unwrap();
+        let cache = ResponseCache::new(dir.path());
+        let (a, b) = (model("Cam \"A\"/../x"), model("cam-a-x"));
+        assert_eq!(slug(&a), slug(&b));
+        cache
+            .pool(&a, bracket("a0", 2.2, 1), &power(2.2), vec![0.8; 3], 10)
+            .unwrap();
+        assert_eq!(cache.get(&b).unwrap(), None, "b has no curve yet");
+        cache
+            .pool(&b, bracket("b0", 1.4, 1), &power(1.4), vec![0.8; 3], 11)
+            .unwrap();
+        let (ea, eb) = (
+            cache.get(&a).unwrap().unwrap(),
+            cache.get(&b).unwrap().unwrap(),
+        );
+        assert_eq!(
+            (ea.camera, ea.response, ea.pool.len()),
+            (a.clone(), power(2.2), 1)
+        );
+        assert_eq!(
+            (eb.camera, eb.response, eb.pool.len()),
+            (b.clone(), power(1.4), 1)
+        );
+        assert_ne!(cache.path_for(&a), cache.path_for(&b));
+        assert_eq!(cache.list().unwrap().len(), 2);
+    }
+
+    /// An entry written under the earlier name (the bare slug) is found, rewritten under
+    /// the body's key at its next update, and reset; another body's entry under that
+    /// name is not taken for this body's.
+    #[test]
+    fn entries_under_the_earlier_name_are_found_and_moved() {
+        let dir = tempfile::tempdir().unwrap();
+        let cache = ResponseCache::new(dir.path());
+        let cam = body(Some("7"));
+        cache
+            .pool(&cam, bracket("b0", 2.2, 1), &power(2.2), vec![0.8; 3], 10)
+            .unwrap();
+        let legacy = cache.dir().join(format!("{}.toml", slug(&cam)));
+        fs::rename(cache.path_for(&cam), &legacy).unwrap();
+        assert_eq!(cache.get(&cam).unwrap().unwrap().brackets, 1);
+        assert_eq!(cache.file_of(&cam), Some(legacy.clone()));
+        let other = CameraId {
+            serial: Some("8".into()),
+            ..cam.clone()
+        };
+        let other_legacy = cache.dir().join(format!("{}.toml", slug(&other)));
+        fs::copy(&legacy, &other_legacy).unwrap();
+        assert_eq!(cache.get(&other).unwrap(), None, "holds body #7, not #8");
+        fs::remove_file(&other_legacy).unwrap();
+        cache
+            .pool(&cam, bracket("b1", 2.2, 1), &power(2.2), vec![0.8; 3], 11)
+            .unwrap();
+        assert!(!legacy.exists() && cache.path_for(&cam).is_file());
+        assert_eq!(cache.get(&cam).unwrap().unwrap().brackets, 2);
+        fs::rename(cache.path_for(&cam), &legacy).unwrap();
+        assert_eq!(cache.reset("eos-r5-7").unwrap(), cam);
+        assert!(!legacy.exists());
+        assert_eq!(cache.list().unwrap().len(), 0);
     }
 
     /// Three dissents in a row that agree with one another replace the pool; a bracket
@@ -951,19 +1130,14 @@ mod tests {
         let path = cache.path_for(&cam);
         let text = fs::read_to_string(&path).unwrap();
         fs::write(&path, text.replace("version = 2", "version = 7")).unwrap();
+        let name = path.display().to_string();
         let err = cache.get(&cam).unwrap_err().to_string();
-        assert!(
-            err.contains("canon-eos-r5.toml") && err.contains("version 7"),
-            "{err}"
-        );
+        assert!(err.contains(&name) && err.contains("version 7"), "{err}");
         let damaged = text.replacen("log_ratio = 1.3", "log_ratio = -1.3", 1);
         assert_ne!(damaged, text);
         fs::write(&path, damaged).unwrap();
         let err = cache.get(&cam).unwrap_err().to_string();
-        assert!(
-            err.contains("canon-eos-r5.toml") && err.contains("not usable"),
-            "{err}"
-        );
+        assert!(err.contains(&name) && err.contains("not usable"), "{err}");
         fs::write(&path, "version = 1\n").unwrap();
         assert!(cache.get(&cam).is_err());
     }

@@ -215,6 +215,9 @@ impl Lab for DarkroomLab {
                 })
             })
             .collect::<Result<_, _>>()?;
+        let unmixed = unmix(job, frames)?;
+        let job = unmixed.job.as_ref().unwrap_or(job);
+        let frames = unmixed.frames;
         let decode = start.elapsed();
         let preset = &job.preset;
         let mut catalogue = Catalogue::builtin().map_err(|e| JobError::Bracket(e.to_string()))?;
@@ -282,7 +285,8 @@ impl Lab for DarkroomLab {
         })?;
         let mut stages = vec![("decode", decode)];
         stages.extend(developed.stages);
-        let mut notes = developed.warnings;
+        let mut notes: Vec<String> = unmixed.note.into_iter().collect();
+        notes.extend(developed.warnings);
         notes.extend(measure_notes);
         let mut pooling = developed.response.pooling;
         if let Some(p) = pooling.as_mut()
@@ -393,6 +397,130 @@ impl DarkroomLab {
             )?)
         }
     }
+}
+
+/// What a bracket is developed from once [`unmix`] has looked at its frames.
+struct Unmixed {
+    /// The job with the frames developed, when they differ from the job's own.
+    job: Option<Job>,
+    /// The decoded frames, in the job's order.
+    frames: Vec<LoadedFrame>,
+    /// What was left out and why, when anything was.
+    note: Option<String>,
+}
+
+/// The frames a bracket is developed from. A bracket is either all raw or all
+/// JPEG/PNG/TIFF; one that mixes them (a RAW+JPEG capture whose raw was rejected stands
+/// in it as its JPEG) is developed, in this order of preference:
+/// 1. from every capture's JPEG, when each raw frame has its companion JPEG;
+/// 2. from the raws alone, when there are two or more;
+/// 3. from the other frames alone, when there are two or more.
+///
+/// Otherwise it cannot be developed ([`JobError::Bracket`]).
+fn unmix(job: &Job, frames: Vec<LoadedFrame>) -> Result<Unmixed, JobError> {
+    let is_raw = |f: &LoadedFrame| -> bool {
+        #[cfg(feature = "raw")]
+        return f.raw.is_some();
+        #[cfg(not(feature = "raw"))]
+        return {
+            let _ = f;
+            false
+        };
+    };
+    let raws = frames.iter().filter(|f| is_raw(f)).count();
+    if raws == 0 || raws == frames.len() {
+        return Ok(Unmixed {
+            job: None,
+            frames,
+            note: None,
+        });
+    }
+    let names = |paths: Vec<&Path>| -> String {
+        let names: Vec<String> = paths.iter().map(|p| p.display().to_string()).collect();
+        names.join(", ")
+    };
+    let stand_ins = names(
+        frames
+            .iter()
+            .filter(|f| !is_raw(f))
+            .map(|f| f.path.as_path())
+            .collect(),
+    );
+    if let Some(jpegs) = companions_of(job, &frames, is_raw) {
+        let raws_out = names(
+            jpegs
+                .iter()
+                .map(|(k, _)| frames[*k].path.as_path())
+                .collect(),
+        );
+        let note = format!(
+            "{raws_out} left out: {stand_ins} stands for a capture without a usable raw, so the bracket is developed from every capture's JPEG"
+        );
+        let mut captures = job.frames.clone();
+        let mut frames = frames;
+        for (k, jpeg) in jpegs {
+            if let Some(companion) = captures[k].companion.take() {
+                captures[k].input = companion;
+            }
+            frames[k] = jpeg;
+        }
+        return Ok(Unmixed {
+            job: Some(Job {
+                frames: captures,
+                ..job.clone()
+            }),
+            frames,
+            note: Some(note),
+        });
+    }
+    let keep_raws = raws >= 2;
+    if !keep_raws && frames.len() - raws < 2 {
+        return Err(JobError::Bracket(format!(
+            "a bracket is either all raw or all JPEG/PNG/TIFF; this one mixes them ({stand_ins} among raws) with fewer than two of either kind"
+        )));
+    }
+    let (kept, left): (Vec<_>, Vec<_>) = frames
+        .into_iter()
+        .zip(&job.frames)
+        .partition(|(f, _)| is_raw(f) == keep_raws);
+    let note = format!(
+        "{} left out: a bracket is either all raw or all JPEG/PNG/TIFF, and its other {} frames are {}",
+        names(left.iter().map(|(f, _)| f.path.as_path()).collect()),
+        kept.len(),
+        if keep_raws { "raws" } else { "not raws" }
+    );
+    let (frames, captures): (Vec<LoadedFrame>, Vec<Capture>) =
+        kept.into_iter().map(|(f, c)| (f, c.clone())).unzip();
+    Ok(Unmixed {
+        job: Some(Job {
+            frames: captures,
+            ..job.clone()
+        }),
+        frames,
+        note: Some(note),
+    })
+}
+
+/// The companion JPEG ([`Capture::companion`]) of each raw of `frames`, decoded, with
+/// its index; `None` when a raw has no companion, or one that does not decode as a
+/// JPEG/PNG/TIFF frame.
+fn companions_of(
+    job: &Job,
+    frames: &[LoadedFrame],
+    is_raw: impl Fn(&LoadedFrame) -> bool,
+) -> Option<Vec<(usize, LoadedFrame)>> {
+    let mut jpegs = Vec::new();
+    for (k, (f, capture)) in frames.iter().zip(&job.frames).enumerate() {
+        if is_raw(f) {
+            let companion = capture.companion.as_ref()?;
+            let jpeg = frame::load(&companion.path, Limits::default()).ok()?;
+            if is_raw(&jpeg) {
+                return None;
+            }
+            jpegs.push((k, jpeg));
+        }
+    }
+    Some(jpegs)
 }
 
 /// The body's pool refitted with a good bracket's evidence (its curve and channel

@@ -34,8 +34,12 @@ pub fn is_raw_extension(path: &Path) -> bool {
 /// sensor's orientation.
 ///
 /// The sensor's size is read first, without decoding (rawler's "dummy" image): a file
-/// declaring more than `max_pixels` is refused before its pixels are allocated.
+/// declaring more than `max_pixels` is refused before its pixels are allocated. Before
+/// that, a TIFF-based file's IFDs are walked and a damaged structure refused
+/// ([`RawError::Structure`]).
 pub fn decode(path: &Path, bytes: &[u8], max_pixels: u64) -> Result<RawMosaic, RawError> {
+    sound_structure(path, bytes)?;
+    let _file = decoder_span(path).entered();
     catch_unwind(AssertUnwindSafe(|| {
         decode_unguarded(path, bytes, max_pixels)
     }))
@@ -61,8 +65,11 @@ pub struct RawExif {
 
 /// Reads the capture metadata of the raw in `bytes` (camera, exposure, capture time) and
 /// its sensor's size `(width, height)` in pixels, without decoding its pixels: an
-/// unsupported camera is refused here already.
+/// unsupported camera, or a damaged TIFF structure ([`RawError::Structure`]), is refused
+/// here already.
 pub fn probe(path: &Path, bytes: &[u8]) -> Result<(RawExif, (u32, u32)), RawError> {
+    sound_structure(path, bytes)?;
+    let _file = decoder_span(path).entered();
     let guarded = catch_unwind(AssertUnwindSafe(|| {
         let source = RawSource::new_from_slice(bytes);
         let params = RawDecodeParams::default();
@@ -80,6 +87,31 @@ pub fn probe(path: &Path, bytes: &[u8]) -> Result<(RawExif, (u32, u32)), RawErro
         Ok((exif_of(metadata.make, metadata.model, &metadata.exif), size))
     }));
     guarded.unwrap_or_else(|_| Err(panicked(path)))
+}
+
+/// The span rawler's own warnings (through `log`) are logged in: they name no file, the
+/// span does (`raw{file=IMG_1.CR2}: …`).
+fn decoder_span(path: &Path) -> tracing::Span {
+    tracing::info_span!("raw", file = %path.display())
+}
+
+/// A camera's name for messages, `make model`; "an unknown camera" when the file names
+/// none.
+fn camera_name(make: &str, model: &str) -> String {
+    let name = format!("{make} {model}").trim().to_string();
+    if name.is_empty() {
+        "an unknown camera".to_string()
+    } else {
+        name
+    }
+}
+
+/// [`super::structure::check`] with the file named in the error.
+fn sound_structure(path: &Path, bytes: &[u8]) -> Result<(), RawError> {
+    super::structure::check(bytes).map_err(|source| RawError::Structure {
+        path: path.to_path_buf(),
+        source,
+    })
 }
 
 fn panicked(path: &Path) -> RawError {
@@ -111,7 +143,7 @@ fn failed(path: &Path, error: RawlerError) -> RawError {
             what, model, make, ..
         } => RawError::Unsupported {
             path: path.to_path_buf(),
-            camera: format!("{make} {model}").trim().to_string(),
+            camera: camera_name(&make, &model),
             reason: what,
         },
         RawlerError::DecoderFailed(reason) => RawError::Decode {
@@ -162,9 +194,7 @@ fn decode_unguarded(path: &Path, bytes: &[u8], max_pixels: u64) -> Result<RawMos
     // anything larger (the demosaicked map) is made of it.
     within_limit(image.width, image.height)?;
     let exif = decoder.raw_metadata(&source, &params).map(|m| m.exif).ok();
-    let camera = format!("{} {}", image.clean_make, image.clean_model)
-        .trim()
-        .to_string();
+    let camera = camera_name(&image.clean_make, &image.clean_model);
     let unsupported = |reason: String| RawError::Unsupported {
         path: path.to_path_buf(),
         camera: camera.clone(),

@@ -24,15 +24,19 @@
 //!
 //! rawler catches panics inside its decoders itself; the rest of its calls (choosing a
 //! decoder, reading metadata) are wrapped here in `catch_unwind`, so a malformed file is
-//! an error naming the file, never a crash.
+//! an error naming the file, never a crash. Before rawler sees a TIFF-based raw, its IFDs
+//! are walked here ([`StructureError`] lists what is refused): a chain of IFDs that loops,
+//! on which rawler 0.8 allocates without bound, is refused with that reason.
 
 pub mod colour;
 pub mod demosaic;
 pub mod mosaic;
 
 mod decode;
+mod structure;
 
 pub use decode::{RAW_EXTENSIONS, RawExif, decode, is_raw_extension, probe};
+pub use structure::StructureError;
 
 use std::path::PathBuf;
 
@@ -163,10 +167,21 @@ pub enum RawError {
     Unsupported {
         /// The file.
         path: PathBuf,
-        /// Make and model as the file names them.
+        /// Make and model as the file names them ("an unknown camera" when it names
+        /// none).
         camera: String,
         /// What rawler said.
         reason: String,
+    },
+    /// The file's TIFF structure would make the decoder loop or allocate beyond the
+    /// file's size; refused before decoding.
+    #[error("{path}: damaged raw, refused before decoding: {source}")]
+    Structure {
+        /// The file.
+        path: PathBuf,
+        /// What is wrong with it.
+        #[source]
+        source: StructureError,
     },
     /// The file is damaged or not a raw rawler recognises.
     #[error("{path}: cannot decode raw: {reason}")]

@@ -6,6 +6,7 @@ use std::process::Command;
 use filmback::frame::Frame;
 
 pub mod brackets;
+pub mod rig;
 
 /// The `filmback` binary Cargo built for these tests.
 pub fn filmback() -> Command {
