@@ -4,32 +4,39 @@
 //! # The test
 //!
 //! Each frame `k` estimates radiance `x_k = g(B_k)·e_ref/e_k` per sample (see
-//! [`crate::merge`]). Where two frames are both well exposed (brightness within
-//! [`WELL_EXPOSED`]), they agree unless a moving subject or a misregistration separates
-//! them; with `σ_k` the standard deviation of `ln x_k`, frame `k` disagrees with frame `a`
-//! in a channel when
+//! [`crate::merge`]). Frame `k` is compared with an *anchor* frame `a` in every channel it
+//! exposes well (brightness within [`WELL_EXPOSED`]) through the residual
+//! `r = ln x_k − ln x_a`. In a still bracket `r` is noise plus what the single response
+//! does not model (its fitting error, the camera's tone processing, the codec), which
+//! depends on the tone; a moving subject is an outlier. So the residuals of the pair are
+//! first gathered over the whole frame (every [`STATS_STRIDE`]-th pixel of every
+//! [`STATS_STRIDE`]-th row) by channel and by the anchor's tone ([`TONE_BINS`] bins of its
+//! code), giving per bin a centre `m` (the median) and a spread `s = 1.4826·MAD`; a bin with
+//! fewer than [`MIN_SAMPLES`] takes the channel's pooled figures. The frame disagrees in a
+//! channel when
 //!
 //! ```text
-//! |ln x_k − ln x_a|  >  Z · √(σ_k² + σ_a²) + δ,          Z = 4,  δ = 0.15 stop · ln 2
+//! |r − m|  >  Z · max(√(σ_k² + σ_a²), s) + δ,           Z = 4,  δ = 0.1 stop · ln 2
 //! ```
 //!
-//! ([`NOISE_SIGMAS`], [`RESPONSE_TOLERANCE_STOPS`]: `δ` absorbs a fitted response's error
-//! and the JPEG codec's). The noise of a sample of brightness `B` and linear value
-//! `X = g(B)` (in units of the frame's clipping point) is read noise and quantisation,
-//! constant in code values and carried through the response's slope, plus shot noise:
+//! ([`NOISE_SIGMAS`], [`TOLERANCE_STOPS`]). `σ` is the noise of `ln x` the sensor model
+//! predicts: for a sample of brightness `B` and linear value `X = g(B)` (units of the
+//! frame's clipping point), read noise and quantisation constant in code values carried
+//! through the response's slope, plus shot noise,
 //!
 //! ```text
-//! σ_k² = ((g'(B) · σ_B)² + X / W) / X²,        σ_B = 1.5 codes of 255,  W = 2000 e⁻
+//! σ² = ((g'(B) · σ_B)² + X / W) / X²,        σ_B = 1.5 codes of 255,  W = 2000 e⁻
 //! ```
 //!
-//! ([`CODE_NOISE`], [`FULL_WELL_ELECTRONS`]: a conservative camera at base ISO; a noisier
-//! one is less often left out, never more often).
+//! ([`CODE_NOISE`], [`FULL_WELL_ELECTRONS`]). An anchor sample outside the well-exposed
+//! range still bounds the radiance: clipped high, from below by its value at the range's
+//! top (the frame disagrees only when `r − m < −allowance`); dark, from above by its
+//! value at the range's bottom (only when `r − m > allowance`).
 //!
-//! A frame disagrees at a pixel when any channel that both frames expose well
-//! disagrees. Frames are tested in order of exposure distance from the reference; each
-//! pixel is compared against its *anchor*: the reference where the reference exposes any
-//! channel well, otherwise the nearest frame already accepted there (so a region the
-//! reference clipped is still checked between the frames that see it).
+//! A frame disagrees at a pixel when any channel disagrees. Frames are tested in order of
+//! exposure distance from the reference, the anchor of every pixel being the reference
+//! until a frame that exposes the pixel well where the anchor does not (a region the
+//! reference clipped or left dark) agrees with it and takes its place.
 //!
 //! # The mask
 //!
@@ -50,11 +57,11 @@ use crate::response::InverseResponse;
 /// Brightness range (normalised codes) in which a sample is compared.
 pub const WELL_EXPOSED: (f64, f64) = (0.02, 0.95);
 
-/// `Z`: standard deviations of the difference beyond which two samples disagree.
+/// `Z`: spreads of the residual beyond which two samples disagree.
 pub const NOISE_SIGMAS: f64 = 4.0;
 
-/// `δ`: a disagreement this large (stops) is always allowed, for the response's error.
-pub const RESPONSE_TOLERANCE_STOPS: f64 = 0.15;
+/// `δ`: a disagreement this large (stops) is always allowed.
+pub const TOLERANCE_STOPS: f64 = 0.1;
 
 /// `σ_B`: read noise and quantisation, in codes of an 8-bit scale.
 pub const CODE_NOISE: f64 = 1.5;
@@ -66,7 +73,22 @@ pub const FULL_WELL_ELECTRONS: f64 = 2000.0;
 pub const BLOCK: usize = 4;
 
 /// Share of disagreeing pixels in a block's neighbourhood above which the block is left out.
-pub const GHOST_SHARE: f32 = 0.2;
+pub const GHOST_SHARE: f32 = 0.3;
+
+/// Bins of the anchor's code over which a pair's residuals are gathered.
+pub const TONE_BINS: usize = 32;
+
+/// Pixels and rows between the samples of a pair's residual statistics.
+pub const STATS_STRIDE: usize = 4;
+
+/// Fewest residuals for a tone bin's own statistics.
+pub const MIN_SAMPLES: u32 = 64;
+
+/// Bins of the residual's histogram, over `±RESIDUAL_RANGE`.
+const RESIDUAL_BINS: usize = 256;
+
+/// Half the range of the residual's histogram, `ln` units (±4.3 stops).
+const RESIDUAL_RANGE: f32 = 3.0;
 
 /// What deghosting decided for a bracket.
 #[derive(Debug, Clone, PartialEq)]
@@ -131,12 +153,25 @@ fn strided<T: Copy>(v: &[T], row: usize, channels: usize, good: impl Fn(T) -> bo
         .count()
 }
 
-/// Per code of one frame and channel: `ln x`, `σ` of it, and whether it is well exposed.
+/// Where a code lies: well exposed, or a bound on the radiance.
+#[derive(Clone, Copy, PartialEq)]
+enum Tone {
+    /// Below the well-exposed range: the radiance is at most `value`.
+    Dark,
+    /// Within it: the radiance is `value`.
+    Good,
+    /// Above it: the radiance is at least `value`.
+    Bright,
+}
+
+/// Per code of one frame and channel: its `ln x` (or the bound at the range's edge), `σ` of
+/// it, where it lies, and its tone bin.
 #[derive(Clone, Copy)]
 struct Code {
-    ln_x: f32,
+    value: f32,
     sigma: f32,
-    good: bool,
+    tone: Tone,
+    bin: u8,
 }
 
 /// The [`Code`] table of every frame (input order), channel and code.
@@ -151,21 +186,34 @@ impl Codes {
         let first = frames[0].frame;
         let (levels, channels) = (first.bit_depth().levels(), first.channels());
         let e_ref = frames.iter().map(|f| f.exposure).fold(0.0, f64::max);
-        let sigma_b = CODE_NOISE / 255.0;
-        let h = 1.0 / 256.0;
         let mut table = Vec::with_capacity(frames.len() * channels * levels);
         for f in frames {
             for c in 0..channels {
+                // `ln x` and its σ at brightness `b` of this frame and channel.
+                let at = |b: f64| {
+                    let x = response.eval(c, b).max(1e-9);
+                    let (lo, hi) = ((b - 1.0 / 256.0).max(0.0), (b + 1.0 / 256.0).min(1.0));
+                    let slope = (response.eval(c, hi) - response.eval(c, lo)) / (hi - lo);
+                    let var =
+                        ((slope * CODE_NOISE / 255.0).powi(2) + x / FULL_WELL_ELECTRONS) / (x * x);
+                    ((x * e_ref / f.exposure).ln() as f32, var.sqrt() as f32)
+                };
+                let (bottom, top) = (at(WELL_EXPOSED.0), at(WELL_EXPOSED.1));
                 for code in 0..levels {
                     let b = code as f64 / (levels - 1) as f64;
-                    let x = response.eval(c, b).max(1e-9);
-                    let (lo, hi) = ((b - h).max(0.0), (b + h).min(1.0));
-                    let slope = (response.eval(c, hi) - response.eval(c, lo)) / (hi - lo);
-                    let var = ((slope * sigma_b).powi(2) + x / FULL_WELL_ELECTRONS) / (x * x);
+                    let ((value, sigma), tone) = if b < WELL_EXPOSED.0 {
+                        (bottom, Tone::Dark)
+                    } else if b > WELL_EXPOSED.1 {
+                        (top, Tone::Bright)
+                    } else {
+                        (at(b), Tone::Good)
+                    };
+                    let bin = (code * TONE_BINS / levels) as u8;
                     table.push(Code {
-                        ln_x: (x * e_ref / f.exposure).ln() as f32,
-                        sigma: var.sqrt() as f32,
-                        good: b >= WELL_EXPOSED.0 && b <= WELL_EXPOSED.1 && x > 1e-6,
+                        value,
+                        sigma,
+                        tone,
+                        bin,
                     });
                 }
             }
@@ -183,13 +231,150 @@ impl Codes {
     }
 }
 
-/// No anchor yet at a pixel.
-const NO_ANCHOR: u8 = u8::MAX;
+/// The codes of every frame, at the bracket's depth.
+enum Planes<'a> {
+    Eight(Vec<&'a [u8]>),
+    Sixteen(Vec<&'a [u16]>),
+}
 
-/// How two frames compare at one pixel.
+impl<'a> Planes<'a> {
+    fn of(frames: &[BracketFrame<'a>]) -> Planes<'a> {
+        let eight = |f: &'a Frame| match f.samples() {
+            Samples::Eight(v) => v.as_slice(),
+            Samples::Sixteen(_) => &[],
+        };
+        let sixteen = |f: &'a Frame| match f.samples() {
+            Samples::Sixteen(v) => v.as_slice(),
+            Samples::Eight(_) => &[],
+        };
+        match frames[0].frame.samples() {
+            Samples::Eight(_) => Planes::Eight(frames.iter().map(|f| eight(f.frame)).collect()),
+            Samples::Sixteen(_) => {
+                Planes::Sixteen(frames.iter().map(|f| sixteen(f.frame)).collect())
+            }
+        }
+    }
+
+    /// The code of sample `i` of frame `k`.
+    #[inline]
+    fn code(&self, k: usize, i: usize) -> usize {
+        match self {
+            Planes::Eight(v) => usize::from(v[k][i]),
+            Planes::Sixteen(v) => usize::from(v[k][i]),
+        }
+    }
+}
+
+/// What a pair's residuals `ln x_k − ln x_a` are in a still scene, per channel and tone bin
+/// of the anchor: `(m, s)`, their median and `1.4826·MAD`.
+struct Residuals {
+    bins: Vec<(f32, f32)>,
+}
+
+impl Residuals {
+    /// Gathers the pair `(k, a)`'s residuals over every [`STATS_STRIDE`]-th pixel.
+    fn of(planes: &Planes<'_>, codes: &Codes, width: usize, k: usize, a: usize) -> Residuals {
+        let channels = codes.channels;
+        let per_bin = RESIDUAL_BINS;
+        let rows = planes.len(channels) / (width * channels).max(1);
+        let histogram = (0..rows)
+            .into_par_iter()
+            .step_by(STATS_STRIDE)
+            .fold(
+                || vec![0u32; channels * TONE_BINS * per_bin],
+                |mut h, y| {
+                    for x in (0..width).step_by(STATS_STRIDE) {
+                        for c in 0..channels {
+                            let i = (y * width + x) * channels + c;
+                            let (xk, xa) = (
+                                codes.get(k, c, planes.code(k, i)),
+                                codes.get(a, c, planes.code(a, i)),
+                            );
+                            if xk.tone == Tone::Good {
+                                let slot = residual_bin(xk.value - xa.value);
+                                h[(c * TONE_BINS + usize::from(xa.bin)) * per_bin + slot] += 1;
+                            }
+                        }
+                    }
+                    h
+                },
+            )
+            .reduce(
+                || vec![0u32; channels * TONE_BINS * per_bin],
+                |mut a, b| {
+                    a.iter_mut().zip(b).for_each(|(x, y)| *x += y);
+                    a
+                },
+            );
+        let mut bins = Vec::with_capacity(channels * TONE_BINS);
+        for c in 0..channels {
+            let channel = &histogram[c * TONE_BINS * per_bin..(c + 1) * TONE_BINS * per_bin];
+            let mut pooled = vec![0u32; per_bin];
+            for bin in channel.chunks(per_bin) {
+                pooled.iter_mut().zip(bin).for_each(|(p, &n)| *p += n);
+            }
+            let fallback = centre_and_spread(&pooled).unwrap_or((0.0, 0.0));
+            for bin in channel.chunks(per_bin) {
+                bins.push(centre_and_spread(bin).unwrap_or(fallback));
+            }
+        }
+        Residuals { bins }
+    }
+
+    #[inline]
+    fn get(&self, channel: usize, bin: u8) -> (f32, f32) {
+        self.bins[channel * TONE_BINS + usize::from(bin)]
+    }
+}
+
+impl Planes<'_> {
+    /// Samples in one frame.
+    fn len(&self, _channels: usize) -> usize {
+        match self {
+            Planes::Eight(v) => v[0].len(),
+            Planes::Sixteen(v) => v[0].len(),
+        }
+    }
+}
+
+/// The histogram slot of residual `r`.
+#[inline]
+fn residual_bin(r: f32) -> usize {
+    let t = (r + RESIDUAL_RANGE) / (2.0 * RESIDUAL_RANGE) * RESIDUAL_BINS as f32;
+    (t.max(0.0) as usize).min(RESIDUAL_BINS - 1)
+}
+
+/// Median and `1.4826·MAD` of a residual histogram, `None` below [`MIN_SAMPLES`].
+fn centre_and_spread(histogram: &[u32]) -> Option<(f32, f32)> {
+    let total: u32 = histogram.iter().sum();
+    if total < MIN_SAMPLES {
+        return None;
+    }
+    let width = 2.0 * RESIDUAL_RANGE / RESIDUAL_BINS as f32;
+    let mut seen = 0;
+    let median = histogram
+        .iter()
+        .position(|&n| {
+            seen += n;
+            2 * seen >= total
+        })
+        .unwrap_or(0);
+    // The median absolute deviation, in whole bins around the median's bin.
+    let mut within = histogram[median];
+    let mut d = 0;
+    while 2 * within < total && d < RESIDUAL_BINS {
+        d += 1;
+        within += median.checked_sub(d).map_or(0, |i| histogram[i]);
+        within += histogram.get(median + d).copied().unwrap_or(0);
+    }
+    let centre = -RESIDUAL_RANGE + (median as f32 + 0.5) * width;
+    Some((centre, 1.4826 * d as f32 * width))
+}
+
+/// How a frame compares with its anchor at one pixel.
 #[derive(PartialEq)]
 enum Verdict {
-    /// No channel both expose well.
+    /// No channel the frame exposes well.
     Unknown,
     Agree,
     Disagree,
@@ -200,24 +385,27 @@ enum Verdict {
 pub fn ghost_masks(frames: &[BracketFrame<'_>], response: &InverseResponse) -> GhostMasks {
     let reference = choose_reference(frames);
     let n = frames.len();
-    assert!(
-        n <= NO_ANCHOR as usize,
-        "fewer than 255 frames in a bracket"
-    );
     let codes = Codes::new(frames, response);
+    let planes = Planes::of(frames);
     let first = frames[0].frame;
     let (width, height) = (first.width() as usize, first.height() as usize);
-    let mut anchor = vec![NO_ANCHOR; width * height];
+    // A bracket of more than 256 frames compares each with the reference alone.
+    let mut anchor = vec![u8::try_from(reference).unwrap_or(0); width * height];
     let mut masks = vec![None; n];
     let mut left_out = vec![0.0; n];
-    for k in by_distance(frames, reference) {
-        let disagree = match first.samples() {
-            Samples::Eight(_) => compare(frames, &codes, k, &mut anchor, eight),
-            Samples::Sixteen(_) => compare(frames, &codes, k, &mut anchor, sixteen),
-        };
-        if k == reference {
-            continue;
+    let order = by_distance(frames, reference);
+    for (rank, &k) in order.iter().enumerate().skip(1) {
+        let mut residuals: Vec<Option<Residuals>> = (0..n).map(|_| None).collect();
+        for &a in &order[..rank] {
+            residuals[a] = Some(Residuals::of(&planes, &codes, width, k, a));
         }
+        let pair = Pair {
+            planes: &planes,
+            codes: &codes,
+            residuals: &residuals,
+            k,
+        };
+        let disagree = pair.compare(&mut anchor, width);
         if let Some(mask) = mask_of(&disagree, width, height) {
             left_out[k] = mask.iter().filter(|&&m| m < 128).count() as f64 / mask.len() as f64;
             masks[k] = Some(mask);
@@ -230,103 +418,110 @@ pub fn ghost_masks(frames: &[BracketFrame<'_>], response: &InverseResponse) -> G
     }
 }
 
-fn eight(f: &Frame) -> &[u8] {
-    match f.samples() {
-        Samples::Eight(v) => v,
-        Samples::Sixteen(_) => &[],
-    }
-}
-
-fn sixteen(f: &Frame) -> &[u16] {
-    match f.samples() {
-        Samples::Sixteen(v) => v,
-        Samples::Eight(_) => &[],
-    }
-}
-
 /// Input indices, the reference first, then by `|ln(e_k/e_ref)|` (stable).
 fn by_distance(frames: &[BracketFrame<'_>], reference: usize) -> Vec<usize> {
     let e_ref = frames[reference].exposure;
     let mut order: Vec<usize> = (0..frames.len()).collect();
     order.sort_by(|&a, &b| {
-        let d = |i: usize| (frames[i].exposure / e_ref).ln().abs();
+        let d = |i: usize| {
+            let d = (frames[i].exposure / e_ref).ln().abs();
+            if i == reference { -1.0 } else { d }
+        };
         d(a).total_cmp(&d(b))
     });
     order
 }
 
-/// Blocks of frame `k` against each pixel's anchor: per block, the share of its compared
-/// pixels that disagree (a grid of `⌈w/BLOCK⌉ × ⌈h/BLOCK⌉`). Pixels without an anchor
-/// that `k` exposes well take `k` as their anchor.
-fn compare<T: Copy + Into<usize> + Sync>(
-    frames: &[BracketFrame<'_>],
-    codes: &Codes,
+/// Frame `k` against the anchors of the frames before it.
+struct Pair<'a> {
+    planes: &'a Planes<'a>,
+    codes: &'a Codes,
+    /// Per anchor frame, the residual statistics of `(k, anchor)`.
+    residuals: &'a [Option<Residuals>],
     k: usize,
-    anchor: &mut [u8],
-    samples: fn(&Frame) -> &[T],
-) -> Vec<f32> {
-    let first = frames[0].frame;
-    let (width, channels) = (first.width() as usize, first.channels());
-    let blocks_x = width.div_ceil(BLOCK);
-    let all: Vec<&[T]> = frames.iter().map(|f| samples(f.frame)).collect();
-    let mut share = vec![0.0f32; blocks_x * (first.height() as usize).div_ceil(BLOCK)];
-    anchor
-        .par_chunks_mut(width * BLOCK)
-        .zip(share.par_chunks_mut(blocks_x))
-        .enumerate()
-        .for_each(|(band, (anchors, shares))| {
-            let mut counts = vec![(0u32, 0u32); blocks_x];
-            for (i, a) in anchors.iter_mut().enumerate() {
-                let p = band * BLOCK * width + i;
-                let sample = |f: usize, c: usize| codes.get(f, c, all[f][p * channels + c].into());
-                let verdict = if *a == NO_ANCHOR {
-                    Verdict::Unknown
-                } else {
-                    verdict(channels, |c| (sample(k, c), sample(usize::from(*a), c)))
-                };
-                let count = &mut counts[(i % width) / BLOCK];
-                match verdict {
-                    Verdict::Disagree => *count = (count.0 + 1, count.1 + 1),
-                    Verdict::Agree => count.1 += 1,
-                    Verdict::Unknown if *a == NO_ANCHOR => {
-                        if (0..channels).any(|c| sample(k, c).good) {
-                            *a = k as u8;
-                        }
-                    }
-                    Verdict::Unknown => {}
-                }
-            }
-            for (s, (bad, seen)) in shares.iter_mut().zip(counts) {
-                *s = if seen == 0 {
-                    0.0
-                } else {
-                    bad as f32 / seen as f32
-                };
-            }
-        });
-    share
 }
 
-/// The verdict over `channels` of the code pairs `pair(c) = (frame, anchor)`.
-#[inline]
-fn verdict(channels: usize, pair: impl Fn(usize) -> (Code, Code)) -> Verdict {
-    let tolerance = (RESPONSE_TOLERANCE_STOPS * std::f64::consts::LN_2) as f32;
-    let mut seen = false;
-    for c in 0..channels {
-        let (x, a) = pair(c);
-        if !(x.good && a.good) {
-            continue;
-        }
-        seen = true;
-        let allowed = NOISE_SIGMAS as f32 * x.sigma.hypot(a.sigma) + tolerance;
-        if (x.ln_x - a.ln_x).abs() > allowed {
-            return Verdict::Disagree;
-        }
+impl Pair<'_> {
+    /// Per block, the share of the pixels it compared that disagree (a grid of
+    /// `⌈w/BLOCK⌉ × ⌈h/BLOCK⌉`). Where the anchor exposes no channel well and `k` does
+    /// and agrees with it, `k` becomes the anchor.
+    fn compare(&self, anchor: &mut [u8], width: usize) -> Vec<f32> {
+        let blocks_x = width.div_ceil(BLOCK);
+        let mut share = vec![0.0f32; blocks_x * (anchor.len() / width.max(1)).div_ceil(BLOCK)];
+        anchor
+            .par_chunks_mut(width * BLOCK)
+            .zip(share.par_chunks_mut(blocks_x))
+            .enumerate()
+            .for_each(|(band, (anchors, shares))| {
+                let mut counts = vec![(0u32, 0u32); blocks_x];
+                for (i, a) in anchors.iter_mut().enumerate() {
+                    let p = band * BLOCK * width + i;
+                    let count = &mut counts[(i % width) / BLOCK];
+                    match self.verdict(p, usize::from(*a)) {
+                        Verdict::Disagree => *count = (count.0 + 1, count.1 + 1),
+                        Verdict::Agree => {
+                            count.1 += 1;
+                            if !self.exposes(usize::from(*a), p) {
+                                *a = self.k as u8;
+                            }
+                        }
+                        Verdict::Unknown => {}
+                    }
+                }
+                for (s, (bad, seen)) in shares.iter_mut().zip(counts) {
+                    *s = if seen == 0 {
+                        0.0
+                    } else {
+                        bad as f32 / seen as f32
+                    };
+                }
+            });
+        share
     }
-    if seen {
-        Verdict::Agree
-    } else {
-        Verdict::Unknown
+
+    /// True when frame `f` exposes some channel of pixel `p` well.
+    fn exposes(&self, f: usize, p: usize) -> bool {
+        let channels = self.codes.channels;
+        (0..channels).any(|c| {
+            let code = self.planes.code(f, p * channels + c);
+            self.codes.get(f, c, code).tone == Tone::Good
+        })
+    }
+
+    /// Frame `k` against `anchor` at pixel `p` (module docs).
+    #[inline]
+    fn verdict(&self, p: usize, anchor: usize) -> Verdict {
+        let Some(residuals) = self.residuals[anchor].as_ref() else {
+            return Verdict::Unknown;
+        };
+        let tolerance = (TOLERANCE_STOPS * std::f64::consts::LN_2) as f32;
+        let channels = self.codes.channels;
+        let mut seen = false;
+        for c in 0..channels {
+            let i = p * channels + c;
+            let x = self.codes.get(self.k, c, self.planes.code(self.k, i));
+            if x.tone != Tone::Good {
+                continue;
+            }
+            let a = self.codes.get(anchor, c, self.planes.code(anchor, i));
+            let (centre, spread) = residuals.get(c, a.bin);
+            let allowed = NOISE_SIGMAS as f32 * x.sigma.hypot(a.sigma).max(spread) + tolerance;
+            let r = x.value - a.value - centre;
+            let off = match a.tone {
+                Tone::Good => r.abs() > allowed,
+                Tone::Bright => r < -allowed,
+                Tone::Dark => r > allowed,
+            };
+            if off {
+                return Verdict::Disagree;
+            }
+            seen = true;
+        }
+        if seen {
+            Verdict::Agree
+        } else {
+            Verdict::Unknown
+        }
     }
 }
 

@@ -434,8 +434,10 @@ pub fn merge(
 /// frame is kept everywhere): frame `k`'s weight at pixel `p` is multiplied by
 /// `m_k(p)/255`, so a frame masked to 0 does not contribute there
 /// ([`crate::deghost`]). A sample every kept frame clipped takes the clipped-everywhere
-/// rule over the kept frames (every frame when all are masked out there). With no mask
-/// the values are exactly those of [`merge`].
+/// rule over the kept frames (every frame when all are masked out there), except that a
+/// sample black in every kept frame but seen by a masked-out one takes the latter's
+/// weighted mean rather than black. With no mask the values are exactly those of
+/// [`merge`].
 pub fn merge_masked(
     frames: &[BracketFrame<'_>],
     response: &InverseResponse,
@@ -743,11 +745,14 @@ fn estimate(
     kept: impl Fn(usize) -> f32,
 ) -> Estimate {
     let (mut num, mut den) = (0.0f32, 0.0f32);
+    let (mut lost_num, mut lost_den) = (0.0f32, 0.0f32);
     for k in 0..tables.frames {
         let m = kept(k);
         let [w, wx] = tables.weighted[tables.index(k, c, code(k))];
         num += m * wx;
         den += m * w;
+        lost_num += (1.0 - m) * wx;
+        lost_den += (1.0 - m) * w;
     }
     if den > 0.0 {
         return Estimate::Weighted(num / den, den);
@@ -756,6 +761,9 @@ fn estimate(
     let dark_code = code(darkest);
     if dark_code >= tables.levels / 2 {
         Estimate::High(tables.value[tables.index(darkest, c, dark_code)])
+    } else if lost_den > 0.0 {
+        // Black in every kept frame but seen by a masked one: its value, not 0.
+        Estimate::Weighted(lost_num / lost_den, 0.0)
     } else {
         Estimate::Low(tables.value[tables.index(brightest, c, code(brightest))])
     }
@@ -1250,6 +1258,7 @@ impl<'a> BracketMerge<'a> {
             let first = pixel + run * RUN;
             let start = first * channels + channel;
             let (mut num, mut den) = ([0f32; RUN], [0f32; RUN]);
+            let (mut lost_num, mut lost_den) = ([0f32; RUN], [0f32; RUN]);
             for (k, codes) in frames.iter().enumerate() {
                 let table = &t.weighted[t.index(k, channel, 0)..t.index(k, channel, t.levels)];
                 let codes = codes[start..].iter().step_by(channels).take(out.len());
@@ -1263,11 +1272,15 @@ impl<'a> BracketMerge<'a> {
                         }
                     }
                     Some(mask) => {
-                        for (((n, d), &code), &m) in sums.zip(&mask[first..]) {
+                        let lost = lost_num.iter_mut().zip(&mut lost_den);
+                        for ((((n, d), &code), &m), (ln, ld)) in sums.zip(&mask[first..]).zip(lost)
+                        {
                             let [w, wx] = table[code.into()];
                             let m = f32::from(m) / 255.0;
                             *n += m * wx;
                             *d += m * w;
+                            *ln += (1.0 - m) * wx;
+                            *ld += (1.0 - m) * w;
                         }
                     }
                 }
@@ -1282,6 +1295,9 @@ impl<'a> BracketMerge<'a> {
                     let dark_code: usize = frames[dark][i].into();
                     if dark_code >= t.levels / 2 {
                         t.value[t.index(dark, channel, dark_code)]
+                    } else if lost_den[j] > 0.0 {
+                        // Black in every kept frame but seen by a masked one (`estimate`).
+                        lost_num[j] / lost_den[j]
                     } else {
                         t.value[t.index(bright, channel, frames[bright][i].into())]
                     }
