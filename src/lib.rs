@@ -13,6 +13,7 @@
 //! | histograms and the intensity mapping `τ` | [`histogram`] |
 //! | the camera's inverse response `g` from two or more frames | [`response`] |
 //! | frames and `g` into radiance | [`merge`] |
+//! | where a frame disagrees with the reference (moving subjects) | [`deghost`] |
 //! | OpenEXR and Radiance `.hdr` | [`hdr_output`] |
 //! | the display image, sRGB and luminance | [`display`] |
 //! | film stocks through their dye layers | [`film`] |
@@ -33,6 +34,7 @@ pub mod radiance;
 pub mod histogram;
 pub mod response;
 pub mod merge;
+pub mod deghost;
 pub mod hdr_output;
 pub mod display;
 pub mod film;

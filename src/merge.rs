@@ -136,6 +136,32 @@ pub struct MergeOptions {
     pub weighting: Weighting,
     /// Also return the per-pixel confidence (see [`Merged::confidence`]).
     pub confidence: bool,
+    /// Whether the darkroom leaves frames out where they disagree with the reference
+    /// ([`crate::deghost`] makes the masks that [`merge_masked`] applies; [`merge`]
+    /// itself blends every frame).
+    pub deghost: Deghost,
+}
+
+/// Whether frames that disagree with the bracket's reference frame are left out there.
+#[derive(
+    Debug,
+    Clone,
+    Copy,
+    PartialEq,
+    Eq,
+    Default,
+    serde::Serialize,
+    serde::Deserialize,
+    clap::ValueEnum,
+)]
+#[serde(rename_all = "lowercase")]
+pub enum Deghost {
+    /// Leave a frame out where it disagrees with the reference beyond its noise.
+    #[default]
+    On,
+    /// Blend every frame everywhere: a moving subject appears translucent, "an effect
+    /// similar to motion blur" (the method's report).
+    Off,
 }
 
 /// Why a bracket cannot be merged. Every variant names the files concerned.
@@ -205,6 +231,16 @@ pub enum MergeError {
         other: PathBuf,
         /// The common exposure.
         exposure: f64,
+    },
+    /// A frame's weight mask does not have one weight per pixel.
+    #[error("{path}: its weight mask has {mask} values for {pixels} pixels")]
+    MaskSize {
+        /// The frame.
+        path: PathBuf,
+        /// Values in the mask.
+        mask: usize,
+        /// Pixels in the frame.
+        pixels: usize,
     },
     /// The response has 1 channel for RGB frames or 3 for grey ones.
     #[error("the response has {response} channel(s) but {path} has {frame}")]
@@ -391,8 +427,27 @@ pub fn merge(
     response: &InverseResponse,
     options: MergeOptions,
 ) -> Result<Merged, MergeError> {
+    merge_masked(frames, response, options, &[])
+}
+
+/// [`merge`] with a weight mask per frame (input order; `None` or an empty `masks`: the
+/// frame is kept everywhere): frame `k`'s weight at pixel `p` is multiplied by
+/// `m_k(p)/255`, so a frame masked to 0 does not contribute there
+/// ([`crate::deghost`]). A sample every kept frame clipped takes the clipped-everywhere
+/// rule over the kept frames (every frame when all are masked out there), except that a
+/// sample black in every kept frame but seen by a masked-out one takes the latter's
+/// weighted mean rather than black. With no mask the values are exactly those of
+/// [`merge`].
+pub fn merge_masked(
+    frames: &[BracketFrame<'_>],
+    response: &InverseResponse,
+    options: MergeOptions,
+    masks: &[Option<&[u8]>],
+) -> Result<Merged, MergeError> {
     check(frames, response)?;
     let (order, exposures) = exposure_order(frames);
+    let masks = sorted_masks(frames, &order, masks)?;
+    let masked = masks.iter().any(Option::is_some);
     let first = frames[0].frame;
     let (width, height, channels) = (first.width(), first.height(), first.channels());
     let depth = first.bit_depth();
@@ -406,17 +461,18 @@ pub fn merge(
         Codes::Eight(codes) => {
             match confidence.as_deref_mut() {
                 // The common case, an 8-bit pair, takes one lookup per sample.
-                None if codes.len() == 2 => {
+                None if codes.len() == 2 && !masked => {
                     let table = PairTable::new(&tables);
                     fill_pair(codes[0], codes[1], &table, width as usize, &mut pixels);
                     count_clipped(codes[0], codes[1], &table)
                 }
-                conf => merge_codes(&codes, &tables, width as usize, &mut pixels, conf),
+                conf => merge_codes(&codes, &tables, &masks, width as usize, &mut pixels, conf),
             }
         }
         Codes::Sixteen(codes) => merge_codes(
             &codes,
             &tables,
+            &masks,
             width as usize,
             &mut pixels,
             confidence.as_deref_mut(),
@@ -434,6 +490,37 @@ pub fn merge(
             clipped_low,
         },
     })
+}
+
+/// `masks` (input order, or empty for none) in the exposure `order`, each checked to hold
+/// one weight per pixel.
+fn sorted_masks<'m>(
+    frames: &[BracketFrame<'_>],
+    order: &[usize],
+    masks: &[Option<&'m [u8]>],
+) -> Result<Vec<Option<&'m [u8]>>, MergeError> {
+    let pixels = frames[0].frame.pixel_count();
+    for (frame, mask) in frames.iter().zip(masks) {
+        if let Some(mask) = mask
+            && mask.len() != pixels
+        {
+            return Err(MergeError::MaskSize {
+                path: frame.source.to_path_buf(),
+                mask: mask.len(),
+                pixels,
+            });
+        }
+    }
+    Ok(order
+        .iter()
+        .map(|&i| masks.get(i).copied().flatten())
+        .collect())
+}
+
+/// The weight factor `m_k(p)/255` of sorted frame `k` at pixel `p` (1 without a mask).
+#[inline(always)]
+fn kept(masks: &[Option<&[u8]>], k: usize, p: usize) -> f32 {
+    masks[k].map_or(1.0, |m| f32::from(m[p]) / 255.0)
 }
 
 fn check(frames: &[BracketFrame<'_>], response: &InverseResponse) -> Result<(), MergeError> {
@@ -608,23 +695,32 @@ fn slope(response: &InverseResponse, c: usize, levels: usize) -> Vec<f64> {
 fn merge_codes<T: Copy + Into<usize> + Sync>(
     frames: &[&[T]],
     tables: &Tables,
+    masks: &[Option<&[u8]>],
     width: usize,
     out: &mut [f32],
     confidence: Option<&mut [f32]>,
 ) -> (u64, u64) {
     let row_len = width * tables.channels;
     let sum = |a: (u64, u64), b: (u64, u64)| (a.0 + b.0, a.1 + b.1);
+    let row = |y: usize, row: &mut [f32], conf: Option<&mut [f32]>| {
+        if masks.iter().all(Option::is_none) {
+            merge_row(frames, tables, y * row_len, row, conf, |_, _| 1.0)
+        } else {
+            let kept = |k, p| kept(masks, k, y * width + p);
+            merge_row(frames, tables, y * row_len, row, conf, kept)
+        }
+    };
     match confidence {
         Some(conf) => out
             .par_chunks_mut(row_len)
             .zip(conf.par_chunks_mut(width))
             .enumerate()
-            .map(|(y, (row, conf))| merge_row(frames, tables, y * row_len, row, Some(conf)))
+            .map(|(y, (r, conf))| row(y, r, Some(conf)))
             .reduce(|| (0, 0), sum),
         None => out
             .par_chunks_mut(row_len)
             .enumerate()
-            .map(|(y, row)| merge_row(frames, tables, y * row_len, row, None))
+            .map(|(y, r)| row(y, r, None))
             .reduce(|| (0, 0), sum),
     }
 }
@@ -639,33 +735,58 @@ enum Estimate {
     Low(f32),
 }
 
-/// The estimate of channel `c` from the sorted frames' codes (`code(k)`).
+/// The estimate of channel `c` from the sorted frames' codes (`code(k)`), frame `k`'s
+/// weight multiplied by `kept(k)` (1, or its mask's factor).
 #[inline(always)]
-fn estimate(tables: &Tables, c: usize, code: impl Fn(usize) -> usize) -> Estimate {
+fn estimate(
+    tables: &Tables,
+    c: usize,
+    code: impl Fn(usize) -> usize,
+    kept: impl Fn(usize) -> f32,
+) -> Estimate {
     let (mut num, mut den) = (0.0f32, 0.0f32);
+    let (mut lost_num, mut lost_den) = (0.0f32, 0.0f32);
     for k in 0..tables.frames {
+        let m = kept(k);
         let [w, wx] = tables.weighted[tables.index(k, c, code(k))];
-        num += wx;
-        den += w;
+        num += m * wx;
+        den += m * w;
+        lost_num += (1.0 - m) * wx;
+        lost_den += (1.0 - m) * w;
     }
     if den > 0.0 {
         return Estimate::Weighted(num / den, den);
     }
-    let (darkest, brightest) = (0, tables.frames - 1);
+    let (darkest, brightest) = kept_ends(tables.frames, kept);
     let dark_code = code(darkest);
     if dark_code >= tables.levels / 2 {
         Estimate::High(tables.value[tables.index(darkest, c, dark_code)])
+    } else if lost_den > 0.0 {
+        // Black in every kept frame but seen by a masked one: its value, not 0.
+        Estimate::Weighted(lost_num / lost_den, 0.0)
     } else {
         Estimate::Low(tables.value[tables.index(brightest, c, code(brightest))])
     }
 }
 
+/// The darkest and the brightest sorted frame with `kept(k) > 0` (the first and the
+/// last frame when none is kept).
+#[inline(always)]
+fn kept_ends(frames: usize, kept: impl Fn(usize) -> f32) -> (usize, usize) {
+    let darkest = (0..frames).find(|&k| kept(k) > 0.0).unwrap_or(0);
+    let brightest = (0..frames).rev().find(|&k| kept(k) > 0.0);
+    (darkest, brightest.unwrap_or(frames - 1))
+}
+
+/// One row of [`merge_codes`]; `kept(k, p)` is sorted frame `k`'s weight factor at
+/// pixel `p` of the row.
 fn merge_row<T: Copy + Into<usize>>(
     frames: &[&[T]],
     tables: &Tables,
     start: usize,
     row: &mut [f32],
     mut confidence: Option<&mut [f32]>,
+    kept: impl Fn(usize, usize) -> f32,
 ) -> (u64, u64) {
     let channels = tables.channels;
     let rows: Vec<&[T]> = frames
@@ -677,7 +798,7 @@ fn merge_row<T: Copy + Into<usize>>(
         let mut least = f32::INFINITY;
         for (c, out) in pixel.iter_mut().enumerate() {
             let i = p * channels + c;
-            let (value, den) = match estimate(tables, c, |k| rows[k][i].into()) {
+            let (value, den) = match estimate(tables, c, |k| rows[k][i].into(), |k| kept(k, p)) {
                 Estimate::Weighted(v, den) => (v, den),
                 Estimate::High(v) => {
                     high += 1;
@@ -720,7 +841,7 @@ impl PairTable {
         for c in 0..tables.channels {
             for pair in 0..1usize << 16 {
                 let codes = [pair >> 8, pair & 0xff];
-                let (v, flag) = match estimate(tables, c, |k| codes[k]) {
+                let (v, flag) = match estimate(tables, c, |k| codes[k], |_| 1.0) {
                     Estimate::Weighted(v, _) => (v, 0),
                     Estimate::High(v) => (v, 1),
                     Estimate::Low(v) => (v, -1),
@@ -1024,6 +1145,7 @@ const RUN: usize = 256;
 /// [`merge`]. For two 8-bit frames [`PairMerge`] is faster (one lookup a sample).
 pub struct BracketMerge<'a> {
     codes: Codes<'a>,
+    masks: Vec<Option<&'a [u8]>>,
     tables: Tables,
     factor: f32,
     width: u32,
@@ -1041,18 +1163,32 @@ impl<'a> BracketMerge<'a> {
         response: &InverseResponse,
         weighting: Weighting,
     ) -> Result<BracketMerge<'a>, MergeError> {
+        BracketMerge::masked(frames, response, weighting, &[])
+    }
+
+    /// [`BracketMerge::new`] with a weight mask per frame, as [`merge_masked`] takes them:
+    /// the values are exactly those of [`merge_masked`].
+    pub fn masked(
+        frames: &[BracketFrame<'a>],
+        response: &InverseResponse,
+        weighting: Weighting,
+        masks: &[Option<&'a [u8]>],
+    ) -> Result<BracketMerge<'a>, MergeError> {
         check(frames, response)?;
         let (order, exposures) = exposure_order(frames);
+        let masks = sorted_masks(frames, &order, masks)?;
         let first = frames[0].frame;
         let depth = first.bit_depth();
         let tables = Tables::new(&exposures, response, first.channels(), depth, weighting);
         let codes = Codes::of(frames, &order);
         let (clipped_high, clipped_low) = match &codes {
+            _ if masks.iter().any(Option::is_some) => count_clipped_masked(&codes, &tables, &masks),
             Codes::Eight(c) => count_clipped_everywhere(c, &tables),
             Codes::Sixteen(c) => count_clipped_everywhere(c, &tables),
         };
         Ok(BracketMerge {
             codes,
+            masks,
             tables,
             factor: 1.0,
             width: first.width(),
@@ -1090,9 +1226,10 @@ impl<'a> BracketMerge<'a> {
     /// Radiance of channel `channel` of pixel `pixel` (row-major index).
     pub fn sample(&self, pixel: usize, channel: usize) -> f32 {
         let i = pixel * self.tables.channels + channel;
+        let kept = |k| kept(&self.masks, k, pixel);
         let value = match &self.codes {
-            Codes::Eight(f) => estimate(&self.tables, channel, |k| f[k][i].into()),
-            Codes::Sixteen(f) => estimate(&self.tables, channel, |k| f[k][i].into()),
+            Codes::Eight(f) => estimate(&self.tables, channel, |k| f[k][i].into(), kept),
+            Codes::Sixteen(f) => estimate(&self.tables, channel, |k| f[k][i].into(), kept),
         };
         match value {
             Estimate::Weighted(v, _) | Estimate::High(v) | Estimate::Low(v) => v * self.factor,
@@ -1116,30 +1253,53 @@ impl<'a> BracketMerge<'a> {
         out: &mut [f32],
     ) {
         let t = &self.tables;
-        let (channels, last) = (t.channels, t.frames - 1);
+        let channels = t.channels;
         for (run, out) in out.chunks_mut(RUN).enumerate() {
-            let start = (pixel + run * RUN) * channels + channel;
+            let first = pixel + run * RUN;
+            let start = first * channels + channel;
             let (mut num, mut den) = ([0f32; RUN], [0f32; RUN]);
+            let (mut lost_num, mut lost_den) = ([0f32; RUN], [0f32; RUN]);
             for (k, codes) in frames.iter().enumerate() {
                 let table = &t.weighted[t.index(k, channel, 0)..t.index(k, channel, t.levels)];
-                let codes = codes[start..].iter().step_by(channels);
-                for ((n, d), &code) in num.iter_mut().zip(&mut den).zip(codes).take(out.len()) {
-                    let [w, wx] = table[code.into()];
-                    *n += wx;
-                    *d += w;
+                let codes = codes[start..].iter().step_by(channels).take(out.len());
+                let sums = num.iter_mut().zip(&mut den).zip(codes);
+                match self.masks[k] {
+                    None => {
+                        for ((n, d), &code) in sums {
+                            let [w, wx] = table[code.into()];
+                            *n += wx;
+                            *d += w;
+                        }
+                    }
+                    Some(mask) => {
+                        let lost = lost_num.iter_mut().zip(&mut lost_den);
+                        for ((((n, d), &code), &m), (ln, ld)) in sums.zip(&mask[first..]).zip(lost)
+                        {
+                            let [w, wx] = table[code.into()];
+                            let m = f32::from(m) / 255.0;
+                            *n += m * wx;
+                            *d += m * w;
+                            *ln += (1.0 - m) * wx;
+                            *ld += (1.0 - m) * w;
+                        }
+                    }
                 }
             }
             for (j, v) in out.iter_mut().enumerate() {
                 let value = if den[j] > 0.0 {
                     num[j] / den[j]
                 } else {
-                    // Clipped in every frame: the rule of `estimate`.
+                    // Clipped in every kept frame: the rule of `estimate`.
                     let i = start + j * channels;
-                    let dark: usize = frames[0][i].into();
-                    if dark >= t.levels / 2 {
-                        t.value[t.index(0, channel, dark)]
+                    let (dark, bright) = kept_ends(t.frames, |k| kept(&self.masks, k, first + j));
+                    let dark_code: usize = frames[dark][i].into();
+                    if dark_code >= t.levels / 2 {
+                        t.value[t.index(dark, channel, dark_code)]
+                    } else if lost_den[j] > 0.0 {
+                        // Black in every kept frame but seen by a masked one (`estimate`).
+                        lost_num[j] / lost_den[j]
                     } else {
-                        t.value[t.index(last, channel, frames[last][i].into())]
+                        t.value[t.index(bright, channel, frames[bright][i].into())]
                     }
                 };
                 *v = value * self.factor;
@@ -1195,6 +1355,37 @@ impl<'a> BracketMerge<'a> {
             });
         RadianceMap::new(self.width, self.height, channels, pixels)
             .expect("buffer sized from the frames")
+    }
+}
+
+/// Samples clipped high and low in every kept frame under weight `masks` (sorted): every
+/// sample's estimate, rows in parallel.
+fn count_clipped_masked(codes: &Codes<'_>, tables: &Tables, masks: &[Option<&[u8]>]) -> (u64, u64) {
+    fn count<T: Copy + Into<usize> + Sync>(
+        frames: &[&[T]],
+        tables: &Tables,
+        masks: &[Option<&[u8]>],
+    ) -> (u64, u64) {
+        let channels = tables.channels;
+        (0..frames[0].len() / channels)
+            .into_par_iter()
+            .map(|p| {
+                let (mut high, mut low) = (0, 0);
+                for c in 0..channels {
+                    let code = |k: usize| frames[k][p * channels + c].into();
+                    match estimate(tables, c, code, |k| kept(masks, k, p)) {
+                        Estimate::High(_) => high += 1,
+                        Estimate::Low(_) => low += 1,
+                        Estimate::Weighted(..) => {}
+                    }
+                }
+                (high, low)
+            })
+            .reduce(|| (0, 0), |a, b| (a.0 + b.0, a.1 + b.1))
+    }
+    match codes {
+        Codes::Eight(c) => count(c, tables, masks),
+        Codes::Sixteen(c) => count(c, tables, masks),
     }
 }
 
@@ -1308,6 +1499,7 @@ mod tests {
             MergeOptions {
                 weighting: Weighting::NoiseAware,
                 confidence: false,
+                ..MergeOptions::default()
             },
         )
         .unwrap();
@@ -1453,6 +1645,7 @@ mod tests {
                 let options = MergeOptions {
                     weighting,
                     confidence: false,
+                    ..MergeOptions::default()
                 };
                 let map = merge(&b, &g, options).unwrap();
                 let mut lazy = BracketMerge::new(&b, &g, weighting).unwrap();
@@ -1495,6 +1688,7 @@ mod tests {
                 let options = MergeOptions {
                     weighting,
                     confidence,
+                    ..MergeOptions::default()
                 };
                 merge(&bracket(&frames, &cam), &g, options).unwrap()
             };

@@ -12,6 +12,7 @@ mod calibrate;
 mod cli;
 mod common;
 mod daemon;
+mod deghost;
 mod demosaic;
 mod film;
 mod hostile;

@@ -6,7 +6,7 @@
 use std::path::{Path, PathBuf};
 
 /// The library's top-level modules, bottom first.
-const LAYERS: [&str; 16] = [
+const LAYERS: [&str; 17] = [
     "atomic",
     "metadata",
     "raw",
@@ -15,6 +15,7 @@ const LAYERS: [&str; 16] = [
     "histogram",
     "response",
     "merge",
+    "deghost",
     "hdr_output",
     "display",
     "film",

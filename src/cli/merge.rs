@@ -15,7 +15,7 @@ use filmback::atomic::Overwrite;
 use filmback::darkroom::{self, GivenResponse, Prints, ResponsePolicy, Source};
 use filmback::frame::{self, Limits, LoadedFrame, Samples};
 use filmback::hdr_output::{ExrCompression, ExrOptions, Overflow, Primaries, SampleFormat};
-use filmback::merge::{MergeOptions, Weighting};
+use filmback::merge::{Deghost, MergeOptions, Weighting};
 use filmback::metadata::Exposure;
 use filmback::rendering::SourceExif;
 use filmback::response::{self, RatioSource};
@@ -71,6 +71,10 @@ pub struct Args {
     /// Merge weight: hat (robust default) or noise-aware (lower noise, needs a good response).
     #[arg(long, value_enum, default_value_t = Weight::Hat)]
     weight: Weight,
+    /// Leave a frame out where it disagrees with the reference frame beyond its noise (a
+    /// moving subject): on, or off to blend every frame (moving subjects translucent).
+    #[arg(long, value_enum, default_value_t = Deghost::On)]
+    deghost: Deghost,
     /// Add the per-pixel confidence (weight sum) as channel `confidence.Y`.
     #[arg(long)]
     confidence: bool,
@@ -209,6 +213,7 @@ pub fn run(args: Args) -> anyhow::Result<ExitCode> {
             Weight::NoiseAware => Weighting::NoiseAware,
         },
         confidence: args.confidence,
+        deghost: args.deghost,
     };
     let mut developed =
         darkroom::develop(&frames, &exposures, ratio_source, policy, options, &prints)?;
@@ -240,6 +245,7 @@ pub fn run(args: Args) -> anyhow::Result<ExitCode> {
                 "buffered"
             },
             "clipped": { "high": developed.clipped.0, "low": developed.clipped.1 },
+            "deghost": developed.deghost,
             "radiance_scale": developed.exr_scale,
             "scale": { "kind": developed.scale.kind(), "convention": developed.scale.describe() },
             "warnings": developed.warnings,
@@ -252,6 +258,13 @@ pub fn run(args: Args) -> anyhow::Result<ExitCode> {
         }
         for p in &developed.outputs {
             println!("{}", p.display());
+        }
+        if let Some(d) = developed.deghost.as_ref().filter(|d| d.share > 0.0) {
+            println!(
+                "  deghosted: {:.1} % of pixels merged without some frame (reference {})",
+                100.0 * d.share,
+                frames[d.reference].path.display()
+            );
         }
         println!(
             "  ratio {:.3} ({:.2} stops), response: {}, {:.0} ms",

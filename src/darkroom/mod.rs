@@ -24,9 +24,12 @@ use std::path::{Path, PathBuf};
 use std::time::{Duration, Instant};
 
 use crate::atomic::{self, Overwrite, PublishError};
+use crate::deghost::{self, GhostMasks};
 use crate::frame::{LoadedFrame, Samples};
 use crate::hdr_output::{self, ExrOptions, FrameRecord, OutputError, Provenance, Written};
-use crate::merge::{self, BracketFrame, BracketMerge, MergeError, MergeOptions, PairMerge};
+use crate::merge::{
+    self, BracketFrame, BracketMerge, Deghost, MergeError, MergeOptions, PairMerge,
+};
 use crate::radiance::{RadianceMap, RadianceSource};
 use crate::rendering::{self, Format, Look, Outputs, RenderingError, SourceExif};
 use crate::response::{CalibrationError, InverseResponse, RatioSource};
@@ -192,6 +195,47 @@ pub struct Developed {
     /// kept for measuring the body's JPEG curve against its companion JPEGs
     /// ([`crate::response::measured`]); `None` for other frames.
     pub raw_radiance: Option<RadianceMap>,
+    /// What deghosting did, when it was asked for (see [`crate::deghost`]).
+    pub deghost: Option<Deghosted>,
+}
+
+/// What deghosting did to a bracket.
+#[derive(Debug, Clone, PartialEq, serde::Serialize)]
+pub struct Deghosted {
+    /// Input index of the reference frame (the one that exposes most of the scene well).
+    pub reference: usize,
+    /// Per input frame, the share of pixels it was left out of (0 for the reference).
+    pub left_out: Vec<f64>,
+    /// The share of pixels at least one frame was left out of.
+    pub share: f64,
+}
+
+impl Deghosted {
+    fn of(ghosts: &GhostMasks) -> Deghosted {
+        Deghosted {
+            reference: ghosts.reference,
+            left_out: ghosts.left_out.clone(),
+            share: ghosts.share(),
+        }
+    }
+}
+
+/// The EXR header's account of deghosting: the reference frame and the shares left out.
+fn describe_ghosts(ghosts: &Deghosted, frames: &[LoadedFrame]) -> String {
+    let name = |i: usize| file_name(&frames[i].path);
+    let frames: Vec<String> = ghosts
+        .left_out
+        .iter()
+        .enumerate()
+        .filter(|&(i, _)| i != ghosts.reference)
+        .map(|(i, share)| format!("{} left out of {:.2} %", name(i), 100.0 * share))
+        .collect();
+    format!(
+        "reference {}; {:.2} % of pixels merged without some frame ({})",
+        name(ghosts.reference),
+        100.0 * ghosts.share,
+        frames.join(", ")
+    )
 }
 
 /// The merged bracket: evaluated during encoding (an 8-bit pair, or any other bracket),
@@ -214,6 +258,41 @@ pub fn bracket<'a>(frames: &'a [LoadedFrame], exposures: &[f64]) -> Vec<BracketF
             camera: &f.metadata.camera,
         })
         .collect()
+}
+
+/// Merges `bracket` through `chosen`'s response, with `ghosts`' masks when any frame was
+/// left out. Merges while the outputs are encoded and developed, unless a confidence
+/// layer is asked for or a look spreads light between pixels (MTF, halation; it reads the
+/// whole map). An unmasked 8-bit pair costs one table lookup a sample, so the EXR and
+/// every look evaluate it again; any other bracket is evaluated so only for the EXR
+/// alone, since each look would evaluate all its frames again.
+fn merge_bracket<'a>(
+    bracket: &[BracketFrame<'a>],
+    chosen: &ChosenResponse,
+    options: MergeOptions,
+    prints: &Prints<'_>,
+    ghosts: Option<&'a GhostMasks>,
+) -> Result<Radiance<'a>, MergeError> {
+    let masks = ghosts.filter(|g| !g.is_empty()).map(GhostMasks::weights);
+    let masks = masks.as_deref().unwrap_or(&[]);
+    let lazy = !options.confidence && !prints.looks.iter().any(Look::has_optics);
+    if lazy
+        && masks.is_empty()
+        && let Some(pair) = PairMerge::new(bracket, &chosen.response, options.weighting)?
+    {
+        return Ok(Radiance::Pair(pair));
+    }
+    let response = &chosen.response;
+    Ok(if lazy && prints.looks.is_empty() && prints.exr.is_some() {
+        Radiance::Banded(BracketMerge::masked(
+            bracket,
+            response,
+            options.weighting,
+            masks,
+        )?)
+    } else {
+        Radiance::Buffered(merge::merge_masked(bracket, response, options, masks)?)
+    })
 }
 
 /// Develops a bracket of decoded `frames` with relative `exposures` (same order):
@@ -242,6 +321,7 @@ pub fn develop(
     let raw_merged: Option<(ChosenResponse, merge::Merged)> = None;
     let scaled = raw_merged.is_some();
     let mut weighting = format!("{:?}", options.weighting);
+    let mut ghosts = None;
     let (chosen, merged) = match raw_merged {
         Some((chosen, m)) => {
             weighting = RAW_WEIGHTING.to_string();
@@ -249,29 +329,13 @@ pub fn develop(
         }
         None => {
             let chosen = choose_response(&bracket, ratio_source, policy, &mut stages)?;
+            if options.deghost == Deghost::On {
+                let t = Instant::now();
+                ghosts = Some(deghost::ghost_masks(&bracket, &chosen.response));
+                stages.push(("deghost", t.elapsed()));
+            }
             let t = Instant::now();
-            // Merge while the outputs are encoded and developed, unless a confidence layer
-            // is asked for or a look spreads light between pixels (MTF, halation; it reads
-            // the whole map). An 8-bit pair costs one table lookup a sample, so the EXR and
-            // every look evaluate it again; any other bracket is evaluated so only for the
-            // EXR alone, since each look would evaluate all its frames again.
-            let lazy = !options.confidence && !prints.looks.iter().any(Look::has_optics);
-            let pair = if lazy {
-                PairMerge::new(&bracket, &chosen.response, options.weighting)?
-            } else {
-                None
-            };
-            let merged = match pair {
-                Some(pair) => Radiance::Pair(pair),
-                None if lazy && prints.looks.is_empty() && prints.exr.is_some() => {
-                    Radiance::Banded(BracketMerge::new(
-                        &bracket,
-                        &chosen.response,
-                        options.weighting,
-                    )?)
-                }
-                None => Radiance::Buffered(merge::merge(&bracket, &chosen.response, options)?),
-            };
+            let merged = merge_bracket(&bracket, &chosen, options, prints, ghosts.as_ref())?;
             stages.push(("merge", t.elapsed()));
             (chosen, merged)
         }
@@ -287,6 +351,7 @@ pub fn develop(
         }
         Radiance::Buffered(_) => {}
     }
+    let deghosted = ghosts.as_ref().map(Deghosted::of);
     let sorted = match &merged {
         Radiance::Pair(p) => &p.bracket,
         Radiance::Banded(b) => &b.bracket,
@@ -312,6 +377,10 @@ pub fn develop(
         weighting,
         clipped,
         scale: scale.clone(),
+        deghost: deghosted
+            .as_ref()
+            .filter(|g| g.share > 0.0)
+            .map(|g| describe_ghosts(g, frames)),
     };
     let mut warnings: Vec<String> = frames
         .iter()
@@ -383,6 +452,7 @@ pub fn develop(
         warnings,
         stages,
         raw_radiance,
+        deghost: deghosted,
     })
 }
 
@@ -612,6 +682,7 @@ pub fn develop_single(
             .collect(),
         stages,
         raw_radiance,
+        deghost: None,
     })
 }
 

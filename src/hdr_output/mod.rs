@@ -222,6 +222,8 @@ pub struct Provenance {
     pub clipped: (u64, u64),
     /// The scale of the values.
     pub scale: crate::merge::Scale,
+    /// What deghosting did (reference frame, share of pixels), when it left any frame out.
+    pub deghost: Option<String>,
 }
 
 /// What writing did beyond the pixels.

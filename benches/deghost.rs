@@ -1,0 +1,378 @@
+//! `cargo bench --bench deghost`: how well deghosting merges a moving subject, and what it
+//! costs at 24 MP.
+//!
+//! **Accuracy.** A subject (a square of the frame's own texture copied from 5/8 of the width
+//! and 47 % of the height, 1/5 of the height on a side) moves
+//! by 1/8 of the width from frame to frame of a three-frame bracket. The merge with
+//! deghosting is compared with the merge of the same frames with the subject standing
+//! still where the reference frame shows it, both through one response (fitted on the
+//! still frames, as the darkroom fits it): the error in stops of the luminance over the
+//! area the subject sweeps (median, p95, share of pixels off by more than 0.1 stop), beside
+//! the blended merge (`--deghost off`). Also the share of the whole image some frame was
+//! left out of, and, for the still frames, the largest difference deghosting makes (0:
+//! the merge is bit-identical). Split: the constants of `deghost` were set on the
+//! synthetic procedural scene of seed 5 (`tests/deghost.rs`); the rows reported are other
+//! seeds and scene kinds, and the real brackets of `../shared/testdata/brackets`
+//! (frobisher, memorial, learnopencv; skipped when absent).
+//!
+//! **Cost.** `deghost::ghost_masks` on three 6000×4000 8-bit frames two stops apart (a
+//! still bracket, and the same with the subject moving), and the buffered merge with and
+//! without masks; best of `--runs N` (default 3).
+//!
+//! `cargo bench --bench deghost -- [accuracy | speed] [--runs N]`
+
+use std::path::{Path, PathBuf};
+use std::time::{Duration, Instant};
+
+use filmback::darkroom::{self, GivenResponse, ResponsePolicy, Stages};
+use filmback::deghost::{self, GhostMasks};
+use filmback::frame::{self, BitDepth, Frame, Limits, Samples};
+use filmback::merge::{self, BracketFrame, MergeOptions};
+use filmback::metadata::Camera;
+use filmback::radiance::RadianceMap;
+use filmback::response::{InverseResponse, RatioSource};
+use filmback::synthetic::{ResponseCurve, SceneKind, Sensor, expose};
+
+mod common;
+
+/// Frames with their relative exposures.
+type Frames = [(Frame, f64)];
+
+/// A bracket: its frames with relative exposures, and a name.
+struct Case {
+    name: String,
+    frames: Vec<(Frame, f64)>,
+}
+
+fn main() {
+    let args: Vec<String> = std::env::args().collect();
+    let all = !args.iter().any(|a| a == "accuracy" || a == "speed");
+    let runs = common::arg("--runs").map_or(3, |r| r.parse().expect("--runs N"));
+    if all || args.iter().any(|a| a == "accuracy") {
+        accuracy();
+    }
+    if all || args.iter().any(|a| a == "speed") {
+        speed(runs);
+    }
+}
+
+fn accuracy() {
+    println!("moving subject, 1/8 of the width per frame: error in stops over the swept area");
+    println!(
+        "| bracket | size | deghosted median / p95 / > 0.1 stop | blended median / p95 / > 0.1 stop | left out (image) | still: left out / samples > 0.1 stop / largest |"
+    );
+    println!("|---|---|---|---|---|---|");
+    let mut cases = synthetic_cases();
+    cases.extend(real_cases());
+    for case in &cases {
+        report(case);
+    }
+}
+
+/// Synthetic brackets (sRGB curve, 1 DN read noise, 8-bit, two stops apart) of scenes
+/// the constants were not set on.
+fn synthetic_cases() -> Vec<Case> {
+    let sensor = Sensor {
+        read_noise_dn: 1.0,
+        seed: 21,
+        ..Sensor::noiseless(ResponseCurve::Srgb, BitDepth::Eight)
+    };
+    [
+        (SceneKind::Procedural, 21),
+        (SceneKind::Procedural, 33),
+        (SceneKind::Studio, 21),
+    ]
+    .into_iter()
+    .map(|(kind, seed)| {
+        let radiance = kind.render(768, 512, seed);
+        let frames = [0.25, 1.0, 4.0]
+            .iter()
+            .map(|&e| (expose(&radiance, e, &sensor), e))
+            .collect();
+        Case {
+            name: format!("synthetic {kind:?} seed {seed}"),
+            frames,
+        }
+    })
+    .collect()
+}
+
+/// Three frames of each real bracket, about two or three stops apart.
+fn real_cases() -> Vec<Case> {
+    let dir = common::testdata_brackets();
+    let brackets: [(&str, [(&str, f64); 3]); 3] = [
+        (
+            "frobisher",
+            [
+                ("IMG_2600.jpg", 0.125),
+                ("IMG_2601.jpg", 1.0),
+                ("IMG_2602.jpg", 8.0),
+            ],
+        ),
+        (
+            "memorial",
+            [
+                ("memorial0069.png", 0.125),
+                ("memorial0067.png", 0.5),
+                ("memorial0065.png", 2.0),
+            ],
+        ),
+        (
+            "learnopencv",
+            [
+                ("img_0.033.jpg", 1.0 / 30.0),
+                ("img_0.25.jpg", 0.25),
+                ("img_2.5.jpg", 2.5),
+            ],
+        ),
+    ];
+    let mut cases = Vec::new();
+    for (name, files) in brackets {
+        let paths: Vec<(PathBuf, f64)> = files
+            .iter()
+            .map(|(f, e)| (dir.join(name).join(f), *e))
+            .collect();
+        if !paths.iter().all(|(p, _)| p.exists()) {
+            println!("skipped {name}: {} is absent", dir.join(name).display());
+            continue;
+        }
+        let frames = paths
+            .iter()
+            .map(|(p, e)| {
+                (
+                    frame::load(p, Limits::default())
+                        .expect("a real frame")
+                        .frame,
+                    *e,
+                )
+            })
+            .collect();
+        cases.push(Case {
+            name: format!("real {name}"),
+            frames,
+        });
+    }
+    cases
+}
+
+/// The frame with a square of side `side` copied from `(sx, sy)` to `(x0, y0)` (the
+/// frame's own texture, so it is exposed as the frame is).
+fn paste(frame: &Frame, side: usize, from: (usize, usize), to: (usize, usize)) -> Frame {
+    let (w, c) = (frame.width() as usize, frame.channels());
+    let copy = |v: &mut Vec<u8>| {
+        let source = v.clone();
+        for y in 0..side {
+            for x in 0..side {
+                let s = ((from.1 + y) * w + from.0 + x) * c;
+                let d = ((to.1 + y) * w + to.0 + x) * c;
+                v[d..d + c].copy_from_slice(&source[s..s + c]);
+            }
+        }
+    };
+    let Samples::Eight(codes) = frame.samples() else {
+        panic!("8-bit frames only");
+    };
+    let mut codes = codes.clone();
+    copy(&mut codes);
+    Frame::new(frame.width(), frame.height(), c, Samples::Eight(codes)).expect("same size")
+}
+
+/// The subject's square side and where it is copied from and to, in frame `k`.
+fn subject(frame: &Frame, k: usize) -> (usize, (usize, usize), (usize, usize)) {
+    let (w, h) = (frame.width() as usize, frame.height() as usize);
+    let side = h / 5;
+    let x = w / 8 + k * w / 8;
+    (side, (w * 5 / 8, h * 47 / 100), (x, h / 2))
+}
+
+fn bracket<'a>(frames: &'a [(Frame, f64)], camera: &'a Camera) -> Vec<BracketFrame<'a>> {
+    frames
+        .iter()
+        .map(|(frame, exposure)| BracketFrame {
+            source: Path::new("bench"),
+            frame,
+            exposure: *exposure,
+            camera,
+        })
+        .collect()
+}
+
+fn report(case: &Case) {
+    let camera = Camera::default();
+    let moved: Vec<(Frame, f64)> = case
+        .frames
+        .iter()
+        .enumerate()
+        .map(|(k, (f, e))| {
+            let (side, from, to) = subject(f, k);
+            (paste(f, side, from, to), *e)
+        })
+        .collect();
+    let masks = deghost::ghost_masks(&bracket(&moved, &camera), &fitted(&case.frames));
+    let r = masks.reference;
+    let still: Vec<(Frame, f64)> = case
+        .frames
+        .iter()
+        .map(|(f, e)| {
+            let (side, from, _) = subject(f, 0);
+            (paste(f, side, from, subject(f, r).2), *e)
+        })
+        .collect();
+    let g = fitted(&still);
+    let masks = deghost::ghost_masks(&bracket(&moved, &camera), &g);
+    let truth = merged(&still, &g, None);
+    let first = &case.frames[0].0;
+    let (side, _, start) = subject(first, 0);
+    let end = subject(first, 2).2.0 + side;
+    let area = (start.0..end, start.1..start.1 + side);
+    let deghosted = errors(&merged(&moved, &g, Some(&masks)), &truth, &area);
+    let blended = errors(&merged(&moved, &g, None), &truth, &area);
+    let still_masks = deghost::ghost_masks(&bracket(&still, &camera), &g);
+    let change = change(&merged(&still, &g, Some(&still_masks)), &truth);
+    println!(
+        "| {} | {}×{} | {} | {} | {:.1} % | {:.2} % / {change} |",
+        case.name,
+        first.width(),
+        first.height(),
+        deghosted,
+        blended,
+        100.0 * masks.share(),
+        100.0 * still_masks.share()
+    );
+}
+
+/// The response the darkroom fits to `frames` (the sRGB inverse when the fit is weak).
+fn fitted(frames: &[(Frame, f64)]) -> InverseResponse {
+    let camera = Camera::default();
+    let policy = ResponsePolicy::Fit {
+        fallback: Some(GivenResponse::standard(frames[0].0.channels())),
+        min_confidence: 0.5,
+        pool: None,
+    };
+    let mut stages = Stages::new();
+    darkroom::choose_response(
+        &bracket(frames, &camera),
+        RatioSource::Argument,
+        policy,
+        &mut stages,
+    )
+    .expect("a response")
+    .response
+}
+
+fn merged(frames: &[(Frame, f64)], g: &InverseResponse, masks: Option<&GhostMasks>) -> RadianceMap {
+    let camera = Camera::default();
+    let weights = masks.map(GhostMasks::weights).unwrap_or_default();
+    merge::merge_masked(
+        &bracket(frames, &camera),
+        g,
+        MergeOptions::default(),
+        &weights,
+    )
+    .expect("a bracket")
+    .radiance
+}
+
+/// `median / p95 / share > 0.1` of `|log₂(a/b)|` of the luminance over `area`.
+fn errors(
+    a: &RadianceMap,
+    b: &RadianceMap,
+    area: &(std::ops::Range<usize>, std::ops::Range<usize>),
+) -> String {
+    let w = a.width() as usize;
+    let mut e: Vec<f64> = area
+        .1
+        .clone()
+        .flat_map(|y| area.0.clone().map(move |x| y * w + x))
+        .map(|p| (luminance(a, p) / luminance(b, p)).log2().abs())
+        .collect();
+    let off = e.iter().filter(|&&v| v > 0.1).count() as f64 / e.len() as f64;
+    let median = common::quantile(&mut e, 0.5);
+    let p95 = common::quantile(&mut e, 0.95);
+    format!("{median:.4} / {p95:.3} / {:.1} %", 100.0 * off)
+}
+
+fn luminance(m: &RadianceMap, p: usize) -> f64 {
+    let c = m.channels();
+    let px = &m.pixels()[p * c..p * c + c];
+    let y = if c == 3 {
+        0.2126 * f64::from(px[0]) + 0.7152 * f64::from(px[1]) + 0.0722 * f64::from(px[2])
+    } else {
+        f64::from(px[0])
+    };
+    y.max(1e-9)
+}
+
+/// The share of samples that differ by more than 0.1 stop, and the largest difference.
+fn change(a: &RadianceMap, b: &RadianceMap) -> String {
+    let d: Vec<f64> = a
+        .pixels()
+        .iter()
+        .zip(b.pixels())
+        .map(|(&x, &y)| {
+            (f64::from(x).max(1e-9) / f64::from(y).max(1e-9))
+                .log2()
+                .abs()
+        })
+        .collect();
+    let off = d.iter().filter(|&&v| v > 0.1).count() as f64 / d.len() as f64;
+    let largest = d.iter().copied().fold(0.0, f64::max);
+    format!("{:.3} % / {largest:.3} stop", 100.0 * off)
+}
+
+fn speed(runs: usize) {
+    let (w, h) = (6000, 4000);
+    println!("\ncost at {w}×{h}, three 8-bit frames two stops apart, best of {runs}");
+    let radiance = SceneKind::Procedural.render(w, h, 7);
+    let sensor = Sensor {
+        read_noise_dn: 1.0,
+        seed: 7,
+        ..Sensor::noiseless(ResponseCurve::Srgb, BitDepth::Eight)
+    };
+    let still: Vec<(Frame, f64)> = [0.25, 1.0, 4.0]
+        .iter()
+        .map(|&e| (expose(&radiance, e, &sensor), e))
+        .collect();
+    let moved: Vec<(Frame, f64)> = still
+        .iter()
+        .enumerate()
+        .map(|(k, (f, e))| {
+            let (side, from, to) = subject(f, k);
+            (paste(f, side, from, to), *e)
+        })
+        .collect();
+    let g = InverseResponse::srgb(3, 1024);
+    let camera = Camera::default();
+    let best = |f: &dyn Fn()| {
+        (0..runs)
+            .map(|_| {
+                let t = Instant::now();
+                f();
+                t.elapsed()
+            })
+            .min()
+            .unwrap_or(Duration::ZERO)
+    };
+    println!("| step | still | moving subject |");
+    println!("|---|---|---|");
+    let masks_of = |frames: &[(Frame, f64)]| deghost::ghost_masks(&bracket(frames, &camera), &g);
+    let masks = (masks_of(&still), masks_of(&moved));
+    let row = |name: &str, f: &dyn Fn(&Frames, &GhostMasks)| {
+        let still_t = best(&|| f(&still, &masks.0));
+        let moved_t = best(&|| f(&moved, &masks.1));
+        println!(
+            "| {name} | {:.3} s | {:.3} s |",
+            still_t.as_secs_f64(),
+            moved_t.as_secs_f64()
+        );
+    };
+    row("ghost masks", &|frames, _| {
+        masks_of(frames);
+    });
+    row("merge, no masks", &|frames, _| {
+        merged(frames, &g, None);
+    });
+    row("merge with the masks", &|frames, m| {
+        merged(frames, &g, Some(m));
+    });
+}

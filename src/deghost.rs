@@ -1,0 +1,696 @@
+//! Deghosting: where a frame disagrees with the bracket's reference frame by more than
+//! its noise allows, that frame is left out of the merge there.
+//!
+//! # The test
+//!
+//! Each frame `k` estimates radiance `x_k = g(B_k)·e_ref/e_k` per sample (see
+//! [`crate::merge`]). Frame `k` is compared with an *anchor* frame `a` in every channel it
+//! exposes well (brightness within [`WELL_EXPOSED`]) through the residual
+//! `r = ln x_k − ln x_a`. In a still bracket `r` is noise plus what the single response
+//! does not model (its fitting error, the camera's tone processing, the codec), which
+//! depends on the tone; a moving subject is an outlier. So the residuals of the pair are
+//! first gathered over the whole frame (every [`STATS_STRIDE`]-th pixel of every
+//! [`STATS_STRIDE`]-th row) by channel and by the anchor's tone ([`TONE_BINS`] bins of its
+//! code), giving per bin a centre `m` (the median) and a spread `s = 1.4826·MAD`; a bin with
+//! fewer than [`MIN_SAMPLES`] takes the channel's pooled figures. The frame disagrees in a
+//! channel when
+//!
+//! ```text
+//! |r − m|  >  Z · max(√(σ_k² + σ_a²), s) + δ,           Z = 4,  δ = 0.1 stop · ln 2
+//! ```
+//!
+//! ([`NOISE_SIGMAS`], [`TOLERANCE_STOPS`]). `σ` is the noise of `ln x` the sensor model
+//! predicts: for a sample of brightness `B` and linear value `X = g(B)` (units of the
+//! frame's clipping point), read noise and quantisation constant in code values carried
+//! through the response's slope, plus shot noise,
+//!
+//! ```text
+//! σ² = ((g'(B) · σ_B)² + X / W) / X²,        σ_B = 1.5 codes of 255,  W = 2000 e⁻
+//! ```
+//!
+//! ([`CODE_NOISE`], [`FULL_WELL_ELECTRONS`]). An anchor sample outside the well-exposed
+//! range still bounds the radiance: clipped high, from below by its value at the range's
+//! top (the frame disagrees only when `r − m < −allowance`); dark, from above by its
+//! value at the range's bottom (only when `r − m > allowance`).
+//!
+//! A frame disagrees at a pixel when any channel disagrees. Frames are tested in order of
+//! exposure distance from the reference, the anchor of every pixel being the reference
+//! until a frame that exposes the pixel well where the anchor does not (a region the
+//! reference clipped or left dark) agrees with it and takes its place.
+//!
+//! # The mask
+//!
+//! Disagreement is counted over blocks of [`BLOCK`]×[`BLOCK`] pixels. A block is left out
+//! where the share of disagreeing pixels, averaged over its 3×3 neighbourhood, exceeds
+//! [`GHOST_SHARE`] (isolated noise never reaches it; a subject does). The left-out blocks
+//! grow by one block and are feathered by two box filters of one block, and the mask is
+//! interpolated bilinearly back to pixels: a frame's weight falls smoothly to 0 over about
+//! two blocks around a ghost, so the reference fills the region without a seam. A frame
+//! with no block left out gets no mask, and the merge is then exactly the plain one.
+
+use rayon::prelude::*;
+
+use crate::frame::{Frame, Samples};
+use crate::merge::BracketFrame;
+use crate::response::InverseResponse;
+
+/// Brightness range (normalised codes) in which a sample is compared.
+pub const WELL_EXPOSED: (f64, f64) = (0.02, 0.95);
+
+/// `Z`: spreads of the residual beyond which two samples disagree.
+pub const NOISE_SIGMAS: f64 = 4.0;
+
+/// `δ`: a disagreement this large (stops) is always allowed.
+pub const TOLERANCE_STOPS: f64 = 0.1;
+
+/// `σ_B`: read noise and quantisation, in codes of an 8-bit scale.
+pub const CODE_NOISE: f64 = 1.5;
+
+/// `W`: electrons at the clipping point, for the shot noise.
+pub const FULL_WELL_ELECTRONS: f64 = 2000.0;
+
+/// Side of the blocks over which disagreement is counted, pixels.
+pub const BLOCK: usize = 4;
+
+/// Share of disagreeing pixels in a block's neighbourhood above which the block is left out.
+pub const GHOST_SHARE: f32 = 0.3;
+
+/// Bins of the anchor's code over which a pair's residuals are gathered.
+pub const TONE_BINS: usize = 32;
+
+/// Pixels and rows between the samples of a pair's residual statistics.
+pub const STATS_STRIDE: usize = 4;
+
+/// Fewest residuals for a tone bin's own statistics.
+pub const MIN_SAMPLES: u32 = 64;
+
+/// Bins of the residual's histogram, over `±RESIDUAL_RANGE`.
+const RESIDUAL_BINS: usize = 256;
+
+/// Half the range of the residual's histogram, `ln` units (±4.3 stops).
+const RESIDUAL_RANGE: f32 = 3.0;
+
+/// What deghosting decided for a bracket.
+#[derive(Debug, Clone, PartialEq)]
+pub struct GhostMasks {
+    /// Input index of the reference frame (never left out).
+    pub reference: usize,
+    /// Per input frame, its weight per pixel (0..=255, 255 = kept) or `None` where the
+    /// frame was kept everywhere.
+    pub masks: Vec<Option<Vec<u8>>>,
+    /// Per input frame, the share of pixels it was left out of (weight below one half).
+    pub left_out: Vec<f64>,
+}
+
+impl GhostMasks {
+    /// True when no frame was left out anywhere.
+    pub fn is_empty(&self) -> bool {
+        self.masks.iter().all(Option::is_none)
+    }
+
+    /// The share of pixels at least one frame was left out of.
+    pub fn share(&self) -> f64 {
+        let Some(n) = self.masks.iter().flatten().map(Vec::len).next() else {
+            return 0.0;
+        };
+        let out = (0..n)
+            .into_par_iter()
+            .filter(|&p| self.masks.iter().flatten().any(|m| m[p] < 128))
+            .count();
+        out as f64 / n as f64
+    }
+
+    /// The masks as the merge takes them, one per input frame.
+    pub fn weights(&self) -> Vec<Option<&[u8]>> {
+        self.masks.iter().map(|m| m.as_deref()).collect()
+    }
+}
+
+/// The frame that exposes most of the scene well: the largest number of samples within
+/// [`WELL_EXPOSED`] (every 4th pixel of every 4th row counted); ties go to the earlier.
+pub fn choose_reference(frames: &[BracketFrame<'_>]) -> usize {
+    let count = |f: &Frame| {
+        let max = f64::from(f.bit_depth().max_code());
+        let (lo, hi) = (WELL_EXPOSED.0 * max, WELL_EXPOSED.1 * max);
+        let row = f.width() as usize * f.channels();
+        let good = |c: f64| c >= lo && c <= hi;
+        match f.samples() {
+            Samples::Eight(v) => strided(v, row, f.channels(), |c| good(f64::from(c))),
+            Samples::Sixteen(v) => strided(v, row, f.channels(), |c| good(f64::from(c))),
+        }
+    };
+    let counts: Vec<usize> = frames.iter().map(|f| count(f.frame)).collect();
+    let best = counts.iter().copied().max().unwrap_or(0);
+    counts.iter().position(|&c| c == best).unwrap_or(0)
+}
+
+/// Samples of every 4th pixel of every 4th row for which `good` holds.
+fn strided<T: Copy>(v: &[T], row: usize, channels: usize, good: impl Fn(T) -> bool) -> usize {
+    v.chunks(row)
+        .step_by(4)
+        .flat_map(|r| r.chunks(channels).step_by(4).flatten())
+        .filter(|&&c| good(c))
+        .count()
+}
+
+/// Where a code lies: well exposed, or a bound on the radiance.
+#[derive(Clone, Copy, PartialEq)]
+enum Tone {
+    /// Below the well-exposed range: the radiance is at most `value`.
+    Dark,
+    /// Within it: the radiance is `value`.
+    Good,
+    /// Above it: the radiance is at least `value`.
+    Bright,
+}
+
+/// Per code of one frame and channel: its `ln x` (or the bound at the range's edge), `σ` of
+/// it, where it lies, and its tone bin.
+#[derive(Clone, Copy)]
+struct Code {
+    value: f32,
+    sigma: f32,
+    tone: Tone,
+    bin: u8,
+}
+
+/// The [`Code`] table of every frame (input order), channel and code.
+struct Codes {
+    levels: usize,
+    channels: usize,
+    table: Vec<Code>,
+}
+
+impl Codes {
+    fn new(frames: &[BracketFrame<'_>], response: &InverseResponse) -> Codes {
+        let first = frames[0].frame;
+        let (levels, channels) = (first.bit_depth().levels(), first.channels());
+        let e_ref = frames.iter().map(|f| f.exposure).fold(0.0, f64::max);
+        let mut table = Vec::with_capacity(frames.len() * channels * levels);
+        for f in frames {
+            for c in 0..channels {
+                // `ln x` and its σ at brightness `b` of this frame and channel.
+                let at = |b: f64| {
+                    let x = response.eval(c, b).max(1e-9);
+                    let (lo, hi) = ((b - 1.0 / 256.0).max(0.0), (b + 1.0 / 256.0).min(1.0));
+                    let slope = (response.eval(c, hi) - response.eval(c, lo)) / (hi - lo);
+                    let var =
+                        ((slope * CODE_NOISE / 255.0).powi(2) + x / FULL_WELL_ELECTRONS) / (x * x);
+                    ((x * e_ref / f.exposure).ln() as f32, var.sqrt() as f32)
+                };
+                let (bottom, top) = (at(WELL_EXPOSED.0), at(WELL_EXPOSED.1));
+                for code in 0..levels {
+                    let b = code as f64 / (levels - 1) as f64;
+                    let ((value, sigma), tone) = if b < WELL_EXPOSED.0 {
+                        (bottom, Tone::Dark)
+                    } else if b > WELL_EXPOSED.1 {
+                        (top, Tone::Bright)
+                    } else {
+                        (at(b), Tone::Good)
+                    };
+                    let bin = (code * TONE_BINS / levels) as u8;
+                    table.push(Code {
+                        value,
+                        sigma,
+                        tone,
+                        bin,
+                    });
+                }
+            }
+        }
+        Codes {
+            levels,
+            channels,
+            table,
+        }
+    }
+
+    #[inline]
+    fn get(&self, frame: usize, channel: usize, code: usize) -> Code {
+        self.table[(frame * self.channels + channel) * self.levels + code]
+    }
+}
+
+/// The codes of every frame, at the bracket's depth.
+enum Planes<'a> {
+    Eight(Vec<&'a [u8]>),
+    Sixteen(Vec<&'a [u16]>),
+}
+
+impl<'a> Planes<'a> {
+    fn of(frames: &[BracketFrame<'a>]) -> Planes<'a> {
+        let eight = |f: &'a Frame| match f.samples() {
+            Samples::Eight(v) => v.as_slice(),
+            Samples::Sixteen(_) => &[],
+        };
+        let sixteen = |f: &'a Frame| match f.samples() {
+            Samples::Sixteen(v) => v.as_slice(),
+            Samples::Eight(_) => &[],
+        };
+        match frames[0].frame.samples() {
+            Samples::Eight(_) => Planes::Eight(frames.iter().map(|f| eight(f.frame)).collect()),
+            Samples::Sixteen(_) => {
+                Planes::Sixteen(frames.iter().map(|f| sixteen(f.frame)).collect())
+            }
+        }
+    }
+
+    /// The code of sample `i` of frame `k`.
+    #[inline]
+    fn code(&self, k: usize, i: usize) -> usize {
+        match self {
+            Planes::Eight(v) => usize::from(v[k][i]),
+            Planes::Sixteen(v) => usize::from(v[k][i]),
+        }
+    }
+}
+
+/// What a pair's residuals `ln x_k − ln x_a` are in a still scene, per channel and tone bin
+/// of the anchor: `(m, s)`, their median and `1.4826·MAD`.
+struct Residuals {
+    bins: Vec<(f32, f32)>,
+}
+
+impl Residuals {
+    /// Gathers the pair `(k, a)`'s residuals over every [`STATS_STRIDE`]-th pixel.
+    fn of(planes: &Planes<'_>, codes: &Codes, width: usize, k: usize, a: usize) -> Residuals {
+        let channels = codes.channels;
+        let per_bin = RESIDUAL_BINS;
+        let rows = planes.len(channels) / (width * channels).max(1);
+        let histogram = (0..rows)
+            .into_par_iter()
+            .step_by(STATS_STRIDE)
+            .fold(
+                || vec![0u32; channels * TONE_BINS * per_bin],
+                |mut h, y| {
+                    for x in (0..width).step_by(STATS_STRIDE) {
+                        for c in 0..channels {
+                            let i = (y * width + x) * channels + c;
+                            let (xk, xa) = (
+                                codes.get(k, c, planes.code(k, i)),
+                                codes.get(a, c, planes.code(a, i)),
+                            );
+                            if xk.tone == Tone::Good {
+                                let slot = residual_bin(xk.value - xa.value);
+                                h[(c * TONE_BINS + usize::from(xa.bin)) * per_bin + slot] += 1;
+                            }
+                        }
+                    }
+                    h
+                },
+            )
+            .reduce(
+                || vec![0u32; channels * TONE_BINS * per_bin],
+                |mut a, b| {
+                    a.iter_mut().zip(b).for_each(|(x, y)| *x += y);
+                    a
+                },
+            );
+        let mut bins = Vec::with_capacity(channels * TONE_BINS);
+        for c in 0..channels {
+            let channel = &histogram[c * TONE_BINS * per_bin..(c + 1) * TONE_BINS * per_bin];
+            let mut pooled = vec![0u32; per_bin];
+            for bin in channel.chunks(per_bin) {
+                pooled.iter_mut().zip(bin).for_each(|(p, &n)| *p += n);
+            }
+            let fallback = centre_and_spread(&pooled).unwrap_or((0.0, 0.0));
+            for bin in channel.chunks(per_bin) {
+                bins.push(centre_and_spread(bin).unwrap_or(fallback));
+            }
+        }
+        Residuals { bins }
+    }
+
+    #[inline]
+    fn get(&self, channel: usize, bin: u8) -> (f32, f32) {
+        self.bins[channel * TONE_BINS + usize::from(bin)]
+    }
+}
+
+impl Planes<'_> {
+    /// Samples in one frame.
+    fn len(&self, _channels: usize) -> usize {
+        match self {
+            Planes::Eight(v) => v[0].len(),
+            Planes::Sixteen(v) => v[0].len(),
+        }
+    }
+}
+
+/// The histogram slot of residual `r`.
+#[inline]
+fn residual_bin(r: f32) -> usize {
+    let t = (r + RESIDUAL_RANGE) / (2.0 * RESIDUAL_RANGE) * RESIDUAL_BINS as f32;
+    (t.max(0.0) as usize).min(RESIDUAL_BINS - 1)
+}
+
+/// Median and `1.4826·MAD` of a residual histogram, `None` below [`MIN_SAMPLES`].
+fn centre_and_spread(histogram: &[u32]) -> Option<(f32, f32)> {
+    let total: u32 = histogram.iter().sum();
+    if total < MIN_SAMPLES {
+        return None;
+    }
+    let width = 2.0 * RESIDUAL_RANGE / RESIDUAL_BINS as f32;
+    let mut seen = 0;
+    let median = histogram
+        .iter()
+        .position(|&n| {
+            seen += n;
+            2 * seen >= total
+        })
+        .unwrap_or(0);
+    // The median absolute deviation, in whole bins around the median's bin.
+    let mut within = histogram[median];
+    let mut d = 0;
+    while 2 * within < total && d < RESIDUAL_BINS {
+        d += 1;
+        within += median.checked_sub(d).map_or(0, |i| histogram[i]);
+        within += histogram.get(median + d).copied().unwrap_or(0);
+    }
+    let centre = -RESIDUAL_RANGE + (median as f32 + 0.5) * width;
+    Some((centre, 1.4826 * d as f32 * width))
+}
+
+/// How a frame compares with its anchor at one pixel.
+#[derive(PartialEq)]
+enum Verdict {
+    /// No channel the frame exposes well.
+    Unknown,
+    Agree,
+    Disagree,
+}
+
+/// Decides, for every frame of `frames` but the reference, where it is left out of the
+/// merge (module docs). Frames must share size, depth and channels (the merge checks it).
+pub fn ghost_masks(frames: &[BracketFrame<'_>], response: &InverseResponse) -> GhostMasks {
+    let reference = choose_reference(frames);
+    let n = frames.len();
+    let codes = Codes::new(frames, response);
+    let planes = Planes::of(frames);
+    let first = frames[0].frame;
+    let (width, height) = (first.width() as usize, first.height() as usize);
+    // A bracket of more than 256 frames compares each with the reference alone.
+    let mut anchor = vec![u8::try_from(reference).unwrap_or(0); width * height];
+    let mut masks = vec![None; n];
+    let mut left_out = vec![0.0; n];
+    let order = by_distance(frames, reference);
+    for (rank, &k) in order.iter().enumerate().skip(1) {
+        let mut residuals: Vec<Option<Residuals>> = (0..n).map(|_| None).collect();
+        for &a in &order[..rank] {
+            residuals[a] = Some(Residuals::of(&planes, &codes, width, k, a));
+        }
+        let pair = Pair {
+            planes: &planes,
+            codes: &codes,
+            residuals: &residuals,
+            k,
+        };
+        let disagree = pair.compare(&mut anchor, width);
+        if let Some(mask) = mask_of(&disagree, width, height) {
+            left_out[k] = mask.iter().filter(|&&m| m < 128).count() as f64 / mask.len() as f64;
+            masks[k] = Some(mask);
+        }
+    }
+    GhostMasks {
+        reference,
+        masks,
+        left_out,
+    }
+}
+
+/// Input indices, the reference first, then by `|ln(e_k/e_ref)|` (stable).
+fn by_distance(frames: &[BracketFrame<'_>], reference: usize) -> Vec<usize> {
+    let e_ref = frames[reference].exposure;
+    let mut order: Vec<usize> = (0..frames.len()).collect();
+    order.sort_by(|&a, &b| {
+        let d = |i: usize| {
+            let d = (frames[i].exposure / e_ref).ln().abs();
+            if i == reference { -1.0 } else { d }
+        };
+        d(a).total_cmp(&d(b))
+    });
+    order
+}
+
+/// Frame `k` against the anchors of the frames before it.
+struct Pair<'a> {
+    planes: &'a Planes<'a>,
+    codes: &'a Codes,
+    /// Per anchor frame, the residual statistics of `(k, anchor)`.
+    residuals: &'a [Option<Residuals>],
+    k: usize,
+}
+
+impl Pair<'_> {
+    /// Per block, the share of the pixels it compared that disagree (a grid of
+    /// `⌈w/BLOCK⌉ × ⌈h/BLOCK⌉`). Where the anchor exposes no channel well and `k` does
+    /// and agrees with it, `k` becomes the anchor.
+    fn compare(&self, anchor: &mut [u8], width: usize) -> Vec<f32> {
+        let blocks_x = width.div_ceil(BLOCK);
+        let mut share = vec![0.0f32; blocks_x * (anchor.len() / width.max(1)).div_ceil(BLOCK)];
+        anchor
+            .par_chunks_mut(width * BLOCK)
+            .zip(share.par_chunks_mut(blocks_x))
+            .enumerate()
+            .for_each(|(band, (anchors, shares))| {
+                let mut counts = vec![(0u32, 0u32); blocks_x];
+                for (i, a) in anchors.iter_mut().enumerate() {
+                    let p = band * BLOCK * width + i;
+                    let count = &mut counts[(i % width) / BLOCK];
+                    match self.verdict(p, usize::from(*a)) {
+                        Verdict::Disagree => *count = (count.0 + 1, count.1 + 1),
+                        Verdict::Agree => {
+                            count.1 += 1;
+                            if !self.exposes(usize::from(*a), p) {
+                                *a = self.k as u8;
+                            }
+                        }
+                        Verdict::Unknown => {}
+                    }
+                }
+                for (s, (bad, seen)) in shares.iter_mut().zip(counts) {
+                    *s = if seen == 0 {
+                        0.0
+                    } else {
+                        bad as f32 / seen as f32
+                    };
+                }
+            });
+        share
+    }
+
+    /// True when frame `f` exposes some channel of pixel `p` well.
+    fn exposes(&self, f: usize, p: usize) -> bool {
+        let channels = self.codes.channels;
+        (0..channels).any(|c| {
+            let code = self.planes.code(f, p * channels + c);
+            self.codes.get(f, c, code).tone == Tone::Good
+        })
+    }
+
+    /// Frame `k` against `anchor` at pixel `p` (module docs).
+    #[inline]
+    fn verdict(&self, p: usize, anchor: usize) -> Verdict {
+        let Some(residuals) = self.residuals[anchor].as_ref() else {
+            return Verdict::Unknown;
+        };
+        let tolerance = (TOLERANCE_STOPS * std::f64::consts::LN_2) as f32;
+        let channels = self.codes.channels;
+        let mut seen = false;
+        for c in 0..channels {
+            let i = p * channels + c;
+            let x = self.codes.get(self.k, c, self.planes.code(self.k, i));
+            if x.tone != Tone::Good {
+                continue;
+            }
+            let a = self.codes.get(anchor, c, self.planes.code(anchor, i));
+            let (centre, spread) = residuals.get(c, a.bin);
+            let allowed = NOISE_SIGMAS as f32 * x.sigma.hypot(a.sigma).max(spread) + tolerance;
+            let r = x.value - a.value - centre;
+            let off = match a.tone {
+                Tone::Good => r.abs() > allowed,
+                Tone::Bright => r < -allowed,
+                Tone::Dark => r > allowed,
+            };
+            if off {
+                return Verdict::Disagree;
+            }
+            seen = true;
+        }
+        if seen {
+            Verdict::Agree
+        } else {
+            Verdict::Unknown
+        }
+    }
+}
+
+/// The pixel mask (255 kept … 0 left out) from the blocks' disagreeing shares, or `None`
+/// when no block is left out.
+fn mask_of(share: &[f32], width: usize, height: usize) -> Option<Vec<u8>> {
+    let (bw, bh) = (width.div_ceil(BLOCK), height.div_ceil(BLOCK));
+    let neighbourhood = box_mean(share, bw, bh, 1);
+    let ghost: Vec<f32> = neighbourhood
+        .iter()
+        .map(|&s| if s > GHOST_SHARE { 1.0 } else { 0.0 })
+        .collect();
+    if ghost.iter().all(|&g| g == 0.0) {
+        return None;
+    }
+    let grown: Vec<f32> = box_mean(&ghost, bw, bh, 1)
+        .iter()
+        .map(|&g| if g > 0.0 { 1.0 } else { 0.0 })
+        .collect();
+    let soft = box_mean(&box_mean(&grown, bw, bh, 1), bw, bh, 1);
+    Some(upsample(&soft, bw, bh, width, height))
+}
+
+/// The mean over the `(2r+1)²` neighbourhood of each cell (clamped at the borders: only
+/// the cells inside the grid count).
+fn box_mean(grid: &[f32], w: usize, h: usize, r: usize) -> Vec<f32> {
+    let pass = |src: &[f32], along_x: bool| -> Vec<f32> {
+        let mut out = vec![0.0; src.len()];
+        for y in 0..h {
+            for x in 0..w {
+                let (i, n) = if along_x { (x, w) } else { (y, h) };
+                let (lo, hi) = (i.saturating_sub(r), (i + r).min(n - 1));
+                let at = |j: usize| if along_x { y * w + j } else { j * w + x };
+                let sum: f32 = (lo..=hi).map(|j| src[at(j)]).sum();
+                out[y * w + x] = sum / (hi - lo + 1) as f32;
+            }
+        }
+        out
+    };
+    pass(&pass(grid, true), false)
+}
+
+/// Pixel weights `255·(1 − s)` from the block grid `soft` (`s` the left-out share),
+/// interpolated bilinearly between block centres.
+fn upsample(soft: &[f32], bw: usize, bh: usize, width: usize, height: usize) -> Vec<u8> {
+    let coordinate = |p: usize, n: usize| {
+        let t = ((p as f32 + 0.5) / BLOCK as f32 - 0.5).clamp(0.0, (n - 1) as f32);
+        let i = (t as usize).min(n.saturating_sub(2));
+        (i, (i + 1).min(n - 1), t - i as f32)
+    };
+    let mut mask = vec![0u8; width * height];
+    mask.par_chunks_mut(width).enumerate().for_each(|(y, row)| {
+        let (y0, y1, fy) = coordinate(y, bh);
+        for (x, m) in row.iter_mut().enumerate() {
+            let (x0, x1, fx) = coordinate(x, bw);
+            let at = |yy: usize, xx: usize| soft[yy * bw + xx];
+            let top = at(y0, x0) * (1.0 - fx) + at(y0, x1) * fx;
+            let bottom = at(y1, x0) * (1.0 - fx) + at(y1, x1) * fx;
+            let s = top * (1.0 - fy) + bottom * fy;
+            *m = (255.0 * (1.0 - s)).round().clamp(0.0, 255.0) as u8;
+        }
+    });
+    mask
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::metadata::Camera;
+    use std::path::Path;
+
+    fn grey(width: u32, codes: Vec<u8>) -> Frame {
+        let h = codes.len() as u32 / width;
+        Frame::new(width, h, 1, Samples::Eight(codes)).unwrap()
+    }
+
+    fn linear() -> InverseResponse {
+        InverseResponse::from_samples(vec![vec![0.0, 1.0]]).unwrap()
+    }
+
+    fn bracket<'a>(frames: &'a [(Frame, f64)], camera: &'a Camera) -> Vec<BracketFrame<'a>> {
+        frames
+            .iter()
+            .map(|(frame, exposure)| BracketFrame {
+                source: Path::new("frame"),
+                frame,
+                exposure: *exposure,
+                camera,
+            })
+            .collect()
+    }
+
+    /// A 64×64 linear scene of smooth tones, exposed at `e`, with a square of side 16 at
+    /// `(x0, 24)` four times brighter.
+    fn shot(e: f64, x0: Option<usize>) -> Frame {
+        let codes = (0..64 * 64)
+            .map(|p| {
+                let (x, y) = (p % 64, p / 64);
+                let mut radiance = 0.05 + 0.1 * (x + y) as f64 / 128.0;
+                if x0.is_some_and(|x0| (x0..x0 + 16).contains(&x) && (24..40).contains(&y)) {
+                    radiance *= 4.0;
+                }
+                (radiance * e * 255.0).round().min(255.0) as u8
+            })
+            .collect();
+        grey(64, codes)
+    }
+
+    #[test]
+    fn a_static_bracket_has_no_mask() {
+        let frames = [(shot(1.0, Some(8)), 1.0), (shot(2.0, Some(8)), 2.0)];
+        let camera = Camera::default();
+        let masks = ghost_masks(&bracket(&frames, &camera), &linear());
+        assert!(masks.is_empty(), "{:?}", masks.left_out);
+        assert_eq!(masks.share(), 0.0);
+    }
+
+    #[test]
+    fn a_moved_square_is_left_out_where_it_differs() {
+        let frames = [
+            (shot(1.0, Some(8)), 1.0),
+            (shot(2.0, Some(40)), 2.0),
+            (shot(0.5, Some(24)), 0.5),
+        ];
+        let camera = Camera::default();
+        let masks = ghost_masks(&bracket(&frames, &camera), &linear());
+        assert_eq!(
+            masks.reference, 0,
+            "the frame that exposes most pixels well"
+        );
+        assert!(masks.masks[0].is_none(), "the reference is never left out");
+        let mask = masks.masks[1].as_ref().expect("frame 1 disagrees");
+        // Inside the square of frame 1 and inside the reference's square: left out.
+        assert_eq!(mask[32 * 64 + 48], 0);
+        assert_eq!(mask[32 * 64 + 16], 0);
+        // Far from both: kept.
+        assert_eq!(mask[4 * 64 + 4], 255);
+        assert_eq!(mask[60 * 64 + 60], 255);
+        assert!(masks.masks[2].is_some());
+        assert!(
+            masks.share() > 0.05 && masks.share() < 0.5,
+            "{}",
+            masks.share()
+        );
+    }
+
+    #[test]
+    fn masks_fall_smoothly() {
+        let frames = [(shot(1.0, Some(8)), 1.0), (shot(2.0, Some(40)), 2.0)];
+        let camera = Camera::default();
+        let masks = ghost_masks(&bracket(&frames, &camera), &linear());
+        let mask = masks.masks[1].as_ref().expect("frame 1 disagrees");
+        let row = &mask[32 * 64..33 * 64];
+        let steepest = row
+            .windows(2)
+            .map(|w| (i32::from(w[0]) - i32::from(w[1])).abs())
+            .max()
+            .unwrap();
+        assert!(steepest < 128, "a step of {steepest} in {row:?}");
+    }
+
+    #[test]
+    fn the_reference_exposes_most_of_the_scene_well() {
+        let frames = [
+            (shot(0.02, None), 0.02),
+            (shot(1.0, None), 1.0),
+            (shot(30.0, None), 30.0),
+        ];
+        let camera = Camera::default();
+        assert_eq!(choose_reference(&bracket(&frames, &camera)), 1);
+    }
+}
