@@ -149,6 +149,17 @@ impl Entry {
         }
     }
 
+    fn inputs_mut(&mut self) -> Vec<&mut Input> {
+        match self {
+            Entry::Bracket { inputs, .. } | Entry::Failed { inputs, .. } => {
+                inputs.iter_mut().collect()
+            }
+            Entry::Single { input, .. }
+            | Entry::Rejected { input, .. }
+            | Entry::Unchanged { input, .. } => vec![input],
+        }
+    }
+
     /// The content digest recorded for the input at `path`, if this entry developed it.
     pub fn digest_of(&self, path: &Path) -> Option<u64> {
         let (inputs, digests): (Vec<&Input>, &[u64]) = match self {
@@ -277,6 +288,22 @@ impl Journal {
             }
         }
         self.entries.push(entry);
+    }
+
+    /// Gives every input path recorded so far the name `resolve` returns for it, in
+    /// memory (the file is not rewritten): the daemon resolves a journal written with
+    /// relative or differently spelled folders against its canonical ingest folder, so a
+    /// file has one identity whatever the configuration said then.
+    pub fn resolve_inputs(&mut self, resolve: impl Fn(&Path) -> PathBuf) {
+        let entries = std::mem::take(&mut self.entries);
+        self.settled.clear();
+        self.developed.clear();
+        for mut entry in entries {
+            for input in entry.inputs_mut() {
+                input.path = resolve(&input.path);
+            }
+            self.note(entry);
+        }
     }
 
     /// The latest bracket or single that developed the file at `path`.
@@ -461,6 +488,23 @@ mod tests {
         let mut rewritten = input("a.jpg");
         rewritten.size = 43;
         assert!(!j.is_settled(&rewritten), "a rewritten file is new work");
+    }
+
+    #[test]
+    fn resolved_inputs_are_found_under_their_new_names() {
+        let dir = tempfile::tempdir().unwrap();
+        {
+            let mut j = Journal::open(dir.path()).unwrap();
+            j.record(bracket(&["a.jpg", "b.jpg"])).unwrap();
+        }
+        let mut j = Journal::open(dir.path()).unwrap();
+        j.resolve_inputs(|p| Path::new("/real").join(p.strip_prefix("/").unwrap()));
+        let mut moved = input("a.jpg");
+        moved.path = PathBuf::from("/real/in/a.jpg");
+        assert!(j.is_settled(&moved));
+        assert!(!j.is_settled(&input("a.jpg")));
+        assert!(j.developed(Path::new("/real/in/b.jpg")).is_some());
+        assert!(j.developed(Path::new("/in/b.jpg")).is_none());
     }
 
     #[test]
