@@ -942,6 +942,15 @@ fn kill_9_mid_merge_then_restart_loses_and_repeats_nothing() {
     wait_for_status(&root.join("state"), |s| s.in_flight > 0);
     child.kill().unwrap(); // SIGKILL
     child.wait().unwrap();
+    // Its last snapshot still says it runs; `status` tells by the lock that it does not.
+    let shown = Command::new(env!("CARGO_BIN_EXE_filmback"))
+        .args(["status", "--json", "--state"])
+        .arg(root.join("state"))
+        .output()
+        .unwrap();
+    let report: serde_json::Value = serde_json::from_slice(&shown.stdout).unwrap();
+    assert_eq!(report["running"], false, "{report}");
+    assert_eq!(report["daemon"]["running"], false, "{report}");
     let done_before = journal::read(&root.join("state")).unwrap().len();
     assert!(done_before < 2, "killed before both brackets finished");
 
@@ -1729,6 +1738,19 @@ fn deleted_outputs_stay_deleted_until_filmback_redo() {
         String::from_utf8_lossy(&unknown.stderr).contains("nothing-1: no finished bracket"),
         "{unknown:?}"
     );
+    // All or nothing: one unknown stem queues none of them.
+    let mixed = redo(&["d-1", "nothing-1"]);
+    assert!(!mixed.status.success());
+    assert!(
+        String::from_utf8_lossy(&mixed.stderr).contains("nothing queued"),
+        "{mixed:?}"
+    );
+    assert!(
+        listing(&rig.state().join("redo")).is_empty(),
+        "no request left"
+    );
+    std::thread::sleep(Duration::from_millis(1500));
+    assert_eq!(listing(&rig.out()), ["d-1.linear.jpg".to_string()].into());
     let done = redo(&["d-1"]);
     assert!(done.status.success(), "{done:?}");
     expect_outputs(&rig.out(), &bracket_outputs(&["d-1"]), T);
@@ -2142,4 +2164,42 @@ fn a_frame_replaced_while_its_bracket_develops_is_developed_again() {
     let new = inputs.iter().find(|i| i.path.ends_with("n-2.jpg")).unwrap();
     assert_eq!(new.size, now.len(), "the new frame was developed");
     assert_eq!(journaled_brackets_all(&state), 2);
+}
+
+/// Issue 32, 2.11: a state folder the daemon can no longer write leaves `status.json`
+/// behind; `status` says its data may be stale. Run as `nobody` when root (permissions
+/// do not bind root).
+#[test]
+fn status_says_when_the_state_folder_is_not_writable() {
+    use std::os::unix::fs::PermissionsExt;
+    let dir = tempfile::tempdir().unwrap();
+    let root = dir.path();
+    open_folders(root);
+    let config = root.join("filmback.toml");
+    std::fs::write(&config, config_text(root, &[])).unwrap();
+    let mut child = Watch(
+        unprivileged(env!("CARGO_BIN_EXE_filmback"))
+            .args(["watch", "--config"])
+            .arg(&config)
+            .stdout(Stdio::null())
+            .stderr(Stdio::null())
+            .spawn()
+            .unwrap(),
+    );
+    let state = root.join("state");
+    wait_for_status(&state, |s| s.running);
+    let status = || {
+        let shown = unprivileged(env!("CARGO_BIN_EXE_filmback"))
+            .args(["status", "--state"])
+            .arg(&state)
+            .output()
+            .unwrap();
+        String::from_utf8_lossy(&shown.stdout).into_owned()
+    };
+    assert!(!status().contains("stale"), "{}", status());
+    std::fs::set_permissions(&state, std::fs::Permissions::from_mode(0o555)).unwrap();
+    let shown = status();
+    std::fs::set_permissions(&state, std::fs::Permissions::from_mode(0o777)).unwrap();
+    assert!(shown.contains("may be stale"), "{shown}");
+    terminate(&mut child);
 }
