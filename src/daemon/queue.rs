@@ -214,8 +214,11 @@ impl State {
         self.in_use = self.in_use.saturating_sub(work.reserved);
         match result {
             Ok(processed) => self.developed(&work, &processed, took)?,
-            // Not on disk now (moved away, being replaced): not a verdict on the file.
-            Err(JobError::Frame { path, .. }) if is_missing(&path) => {
+            // A frame not on disk now (moved away, being replaced): not a verdict on it.
+            Err(JobError::Frame { path, .. })
+                if is_missing(&path)
+                    && work.closed.frames().iter().any(|c| c.input.path == path) =>
+            {
                 self.frame_missing(work, &path)?;
             }
             Err(JobError::Frame { path, reason }) => self.frame_failed(&work, &path, reason)?,
