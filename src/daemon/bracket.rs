@@ -281,11 +281,13 @@ fn runs(frames: &[(Capture, f64)], rules: &BracketRules) -> Vec<Range<usize>> {
 
 /// Groups captures as they arrive (see the module docs), whatever their arrival order
 /// within the gap: a body's frames are kept sorted by capture time and split into runs
-/// ([`runs`]); a run closes when its gap clock ([`Open::clock`]) is more than
-/// `max_gap_s` old, so that no frame captured within it can still arrive, or at once when
-/// it holds `size` frames and its body's frames have been arriving in capture order
-/// ([`Order`]). A frame of the next bracket that arrives before the last frame of the
-/// current one therefore does not split it.
+/// (a run ends at a capture gap over `max_gap_s`, a repeated exposure, or `size`
+/// frames); a run closes when its gap clock — the later of its own last arrival and the
+/// first arrival of a frame captured after it — is more than `max_gap_s` old, so that no
+/// frame captured within it can still arrive, or at once when it holds `size` frames and
+/// its body's frames have arrived in capture order for the last `max_gap_s`. A frame of
+/// the next bracket that arrives before the last frame of the current one therefore does
+/// not split it.
 #[derive(Debug)]
 pub struct Grouper {
     rules: BracketRules,
