@@ -19,6 +19,7 @@ use std::path::PathBuf;
 use serde::{Deserialize, Serialize};
 
 use crate::daemon::config::BracketRules;
+use crate::daemon::journal;
 
 /// The camera body a frame came from; brackets never mix bodies.
 #[derive(Debug, Clone, Default, PartialEq, Eq, PartialOrd, Ord, Hash, Serialize, Deserialize)]
@@ -195,13 +196,9 @@ pub fn fingerprint<'a>(inputs: impl IntoIterator<Item = &'a Input>) -> String {
         })
         .collect();
     keys.sort();
-    let mut h: u64 = 0xcbf2_9ce4_8422_2325;
-    for k in keys {
-        for b in k.bytes().chain(std::iter::once(0xff)) {
-            h ^= u64::from(b);
-            h = h.wrapping_mul(0x0000_0100_0000_01b3);
-        }
-    }
+    let h = keys.iter().fold(journal::FNV_OFFSET, |h, k| {
+        journal::fnv1a(journal::fnv1a(h, k.as_bytes()), &[0xff])
+    });
     format!("{h:016x}")
 }
 

@@ -62,6 +62,13 @@ pub const REDO_FOLDER: &str = "redo";
 /// Longest delay between retries of a bracket whose outputs could not be written.
 const MAX_RETRY: Duration = Duration::from_secs(300);
 
+/// The wait before the next attempt after `attempts` failed ones, from `[daemon] retry_s`:
+/// `retry · 2^attempts`, at most [`MAX_RETRY`] (outputs that could not be written, files
+/// that could not be read, frames not on disk).
+fn backoff(retry: Duration, attempts: u32) -> Duration {
+    (retry * 2u32.saturating_pow(attempts.min(16))).min(MAX_RETRY)
+}
+
 /// What the daemon can be told while it runs (signals in the binary, channels in tests).
 #[derive(Debug)]
 pub enum Control {
@@ -543,6 +550,11 @@ fn folder_id(dir: &Path) -> Option<(u64, u64)> {
 }
 
 impl State {
+    /// The memory budget, `[daemon] memory_mb` in bytes (MB = 10⁶ bytes).
+    fn budget_bytes(&self) -> u64 {
+        self.config.daemon.memory_mb.saturating_mul(1_000_000)
+    }
+
     fn now_s(&self) -> f64 {
         self.started.elapsed().as_secs_f64()
     }
@@ -569,6 +581,14 @@ impl State {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn backoff_doubles_from_retry_up_to_the_cap() {
+        let retry = Duration::from_secs(5);
+        let waits: Vec<u64> = (0..8).map(|n| backoff(retry, n).as_secs()).collect();
+        assert_eq!(waits, [5, 10, 20, 40, 80, 160, 300, 300]);
+        assert_eq!(backoff(retry, u32::MAX), MAX_RETRY);
+    }
 
     /// Out, state and cache lose every leftover; ingest only those a killed hook left,
     /// not one a running hook is renaming into place.

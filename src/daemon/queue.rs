@@ -13,9 +13,7 @@ use super::cache::{DISSENTS_TO_REPLACE, Dissent, PooledBracket};
 use super::config::{Recalibrate, Singles};
 use super::intake::{self, Arrival};
 use super::journal::{self, Entry};
-use super::{
-    DaemonError, Job, JobError, MAX_RETRY, Outcome, Processed, State, Work, file_stem, job_bytes,
-};
+use super::{DaemonError, Job, JobError, Outcome, Processed, State, Work, file_stem, job_bytes};
 use crate::atomic;
 use crate::darkroom::Pooling;
 
@@ -39,7 +37,7 @@ impl State {
             // The memory budget: a job starts when its estimate fits beside those
             // developing; one that cannot fit even alone is recorded as failed.
             let need = self.job_bytes(&work.closed);
-            let budget = self.config.daemon.memory_mb.saturating_mul(1_000_000);
+            let budget = self.budget_bytes();
             let single_reported = matches!(&work.closed, Closed::Single(..))
                 && self.config.bracket.singles == Singles::Report;
             if !single_reported && self.in_use + need > budget {
@@ -424,10 +422,9 @@ impl State {
     }
 
     /// Outputs could not be written, or a frame is missing: try again after
-    /// `retry · 2^attempts` (at most [`MAX_RETRY`]); `status` shows the `reason`.
+    /// `retry · 2^attempts` (at most [`super::MAX_RETRY`]); `status` shows the `reason`.
     pub(super) fn retry_later(&mut self, work: Work, reason: String) {
-        let delay =
-            (self.config.daemon.retry * 2u32.saturating_pow(work.attempts.min(16))).min(MAX_RETRY);
+        let delay = super::backoff(self.config.daemon.retry, work.attempts);
         info!(
             bracket = %work.closed.stem(),
             retry_in_s = delay.as_secs_f64(),

@@ -39,8 +39,8 @@ use super::bracket::{Alone, Bracket, Capture, Closed, Input};
 use super::intake::{self, Arrival, Notice, Probe};
 use super::journal::{self, Entry};
 use super::{
-    Candidate, DaemonError, FINISHED_QUIET, Held, MAX_RETRY, REDO_FOLDER, State, Superseded,
-    Unreadable, WRITER_PATIENCE, Work, folder_id, job_bytes,
+    Candidate, DaemonError, FINISHED_QUIET, Held, REDO_FOLDER, State, Superseded, Unreadable,
+    WRITER_PATIENCE, Work, folder_id, job_bytes,
 };
 use crate::atomic;
 
@@ -411,7 +411,7 @@ impl State {
     /// Probes files off the async threads, under the memory budget; a decoder's panic is
     /// the file's rejection ([`intake::probe_guarded`]), never the service's end.
     async fn probe_all(&self, paths: Vec<PathBuf>) -> Vec<(PathBuf, Probe)> {
-        let max_bytes = self.config.daemon.memory_mb.saturating_mul(1_000_000);
+        let max_bytes = self.budget_bytes();
         let listed = paths.clone();
         tokio::task::spawn_blocking(move || {
             paths
@@ -484,7 +484,7 @@ impl State {
         for (c, taken) in frames {
             let footprint = taken.footprint;
             let need = job_bytes(&[footprint]);
-            let budget = self.config.daemon.memory_mb.saturating_mul(1_000_000);
+            let budget = self.budget_bytes();
             if need > budget {
                 let reason = format!(
                     "{}×{} pixels need {} MB to develop, more than the memory budget ([daemon] memory_mb = {})",
@@ -687,7 +687,7 @@ impl State {
     }
 
     /// A file that cannot be read now: look again after `retry · 2^attempts` (at most
-    /// [`MAX_RETRY`]); meanwhile open brackets wait for it (up to [`WRITER_PATIENCE`]),
+    /// [`super::MAX_RETRY`]); meanwhile open brackets wait for it (up to [`WRITER_PATIENCE`]),
     /// and `status` shows it with the reason. Nothing is journaled.
     pub(super) fn unreadable_for_now(&mut self, path: PathBuf, reason: String) {
         let now = Instant::now();
@@ -697,8 +697,7 @@ impl State {
             next: now,
             reason: String::new(),
         });
-        let delay =
-            (self.config.daemon.retry * 2u32.saturating_pow(entry.attempts.min(16))).min(MAX_RETRY);
+        let delay = super::backoff(self.config.daemon.retry, entry.attempts);
         entry.attempts += 1;
         entry.next = now + delay;
         entry.reason.clone_from(&reason);
