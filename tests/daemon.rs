@@ -942,6 +942,15 @@ fn kill_9_mid_merge_then_restart_loses_and_repeats_nothing() {
     wait_for_status(&root.join("state"), |s| s.in_flight > 0);
     child.kill().unwrap(); // SIGKILL
     child.wait().unwrap();
+    // Its last snapshot still says it runs; `status` tells by the lock that it does not.
+    let shown = Command::new(env!("CARGO_BIN_EXE_filmback"))
+        .args(["status", "--json", "--state"])
+        .arg(root.join("state"))
+        .output()
+        .unwrap();
+    let report: serde_json::Value = serde_json::from_slice(&shown.stdout).unwrap();
+    assert_eq!(report["running"], false, "{report}");
+    assert_eq!(report["daemon"]["running"], false, "{report}");
     let done_before = journal::read(&root.join("state")).unwrap().len();
     assert!(done_before < 2, "killed before both brackets finished");
 
@@ -1714,20 +1723,35 @@ fn deleted_outputs_stay_deleted_until_filmback_redo() {
     std::fs::remove_file(rig.out().join("d-1.exr")).unwrap();
     std::thread::sleep(Duration::from_secs(3));
     assert_eq!(listing(&rig.out()), ["d-1.linear.jpg".to_string()].into());
-    let redo = |stem: &str| {
+    let redo = |stems: &[&str]| {
         Command::new(env!("CARGO_BIN_EXE_filmback"))
-            .args(["redo", stem, "--state"])
+            .arg("redo")
+            .args(stems)
+            .arg("--state")
             .arg(rig.state())
             .output()
             .unwrap()
     };
-    let unknown = redo("nothing-1");
+    let unknown = redo(&["nothing-1"]);
     assert!(!unknown.status.success());
     assert!(
         String::from_utf8_lossy(&unknown.stderr).contains("nothing-1: no finished bracket"),
         "{unknown:?}"
     );
-    let done = redo("d-1");
+    // All or nothing: one unknown stem queues none of them.
+    let mixed = redo(&["d-1", "nothing-1"]);
+    assert!(!mixed.status.success());
+    assert!(
+        String::from_utf8_lossy(&mixed.stderr).contains("nothing queued"),
+        "{mixed:?}"
+    );
+    assert!(
+        listing(&rig.state().join("redo")).is_empty(),
+        "no request left"
+    );
+    std::thread::sleep(Duration::from_millis(1500));
+    assert_eq!(listing(&rig.out()), ["d-1.linear.jpg".to_string()].into());
+    let done = redo(&["d-1"]);
     assert!(done.status.success(), "{done:?}");
     expect_outputs(&rig.out(), &bracket_outputs(&["d-1"]), T);
     assert!(
@@ -1751,12 +1775,40 @@ fn polling_mode_and_archive_folder() {
         Arc::new(DarkroomLab),
         |_| {},
     );
-    put(&rig.ingest(), &aeb("Body P", 10, "w"));
+    let first = aeb("Body P", 10, "w");
+    put(&rig.ingest(), &first);
     expect_outputs(&rig.out(), &bracket_outputs(&["w-1"]), T);
+    let expected: BTreeSet<String> = (1..=3).map(|i| format!("w-{i}.jpg")).collect();
+    let start = Instant::now();
+    while listing(&archive) != expected {
+        assert!(start.elapsed() < T, "archive holds {:?}", listing(&archive));
+        std::thread::sleep(Duration::from_millis(50));
+    }
+    // The camera's counter wraps: the same names again, other frames. The archive keeps
+    // both sets, the second numbered.
+    let second = aeb("Body P", 40, "w");
+    put(&rig.ingest(), &second);
+    let expected: BTreeSet<String> = (1..=3)
+        .flat_map(|i| [format!("w-{i}.jpg"), format!("w-{i}-1.jpg")])
+        .collect();
+    let start = Instant::now();
+    while listing(&archive) != expected {
+        assert!(start.elapsed() < T, "archive holds {:?}", listing(&archive));
+        std::thread::sleep(Duration::from_millis(50));
+    }
     rig.stop();
     assert!(listing(&rig.ingest()).is_empty(), "inputs moved away");
-    let expected: BTreeSet<String> = (1..=3).map(|i| format!("w-{i}.jpg")).collect();
-    assert_eq!(listing(&archive), expected);
+    for (i, ((_, one), (_, two))) in first.iter().zip(&second).enumerate() {
+        let k = i + 1;
+        assert_eq!(
+            &std::fs::read(archive.join(format!("w-{k}.jpg"))).unwrap(),
+            one
+        );
+        assert_eq!(
+            &std::fs::read(archive.join(format!("w-{k}-1.jpg"))).unwrap(),
+            two
+        );
+    }
 }
 
 /// A frame on disk before its bracket's gap ran out belongs to it, even when the
@@ -1906,4 +1958,248 @@ fn watch_demo_on_embedded_defaults_develops_its_bracket_and_keeps_watching() {
         3,
         "inputs untouched"
     );
+}
+
+// --- Issue 32: one identity per file, one daemon per state folder, frames that move ---
+
+/// `filmback watch` in `root` (its working folder) with `config` and `extra` arguments,
+/// stdout piped, stderr to `log`.
+fn spawn_in(root: &Path, config: &Path, extra: &[&str], log: &Path) -> Watch {
+    Watch(
+        Command::new(env!("CARGO_BIN_EXE_filmback"))
+            .args(["watch", "--config"])
+            .arg(config)
+            .args(extra)
+            .current_dir(root)
+            .env("RUST_LOG", "info")
+            .stdout(Stdio::piped())
+            .stderr(std::fs::File::create(log).unwrap())
+            .spawn()
+            .unwrap(),
+    )
+}
+
+/// Modification times of the files in `dir`, by name.
+fn mtimes(dir: &Path) -> Vec<(String, std::time::SystemTime)> {
+    let mut all: Vec<_> = listing(dir)
+        .into_iter()
+        .map(|n| {
+            let t = std::fs::metadata(dir.join(&n)).unwrap().modified().unwrap();
+            (n, t)
+        })
+        .collect();
+    all.sort();
+    all
+}
+
+/// Issue 32, item 1: with folders given relative to the working folder (`./ingest`,
+/// `out/`), the watcher's absolute paths and the rescan's listing are one file: the demo
+/// bracket is developed once, its outputs are not rewritten by later rescans (every
+/// second here), nor after a restart.
+#[test]
+fn relative_folders_develop_the_demo_bracket_once_across_rescans_and_a_restart() {
+    use std::io::{BufRead, BufReader};
+    let dir = tempfile::tempdir().unwrap();
+    let root = dir.path();
+    let config = root.join("relative.toml");
+    std::fs::write(
+        &config,
+        "[folders]\ningest = \"./ingest\"\nout = \"out/\"\nstate = \".filmback\"\n\
+         [watch]\nsettle_ms = 150\nrescan_s = 1\n[bracket]\nmax_gap_s = 1.0\n\
+         [render]\nfilms = []\ntonemaps = [\"linear\"]\n",
+    )
+    .unwrap();
+    let mut child = spawn_in(root, &config, &["--demo"], &root.join("first.log"));
+    let stdout = child.stdout.take().unwrap();
+    let (tx, rx) = std::sync::mpsc::channel();
+    std::thread::spawn(move || {
+        for line in BufReader::new(stdout).lines().map_while(Result::ok) {
+            if tx.send(line).is_err() {
+                break;
+            }
+        }
+    });
+    let mut lines: Vec<String> = Vec::new();
+    while !lines.iter().any(|l| l.starts_with("still watching")) {
+        match rx.recv_timeout(Duration::from_secs(60)) {
+            Ok(line) => lines.push(line),
+            Err(e) => panic!("no demo report ({e}); stdout so far: {lines:?}"),
+        }
+    }
+    assert!(
+        lines
+            .first()
+            .is_some_and(|l| l.starts_with("demo bracket developed")),
+        "{lines:?}"
+    );
+    let state = root.join(".filmback");
+    let out = root.join("out");
+    let developed = mtimes(&out);
+    assert_eq!(developed.len(), 2, "{developed:?}");
+    // Three rescans.
+    std::thread::sleep(Duration::from_millis(3500));
+    assert_eq!(journal::read(&state).unwrap().len(), 1, "developed once");
+    assert_eq!(mtimes(&out), developed, "outputs not rewritten");
+    terminate(&mut child);
+    let mut child = spawn_in(root, &config, &[], &root.join("second.log"));
+    wait_for_status(&state, |s| s.running && s.pid == child.id());
+    std::thread::sleep(Duration::from_millis(2500));
+    terminate(&mut child);
+    assert_eq!(
+        journal::read(&state).unwrap().len(),
+        1,
+        "not again after a restart"
+    );
+    assert_eq!(mtimes(&out), developed);
+}
+
+/// Issue 32, 2.5: a second daemon on a state folder in use refuses to start, naming the
+/// folder and the pid holding it; the first goes on working.
+#[test]
+fn a_second_daemon_on_the_same_state_folder_refuses_to_start() {
+    let mut rig = Rig::start(&[], Arc::new(DarkroomLab), |_| {});
+    wait_for_status(&rig.state(), |s| s.running);
+    let config = rig.root.join("second.toml");
+    std::fs::write(&config, config_text(&rig.root, &[])).unwrap();
+    let mut second = Command::new(env!("CARGO_BIN_EXE_filmback"))
+        .args(["watch", "--config"])
+        .arg(&config)
+        .stdout(Stdio::null())
+        .stderr(Stdio::piped())
+        .spawn()
+        .unwrap();
+    let start = Instant::now();
+    let status = loop {
+        if let Some(status) = second.try_wait().unwrap() {
+            break status;
+        }
+        if start.elapsed() > Duration::from_secs(20) {
+            let _ = second.kill();
+            let _ = second.wait();
+            panic!("a second daemon started on the same state folder");
+        }
+        std::thread::sleep(Duration::from_millis(50));
+    };
+    let mut said = String::new();
+    std::io::Read::read_to_string(&mut second.stderr.take().unwrap(), &mut said).unwrap();
+    assert!(!status.success());
+    assert!(said.contains(&rig.state().display().to_string()), "{said}");
+    assert!(
+        said.contains(&format!("pid {}", std::process::id())),
+        "{said}"
+    );
+    put(&rig.ingest(), &aeb("Body A", 10, "q"));
+    expect_outputs(&rig.out(), &bracket_outputs(&["q-1"]), T);
+    rig.stop();
+}
+
+/// Issue 32, 2.6: a frame moved away while its bracket is open, and moved back, is
+/// waited for (shown in `status`), never rejected; its bracket is developed whole.
+#[test]
+fn a_frame_missing_for_a_moment_is_waited_for_not_rejected() {
+    let mut rig = Rig::start(&[("bracket", "size = 4")], Arc::new(DarkroomLab), |_| {});
+    put(&rig.ingest(), &aeb("Body M", 10, "v"));
+    wait_for_status(&rig.state(), |s| s.grouping == 3);
+    let (here, away) = (rig.ingest().join("v-2.jpg"), rig.root.join("v-2.jpg"));
+    std::fs::rename(&here, &away).unwrap();
+    wait_for_status(&rig.state(), |s| {
+        s.retries
+            .iter()
+            .any(|r| r.what == "v-1" && r.reason.contains("v-2.jpg"))
+    });
+    std::fs::rename(&away, &here).unwrap();
+    expect_outputs(&rig.out(), &bracket_outputs(&["v-1"]), T);
+    let state = rig.state();
+    rig.stop();
+    assert!(rejected(&state).is_empty(), "{:?}", rejected(&state));
+    let entries = journal::read(&state).unwrap();
+    assert!(
+        matches!(&entries[..], [Entry::Bracket { inputs, .. }] if inputs.len() == 3),
+        "{entries:?}"
+    );
+}
+
+/// Issue 32, 2.7: a frame replaced while its bracket develops (no periodic rescan to
+/// catch it) is developed again with the new frame, its outputs replaced in place.
+#[test]
+fn a_frame_replaced_while_its_bracket_develops_is_developed_again() {
+    let gate = Arc::new(std::sync::atomic::AtomicBool::new(false));
+    let calls = Arc::new(AtomicUsize::new(0));
+    let (g, c) = (Arc::clone(&gate), Arc::clone(&calls));
+    let lab = move |job: &Job| -> Result<Processed, JobError> {
+        c.fetch_add(1, Ordering::SeqCst);
+        while !g.load(Ordering::SeqCst) {
+            std::thread::sleep(Duration::from_millis(10));
+        }
+        DarkroomLab.process(job)
+    };
+    let mut rig = Rig::start(&[("watch", "rescan_s = 0")], Arc::new(lab), |_| {});
+    put(&rig.ingest(), &aeb("Body N", 10, "n"));
+    let start = Instant::now();
+    while calls.load(Ordering::SeqCst) == 0 {
+        assert!(start.elapsed() < T, "the bracket never started developing");
+        std::thread::sleep(Duration::from_millis(20));
+    }
+    let replacement = aeb("Body N", 50, "n").swap_remove(1).1;
+    let path = rig.ingest().join("n-2.jpg");
+    atomic::publish(&path, &replacement, Overwrite::Replace).unwrap();
+    gate.store(true, Ordering::SeqCst);
+    let state = rig.state();
+    let start = Instant::now();
+    while journaled_brackets_all(&state) < 2 {
+        assert!(
+            start.elapsed() < T,
+            "not developed again: {:?}",
+            journal::read(&state).unwrap()
+        );
+        std::thread::sleep(Duration::from_millis(50));
+    }
+    expect_outputs(&rig.out(), &bracket_outputs(&["n-1"]), T);
+    rig.stop();
+    let now = std::fs::metadata(&path).unwrap();
+    let entries = journal::read(&state).unwrap();
+    let Some(Entry::Bracket { inputs, .. }) = entries.last() else {
+        panic!("{entries:?}");
+    };
+    let new = inputs.iter().find(|i| i.path.ends_with("n-2.jpg")).unwrap();
+    assert_eq!(new.size, now.len(), "the new frame was developed");
+    assert_eq!(journaled_brackets_all(&state), 2);
+}
+
+/// Issue 32, 2.11: a state folder the daemon can no longer write leaves `status.json`
+/// behind; `status` says its data may be stale. Run as `nobody` when root (permissions
+/// do not bind root).
+#[test]
+fn status_says_when_the_state_folder_is_not_writable() {
+    use std::os::unix::fs::PermissionsExt;
+    let dir = tempfile::tempdir().unwrap();
+    let root = dir.path();
+    open_folders(root);
+    let config = root.join("filmback.toml");
+    std::fs::write(&config, config_text(root, &[])).unwrap();
+    let mut child = Watch(
+        unprivileged(env!("CARGO_BIN_EXE_filmback"))
+            .args(["watch", "--config"])
+            .arg(&config)
+            .stdout(Stdio::null())
+            .stderr(Stdio::null())
+            .spawn()
+            .unwrap(),
+    );
+    let state = root.join("state");
+    wait_for_status(&state, |s| s.running);
+    let status = || {
+        let shown = unprivileged(env!("CARGO_BIN_EXE_filmback"))
+            .args(["status", "--state"])
+            .arg(&state)
+            .output()
+            .unwrap();
+        String::from_utf8_lossy(&shown.stdout).into_owned()
+    };
+    assert!(!status().contains("stale"), "{}", status());
+    std::fs::set_permissions(&state, std::fs::Permissions::from_mode(0o555)).unwrap();
+    let shown = status();
+    std::fs::set_permissions(&state, std::fs::Permissions::from_mode(0o777)).unwrap();
+    assert!(shown.contains("may be stale"), "{shown}");
+    terminate(&mut child);
 }

@@ -26,9 +26,11 @@ pub struct Args {
 pub fn run(args: Args) -> anyhow::Result<ExitCode> {
     let entries = journal::read(&args.state)?;
     let dir = args.state.join(REDO_FOLDER);
+    // All or nothing: every stem is checked before any request is left.
+    let mut found = Vec::with_capacity(args.stems.len());
     for stem in &args.stems {
         if stem.is_empty() || stem.contains('/') || stem.starts_with('.') {
-            anyhow::bail!("{stem:?}: not an output stem");
+            anyhow::bail!("{stem:?}: not an output stem; nothing queued");
         }
         let Some(entry) = entries
             .iter()
@@ -36,13 +38,17 @@ pub fn run(args: Args) -> anyhow::Result<ExitCode> {
             .find(|e| e.output_stem().as_deref() == Some(stem.as_str()))
         else {
             anyhow::bail!(
-                "{stem}: no finished bracket or single of that name in {} (`filmback status` lists the state)",
+                "{stem}: no finished bracket or single of that name in {} (`filmback status` lists the state); nothing queued",
                 args.state.join(journal::FILE_NAME).display()
             );
         };
-        std::fs::create_dir_all(&dir).with_context(|| format!("{}", dir.display()))?;
+        found.push((stem, entry));
+    }
+    std::fs::create_dir_all(&dir).with_context(|| format!("{}", dir.display()))?;
+    let running = daemon::lock_held(&args.state)
+        .unwrap_or_else(|| daemon::read_snapshot(&args.state).is_some_and(|s| s.running));
+    for (stem, entry) in found {
         atomic::publish(&dir.join(stem), b"", Overwrite::Replace)?;
-        let running = daemon::read_snapshot(&args.state).is_some_and(|s| s.running);
         println!(
             "{stem}: {} frame(s) queued to develop again {}",
             entry.inputs().len(),

@@ -20,9 +20,11 @@ pub struct Args {
     json: bool,
 }
 
-/// True when the snapshot's process is still alive (Linux `/proc`).
-fn alive(snap: &Snapshot) -> bool {
-    snap.running && Path::new(&format!("/proc/{}", snap.pid)).exists()
+/// True when the daemon runs: it holds the state folder's lock; without a lock file (a
+/// daemon of an older version), when the snapshot says so and its process is alive.
+fn alive(state: &Path, snap: &Snapshot) -> bool {
+    daemon::lock_held(state)
+        .unwrap_or_else(|| snap.running && Path::new(&format!("/proc/{}", snap.pid)).exists())
 }
 
 /// Reads journal, status snapshot and cache; prints them.
@@ -65,8 +67,15 @@ pub fn run(args: Args) -> anyhow::Result<ExitCode> {
             }
         }
     }
-    let snap = daemon::read_snapshot(&args.state);
-    let running = snap.as_ref().is_some_and(alive);
+    let mut snap = daemon::read_snapshot(&args.state);
+    let running = snap.as_ref().is_some_and(|s| alive(&args.state, s));
+    if let Some(s) = snap.as_mut().filter(|_| !running) {
+        // The last snapshot of a daemon that was killed still says it runs.
+        s.running = false;
+        s.watching = false;
+    }
+    // A daemon that can no longer replace status.json leaves an old snapshot behind.
+    let stale = running && !daemon::state_writable(&args.state);
     let cache = ResponseCache::new(&args.state);
     let cached: Vec<Value> = cache
         .list()?
@@ -93,6 +102,7 @@ pub fn run(args: Args) -> anyhow::Result<ExitCode> {
         "state": args.state.display().to_string(),
         "interrupted_sets": interrupted,
         "running": running,
+        "stale": stale,
         "daemon": snap.as_ref().map(|s| json!(s)),
         "brackets_done": brackets,
         "singles_done": singles,
@@ -105,6 +115,11 @@ pub fn run(args: Args) -> anyhow::Result<ExitCode> {
         return Ok(ExitCode::SUCCESS);
     }
     println!("state folder  {}", args.state.display());
+    if stale {
+        println!(
+            "warning       the state folder is not writable: the daemon cannot update its status, and what follows may be stale"
+        );
+    }
     match &snap {
         Some(s) if running => println!(
             "daemon        running (pid {}), watching {}{}\n  pending     {} settling, {} in open brackets, {} queued, {} developing, {} retrying",

@@ -4,17 +4,22 @@
 //! `DateTimeOriginal` with sub-seconds; the arrival time when the file has none). A
 //! bracket is a run of successive frames at most `max_gap_s` apart whose exposures all
 //! differ by at least `min_step_ev` stops, where a frame's exposure in stops is
-//! `log2(e)`, `e = t·S/N²`. A bracket closes when an exposure repeats (the next bracket
-//! has begun), when the gap passes, or when it holds `size` frames. A group that closes
-//! with one frame is a single, never dropped: the daemon renders or reports it.
+//! `log2(e)`, `e = t·S/N²`; a repeated exposure begins the next bracket, and a bracket
+//! holds at most `size` frames. Frames may arrive in any order within the gap: a
+//! bracket closes once it holds `size` frames, or once `max_gap_s` has passed on the
+//! arrival clock since anything that could still belong to it could have arrived. A
+//! group that closes with one frame is a single, never dropped: the daemon renders or
+//! reports it.
 
 use std::collections::BTreeMap;
 use std::fmt;
+use std::ops::Range;
 use std::path::PathBuf;
 
 use serde::{Deserialize, Serialize};
 
 use crate::daemon::config::BracketRules;
+use crate::daemon::journal;
 
 /// The camera body a frame came from; brackets never mix bodies.
 #[derive(Debug, Clone, Default, PartialEq, Eq, PartialOrd, Ord, Hash, Serialize, Deserialize)]
@@ -193,30 +198,100 @@ pub fn fingerprint<'a>(inputs: impl IntoIterator<Item = &'a Input>) -> String {
         })
         .collect();
     keys.sort();
-    let mut h: u64 = 0xcbf2_9ce4_8422_2325;
-    for k in keys {
-        for b in k.bytes().chain(std::iter::once(0xff)) {
-            h ^= u64::from(b);
-            h = h.wrapping_mul(0x0000_0100_0000_01b3);
-        }
-    }
+    let h = keys.iter().fold(journal::FNV_OFFSET, |h, k| {
+        journal::fnv1a(journal::fnv1a(h, k.as_bytes()), &[0xff])
+    });
     format!("{h:016x}")
 }
 
-/// An open group of one body.
+/// The frames of one body not yet closed into a group.
 #[derive(Debug)]
 struct Open {
-    /// Frames sorted by capture time.
-    frames: Vec<Capture>,
-    /// When the last frame arrived (the caller's clock, seconds).
+    /// Frames sorted by capture time, each with its arrival (the caller's clock, seconds).
+    frames: Vec<(Capture, f64)>,
+    /// The latest arrival (the caller's clock, seconds).
     last_arrival: f64,
+    /// The last postponement ([`Grouper::postpone`]): no run closes by its gap clock
+    /// within `max_gap_s` of it.
+    postponed: f64,
 }
 
-/// Groups captures as they arrive (see the module docs).
+/// What the grouper remembers of a body between its groups: whether its frames arrive
+/// in capture order.
+#[derive(Debug, Clone, Copy)]
+struct Order {
+    /// The latest capture time of its frames so far (seconds).
+    latest_capture: f64,
+    /// Arrival of its last frame captured before an earlier arrival (the caller's clock):
+    /// within `max_gap_s` of it, a full run may still be a wrong one (its first frame not
+    /// yet arrived), so it waits for its gap clock too.
+    shuffled_at: f64,
+}
+
+impl Open {
+    /// When the run `run` (of [`runs`]) last had news: for the last run, the latest
+    /// arrival; for an earlier one, its own latest arrival or the first arrival of a frame
+    /// captured after it, whichever is later (from then on, a frame captured within it
+    /// had `max_gap_s` to arrive too). Never before the last postponement.
+    fn clock(&self, run: &Range<usize>) -> f64 {
+        let own = self.frames[run.clone()]
+            .iter()
+            .map(|(_, arrival)| *arrival)
+            .fold(f64::NEG_INFINITY, f64::max);
+        let news = if run.end == self.frames.len() {
+            self.last_arrival
+        } else {
+            self.frames[run.end..]
+                .iter()
+                .map(|(_, arrival)| *arrival)
+                .fold(f64::INFINITY, f64::min)
+        };
+        news.max(own).max(self.postponed)
+    }
+}
+
+/// Splits one body's frames, sorted by capture time, into the runs that are its brackets:
+/// a run ends where the next frame was captured more than `max_gap_s` after the run's
+/// last, where its exposure repeats one of the run's (within `min_step_ev` stops), or
+/// once the run holds `size` frames.
+fn runs(frames: &[(Capture, f64)], rules: &BracketRules) -> Vec<Range<usize>> {
+    let mut runs = Vec::new();
+    let mut start = 0;
+    for (k, (capture, _)) in frames.iter().enumerate().skip(1) {
+        let run = &frames[start..k];
+        let gap = run
+            .last()
+            .is_some_and(|(last, _)| capture.time_s - last.time_s > rules.max_gap_s);
+        let repeat = capture.stops().is_some_and(|stops| {
+            run.iter()
+                .filter_map(|(c, _)| c.stops())
+                .any(|s| (s - stops).abs() < rules.min_step_ev)
+        });
+        if gap || repeat || run.len() >= rules.size {
+            runs.push(start..k);
+            start = k;
+        }
+    }
+    if start < frames.len() {
+        runs.push(start..frames.len());
+    }
+    runs
+}
+
+/// Groups captures as they arrive (see the module docs), whatever their arrival order
+/// within the gap: a body's frames are kept sorted by capture time and split into runs
+/// (a run ends at a capture gap over `max_gap_s`, a repeated exposure, or `size`
+/// frames); a run closes when its gap clock — the later of its own last arrival and the
+/// first arrival of a frame captured after it — is more than `max_gap_s` old, so that no
+/// frame captured within it can still arrive, or at once when it holds `size` frames and
+/// its body's frames have arrived in capture order for the last `max_gap_s`. A frame of
+/// the next bracket that arrives before the last frame of the current one therefore does
+/// not split it.
 #[derive(Debug)]
 pub struct Grouper {
     rules: BracketRules,
     open: BTreeMap<CameraId, Open>,
+    order: BTreeMap<CameraId, Order>,
 }
 
 impl Grouper {
@@ -225,6 +300,7 @@ impl Grouper {
         Grouper {
             rules,
             open: BTreeMap::new(),
+            order: BTreeMap::new(),
         }
     }
 
@@ -239,65 +315,95 @@ impl Grouper {
     }
 
     /// Adds a capture that arrived at `now` (seconds, any monotone clock); returns the
-    /// groups it closed. Captures of one body should be pushed in capture-time order
-    /// (a batch found at start-up is sorted first); small reorderings within one open
-    /// group are absorbed.
+    /// groups of its body that closed: a run now full, or one whose gap clock ran out.
     pub fn push(&mut self, capture: Capture, now: f64) -> Vec<Closed> {
-        let Some(stops) = capture.stops() else {
+        if capture.stops().is_none() {
             return vec![Closed::Single(capture, Alone::NoExposure)];
-        };
-        let mut closed = Vec::new();
-        let rules = self.rules;
-        if let Some(open) = self.open.get(&capture.camera) {
-            let first = open.frames.first().map_or(capture.time_s, |c| c.time_s);
-            let last = open.frames.last().map_or(capture.time_s, |c| c.time_s);
-            let gap =
-                capture.time_s - last > rules.max_gap_s || first - capture.time_s > rules.max_gap_s;
-            let repeat = open
-                .frames
-                .iter()
-                .filter_map(Capture::stops)
-                .any(|s| (s - stops).abs() < rules.min_step_ev);
-            if gap || repeat {
-                let open = self.open.remove(&capture.camera).expect("checked above");
-                closed.push(close(capture.camera.clone(), open.frames));
-            }
         }
         let camera = capture.camera.clone();
+        let order = self.order.entry(camera.clone()).or_insert(Order {
+            latest_capture: capture.time_s,
+            shuffled_at: f64::NEG_INFINITY,
+        });
+        if capture.time_s < order.latest_capture {
+            order.shuffled_at = now;
+        }
+        order.latest_capture = order.latest_capture.max(capture.time_s);
         let open = self.open.entry(camera.clone()).or_insert(Open {
             frames: Vec::new(),
             last_arrival: now,
+            postponed: f64::NEG_INFINITY,
         });
-        let at = open.frames.partition_point(|c| c.time_s <= capture.time_s);
-        open.frames.insert(at, capture);
-        open.last_arrival = now;
-        if open.frames.len() >= rules.size {
-            let open = self.open.remove(&camera).expect("just inserted");
-            closed.push(close(camera, open.frames));
+        let at = open
+            .frames
+            .partition_point(|(c, _)| c.time_s <= capture.time_s);
+        open.frames.insert(at, (capture, now));
+        open.last_arrival = open.last_arrival.max(now);
+        self.close_ready(&camera, now)
+    }
+
+    /// The runs of `camera`'s `open` frames that close at `now`: quiet for more than the
+    /// gap, or full while its frames arrive in capture order.
+    fn ready(&self, camera: &CameraId, open: &Open, now: f64) -> Vec<Range<usize>> {
+        let gap = self.rules.max_gap_s;
+        let in_order = self
+            .order
+            .get(camera)
+            .is_none_or(|o| now - o.shuffled_at > gap);
+        runs(&open.frames, &self.rules)
+            .into_iter()
+            .filter(|run| (in_order && run.len() >= self.rules.size) || now - open.clock(run) > gap)
+            .collect()
+    }
+
+    /// Closes the ready runs of `camera`'s open frames, in capture order.
+    fn close_ready(&mut self, camera: &CameraId, now: f64) -> Vec<Closed> {
+        let ready = match self.open.get(camera) {
+            Some(open) => self.ready(camera, open, now),
+            None => return Vec::new(),
+        };
+        let Some(open) = self.open.get_mut(camera).filter(|_| !ready.is_empty()) else {
+            return Vec::new();
+        };
+        let mut closed = Vec::with_capacity(ready.len());
+        let mut kept = Vec::with_capacity(open.frames.len());
+        let mut runs = ready.into_iter().peekable();
+        let mut group = Vec::new();
+        for (k, (capture, arrival)) in std::mem::take(&mut open.frames).into_iter().enumerate() {
+            while runs.peek().is_some_and(|run| run.end <= k) {
+                runs.next();
+            }
+            match runs.peek() {
+                Some(run) if run.contains(&k) => {
+                    group.push(capture);
+                    if k + 1 == run.end {
+                        closed.push(close(camera.clone(), std::mem::take(&mut group)));
+                    }
+                }
+                _ => kept.push((capture, arrival)),
+            }
+        }
+        open.frames = kept;
+        if open.frames.is_empty() {
+            self.open.remove(camera);
         }
         closed
     }
 
     /// True when [`Grouper::expire`] at `now` would close a group.
     pub fn due(&self, now: f64) -> bool {
-        self.open.values().any(|o| self.stale(o, now))
+        self.open
+            .iter()
+            .any(|(camera, o)| !self.ready(camera, o, now).is_empty())
     }
 
-    /// Closes every group whose last frame arrived more than `max_gap_s` before `now`:
-    /// no further frame of that bracket can still come.
+    /// Closes every run whose gap clock is more than `max_gap_s` old at `now`: no further
+    /// frame of that bracket can still come.
     pub fn expire(&mut self, now: f64) -> Vec<Closed> {
-        let stale: Vec<CameraId> = self
-            .open
+        let cameras: Vec<CameraId> = self.open.keys().cloned().collect();
+        cameras
             .iter()
-            .filter(|(_, o)| self.stale(o, now))
-            .map(|(k, _)| k.clone())
-            .collect();
-        stale
-            .into_iter()
-            .map(|k| {
-                let open = self.open.remove(&k).expect("listed above");
-                close(k, open.frames)
-            })
+            .flat_map(|camera| self.close_ready(camera, now))
             .collect()
     }
 
@@ -307,27 +413,23 @@ impl Grouper {
         let (camera, at) = self.open.iter().find_map(|(camera, open)| {
             open.frames
                 .iter()
-                .position(|c| c.input.path == path)
+                .position(|(c, _)| c.input.path == path)
                 .map(|at| (camera.clone(), at))
         })?;
-        let open = self.open.get_mut(&camera).expect("found above");
-        let capture = open.frames.remove(at);
+        let open = self.open.get_mut(&camera)?;
+        let (capture, _) = open.frames.remove(at);
         if open.frames.is_empty() {
             self.open.remove(&camera);
         }
         Some(capture)
     }
 
-    fn stale(&self, open: &Open, now: f64) -> bool {
-        now - open.last_arrival > self.rules.max_gap_s
-    }
-
     /// Restarts the gap clock of every open group: called while the daemon is not taking
-    /// new files (queue full), so a bracket is not closed early for lack of frames that
-    /// are in fact waiting on disk.
+    /// new files (queue full, a file still being written), so a bracket is not closed
+    /// early for lack of frames that are in fact waiting on disk.
     pub fn postpone(&mut self, now: f64) {
         for open in self.open.values_mut() {
-            open.last_arrival = now;
+            open.postponed = now;
         }
     }
 }
@@ -435,9 +537,14 @@ mod tests {
                 shot("c2", &c, 2.0, 0.8),
             ],
         );
-        assert_eq!(out.len(), 2);
-        assert_eq!(names(&out[0]), ["a", "b"]);
-        assert_eq!(names(&out[1]), ["a2", "b2", "c2"]);
+        // The full bracket closes at once; the pair once no frame captured between `b`
+        // and `a2` can still arrive (the gap after the body's last arrival, `c2` at 0.4).
+        assert_eq!(out.len(), 1);
+        assert_eq!(names(&out[0]), ["a2", "b2", "c2"]);
+        assert!(g.expire(2.3).is_empty());
+        let late = g.expire(2.5);
+        assert_eq!(late.len(), 1);
+        assert_eq!(names(&late[0]), ["a", "b"]);
     }
 
     #[test]
@@ -452,14 +559,15 @@ mod tests {
                 shot("c", &c, 2.0, 5.5),
             ],
         );
-        assert_eq!(out.len(), 1);
-        assert_eq!(
-            out[0],
-            Closed::Single(shot("a", &c, 0.0, 0.0), Alone::NoPartner)
-        );
-        // Nothing more arrives: the open pair expires by the arrival clock.
+        // Nothing closes while a frame captured between them could still arrive.
+        assert!(out.is_empty());
         assert!(!g.due(1.0));
         assert!(g.expire(1.0).is_empty());
+        // `a` alone once `max_gap_s` passed since `b` arrived; the pair since `c` did.
+        assert_eq!(
+            g.expire(2.15),
+            [Closed::Single(shot("a", &c, 0.0, 0.0), Alone::NoPartner)]
+        );
         assert!(g.due(10.0));
         let late = g.expire(10.0);
         assert_eq!(late.len(), 1);
@@ -524,6 +632,9 @@ mod tests {
                 shot("c", &c, 1.0, 1.0),
             ],
         );
+        // Out of order: the full bracket waits for the gap clock, then closes whole.
+        assert!(out.is_empty());
+        let out = g.expire(2.3);
         assert_eq!(names(&out[0]), ["a", "b", "c"]);
         assert_eq!(out[0].stem(), "a");
     }
@@ -563,6 +674,69 @@ mod tests {
             out.iter()
                 .all(|o| matches!(o, Closed::Single(_, Alone::NoPartner)))
         );
+    }
+
+    /// The first frame of the next bracket (+20 s) arrives half a second before the last
+    /// frame of the current one: the current bracket stays whole, the next one waits.
+    #[test]
+    fn the_next_brackets_first_frame_arriving_early_does_not_split_the_current_one() {
+        let c = cam("EOS R5");
+        let mut g = Grouper::new(rules(3));
+        assert!(g.push(shot("a", &c, 0.0, 0.0), 0.0).is_empty());
+        assert!(g.push(shot("b", &c, -2.0, 0.3), 0.1).is_empty());
+        assert!(g.push(shot("d", &c, 0.0, 20.0), 0.2).is_empty());
+        // Out of capture order: even a full run waits for its gap clock (`c`'s arrival).
+        assert!(g.push(shot("c", &c, 2.0, 0.6), 0.7).is_empty());
+        assert!(g.push(shot("e", &c, -2.0, 20.3), 0.8).is_empty());
+        assert!(g.push(shot("f", &c, 2.0, 20.6), 0.9).is_empty());
+        assert!(g.expire(2.6).is_empty());
+        let out: Vec<_> = g.expire(2.8).iter().map(names).collect();
+        assert_eq!(out, [["a", "b", "c"], ["d", "e", "f"]]);
+        assert_eq!(g.waiting(), 0);
+        // Back in order for a gap: a full bracket closes at once again.
+        g.push(shot("g", &c, 0.0, 40.0), 3.1);
+        g.push(shot("h", &c, -2.0, 40.3), 3.2);
+        let out = g.push(shot("i", &c, 2.0, 40.6), 3.3);
+        assert_eq!(names(&out[0]), ["g", "h", "i"]);
+    }
+
+    /// Ten brackets of two bodies, their 30 frames arriving in a shuffled order within
+    /// a second (a copy tool or a card reader): the same ten brackets as in capture order.
+    #[test]
+    fn shuffled_arrival_within_the_gap_gives_the_brackets_of_capture_order() {
+        let bodies = [cam("EOS R5"), cam("EOS R6")];
+        let mut shots = Vec::new();
+        for (b, body) in bodies.iter().enumerate() {
+            for k in 0..5 {
+                for (i, ev) in [0.0, -2.0, 2.0].into_iter().enumerate() {
+                    let t = 10.0 * f64::from(k) + 0.3 * i as f64;
+                    shots.push(shot(&format!("{b}-{k}-{i}"), body, ev, t));
+                }
+            }
+        }
+        for seed in 1..=20u64 {
+            // Fisher–Yates with a 64-bit LCG: a reproducible shuffle per seed.
+            let mut order = shots.clone();
+            let mut state = seed;
+            for i in (1..order.len()).rev() {
+                state = state
+                    .wrapping_mul(6_364_136_223_846_793_005)
+                    .wrapping_add(1_442_695_040_888_963_407);
+                order.swap(i, (state >> 33) as usize % (i + 1));
+            }
+            let mut g = Grouper::new(rules(3));
+            let mut out: Vec<Vec<String>> = Vec::new();
+            for (i, s) in order.into_iter().enumerate() {
+                out.extend(g.push(s, i as f64 * 0.03).iter().map(names));
+            }
+            out.extend(g.expire(100.0).iter().map(names));
+            out.sort();
+            let mut expected: Vec<Vec<String>> = (0..2)
+                .flat_map(|b| (0..5).map(move |k| (0..3).map(|i| format!("{b}-{k}-{i}")).collect()))
+                .collect();
+            expected.sort();
+            assert_eq!(out, expected, "seed {seed}");
+        }
     }
 
     #[test]

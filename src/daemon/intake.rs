@@ -166,6 +166,54 @@ pub(crate) fn scan(cfg: &Watch, dir: &Path) -> Vec<PathBuf> {
     found
 }
 
+/// The one name by which the daemon knows a file of the ingest folder, whatever the
+/// configuration, a watcher or an old journal called it: the ingest folder resolved once
+/// at start (`canonicalize`: absolute, `.`, `..` and links of the folder itself and its
+/// parents resolved) joined with the file's path below it. `./ingest/a.jpg`,
+/// `ingest//a.jpg`, `/srv/ingest/a.jpg` and `/link-to-srv/ingest/a.jpg` are one file.
+/// Links below the folder are never resolved (they are refused, not followed).
+#[derive(Debug, Clone)]
+pub(crate) struct IngestRoot {
+    /// The folder resolved.
+    real: PathBuf,
+    /// The folder as configured, made absolute against the working directory.
+    spelled: PathBuf,
+}
+
+impl IngestRoot {
+    /// Resolves the configured ingest folder (as it is spelled when it cannot be, e.g.
+    /// while it is missing).
+    pub(crate) fn new(configured: &Path) -> IngestRoot {
+        let spelled = std::path::absolute(configured).unwrap_or_else(|_| configured.to_path_buf());
+        let real = std::fs::canonicalize(configured).unwrap_or_else(|_| spelled.clone());
+        IngestRoot { real, spelled }
+    }
+
+    /// The ingest folder resolved.
+    pub(crate) fn real(&self) -> &Path {
+        &self.real
+    }
+
+    /// The name the daemon knows `path` by: below the resolved folder when `path` is
+    /// below it as resolved, as configured, or through a parent folder that resolves
+    /// into it; otherwise `path` made absolute.
+    pub(crate) fn identity(&self, path: &Path) -> PathBuf {
+        let path = std::path::absolute(path).unwrap_or_else(|_| path.to_path_buf());
+        for root in [&self.real, &self.spelled] {
+            if let Ok(rest) = path.strip_prefix(root) {
+                return self.real.join(rest);
+            }
+        }
+        if let (Some(parent), Some(name)) = (path.parent(), path.file_name())
+            && let Ok(parent) = std::fs::canonicalize(parent)
+            && let Ok(rest) = parent.strip_prefix(&self.real)
+        {
+            return self.real.join(rest).join(name);
+        }
+        path
+    }
+}
+
 /// True when a folder between `root` and `path` (exclusive of `path` itself) is a
 /// symbolic link: such a path is not inside the ingest folder, only reachable from it.
 /// `path` may be given under `root` as configured or as resolved (watchers report either);
@@ -259,11 +307,31 @@ fn jpeg_complete(bytes: &[u8]) -> bool {
     last_scan.is_some_and(|i| bytes[i..].windows(2).any(|w| w == [0xFF, 0xD9]))
 }
 
+/// What the daemon keeps of a frame it took, beside its capture: its decoded size (for
+/// the memory budget), its content digest (journaled) and its `(device, inode)`, to see
+/// the file replaced while its bracket develops.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub(crate) struct Taken {
+    /// Decoded size.
+    pub footprint: Footprint,
+    /// [`journal::content_digest`] of the bytes read.
+    pub digest: u64,
+    /// `(st_dev, st_ino)` when read.
+    pub inode: (u64, u64),
+}
+
+impl Observed {
+    /// `(st_dev, st_ino)`.
+    pub(crate) fn inode(&self) -> (u64, u64) {
+        self.inode
+    }
+}
+
 /// What reading a settled file found.
 #[derive(Debug)]
 pub(crate) enum Probe {
-    /// A frame with its EXIF, its decoded size and its content digest.
-    Frame(Capture, Footprint, u64),
+    /// A frame with its EXIF, its decoded size, content digest and inode.
+    Frame(Capture, Taken),
     /// Not a usable frame (its content, or a link); set aside with the reason.
     Rejected(Input, String),
     /// It could not be read now (permission denied, I/O error): try again later.
@@ -325,8 +393,8 @@ pub(crate) fn open_no_follow(path: &Path) -> std::io::Result<std::fs::File> {
 /// rejected without being read.
 pub(crate) fn probe(path: &Path, max_bytes: u64) -> Probe {
     use std::io::Read;
-    let before = match identify(path) {
-        Ok(i) => i,
+    let observed = match observe(path) {
+        Ok(o) => o,
         Err(e) if e.kind() == std::io::ErrorKind::NotFound => return Probe::Gone,
         Err(e) if transient(&e) => return Probe::Unreadable(format!("cannot read: {e}")),
         Err(e) => {
@@ -340,6 +408,7 @@ pub(crate) fn probe(path: &Path, max_bytes: u64) -> Probe {
             );
         }
     };
+    let before = observed.input.clone();
     if std::fs::symlink_metadata(path).is_ok_and(|m| m.file_type().is_symlink()) {
         return Probe::Rejected(before, link_reason(path));
     }
@@ -368,11 +437,12 @@ pub(crate) fn probe(path: &Path, max_bytes: u64) -> Probe {
         Err(e) if transient(&e) => return Probe::Unreadable(format!("cannot read: {e}")),
         Err(e) => return Probe::Rejected(before, format!("cannot read: {e}")),
     };
-    match identify(path) {
-        Ok(after) if after == before => {}
+    match observe(path) {
+        Ok(after) if after == observed => {}
         Ok(_) => return Probe::Changed,
         Err(_) => return Probe::Gone,
     }
+    let inode = observed.inode;
     if bytes.is_empty() {
         return Probe::Rejected(before, "file is empty (0 bytes)".to_string());
     }
@@ -384,7 +454,7 @@ pub(crate) fn probe(path: &Path, max_bytes: u64) -> Probe {
                 height,
                 bytes_per_pixel: 2,
             };
-            return capture(before, meta, footprint, &bytes);
+            return capture(before, meta, footprint, inode, &bytes);
         }
         Some(Err(e)) => return Probe::Rejected(before, e.to_string()),
         None => {}
@@ -412,9 +482,23 @@ pub(crate) fn probe(path: &Path, max_bytes: u64) -> Probe {
             _ => Err("not a JPEG, PNG or TIFF image (unrecognised content)".to_string()),
         });
     match header {
-        Ok(footprint) => capture(before, metadata::read(&bytes), footprint, &bytes),
+        Ok(footprint) => capture(before, metadata::read(&bytes), footprint, inode, &bytes),
         Err(reason) => Probe::Rejected(before, reason),
     }
+}
+
+/// [`probe`], with a panic of a decoder or the EXIF reader on untrusted bytes turned into
+/// the file's rejection with the panic's message: no file can take the service down.
+pub(crate) fn probe_guarded(path: &Path, max_bytes: u64) -> Probe {
+    std::panic::catch_unwind(|| probe(path, max_bytes)).unwrap_or_else(|panic| {
+        let what = super::panic_text(&*panic);
+        let input = identify(path).unwrap_or_else(|_| Input {
+            path: path.to_path_buf(),
+            size: 0,
+            modified_ns: 0,
+        });
+        Probe::Rejected(input, format!("reading it made a decoder fail: {what}"))
+    })
 }
 
 /// The index of the stems of the files in the ingest folder, kept as they are noticed:
@@ -508,8 +592,14 @@ pub(crate) fn is_raw(path: &Path) -> bool {
 }
 
 /// A frame probed: its camera, exposure and capture time (the file's time when the EXIF
-/// has none), its decoded size and the digest of its `bytes`.
-fn capture(before: Input, meta: metadata::Metadata, footprint: Footprint, bytes: &[u8]) -> Probe {
+/// has none), its decoded size, the digest of its `bytes` and its inode.
+fn capture(
+    before: Input,
+    meta: metadata::Metadata,
+    footprint: Footprint,
+    inode: (u64, u64),
+    bytes: &[u8],
+) -> Probe {
     let time_s = meta
         .captured_at
         .map_or(before.modified_ns as f64 * 1e-9, |t| t.local_seconds());
@@ -525,8 +615,11 @@ fn capture(before: Input, meta: metadata::Metadata, footprint: Footprint, bytes:
             input: before,
             companion: None,
         },
-        footprint,
-        journal::content_digest(bytes),
+        Taken {
+            footprint,
+            digest: journal::content_digest(bytes),
+            inode,
+        },
     )
 }
 
@@ -618,6 +711,33 @@ mod tests {
         assert_eq!(raw(&stems, "/in/JPG/IMG_2.JPG"), None);
     }
 
+    /// Every spelling of a file in the ingest folder gives one identity.
+    #[test]
+    fn one_identity_for_every_spelling_of_an_ingest_file() {
+        let dir = tempfile::tempdir().unwrap();
+        let real = std::fs::canonicalize(dir.path()).unwrap();
+        std::fs::create_dir_all(real.join("srv/ingest/sub")).unwrap();
+        std::os::unix::fs::symlink(real.join("srv"), real.join("link")).unwrap();
+        let root = IngestRoot::new(&real.join("link/./ingest/"));
+        let want = real.join("srv/ingest/a.jpg");
+        assert_eq!(root.real(), real.join("srv/ingest"));
+        for spelled in [
+            real.join("srv/ingest/a.jpg"),
+            real.join("srv/./ingest//a.jpg"),
+            real.join("link/ingest/a.jpg"),
+            real.join("link/./ingest/a.jpg"),
+        ] {
+            assert_eq!(root.identity(&spelled), want, "{}", spelled.display());
+        }
+        assert_eq!(
+            root.identity(&real.join("link/ingest/sub/b.jpg")),
+            real.join("srv/ingest/sub/b.jpg")
+        );
+        // A relative spelling is taken from the working directory.
+        let relative = root.identity(Path::new("x.jpg"));
+        assert_eq!(relative, std::env::current_dir().unwrap().join("x.jpg"));
+    }
+
     #[test]
     fn truncated_jpeg_is_incomplete() {
         let shots = demo::aeb("Body", None, 1);
@@ -637,7 +757,7 @@ mod tests {
         let good = dir.path().join("a.jpg");
         std::fs::write(&good, &jpeg).unwrap();
         match probe(&good, u64::MAX) {
-            Probe::Frame(c, fp, _) => {
+            Probe::Frame(c, Taken { footprint: fp, .. }) => {
                 assert_eq!((fp.width, fp.height, fp.bytes_per_pixel), (96, 64, 3));
                 assert_eq!(c.camera.serial.as_deref(), Some("9"));
                 assert!((c.exposure.unwrap() - 100.0 / 15.0 / 64.0).abs() < 1e-9);

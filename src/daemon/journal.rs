@@ -149,6 +149,17 @@ impl Entry {
         }
     }
 
+    fn inputs_mut(&mut self) -> Vec<&mut Input> {
+        match self {
+            Entry::Bracket { inputs, .. } | Entry::Failed { inputs, .. } => {
+                inputs.iter_mut().collect()
+            }
+            Entry::Single { input, .. }
+            | Entry::Rejected { input, .. }
+            | Entry::Unchanged { input, .. } => vec![input],
+        }
+    }
+
     /// The content digest recorded for the input at `path`, if this entry developed it.
     pub fn digest_of(&self, path: &Path) -> Option<u64> {
         let (inputs, digests): (Vec<&Input>, &[u64]) = match self {
@@ -197,12 +208,19 @@ impl Entry {
 /// FNV-1a (64 bit) of a file's bytes: tells a touched file (same content, new
 /// modification time) from a changed one.
 pub fn content_digest(bytes: &[u8]) -> u64 {
-    let mut h: u64 = 0xcbf2_9ce4_8422_2325;
-    for &b in bytes {
-        h ^= u64::from(b);
-        h = h.wrapping_mul(0x0000_0100_0000_01b3);
-    }
-    h
+    fnv1a(FNV_OFFSET, bytes)
+}
+
+/// The offset basis of 64-bit FNV-1a: the hash of no bytes.
+pub(crate) const FNV_OFFSET: u64 = 0xcbf2_9ce4_8422_2325;
+
+/// 64-bit FNV-1a of `bytes` continued from the hash `h`: for each byte `b`,
+/// `h ← (h ⊕ b) · 0x100000001b3 (mod 2⁶⁴)`. Written here rather than taken from a crate:
+/// five lines, and the digests already in journals must not change.
+pub(crate) fn fnv1a(h: u64, bytes: &[u8]) -> u64 {
+    bytes.iter().fold(h, |h, &b| {
+        (h ^ u64::from(b)).wrapping_mul(0x0000_0100_0000_01b3)
+    })
 }
 
 /// Seconds since the Unix epoch, now.
@@ -277,6 +295,22 @@ impl Journal {
             }
         }
         self.entries.push(entry);
+    }
+
+    /// Gives every input path recorded so far the name `resolve` returns for it, in
+    /// memory (the file is not rewritten): the daemon resolves a journal written with
+    /// relative or differently spelled folders against its canonical ingest folder, so a
+    /// file has one identity whatever the configuration said then.
+    pub fn resolve_inputs(&mut self, resolve: impl Fn(&Path) -> PathBuf) {
+        let entries = std::mem::take(&mut self.entries);
+        self.settled.clear();
+        self.developed.clear();
+        for mut entry in entries {
+            for input in entry.inputs_mut() {
+                input.path = resolve(&input.path);
+            }
+            self.note(entry);
+        }
     }
 
     /// The latest bracket or single that developed the file at `path`.
@@ -464,6 +498,23 @@ mod tests {
     }
 
     #[test]
+    fn resolved_inputs_are_found_under_their_new_names() {
+        let dir = tempfile::tempdir().unwrap();
+        {
+            let mut j = Journal::open(dir.path()).unwrap();
+            j.record(bracket(&["a.jpg", "b.jpg"])).unwrap();
+        }
+        let mut j = Journal::open(dir.path()).unwrap();
+        j.resolve_inputs(|p| Path::new("/real").join(p.strip_prefix("/").unwrap()));
+        let mut moved = input("a.jpg");
+        moved.path = PathBuf::from("/real/in/a.jpg");
+        assert!(j.is_settled(&moved));
+        assert!(!j.is_settled(&input("a.jpg")));
+        assert!(j.developed(Path::new("/real/in/b.jpg")).is_some());
+        assert!(j.developed(Path::new("/in/b.jpg")).is_none());
+    }
+
+    #[test]
     fn torn_last_line_is_skipped_and_next_entry_starts_fresh() {
         let dir = tempfile::tempdir().unwrap();
         {
@@ -530,6 +581,15 @@ mod tests {
             text.contains("\"/in/caf\u{e9}.jpg\""),
             "UTF-8 stays text: {text}"
         );
+    }
+
+    /// Pinned: digests in existing journals must stay valid (FNV-1a 64 of "a" is
+    /// 0xaf63dc4c8601ec8c in the FNV authors' test vectors).
+    #[test]
+    fn the_content_digest_is_64_bit_fnv_1a() {
+        assert_eq!(content_digest(b""), FNV_OFFSET);
+        assert_eq!(content_digest(b"a"), 0xaf63_dc4c_8601_ec8c);
+        assert_eq!(fnv1a(content_digest(b"fo"), b"o"), content_digest(b"foo"));
     }
 
     #[test]

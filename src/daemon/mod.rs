@@ -39,7 +39,7 @@ use tokio::task::JoinSet;
 use tracing::{info, warn};
 
 pub use lab::{DarkroomLab, Job, JobError, Lab, Processed};
-pub use status::{Retry, STATUS_FILE, Snapshot, read_snapshot};
+pub use status::{Retry, STATUS_FILE, Snapshot, lock_held, read_snapshot, state_writable};
 
 use crate::atomic;
 use bracket::{Closed, Grouper, Input};
@@ -61,6 +61,13 @@ pub const REDO_FOLDER: &str = "redo";
 
 /// Longest delay between retries of a bracket whose outputs could not be written.
 const MAX_RETRY: Duration = Duration::from_secs(300);
+
+/// The wait before the next attempt after `attempts` failed ones, from `[daemon] retry_s`:
+/// `retry · 2^attempts`, at most [`MAX_RETRY`] (outputs that could not be written, files
+/// that could not be read, frames not on disk).
+fn backoff(retry: Duration, attempts: u32) -> Duration {
+    (retry * 2u32.saturating_pow(attempts.min(16))).min(MAX_RETRY)
+}
 
 /// What the daemon can be told while it runs (signals in the binary, channels in tests).
 #[derive(Debug)]
@@ -88,6 +95,67 @@ pub enum DaemonError {
     /// The journal cannot be read or written: continuing could lose or repeat work.
     #[error("journal: {0}")]
     Journal(#[from] JournalError),
+    /// Another daemon holds the state folder: two would develop every bracket twice.
+    #[error(
+        "{}: another filmback watch ({}) already uses this state folder (it holds {LOCK_FILE}); stop it first, or give this one its own state folder",
+        .state.display(),
+        .pid.map_or_else(|| "pid unknown".to_string(), |p| format!("pid {p}"))
+    )]
+    Running {
+        /// The state folder.
+        state: PathBuf,
+        /// The process holding it, as its lock file says.
+        pid: Option<u32>,
+    },
+    /// The state folder's lock file cannot be opened or locked.
+    #[error("{path}: cannot lock the state folder: {source}")]
+    Lock {
+        /// The lock file.
+        path: PathBuf,
+        /// What the operating system said.
+        source: std::io::Error,
+    },
+}
+
+/// File in the state folder that a running daemon holds locked (`flock`, exclusive, for
+/// as long as the process lives: the kernel releases it even after `kill -9`), holding
+/// the daemon's pid: one daemon per state folder.
+pub const LOCK_FILE: &str = "daemon.lock";
+
+/// Takes the state folder's lock ([`LOCK_FILE`]) and writes this process's pid into it;
+/// [`DaemonError::Running`] names the holder when another daemon has it.
+fn lock_state(state: &Path) -> Result<std::fs::File, DaemonError> {
+    use std::io::{Read, Seek, Write};
+    let path = state.join(LOCK_FILE);
+    let io = |source| DaemonError::Lock {
+        path: path.clone(),
+        source,
+    };
+    let mut file = std::fs::OpenOptions::new()
+        .read(true)
+        .write(true)
+        .create(true)
+        .truncate(false)
+        .open(&path)
+        .map_err(io)?;
+    match file.try_lock() {
+        Ok(()) => {}
+        Err(std::fs::TryLockError::WouldBlock) => {
+            let mut text = String::new();
+            let _ = file.read_to_string(&mut text);
+            return Err(DaemonError::Running {
+                state: state.to_path_buf(),
+                pid: text.trim().parse().ok(),
+            });
+        }
+        Err(std::fs::TryLockError::Error(e)) => return Err(io(e)),
+    }
+    file.set_len(0)
+        .and_then(|()| file.rewind())
+        .and_then(|()| writeln!(file, "{}", std::process::id()))
+        .and_then(|()| file.sync_data())
+        .map_err(io)?;
+    Ok(file)
 }
 
 /// Counters of one run, returned when the daemon stops.
@@ -203,6 +271,13 @@ type Outcome = (Work, Result<Processed, JobError>, Duration);
 
 struct State {
     config: Config,
+    /// The folders as configured (the running configuration holds the ingest folder
+    /// resolved): a reload compares against these.
+    configured: config::Folders,
+    /// The resolved ingest folder, and the one name of each of its files.
+    root: intake::IngestRoot,
+    /// The state folder's lock, held while the daemon runs ([`LOCK_FILE`]).
+    _lock: std::fs::File,
     lab: Arc<dyn Lab>,
     journal: Journal,
     cache: ResponseCache,
@@ -229,14 +304,11 @@ struct State {
     held: HashMap<PathBuf, Held>,
     /// Files whose last read failed transiently, with their back-off.
     unreadable: HashMap<PathBuf, Unreadable>,
-    /// Decoded sizes of the frames taken (for the memory budget).
-    footprints: HashMap<PathBuf, Footprint>,
-    /// Content digests of the frames taken (journaled with their bracket).
-    digests: HashMap<PathBuf, u64>,
     /// Estimated bytes of the jobs in flight.
     in_use: u64,
-    /// Paths in the grouper, queue, retry list or in flight.
-    taken: HashSet<PathBuf>,
+    /// Frames in the grouper, held, queued, waiting to retry or in flight: their decoded
+    /// size, content digest and inode as read.
+    taken: HashMap<PathBuf, intake::Taken>,
     queue: VecDeque<Work>,
     /// Brackets whose outputs failed: when to try again, and why.
     retries: Vec<(Instant, Work, String)>,
@@ -251,17 +323,26 @@ struct State {
 
 /// Runs the daemon until [`Control::Stop`] (or the control sender is dropped).
 pub async fn run(
-    config: Config,
+    mut config: Config,
     lab: Arc<dyn Lab>,
     mut control: mpsc::Receiver<Control>,
 ) -> Result<Summary, DaemonError> {
-    let folders = &config.folders;
-    for dir in [&folders.ingest, &folders.out, &folders.state] {
+    for dir in [
+        &config.folders.ingest,
+        &config.folders.out,
+        &config.folders.state,
+    ] {
         std::fs::create_dir_all(dir).map_err(|source| DaemonError::Folder {
             path: dir.clone(),
             source,
         })?;
     }
+    // Before anything in the folders is touched: another daemon's work is its own.
+    let lock = lock_state(&config.folders.state)?;
+    let configured = config.folders.clone();
+    let root = intake::IngestRoot::new(&configured.ingest);
+    config.folders.ingest = root.real().to_path_buf();
+    let folders = &config.folders;
     for dir in [
         folders.out.clone(),
         folders.state.clone(),
@@ -286,13 +367,17 @@ pub async fn run(
             ),
         }
     }
-    let journal = Journal::open(&folders.state)?;
+    let mut journal = Journal::open(&folders.state)?;
+    journal.resolve_inputs(|p| root.identity(p));
     let (notices, mut rx) = mpsc::unbounded_channel();
     let now = Instant::now();
     let mut st = State {
         cache: ResponseCache::new(&folders.state),
         grouper: Grouper::new(config.bracket),
         config,
+        configured,
+        root,
+        _lock: lock,
         lab,
         journal,
         started: now,
@@ -309,10 +394,8 @@ pub async fn run(
         pairing_bodies: HashSet::new(),
         held: HashMap::new(),
         unreadable: HashMap::new(),
-        footprints: HashMap::new(),
-        digests: HashMap::new(),
         in_use: 0,
-        taken: HashSet::new(),
+        taken: HashMap::new(),
         queue: VecDeque::new(),
         retries: Vec::new(),
         in_flight: JoinSet::new(),
@@ -323,7 +406,7 @@ pub async fn run(
         last_watchdog: now,
         watchdog: sd_notify::watchdog_enabled(),
     };
-    st.check_folder();
+    st.check_folder().await;
     info!(
         ingest = %st.config.folders.ingest.display(),
         out = %st.config.folders.out.display(),
@@ -340,12 +423,12 @@ pub async fn run(
     tick.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Delay);
     loop {
         tokio::select! {
-            Some(notice) = rx.recv() => st.notice(notice),
+            Some(notice) = rx.recv() => st.notice(notice).await,
             Some(done) = st.in_flight.join_next(), if !st.in_flight.is_empty() => {
                 st.finish(done.expect("develop panics are caught inside the task"))?;
             }
             c = control.recv() => match c {
-                Some(Control::Reload(cfg)) => st.reload(*cfg),
+                Some(Control::Reload(cfg)) => st.reload(*cfg).await,
                 Some(Control::Stop) | None => break,
             },
             _ = tick.tick() => st.tick().await?,
@@ -444,6 +527,15 @@ fn remove_temporaries(dir: &Path, min_age: Duration) {
     }
 }
 
+/// The message of a caught panic (`panic!`'s text), or `""` when it carried none.
+fn panic_text(panic: &(dyn std::any::Any + Send)) -> String {
+    panic
+        .downcast_ref::<&str>()
+        .map(|s| (*s).to_string())
+        .or_else(|| panic.downcast_ref::<String>().cloned())
+        .unwrap_or_default()
+}
+
 fn file_stem(path: &Path) -> String {
     path.file_stem()
         .map_or_else(String::new, |s| s.to_string_lossy().into_owned())
@@ -458,15 +550,20 @@ fn folder_id(dir: &Path) -> Option<(u64, u64)> {
 }
 
 impl State {
+    /// The memory budget, `[daemon] memory_mb` in bytes (MB = 10⁶ bytes).
+    fn budget_bytes(&self) -> u64 {
+        self.config.daemon.memory_mb.saturating_mul(1_000_000)
+    }
+
     fn now_s(&self) -> f64 {
         self.started.elapsed().as_secs_f64()
     }
 
-    fn reload(&mut self, mut config: Config) {
-        if config.folders != self.config.folders {
+    async fn reload(&mut self, mut config: Config) {
+        if config.folders != self.configured {
             warn!("folders changed in the configuration; they take effect at the next start");
-            config.folders = self.config.folders.clone();
         }
+        config.folders = self.config.folders.clone();
         let rewatch = config.watch.mode != self.config.watch.mode
             || config.watch.recursive != self.config.watch.recursive
             || config.watch.poll != self.config.watch.poll;
@@ -475,7 +572,7 @@ impl State {
         if rewatch {
             self.watcher = None;
             self.watched = None;
-            self.check_folder();
+            self.check_folder().await;
         }
         info!(source = ?self.config.source, "configuration reloaded");
     }
@@ -484,6 +581,14 @@ impl State {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn backoff_doubles_from_retry_up_to_the_cap() {
+        let retry = Duration::from_secs(5);
+        let waits: Vec<u64> = (0..8).map(|n| backoff(retry, n).as_secs()).collect();
+        assert_eq!(waits, [5, 10, 20, 40, 80, 160, 300, 300]);
+        assert_eq!(backoff(retry, u32::MAX), MAX_RETRY);
+    }
 
     /// Out, state and cache lose every leftover; ingest only those a killed hook left,
     /// not one a running hook is renaming into place.

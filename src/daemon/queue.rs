@@ -1,7 +1,8 @@
 //! The queue: closed brackets become jobs for the lab (at most `jobs` at a time), and a
 //! job's outcome becomes a journal entry, a cache update, a rejection or a retry.
 
-use std::path::Path;
+use std::ffi::{OsStr, OsString};
+use std::path::{Path, PathBuf};
 use std::sync::Arc;
 use std::time::{Duration, Instant};
 
@@ -10,11 +11,18 @@ use tracing::{error, info, warn};
 use super::bracket::{Alone, Bracket, CameraId, Closed};
 use super::cache::{DISSENTS_TO_REPLACE, Dissent, PooledBracket};
 use super::config::{Recalibrate, Singles};
+use super::intake::{self, Arrival};
 use super::journal::{self, Entry};
-use super::{
-    DaemonError, Job, JobError, MAX_RETRY, Outcome, Processed, State, Work, file_stem, job_bytes,
-};
+use super::{DaemonError, Job, JobError, Outcome, Processed, State, Work, file_stem, job_bytes};
+use crate::atomic;
 use crate::darkroom::Pooling;
+
+/// How many times a bracket waits (with back-off) for a frame that is not on disk before
+/// it is developed without it: `retry_s · (1 + 2 + 4 + 8)`, 75 s at the default 5 s.
+const MISSING_RETRIES: u32 = 4;
+
+/// Most numbered names tried for one file in the archive (`IMG_0001-1.JPG` …).
+const ARCHIVE_NUMBERS: u32 = 10_000;
 
 impl State {
     pub(super) fn dispatch(&mut self) -> Result<(), DaemonError> {
@@ -22,10 +30,14 @@ impl State {
             let Some(mut work) = self.queue.pop_front() else {
                 break;
             };
+            if let Some(missing) = missing_frame(&work.closed) {
+                self.frame_missing(work, &missing)?;
+                continue;
+            }
             // The memory budget: a job starts when its estimate fits beside those
             // developing; one that cannot fit even alone is recorded as failed.
             let need = self.job_bytes(&work.closed);
-            let budget = self.config.daemon.memory_mb.saturating_mul(1_000_000);
+            let budget = self.budget_bytes();
             let single_reported = matches!(&work.closed, Closed::Single(..))
                 && self.config.bracket.singles == Singles::Report;
             if !single_reported && self.in_use + need > budget {
@@ -52,9 +64,9 @@ impl State {
                     alone: *alone,
                     outputs: Vec::new(),
                     digests: self
-                        .digests
+                        .taken
                         .get(&capture.input.path)
-                        .map(|d| vec![*d])
+                        .map(|t| vec![t.digest])
                         .unwrap_or_default(),
                     at: journal::unix_now(),
                 })?;
@@ -105,11 +117,7 @@ impl State {
                 let result =
                     std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| lab.process(&job)))
                         .unwrap_or_else(|panic| {
-                            let what = panic
-                                .downcast_ref::<&str>()
-                                .map(|s| (*s).to_string())
-                                .or_else(|| panic.downcast_ref::<String>().cloned())
-                                .unwrap_or_default();
+                            let what = super::panic_text(&*panic);
                             Err(JobError::Bracket(format!("lab panicked: {what}")))
                         });
                 (work, result, t.elapsed())
@@ -184,8 +192,6 @@ impl State {
     pub(super) fn release(&mut self, closed: &Closed) {
         for f in closed.frames() {
             self.taken.remove(&f.input.path);
-            self.footprints.remove(&f.input.path);
-            self.digests.remove(&f.input.path);
         }
     }
 
@@ -195,7 +201,7 @@ impl State {
         let frames: Vec<_> = closed
             .frames()
             .iter()
-            .filter_map(|c| self.footprints.get(&c.input.path).copied())
+            .filter_map(|c| self.taken.get(&c.input.path).map(|t| t.footprint))
             .collect();
         job_bytes(&frames)
     }
@@ -206,8 +212,18 @@ impl State {
         self.in_use = self.in_use.saturating_sub(work.reserved);
         match result {
             Ok(processed) => self.developed(&work, &processed, took)?,
+            // A frame not on disk now (moved away, being replaced): not a verdict on it.
+            Err(JobError::Frame { path, .. })
+                if is_missing(&path)
+                    && work.closed.frames().iter().any(|c| c.input.path == path) =>
+            {
+                self.frame_missing(work, &path)?;
+            }
             Err(JobError::Frame { path, reason }) => self.frame_failed(&work, &path, reason)?,
-            Err(e @ JobError::Output { .. }) => self.retry_later(work, &e),
+            Err(e @ JobError::Output { .. }) => {
+                error!(bracket = %work.closed.stem(), error = %e, "outputs not written");
+                self.retry_later(work, e.to_string());
+            }
             Err(JobError::Bracket(reason)) => self.failed(&work, reason)?,
         }
         Ok(())
@@ -224,7 +240,7 @@ impl State {
         let digests: Vec<u64> = closed
             .frames()
             .iter()
-            .map(|c| self.digests.get(&c.input.path).copied())
+            .map(|c| self.taken.get(&c.input.path).map(|t| t.digest))
             .collect::<Option<_>>()
             .unwrap_or_default();
         let camera = closed.camera().clone();
@@ -313,9 +329,75 @@ impl State {
                 "single frame rendered"
             ),
         }
-        self.archive(closed);
+        let replaced = self.replaced_since_read(closed);
+        if replaced.is_empty() {
+            self.archive(closed);
+        }
         self.release(closed);
+        for path in replaced {
+            info!(file = %path.display(), "replaced while its bracket developed: developing it again");
+            self.consider(path, Arrival::Writing);
+        }
         Ok(())
+    }
+
+    /// The frames of `closed` whose file is no longer the one read (another size, mtime
+    /// or inode): written again while their bracket developed.
+    fn replaced_since_read(&self, closed: &Closed) -> Vec<PathBuf> {
+        closed
+            .frames()
+            .into_iter()
+            .filter(|c| {
+                intake::observe(&c.input.path).is_ok_and(|seen| {
+                    seen.input != c.input
+                        || self
+                            .taken
+                            .get(&c.input.path)
+                            .is_some_and(|t| t.inode != seen.inode())
+                })
+            })
+            .map(|c| c.input.path.clone())
+            .collect()
+    }
+
+    /// A frame of `work` is not on disk: moved away for a moment, or being replaced. The
+    /// bracket waits for it with back-off ([`State::retry_later`]), nothing journaled;
+    /// after [`MISSING_RETRIES`] it is developed without it (a file that comes back
+    /// later is new work).
+    fn frame_missing(&mut self, work: Work, path: &Path) -> Result<(), DaemonError> {
+        if work.attempts < MISSING_RETRIES {
+            let reason = format!(
+                "{}: not on disk now; its bracket waits for it",
+                path.display()
+            );
+            warn!(bracket = %work.closed.stem(), file = %path.display(), "a frame is missing; its bracket waits for it");
+            self.retry_later(work, reason);
+            return Ok(());
+        }
+        warn!(bracket = %work.closed.stem(), file = %path.display(), "a frame stayed missing; its bracket is developed without it");
+        self.taken.remove(path);
+        self.requeue_without(&work.closed, path);
+        Ok(())
+    }
+
+    /// Queues the frames of `closed` but the one at `path` (a single when one is left).
+    fn requeue_without(&mut self, closed: &Closed, path: &Path) {
+        let camera = closed.camera().clone();
+        let rest: Vec<_> = closed
+            .frames()
+            .into_iter()
+            .filter(|c| c.input.path != *path)
+            .cloned()
+            .collect();
+        let closed = match rest.len() {
+            0 => return,
+            1 => Closed::Single(rest.into_iter().next().expect("one"), Alone::NoPartner),
+            _ => Closed::Bracket(Bracket {
+                camera,
+                frames: rest,
+            }),
+        };
+        self.queue.push_front(Work::new(closed));
     }
 
     /// A frame of the job could not be decoded: reject it, requeue the rest (a single if
@@ -327,7 +409,6 @@ impl State {
         reason: String,
     ) -> Result<(), DaemonError> {
         let closed = &work.closed;
-        let camera = closed.camera().clone();
         let frames: Vec<_> = closed.frames().into_iter().cloned().collect();
         let Some(bad) = frames.iter().find(|c| c.input.path == *path) else {
             return self.failed(
@@ -336,32 +417,18 @@ impl State {
             );
         };
         self.reject(bad.input.clone(), reason)?;
-        let rest: Vec<_> = frames
-            .into_iter()
-            .filter(|c| c.input.path != *path)
-            .collect();
-        let closed = match rest.len() {
-            0 => return Ok(()),
-            1 => Closed::Single(rest.into_iter().next().expect("one"), Alone::NoPartner),
-            _ => Closed::Bracket(Bracket {
-                camera,
-                frames: rest,
-            }),
-        };
-        self.queue.push_front(Work::new(closed));
+        self.requeue_without(closed, path);
         Ok(())
     }
 
-    /// Outputs could not be written: try again after `retry · 2^attempts` (at most
-    /// [`MAX_RETRY`]).
-    pub(super) fn retry_later(&mut self, work: Work, e: &JobError) {
-        let delay =
-            (self.config.daemon.retry * 2u32.saturating_pow(work.attempts.min(16))).min(MAX_RETRY);
-        error!(
+    /// Outputs could not be written, or a frame is missing: try again after
+    /// `retry · 2^attempts` (at most [`super::MAX_RETRY`]); `status` shows the `reason`.
+    pub(super) fn retry_later(&mut self, work: Work, reason: String) {
+        let delay = super::backoff(self.config.daemon.retry, work.attempts);
+        info!(
             bracket = %work.closed.stem(),
-            error = %e,
             retry_in_s = delay.as_secs_f64(),
-            "outputs not written; will retry"
+            "will retry"
         );
         self.retries.push((
             Instant::now() + delay,
@@ -369,7 +436,7 @@ impl State {
                 attempts: work.attempts + 1,
                 ..work
             },
-            e.to_string(),
+            reason,
         ));
     }
 
@@ -391,26 +458,127 @@ impl State {
     }
 
     /// Moves finished inputs to the archive folder, when configured, with the JPEGs set
-    /// aside beside their raws.
+    /// aside beside their raws ([`archive_file`]: never replacing an archived file).
     pub(super) fn archive(&self, closed: &Closed) {
         let Some(dir) = &self.config.folders.archive else {
             return;
         };
-        if let Err(e) = std::fs::create_dir_all(dir) {
-            warn!(archive = %dir.display(), error = %e, "cannot create archive folder");
-            return;
-        }
         let files = closed
             .frames()
             .into_iter()
             .flat_map(|c| std::iter::once(&c.input).chain(c.companion.as_ref()));
         for input in files {
-            let Some(name) = input.path.file_name() else {
-                continue;
-            };
-            if let Err(e) = std::fs::rename(&input.path, dir.join(name)) {
-                warn!(file = %input.path.display(), error = %e, "cannot archive input");
+            match archive_file(&input.path, &self.config.folders.ingest, dir) {
+                Ok(to) => {
+                    tracing::debug!(file = %input.path.display(), to = %to.display(), "archived")
+                }
+                Err(e) => {
+                    warn!(file = %input.path.display(), archive = %dir.display(), error = %e, "cannot archive input");
+                }
             }
         }
+    }
+}
+
+/// The first frame of `closed` that is not on disk.
+fn missing_frame(closed: &Closed) -> Option<PathBuf> {
+    closed
+        .frames()
+        .into_iter()
+        .map(|c| &c.input.path)
+        .find(|p| is_missing(p))
+        .cloned()
+}
+
+/// True when nothing is at `path` (`ENOENT`; a link counts as something).
+fn is_missing(path: &Path) -> bool {
+    std::fs::symlink_metadata(path).is_err_and(|e| e.kind() == std::io::ErrorKind::NotFound)
+}
+
+/// Moves `file`, found below `ingest`, into `archive` at the same path below it (the
+/// sub-folders of a `recursive` watch are kept), never replacing a file there: when the
+/// name is taken (a camera's counter wrapped, two sub-folders with one name) it becomes
+/// `<stem>-1.<ext>`, `<stem>-2.<ext>`, … (`IMG_0001.JPG` → `IMG_0001-1.JPG`), each tried
+/// with a rename that refuses to replace ([`atomic::rename_no_replace`]). Returns where
+/// the file went.
+fn archive_file(file: &Path, ingest: &Path, archive: &Path) -> std::io::Result<PathBuf> {
+    let below = file.strip_prefix(ingest).unwrap_or(file);
+    let name = below
+        .file_name()
+        .ok_or_else(|| std::io::Error::other("no file name"))?;
+    let folder = match below.parent() {
+        Some(sub) if file.starts_with(ingest) => archive.join(sub),
+        _ => archive.to_path_buf(),
+    };
+    std::fs::create_dir_all(&folder)?;
+    for n in 0..ARCHIVE_NUMBERS {
+        let target = folder.join(numbered(name, n));
+        match atomic::rename_no_replace(file, &target) {
+            Ok(()) => return Ok(target),
+            Err(e) if e.kind() == std::io::ErrorKind::AlreadyExists => {}
+            Err(e) => return Err(e),
+        }
+    }
+    Err(std::io::Error::new(
+        std::io::ErrorKind::AlreadyExists,
+        format!("{ARCHIVE_NUMBERS} files of this name are archived already"),
+    ))
+}
+
+/// `name` with `-n` before its extension (`IMG_0001.JPG`, 2 → `IMG_0001-2.JPG`); `name`
+/// itself for 0. Names that are not UTF-8 keep their bytes.
+fn numbered(name: &OsStr, n: u32) -> OsString {
+    if n == 0 {
+        return name.to_os_string();
+    }
+    let path = Path::new(name);
+    let mut out = path.file_stem().unwrap_or(name).to_os_string();
+    out.push(format!("-{n}"));
+    if let Some(ext) = path.extension() {
+        out.push(".");
+        out.push(ext);
+    }
+    out
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A second file of an archived name (a camera's counter wrapped) and a same-named
+    /// file of a sub-folder never replace the archived ones.
+    #[test]
+    fn the_archive_never_replaces_an_archived_file() {
+        let dir = tempfile::tempdir().unwrap();
+        let (ingest, archive) = (dir.path().join("ingest"), dir.path().join("archive"));
+        std::fs::create_dir_all(ingest.join("session")).unwrap();
+        for (k, content) in ["first", "second", "third"].iter().enumerate() {
+            let file = ingest.join("IMG_0001.JPG");
+            std::fs::write(&file, content).unwrap();
+            let to = archive_file(&file, &ingest, &archive).unwrap();
+            let want = if k == 0 {
+                "IMG_0001.JPG".to_string()
+            } else {
+                format!("IMG_0001-{k}.JPG")
+            };
+            assert_eq!(to, archive.join(want));
+            assert!(!file.exists());
+        }
+        let deeper = ingest.join("session/IMG_0001.JPG");
+        std::fs::write(&deeper, "fourth").unwrap();
+        let to = archive_file(&deeper, &ingest, &archive).unwrap();
+        assert_eq!(to, archive.join("session/IMG_0001.JPG"));
+        for (name, content) in [
+            ("IMG_0001.JPG", "first"),
+            ("IMG_0001-1.JPG", "second"),
+            ("IMG_0001-2.JPG", "third"),
+            ("session/IMG_0001.JPG", "fourth"),
+        ] {
+            assert_eq!(
+                std::fs::read_to_string(archive.join(name)).unwrap(),
+                content
+            );
+        }
+        assert_eq!(numbered(OsStr::new("README"), 3), "README-3");
     }
 }

@@ -39,15 +39,15 @@ use super::bracket::{Alone, Bracket, Capture, Closed, Input};
 use super::intake::{self, Arrival, Notice, Probe};
 use super::journal::{self, Entry};
 use super::{
-    Candidate, DaemonError, FINISHED_QUIET, Held, MAX_RETRY, REDO_FOLDER, State, Superseded,
-    Unreadable, WRITER_PATIENCE, Work, folder_id, job_bytes,
+    Candidate, DaemonError, FINISHED_QUIET, Held, REDO_FOLDER, State, Superseded, Unreadable,
+    WRITER_PATIENCE, Work, folder_id, job_bytes,
 };
 use crate::atomic;
 
 impl State {
     /// Notices the ingest folder appearing, disappearing or being replaced, and
     /// (re)starts the watcher with a full scan when it (re)appears.
-    pub(super) fn check_folder(&mut self) {
+    pub(super) async fn check_folder(&mut self) {
         let dir = self.config.folders.ingest.clone();
         let id = folder_id(&dir);
         if id == self.watched && (id.is_none() || self.watcher.is_some()) {
@@ -73,15 +73,31 @@ impl State {
                 self.watch_retry_at = Instant::now() + Duration::from_secs(10);
             }
         }
-        self.rescan();
+        self.rescan().await;
+    }
+
+    /// Lists the ingest folder ([`intake::scan`]) on a blocking thread, off the loop: a
+    /// slow or huge folder (a network share) does not stall the service.
+    async fn listing(&self) -> Vec<PathBuf> {
+        let (watch, dir) = (
+            self.config.watch.clone(),
+            self.config.folders.ingest.clone(),
+        );
+        tokio::task::spawn_blocking(move || intake::scan(&watch, &dir))
+            .await
+            .unwrap_or_else(|e| {
+                warn!(error = %e, "listing the ingest folder did not finish");
+                Vec::new()
+            })
     }
 
     /// Lists the ingest folder again; the stem index is rebuilt from the listing (files
     /// gone since are forgotten).
-    pub(super) fn rescan(&mut self) {
+    pub(super) async fn rescan(&mut self) {
         self.last_rescan = Instant::now();
+        let listing = self.listing().await;
         self.stems.clear();
-        for path in intake::scan(&self.config.watch, &self.config.folders.ingest) {
+        for path in listing {
             self.consider(path, Arrival::Writing);
         }
     }
@@ -91,10 +107,10 @@ impl State {
     /// the bracket gap), makes each a candidate and returns true when there was one.
     /// Called before the gap clock closes a bracket: such a file arrived in time and may
     /// be its next frame. One listing and one `lstat` per unknown file, once per bracket.
-    fn unnoticed_arrivals(&mut self) -> bool {
+    async fn unnoticed_arrivals(&mut self) -> bool {
         let mut found = false;
-        for path in intake::scan(&self.config.watch, &self.config.folders.ingest) {
-            let known = self.taken.contains(&path)
+        for path in self.listing().await {
+            let known = self.taken.contains_key(&path)
                 || self.candidates.contains_key(&path)
                 || self.held.contains_key(&path)
                 || self.unreadable.contains_key(&path)
@@ -113,13 +129,15 @@ impl State {
 
     /// Makes `path` a candidate (again), as its notice's `arrival` says.
     pub(super) fn consider(&mut self, path: PathBuf, arrival: Arrival) {
+        // One name per file, whatever spelling the notice or listing used.
+        let path = self.root.identity(&path);
         // Reached through a linked folder (a watcher that followed it): not in ingest.
         if intake::through_link(&self.config.folders.ingest, &path) {
             tracing::debug!(file = %path.display(), "reached through a link; not followed");
             return;
         }
         self.stems.insert(&path);
-        if self.taken.contains(&path) {
+        if self.taken.contains_key(&path) {
             return;
         }
         // A JPEG set aside beside its raw, unchanged since.
@@ -183,8 +201,6 @@ impl State {
         };
         info!(file = %jpeg.display(), raw = %raw.display(), "the JPEG of a RAW+JPEG capture: set aside beside its raw");
         self.taken.remove(&jpeg);
-        self.footprints.remove(&jpeg);
-        self.digests.remove(&jpeg);
         self.held.remove(&jpeg);
         self.companion_of_raw.insert(raw.clone(), input.clone());
         self.companions.insert(jpeg, (input, raw));
@@ -222,18 +238,18 @@ impl State {
         }
     }
 
-    pub(super) fn notice(&mut self, notice: Notice) {
+    pub(super) async fn notice(&mut self, notice: Notice) {
         match notice {
             Notice::File { path, arrival } => self.consider(path, arrival),
             Notice::Rescan => {
                 warn!("file events may have been lost; rescanning the ingest folder");
-                self.rescan();
+                self.rescan().await;
             }
         }
     }
 
     pub(super) async fn tick(&mut self) -> Result<(), DaemonError> {
-        self.check_folder();
+        self.check_folder().await;
         if !self.stopping {
             self.redo_requests().await?;
         }
@@ -244,7 +260,7 @@ impl State {
         } || (self.watcher.is_none()
             && self.last_rescan.elapsed() >= self.config.watch.poll);
         if rescan_due {
-            self.rescan();
+            self.rescan().await;
         }
         if !self.stopping {
             let ready = self.settle();
@@ -268,7 +284,7 @@ impl State {
                 .any(|u| u.first_seen.elapsed() < WRITER_PATIENCE);
         if writing
             || self.queue.len() >= self.config.daemon.queue
-            || (self.grouper.due(now) && self.unnoticed_arrivals())
+            || (self.grouper.due(now) && self.unnoticed_arrivals().await)
         {
             self.grouper.postpone(now);
         }
@@ -392,20 +408,29 @@ impl State {
         ready
     }
 
-    /// Probes files off the async threads, under the memory budget.
+    /// Probes files off the async threads, under the memory budget; a decoder's panic is
+    /// the file's rejection ([`intake::probe_guarded`]), never the service's end.
     async fn probe_all(&self, paths: Vec<PathBuf>) -> Vec<(PathBuf, Probe)> {
-        let max_bytes = self.config.daemon.memory_mb.saturating_mul(1_000_000);
+        let max_bytes = self.budget_bytes();
+        let listed = paths.clone();
         tokio::task::spawn_blocking(move || {
             paths
                 .into_iter()
                 .map(|p| {
-                    let r = intake::probe(&p, max_bytes);
+                    let r = intake::probe_guarded(&p, max_bytes);
                     (p, r)
                 })
                 .collect()
         })
         .await
-        .expect("probing does not panic")
+        .unwrap_or_else(|e| {
+            // Only a cancelled task gets here (panics are caught inside): read them later.
+            let reason = format!("cannot read: probing did not finish: {e}");
+            listed
+                .into_iter()
+                .map(|p| (p, Probe::Unreadable(reason.clone())))
+                .collect()
+        })
     }
 
     /// Probes settled files (off the async threads) and feeds the grouper.
@@ -426,9 +451,11 @@ impl State {
             }
             match probe {
                 Probe::Frame(c, ..) if self.journal.is_settled(&c.input) => {}
-                Probe::Frame(c, footprint, digest) => {
+                Probe::Frame(c, taken) => {
                     let before = self.journal.developed(&c.input.path);
-                    if let Some(e) = before.filter(|e| e.digest_of(&c.input.path) == Some(digest)) {
+                    if let Some(e) =
+                        before.filter(|e| e.digest_of(&c.input.path) == Some(taken.digest))
+                    {
                         let of = match e {
                             Entry::Bracket { id, .. } | Entry::Single { id, .. } => id.clone(),
                             _ => String::new(),
@@ -441,7 +468,7 @@ impl State {
                         })?;
                         continue;
                     }
-                    frames.push((c, footprint, digest));
+                    frames.push((c, taken));
                 }
                 Probe::Rejected(input, reason) => {
                     if !self.journal.is_settled(&input) {
@@ -454,9 +481,10 @@ impl State {
             }
         }
         let mut admitted = Vec::new();
-        for (c, footprint, digest) in frames {
+        for (c, taken) in frames {
+            let footprint = taken.footprint;
             let need = job_bytes(&[footprint]);
-            let budget = self.config.daemon.memory_mb.saturating_mul(1_000_000);
+            let budget = self.budget_bytes();
             if need > budget {
                 let reason = format!(
                     "{}×{} pixels need {} MB to develop, more than the memory budget ([daemon] memory_mb = {})",
@@ -467,8 +495,7 @@ impl State {
                 );
                 self.reject(c.input, reason)?;
             } else {
-                self.footprints.insert(c.input.path.clone(), footprint);
-                self.digests.insert(c.input.path.clone(), digest);
+                self.taken.insert(c.input.path.clone(), taken);
                 admitted.push(c);
             }
         }
@@ -511,7 +538,6 @@ impl State {
                 }
             } else if !intake::is_raw(&path) && self.pairing_bodies.contains(&c.camera) {
                 tracing::debug!(file = %path.display(), "a JPEG of a RAW+JPEG body: waiting for its raw");
-                self.taken.insert(path);
                 self.held.insert(
                     c.input.path.clone(),
                     Held {
@@ -522,7 +548,6 @@ impl State {
                 continue;
             }
             tracing::debug!(file = %path.display(), time_s = c.time_s, "frame taken");
-            self.taken.insert(c.input.path.clone());
             for closed in self.grouper.push(c, now) {
                 self.queue.push_back(Work::new(closed));
             }
@@ -557,7 +582,7 @@ impl State {
                 "no unchanged frame of the earlier bracket left".to_string(),
             ));
         }
-        if others.iter().any(|p| self.taken.contains(p)) {
+        if others.iter().any(|p| self.taken.contains_key(p)) {
             return Err((new, "its other frames are being developed".to_string()));
         }
         let journaled: Vec<Input> = old.inputs().into_iter().cloned().collect();
@@ -577,31 +602,40 @@ impl State {
         let mut found = Vec::new();
         for (path, probe) in probed {
             match probe {
-                Probe::Frame(c, footprint, digest) if unchanged(&c, digest) => {
-                    found.push((c, footprint, digest));
+                Probe::Frame(c, taken) if unchanged(&c, taken.digest) => {
+                    found.push((c, taken));
                 }
                 _ => {
                     return Err((frames, format!("{} changed or is gone", path.display())));
                 }
             }
         }
-        for (c, footprint, digest) in found {
-            self.footprints.insert(c.input.path.clone(), footprint);
-            self.digests.insert(c.input.path.clone(), digest);
-            frames.push(c);
-        }
-        let camera = frames[0].camera.clone();
-        if frames.iter().any(|c| c.camera != camera) {
+        let Some(camera) = frames
+            .first()
+            .or(found.first().map(|(c, _)| c))
+            .map(|c| c.camera.clone())
+        else {
+            return Err((frames, "no frame left".to_string()));
+        };
+        if frames
+            .iter()
+            .chain(found.iter().map(|(c, _)| c))
+            .any(|c| c.camera != camera)
+        {
             return Err((frames, "frames of another camera".to_string()));
         }
-        frames.sort_by(|a, b| a.time_s.total_cmp(&b.time_s));
-        for c in &frames {
-            self.taken.insert(c.input.path.clone());
+        for (c, taken) in found {
+            self.taken.insert(c.input.path.clone(), taken);
+            frames.push(c);
         }
-        let closed = if frames.len() == 1 {
-            Closed::Single(frames.pop().expect("one"), Alone::NoPartner)
-        } else {
-            Closed::Bracket(Bracket { camera, frames })
+        frames.sort_by(|a, b| a.time_s.total_cmp(&b.time_s));
+        let closed = match frames.pop() {
+            Some(only) if frames.is_empty() => Closed::Single(only, Alone::NoPartner),
+            Some(last) => {
+                frames.push(last);
+                Closed::Bracket(Bracket { camera, frames })
+            }
+            None => return Err((frames, "no frame left".to_string())),
         };
         info!(bracket = %stem, frames = closed.frames().len(), "developing again");
         self.queue.push_back(Work {
@@ -653,7 +687,7 @@ impl State {
     }
 
     /// A file that cannot be read now: look again after `retry · 2^attempts` (at most
-    /// [`MAX_RETRY`]); meanwhile open brackets wait for it (up to [`WRITER_PATIENCE`]),
+    /// [`super::MAX_RETRY`]); meanwhile open brackets wait for it (up to [`WRITER_PATIENCE`]),
     /// and `status` shows it with the reason. Nothing is journaled.
     pub(super) fn unreadable_for_now(&mut self, path: PathBuf, reason: String) {
         let now = Instant::now();
@@ -663,8 +697,7 @@ impl State {
             next: now,
             reason: String::new(),
         });
-        let delay =
-            (self.config.daemon.retry * 2u32.saturating_pow(entry.attempts.min(16))).min(MAX_RETRY);
+        let delay = super::backoff(self.config.daemon.retry, entry.attempts);
         entry.attempts += 1;
         entry.next = now + delay;
         entry.reason.clone_from(&reason);
@@ -680,7 +713,6 @@ impl State {
     pub(super) fn reject(&mut self, input: Input, reason: String) -> Result<(), DaemonError> {
         warn!(file = %input.path.display(), reason = %reason, "rejected");
         self.taken.remove(&input.path);
-        self.footprints.remove(&input.path);
         self.summary.rejected += 1;
         let path = input.path.clone();
         self.journal.record(Entry::Rejected {

@@ -69,6 +69,37 @@ pub fn read_snapshot(state: &Path) -> Option<Snapshot> {
     serde_json::from_str(&text).ok()
 }
 
+/// Whether a daemon holds the state folder's lock ([`super::LOCK_FILE`]) now: `None` when
+/// there is no lock file to ask (no daemon of this version ran there). The kernel
+/// releases the lock when its process ends, even by `kill -9`, so a stale snapshot that
+/// still says `running` is told from a live daemon.
+pub fn lock_held(state: &Path) -> Option<bool> {
+    let file = std::fs::File::open(state.join(super::LOCK_FILE)).ok()?;
+    match file.try_lock_shared() {
+        Ok(()) => {
+            let _ = file.unlock();
+            Some(false)
+        }
+        Err(std::fs::TryLockError::WouldBlock) => Some(true),
+        Err(std::fs::TryLockError::Error(_)) => None,
+    }
+}
+
+/// True when this process may create and replace files in the state folder: the daemon
+/// publishes `status.json` by renaming a new file into it, so where that is refused the
+/// snapshot may be stale (`access(2)` with write and search permission).
+pub fn state_writable(state: &Path) -> bool {
+    #[cfg(target_os = "linux")]
+    {
+        use rustix::fs::{Access, access};
+        access(state, Access::WRITE_OK | Access::EXEC_OK).is_ok()
+    }
+    #[cfg(not(target_os = "linux"))]
+    {
+        std::fs::metadata(state).is_ok_and(|m| !m.permissions().readonly())
+    }
+}
+
 impl State {
     pub(super) fn snapshot(&self, running: bool) -> Snapshot {
         Snapshot {
