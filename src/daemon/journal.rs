@@ -190,10 +190,8 @@ impl Entry {
             } => (id, input, outputs),
             _ => return None,
         };
-        let stem = first
-            .path
-            .file_stem()
-            .map_or_else(String::new, |s| s.to_string_lossy().into_owned());
+        let stem = first.path.file_stem().unwrap_or_default().to_string_lossy();
+        let stem = crate::atomic::fitting_stem(&stem).into_owned();
         let suffixed = format!("{stem}-{}", id.get(..8).unwrap_or(id));
         let named = |s: &str| {
             outputs.iter().any(|o| {

@@ -536,9 +536,10 @@ fn panic_text(panic: &(dyn std::any::Any + Send)) -> String {
         .unwrap_or_default()
 }
 
+/// The output stem a frame at `path` gives ([`crate::atomic::fitting_stem`] of its stem).
 fn file_stem(path: &Path) -> String {
-    path.file_stem()
-        .map_or_else(String::new, |s| s.to_string_lossy().into_owned())
+    let stem = path.file_stem().unwrap_or_default().to_string_lossy();
+    crate::atomic::fitting_stem(&stem).into_owned()
 }
 
 fn folder_id(dir: &Path) -> Option<(u64, u64)> {
