@@ -12,6 +12,7 @@
 //! | the relative radiance map | [`radiance`] |
 //! | histograms and the intensity mapping `τ` | [`histogram`] |
 //! | the camera's inverse response `g` from two or more frames | [`response`] |
+//! | registering a bracket's frames onto a reference frame | [`align`] |
 //! | frames and `g` into radiance | [`merge`] |
 //! | OpenEXR and Radiance `.hdr` | [`hdr_output`] |
 //! | the display image, sRGB and luminance | [`display`] |
@@ -32,6 +33,7 @@ pub mod frame;
 pub mod radiance;
 pub mod histogram;
 pub mod response;
+pub mod align;
 pub mod merge;
 pub mod hdr_output;
 pub mod display;

@@ -100,6 +100,7 @@ use std::path::{Path, PathBuf};
 
 use rayon::prelude::*;
 
+use crate::align::AlignMode;
 use crate::frame::{BitDepth, Frame, Samples};
 use crate::metadata::Camera;
 use crate::radiance::{CodePairs, RadianceMap, RadianceSource};
@@ -136,6 +137,9 @@ pub struct MergeOptions {
     pub weighting: Weighting,
     /// Also return the per-pixel confidence (see [`Merged::confidence`]).
     pub confidence: bool,
+    /// How the darkroom aligns the frames before merging them ([`crate::align`]); the
+    /// merge itself takes the frames as given.
+    pub align: AlignMode,
 }
 
 /// Why a bracket cannot be merged. Every variant names the files concerned.
@@ -1307,7 +1311,7 @@ mod tests {
             &linear(),
             MergeOptions {
                 weighting: Weighting::NoiseAware,
-                confidence: false,
+                ..MergeOptions::default()
             },
         )
         .unwrap();
@@ -1452,7 +1456,7 @@ mod tests {
                 let b = bracket(&frames, &cam);
                 let options = MergeOptions {
                     weighting,
-                    confidence: false,
+                    ..MergeOptions::default()
                 };
                 let map = merge(&b, &g, options).unwrap();
                 let mut lazy = BracketMerge::new(&b, &g, weighting).unwrap();
@@ -1495,6 +1499,7 @@ mod tests {
                 let options = MergeOptions {
                     weighting,
                     confidence,
+                    ..MergeOptions::default()
                 };
                 merge(&bracket(&frames, &cam), &g, options).unwrap()
             };

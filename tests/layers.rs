@@ -5,7 +5,7 @@
 use std::path::{Path, PathBuf};
 
 /// The library's top-level modules, bottom first.
-const LAYERS: [&str; 16] = [
+const LAYERS: [&str; 17] = [
     "atomic",
     "metadata",
     "raw",
@@ -13,6 +13,7 @@ const LAYERS: [&str; 16] = [
     "radiance",
     "histogram",
     "response",
+    "align",
     "merge",
     "hdr_output",
     "display",

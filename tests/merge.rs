@@ -50,6 +50,7 @@ fn merge_frames(frames: &[(&Frame, f64)], g: &InverseResponse, weighting: Weight
     let options = MergeOptions {
         weighting,
         confidence: true,
+        ..MergeOptions::default()
     };
     merge::merge(&bracket, g, options).unwrap()
 }

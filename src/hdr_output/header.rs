@@ -101,6 +101,9 @@ pub(super) fn layer_attributes(
             p.clipped.0, p.clipped.1
         ))),
     );
+    if let Some(alignment) = &p.alignment {
+        put("filmbackAlignment", V::Text(text(alignment)));
+    }
     put("filmbackScale", V::Text(text(&p.scale.describe())));
     put("filmbackScaleKind", V::Text(text(p.scale.kind())));
     put("colorInteropID", V::Text(text(primaries.interop_id())));

@@ -637,6 +637,7 @@ fn full_provenance() -> Provenance {
         weighting: "hat".into(),
         clipped: (12, 3),
         scale: crate::merge::Scale::Luminance { calibration: 1.0 },
+        alignment: Some("mode auto; reference frame 1".into()),
     }
 }
 
