@@ -288,10 +288,7 @@ fn a_frame_clipped_almost_everywhere_keeps_the_identity_with_a_note() {
     let Samples::Eight(codes) = frames[2].samples() else {
         panic!("8-bit frames")
     };
-    let clipped = codes
-        .chunks(3)
-        .filter(|p| p.contains(&255))
-        .count();
+    let clipped = codes.chunks(3).filter(|p| p.contains(&255)).count();
     assert!(
         clipped * 100 >= 95 * (W * H) as usize,
         "{clipped} pixels clipped"

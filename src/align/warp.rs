@@ -219,9 +219,23 @@ mod raw {
             for (x, (v, w)) in values.iter_mut().zip(weights.iter_mut()).enumerate() {
                 let s = f.signal(x, y);
                 *v = s.max(0.0);
-                *w = estimate::log_weight(s);
+                *w = raw_log_weight(s);
             }
         })
+    }
+
+    /// The least normalised raw signal a block is estimated from: ten times the read noise of
+    /// a 14-bit sensor (3 codes of 14 500), far below a JPEG's floor.
+    const RAW_FLOOR: f32 = 0.002;
+
+    /// The weight of a raw sample's log signal: `s`, the inverse variance of `ln s` under
+    /// shot noise (`Var s ∝ s`), between [`RAW_FLOOR`] and [`CLIPPED`]; 0 outside.
+    fn raw_log_weight(s: f32) -> f32 {
+        if (RAW_FLOOR..CLIPPED).contains(&s) {
+            s
+        } else {
+            0.0
+        }
     }
 
     /// Every moved mosaic resampled onto the reference grid (`None` for one merged as it
