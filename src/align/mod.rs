@@ -325,7 +325,7 @@ pub struct AlignFrame<'a> {
 }
 
 /// The frame that exposes most of the scene well: the largest sum, over its pixels
-/// (every [`REFERENCE_STRIDE`]-th row and column) whose every channel is within
+/// (every fourth row and column) whose every channel is within
 /// [`WELL_EXPOSED_LOW`]..=[`WELL_EXPOSED_HIGH`] of full scale, of the hat weight
 /// `1 − |2B − 1|` of the pixel's worst channel (so a pixel in the mid-tones counts fully
 /// and one near either end little); the first such frame on a tie. Alignment registers the
