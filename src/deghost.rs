@@ -126,33 +126,6 @@ impl GhostMasks {
     }
 }
 
-/// The frame that exposes most of the scene well: the largest number of samples within
-/// [`WELL_EXPOSED`] (every 4th pixel of every 4th row counted); ties go to the earlier.
-pub fn choose_reference(frames: &[BracketFrame<'_>]) -> usize {
-    let count = |f: &Frame| {
-        let max = f64::from(f.bit_depth().max_code());
-        let (lo, hi) = (WELL_EXPOSED.0 * max, WELL_EXPOSED.1 * max);
-        let row = f.width() as usize * f.channels();
-        let good = |c: f64| c >= lo && c <= hi;
-        match f.samples() {
-            Samples::Eight(v) => strided(v, row, f.channels(), |c| good(f64::from(c))),
-            Samples::Sixteen(v) => strided(v, row, f.channels(), |c| good(f64::from(c))),
-        }
-    };
-    let counts: Vec<usize> = frames.iter().map(|f| count(f.frame)).collect();
-    let best = counts.iter().copied().max().unwrap_or(0);
-    counts.iter().position(|&c| c == best).unwrap_or(0)
-}
-
-/// Samples of every 4th pixel of every 4th row for which `good` holds.
-fn strided<T: Copy>(v: &[T], row: usize, channels: usize, good: impl Fn(T) -> bool) -> usize {
-    v.chunks(row)
-        .step_by(4)
-        .flat_map(|r| r.chunks(channels).step_by(4).flatten())
-        .filter(|&&c| good(c))
-        .count()
-}
-
 /// Where a code lies: well exposed, or a bound on the radiance.
 #[derive(Clone, Copy, PartialEq)]
 enum Tone {
@@ -380,10 +353,12 @@ enum Verdict {
     Disagree,
 }
 
-/// Decides, for every frame of `frames` but the reference, where it is left out of the
+/// Decides, for every frame of `frames` but the reference (the frame alignment registers
+/// the others onto, [`crate::align::choose_reference`]), where it is left out of the
 /// merge (module docs). Frames must share size, depth and channels (the merge checks it).
 pub fn ghost_masks(frames: &[BracketFrame<'_>], response: &InverseResponse) -> GhostMasks {
-    let reference = choose_reference(frames);
+    let views: Vec<&Frame> = frames.iter().map(|f| f.frame).collect();
+    let reference = crate::align::choose_reference(&views);
     let n = frames.len();
     let codes = Codes::new(frames, response);
     let planes = Planes::of(frames);
@@ -681,16 +656,5 @@ mod tests {
             .max()
             .unwrap();
         assert!(steepest < 128, "a step of {steepest} in {row:?}");
-    }
-
-    #[test]
-    fn the_reference_exposes_most_of_the_scene_well() {
-        let frames = [
-            (shot(0.02, None), 0.02),
-            (shot(1.0, None), 1.0),
-            (shot(30.0, None), 30.0),
-        ];
-        let camera = Camera::default();
-        assert_eq!(choose_reference(&bracket(&frames, &camera)), 1);
     }
 }

@@ -12,6 +12,7 @@
 //! | the relative radiance map | [`radiance`] |
 //! | histograms and the intensity mapping `τ` | [`histogram`] |
 //! | the camera's inverse response `g` from two or more frames | [`response`] |
+//! | registering a bracket's frames onto a reference frame | [`align`] |
 //! | frames and `g` into radiance | [`merge`] |
 //! | where a frame disagrees with the reference (moving subjects) | [`deghost`] |
 //! | OpenEXR and Radiance `.hdr` | [`hdr_output`] |
@@ -33,6 +34,7 @@ pub mod frame;
 pub mod radiance;
 pub mod histogram;
 pub mod response;
+pub mod align;
 pub mod merge;
 pub mod deghost;
 pub mod hdr_output;

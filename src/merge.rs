@@ -100,6 +100,7 @@ use std::path::{Path, PathBuf};
 
 use rayon::prelude::*;
 
+use crate::align::AlignMode;
 use crate::frame::{BitDepth, Frame, Samples};
 use crate::metadata::Camera;
 use crate::radiance::{CodePairs, RadianceMap, RadianceSource};
@@ -140,6 +141,9 @@ pub struct MergeOptions {
     /// ([`crate::deghost`] makes the masks that [`merge_masked`] applies; [`merge`]
     /// itself blends every frame).
     pub deghost: Deghost,
+    /// How the darkroom aligns the frames before merging them ([`crate::align`]); the
+    /// merge itself takes the frames as given.
+    pub align: AlignMode,
 }
 
 /// Whether frames that disagree with the bracket's reference frame are left out there.
@@ -1498,7 +1502,6 @@ mod tests {
             &linear(),
             MergeOptions {
                 weighting: Weighting::NoiseAware,
-                confidence: false,
                 ..MergeOptions::default()
             },
         )
@@ -1644,7 +1647,6 @@ mod tests {
                 let b = bracket(&frames, &cam);
                 let options = MergeOptions {
                     weighting,
-                    confidence: false,
                     ..MergeOptions::default()
                 };
                 let map = merge(&b, &g, options).unwrap();

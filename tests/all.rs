@@ -7,6 +7,7 @@
 //! file in `tests/` runs only once it has its `mod` line here, which
 //! [`every_test_file_is_a_module_here`] checks.
 
+mod align;
 mod cache_cli;
 mod calibrate;
 mod cli;

@@ -6,7 +6,7 @@
 use std::path::{Path, PathBuf};
 
 /// The library's top-level modules, bottom first.
-const LAYERS: [&str; 17] = [
+const LAYERS: [&str; 18] = [
     "atomic",
     "metadata",
     "raw",
@@ -14,6 +14,7 @@ const LAYERS: [&str; 17] = [
     "radiance",
     "histogram",
     "response",
+    "align",
     "merge",
     "deghost",
     "hdr_output",

@@ -11,6 +11,7 @@ use std::time::{Duration, Instant};
 
 use anyhow::{Context, bail};
 use clap::ValueEnum;
+use filmback::align::AlignMode;
 use filmback::atomic::Overwrite;
 use filmback::darkroom::{self, GivenResponse, Prints, ResponsePolicy, Source};
 use filmback::frame::{self, Limits, LoadedFrame, Samples};
@@ -75,6 +76,11 @@ pub struct Args {
     /// moving subject): on, or off to blend every frame (moving subjects translucent).
     #[arg(long, value_enum, default_value_t = Deghost::On)]
     deghost: Deghost,
+    /// Align the frames onto the best-exposed one before merging: auto (the most general
+    /// model the texture determines; falls back, and says so, when it cannot), off, or
+    /// at most translation, rigid (rotation too) or homography (perspective too).
+    #[arg(long, value_enum, default_value_t = AlignMode::Auto)]
+    align: AlignMode,
     /// Add the per-pixel confidence (weight sum) as channel `confidence.Y`.
     #[arg(long)]
     confidence: bool,
@@ -214,6 +220,7 @@ pub fn run(args: Args) -> anyhow::Result<ExitCode> {
         },
         confidence: args.confidence,
         deghost: args.deghost,
+        align: args.align,
     };
     let mut developed =
         darkroom::develop(&frames, &exposures, ratio_source, policy, options, &prints)?;
@@ -246,6 +253,7 @@ pub fn run(args: Args) -> anyhow::Result<ExitCode> {
             },
             "clipped": { "high": developed.clipped.0, "low": developed.clipped.1 },
             "deghost": developed.deghost,
+            "alignment": alignment_report(&developed, &frames),
             "radiance_scale": developed.exr_scale,
             "scale": { "kind": developed.scale.kind(), "convention": developed.scale.describe() },
             "warnings": developed.warnings,
@@ -275,6 +283,32 @@ pub fn run(args: Args) -> anyhow::Result<ExitCode> {
         );
     }
     Ok(ExitCode::SUCCESS)
+}
+
+/// What alignment did, for `--json`: the mode, the reference frame's path, and per frame
+/// (command-line order) its model, shift at the centre (px), rotation (degrees), largest
+/// displacement (px), 3 × 3 matrix (reference pixel → frame pixel) and any fallback.
+fn alignment_report(developed: &darkroom::Developed, frames: &[LoadedFrame]) -> serde_json::Value {
+    let Some(alignment) = &developed.alignment else {
+        return serde_json::Value::Null;
+    };
+    let (w, h) = (frames[0].frame.width(), frames[0].frame.height());
+    json!({
+        "mode": alignment.mode,
+        "reference": frames[alignment.reference].path.display().to_string(),
+        "frames": alignment.frames.iter().zip(frames).map(|(a, f)| {
+            let ((dx, dy), angle) = a.shift_and_rotation(w, h);
+            json!({
+                "path": f.path.display().to_string(),
+                "motion": a.motion,
+                "shift_px": [dx, dy],
+                "rotation_deg": angle,
+                "displacement_px": a.displacement_px,
+                "matrix": a.transform,
+                "note": a.note,
+            })
+        }).collect::<Vec<_>>(),
+    })
 }
 
 /// Milliseconds to 0.1 ms.

@@ -23,9 +23,10 @@ use std::io::Cursor;
 use std::path::{Path, PathBuf};
 use std::time::{Duration, Instant};
 
+use crate::align::{self, AlignFrame, AlignMode, Alignment};
 use crate::atomic::{self, Overwrite, PublishError};
 use crate::deghost::{self, GhostMasks};
-use crate::frame::{LoadedFrame, Samples};
+use crate::frame::{Frame, LoadedFrame, Samples};
 use crate::hdr_output::{self, ExrOptions, FrameRecord, OutputError, Provenance, Written};
 use crate::merge::{
     self, BracketFrame, BracketMerge, Deghost, MergeError, MergeOptions, PairMerge,
@@ -191,6 +192,8 @@ pub struct Developed {
     pub warnings: Vec<String>,
     /// Wall time per stage.
     pub stages: Stages,
+    /// How the frames were aligned before the merge (`None` for a single frame).
+    pub alignment: Option<Alignment>,
     /// The merged radiance of a raw bracket or frame (linear Rec. 709, on [`Self::scale`]),
     /// kept for measuring the body's JPEG curve against its companion JPEGs
     /// ([`crate::response::measured`]); `None` for other frames.
@@ -316,19 +319,25 @@ pub fn develop(
     let exif: Vec<_> = frames.iter().map(|f| f.metadata.exposure).collect();
     let (scale, factor) = merge::exposure_scale(&exif, exposures, prints.luminance_calibration);
     #[cfg(feature = "raw")]
-    let raw_merged = raw::merge(frames, exposures, factor, &mut stages)?;
+    let raw_merged = raw::merge(frames, exposures, factor, options.align, &mut stages)?;
     #[cfg(not(feature = "raw"))]
-    let raw_merged: Option<(ChosenResponse, merge::Merged)> = None;
+    let raw_merged: Option<(ChosenResponse, merge::Merged, Alignment)> = None;
     let scaled = raw_merged.is_some();
     let mut weighting = format!("{:?}", options.weighting);
     let mut ghosts = None;
-    let (chosen, merged) = match raw_merged {
-        Some((chosen, m)) => {
+    // The moved frames resampled onto the reference grid; they outlive the merge.
+    let warped: Vec<Option<Frame>>;
+    let (chosen, merged, alignment) = match raw_merged {
+        Some((chosen, m, alignment)) => {
             weighting = RAW_WEIGHTING.to_string();
-            (chosen, Radiance::Buffered(m))
+            (chosen, Radiance::Buffered(m), alignment)
         }
         None => {
             let chosen = choose_response(&bracket, ratio_source, policy, &mut stages)?;
+            let alignment;
+            (alignment, warped) =
+                align_bracket(&bracket, &chosen.response, options.align, &mut stages);
+            let bracket = aligned(&bracket, &warped);
             if options.deghost == Deghost::On {
                 let t = Instant::now();
                 ghosts = Some(deghost::ghost_masks(&bracket, &chosen.response));
@@ -337,7 +346,7 @@ pub fn develop(
             let t = Instant::now();
             let merged = merge_bracket(&bracket, &chosen, options, prints, ghosts.as_ref())?;
             stages.push(("merge", t.elapsed()));
-            (chosen, merged)
+            (chosen, merged, alignment)
         }
     };
     let mut merged = merged;
@@ -362,6 +371,8 @@ pub fn develop(
         sorted.ratio(),
         (sorted.clipped_high, sorted.clipped_low),
     );
+    let names: Vec<String> = frames.iter().map(|f| file_name(&f.path)).collect();
+    let first = &frames[0].frame;
     let provenance = Provenance {
         camera: frames[0].metadata.camera.clone(),
         captured_at: frames[order[0]].metadata.captured_at,
@@ -381,6 +392,7 @@ pub fn develop(
             .as_ref()
             .filter(|g| g.share > 0.0)
             .map(|g| describe_ghosts(g, frames)),
+        alignment: Some(alignment.describe(&names, first.width(), first.height())),
     };
     let mut warnings: Vec<String> = frames
         .iter()
@@ -391,6 +403,7 @@ pub fn develop(
                 .map(move |w| format!("{}: {w}", f.path.display()))
         })
         .chain(chosen.notes.iter().cloned())
+        .chain(alignment_notes(&alignment, &names, first))
         .collect();
     if let merge::Scale::Relative { reason } = &scale {
         warnings.push(format!(
@@ -451,9 +464,71 @@ pub fn develop(
         fused,
         warnings,
         stages,
+        alignment: Some(alignment),
         raw_radiance,
         deghost: deghosted,
     })
+}
+
+/// Aligns the bracket's frames onto its reference frame (stage `align`): the alignment
+/// and each frame resampled onto the reference grid (`None` for a frame merged as it
+/// is). The response only makes the frames comparable; the calibration that chose it
+/// read the frames unaligned (histograms need no registration).
+fn align_bracket(
+    bracket: &[BracketFrame<'_>],
+    response: &InverseResponse,
+    mode: AlignMode,
+    stages: &mut Stages,
+) -> (Alignment, Vec<Option<Frame>>) {
+    let t = Instant::now();
+    let frames: Vec<AlignFrame<'_>> = bracket
+        .iter()
+        .map(|f| AlignFrame {
+            frame: f.frame,
+            exposure: f.exposure,
+        })
+        .collect();
+    let alignment = align::align(&frames, response, mode);
+    let warped = align::warp_frames(&frames, &alignment);
+    if mode != AlignMode::Off {
+        stages.push(("align", t.elapsed()));
+    }
+    (alignment, warped)
+}
+
+/// The bracket with each moved frame replaced by its resampled copy.
+fn aligned<'a>(bracket: &[BracketFrame<'a>], warped: &'a [Option<Frame>]) -> Vec<BracketFrame<'a>> {
+    bracket
+        .iter()
+        .zip(warped)
+        .map(|(f, w)| BracketFrame {
+            frame: w.as_ref().unwrap_or(f.frame),
+            ..*f
+        })
+        .collect()
+}
+
+/// What the report says of an alignment: each fallback, and the frames moved.
+fn alignment_notes(alignment: &Alignment, names: &[String], frame: &Frame) -> Vec<String> {
+    let mut notes = alignment.notes(names);
+    let moved: Vec<String> = alignment
+        .frames
+        .iter()
+        .zip(names)
+        .filter(|(f, _)| f.motion.is_some())
+        .map(|(f, name)| {
+            let ((dx, dy), angle) = f.shift_and_rotation(frame.width(), frame.height());
+            format!("{name} by ({dx:.2}, {dy:.2}) px and {angle:.2} deg")
+        })
+        .collect();
+    if !moved.is_empty() {
+        notes.push(format!(
+            "frames moved between exposures, aligned onto {}: {}",
+            names.get(alignment.reference).map_or("?", String::as_str),
+            moved.join(", ")
+        ));
+    }
+    notes
 }
 
 /// The EXR and Radiance HDR files of `prints`: paths written, the EXR's scale, its
@@ -557,7 +632,10 @@ fn print_looks(
 /// `P = width·height` and `S = P·channels`:
 ///
 /// `frames·S·bytes_per_sample` (the decoded frames, held as codes; the merge makes no
-/// per-frame float buffer) `+` [`working_memory_bytes`]: with looks, `4·S` (the
+/// per-frame float buffer) `+ (frames − 1)·S·bytes_per_sample` (each frame but the
+/// reference resampled onto the reference grid when alignment moves it,
+/// [`crate::align`]; its estimation pyramids are under a megabyte a frame) `+`
+/// [`working_memory_bytes`]: with looks, `4·S` (the
 /// radiance map, `f32`; an 8-bit pair whose looks have no optics needs none, so its
 /// peak stays `4·S` under the bound) `+ 2·S` (the EXR encoded in memory before it is
 /// published, at most its uncompressed half-float size) `+ 8·P` (the largest working set of one look:
@@ -567,9 +645,9 @@ fn print_looks(
 /// confidence layer) the merge runs inside the encoder and only the `2·S` of the EXR is
 /// added.
 ///
-/// So each frame adds only its own decoded size: a 24 MP 8-bit RGB pair with two looks
-/// is bounded by 775 MB, a 5-frame 24 MP bracket written only as EXR by 504 MB, a
-/// 7-frame 45 MP (8256 × 5504) bracket by 2.15 GB with looks and 1.23 GB without.
+/// So each frame adds twice its own decoded size: a 24 MP 8-bit RGB pair with two looks
+/// is bounded by 847 MB, a 5-frame 24 MP bracket written only as EXR by 792 MB, a
+/// 7-frame 45 MP (8256 × 5504) bracket by 2.96 GB with looks and 2.04 GB without.
 pub fn job_memory_bytes(
     width: u32,
     height: u32,
@@ -579,8 +657,9 @@ pub fn job_memory_bytes(
     looks: usize,
 ) -> u64 {
     let samples = u64::from(width) * u64::from(height) * channels as u64;
-    frames as u64 * samples * bytes_per_sample as u64
-        + working_memory_bytes(width, height, channels, looks)
+    let frame = samples * bytes_per_sample as u64;
+    let warped = frames.saturating_sub(1) as u64;
+    frames as u64 * frame + warped * frame + working_memory_bytes(width, height, channels, looks)
 }
 
 /// The part of [`job_memory_bytes`] that does not grow with the frames, for a
@@ -648,12 +727,18 @@ pub fn develop_single(
 ) -> Result<Developed, DarkroomError> {
     let mut stages = Stages::new();
     #[cfg(feature = "raw")]
-    let raw_map = raw::merge(std::slice::from_ref(frame), &[1.0], 1.0, &mut stages)?;
+    let raw_map = raw::merge(
+        std::slice::from_ref(frame),
+        &[1.0],
+        1.0,
+        AlignMode::Off,
+        &mut stages,
+    )?;
     #[cfg(not(feature = "raw"))]
-    let raw_map: Option<(ChosenResponse, merge::Merged)> = None;
+    let raw_map: Option<(ChosenResponse, merge::Merged, Alignment)> = None;
     let is_raw = raw_map.is_some();
     let (map, response) = match raw_map {
-        Some((chosen, m)) => (m.radiance, chosen),
+        Some((chosen, m, _)) => (m.radiance, chosen),
         None => {
             let t = Instant::now();
             let map = linearise(frame, &response.response)?;
@@ -681,6 +766,7 @@ pub fn develop_single(
             .map(|w| format!("{}: {w}", frame.path.display()))
             .collect(),
         stages,
+        alignment: None,
         raw_radiance,
         deghost: None,
     })

@@ -3,6 +3,7 @@
 //! [`crate::raw::develop`].
 
 use super::{ChosenResponse, DarkroomError, Source, Stages};
+use crate::align::{self, AlignMode, Alignment, MosaicFrame};
 use crate::frame::{LoadedFrame, Samples};
 use crate::merge::{BracketOrder, Merged};
 use crate::radiance::RadianceMap;
@@ -13,14 +14,16 @@ use crate::response::InverseResponse;
 pub const LINEAR_RAW: &str = "linear (raw)";
 
 /// Merges `frames` when they are raws (`None` when none is): the response reported and
-/// the merged radiance in linear Rec. 709 times `scale` (stage `merge+demosaic`). A
-/// bracket that mixes raw and other frames is refused.
+/// the merged radiance in linear Rec. 709 times `scale` (stage `merge+demosaic`), after
+/// the mosaics are aligned under `align` (stage `align`, see [`crate::align`]'s "Camera
+/// raw"). A bracket that mixes raw and other frames is refused.
 pub(super) fn merge(
     frames: &[LoadedFrame],
     exposures: &[f64],
     scale: f64,
+    align: AlignMode,
     stages: &mut Stages,
-) -> Result<Option<(ChosenResponse, Merged)>, DarkroomError> {
+) -> Result<Option<(ChosenResponse, Merged, Alignment)>, DarkroomError> {
     let Some(first_raw) = frames.iter().find(|f| f.raw.is_some()) else {
         return Ok(None);
     };
@@ -43,6 +46,15 @@ pub(super) fn merge(
             exposure,
         });
     }
+    let (alignment, warped) = align_mosaics(&inputs, align, stages);
+    let inputs: Vec<RawExposure<'_>> = inputs
+        .iter()
+        .zip(&warped)
+        .map(|(input, codes)| RawExposure {
+            codes: codes.as_deref().unwrap_or(input.codes),
+            ..*input
+        })
+        .collect();
     let developed = raw::develop(&inputs, scale)?;
     stages.extend(developed.timings.iter().copied());
     let exposures: Vec<f64> = developed.order.iter().map(|&i| exposures[i]).collect();
@@ -81,5 +93,32 @@ pub(super) fn merge(
                 clipped_low: 0,
             },
         },
+        alignment,
     )))
+}
+
+/// The mosaics' alignment under `mode` (stage `align`, unless `off`) and each moved
+/// mosaic resampled onto the reference grid (`None` for one merged as it is).
+fn align_mosaics(
+    inputs: &[RawExposure<'_>],
+    mode: AlignMode,
+    stages: &mut Stages,
+) -> (Alignment, Vec<Option<Vec<u16>>>) {
+    let t = std::time::Instant::now();
+    let mosaics: Vec<MosaicFrame<'_>> = inputs
+        .iter()
+        .map(|i| MosaicFrame {
+            codes: i.codes,
+            width: i.width as usize,
+            height: i.height as usize,
+            info: i.info,
+            exposure: i.exposure,
+        })
+        .collect();
+    let alignment = align::align_mosaics(&mosaics, mode);
+    let warped = align::warp_mosaics(&mosaics, &alignment);
+    if mode != AlignMode::Off {
+        stages.push(("align", t.elapsed()));
+    }
+    (alignment, warped)
 }

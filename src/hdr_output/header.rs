@@ -104,6 +104,9 @@ pub(super) fn layer_attributes(
     if let Some(deghost) = &p.deghost {
         put("filmbackDeghost", V::Text(text(deghost)));
     }
+    if let Some(alignment) = &p.alignment {
+        put("filmbackAlignment", V::Text(text(alignment)));
+    }
     put("filmbackScale", V::Text(text(&p.scale.describe())));
     put("filmbackScaleKind", V::Text(text(p.scale.kind())));
     put("colorInteropID", V::Text(text(primaries.interop_id())));

@@ -14,7 +14,9 @@
 //! file, time, f-number, ISO, relative exposure), `filmbackExposureRatio` (double,
 //! `e_max/e_min`), `filmbackResponse` (the response model summary), `filmbackWeighting`,
 //! `filmbackClipped` (samples clipped in every frame), `filmbackScale` (the convention in
-//! words), `filmbackScaleKind` (`luminance`, `luminance-calibrated` or `relative`) and
+//! words), `filmbackScaleKind` (`luminance`, `luminance-calibrated` or `relative`),
+//! `filmbackAlignment` (the reference frame and each frame's transform, see
+//! [`crate::align::Alignment::describe`]) and
 //! `filmbackRadianceScale` (float: the factor applied for half overflow, else 1; the
 //! `whiteLuminance` already accounts for it).
 //!
@@ -224,6 +226,9 @@ pub struct Provenance {
     pub scale: crate::merge::Scale,
     /// What deghosting did (reference frame, share of pixels), when it left any frame out.
     pub deghost: Option<String>,
+    /// The frames' alignment as [`crate::align::Alignment::describe`] writes it (reference
+    /// frame, per frame its model and matrix); `None` when not recorded.
+    pub alignment: Option<String>,
 }
 
 /// What writing did beyond the pixels.

@@ -638,6 +638,7 @@ fn full_provenance() -> Provenance {
         clipped: (12, 3),
         scale: crate::merge::Scale::Luminance { calibration: 1.0 },
         deghost: None,
+        alignment: Some("mode auto; reference frame 1".into()),
     }
 }
 

@@ -24,6 +24,7 @@ pub mod measure;
 mod curve;
 mod encode;
 mod kinds;
+mod motion;
 mod place;
 #[cfg(feature = "raw")]
 mod raw;
@@ -38,6 +39,7 @@ use crate::metadata::{Camera, CaptureTime, Exposure};
 pub use curve::{ResponseCurve, dorf_curves};
 pub use encode::{Encoding, encode, write};
 pub use kinds::{SceneKind, flat_patches, studio};
+pub use motion::moved;
 pub use place::real_place;
 #[cfg(feature = "raw")]
 pub use raw::{RawSensor, dng, raw_codes, raw_signal};

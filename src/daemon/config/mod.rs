@@ -170,6 +170,8 @@ pub struct Preset {
     pub luminance_calibration: f64,
     /// RGB primaries of the EXR.
     pub primaries: OutputPrimaries,
+    /// How the frames are aligned before the merge (`[merge] align`, or the camera's).
+    pub align: crate::align::AlignMode,
 }
 
 /// The EXR's RGB primaries as the configuration names them (`primaries = "ap1"`).

@@ -8,6 +8,8 @@ use std::time::Duration;
 
 use serde::Deserialize;
 
+use crate::align::AlignMode;
+
 use super::{
     BracketRules, CameraPreset, Config, ConfigError, Daemon, Folders, Preset, Recalibrate, Singles,
     Watch, WatchMode,
@@ -101,8 +103,15 @@ pub struct RawConfig {
     bracket: Option<RawBracket>,
     daemon: Option<RawDaemon>,
     render: Option<RawRender>,
+    merge: Option<RawMerge>,
     #[serde(default)]
     camera: BTreeMap<String, RawPreset>,
+}
+
+#[derive(Debug, Default, Deserialize)]
+#[serde(deny_unknown_fields)]
+struct RawMerge {
+    align: Option<AlignMode>,
 }
 
 #[derive(Debug, Default, Deserialize)]
@@ -174,6 +183,8 @@ struct RawPreset {
     min_confidence: Option<Fraction>,
     luminance_calibration: Option<Calibration>,
     primaries: Option<super::OutputPrimaries>,
+    // The [merge] key a camera may override.
+    align: Option<AlignMode>,
 }
 
 impl RawPreset {
@@ -259,6 +270,8 @@ pub(super) fn merge(d: RawConfig, u: RawConfig, source: Option<PathBuf>) -> Conf
     let ur = u.render.unwrap_or_default();
     const MISSING: &str = "key set in config/filmback.toml";
     let render = overlay(&dr, &ur);
+    let (dm, um) = (d.merge.unwrap_or_default(), u.merge.unwrap_or_default());
+    let align = um.align.or(dm.align).expect(MISSING);
     let rescan = uw.rescan_s.or(dw.rescan_s).expect(MISSING).0;
     let cameras = u
         .camera
@@ -268,6 +281,7 @@ pub(super) fn merge(d: RawConfig, u: RawConfig, source: Option<PathBuf>) -> Conf
             serial: p.serial.clone(),
             preset: Preset {
                 name: Some(name),
+                align: p.align.unwrap_or(align),
                 ..preset(&overlay(&render, &p.render()))
             },
         })
@@ -308,7 +322,10 @@ pub(super) fn merge(d: RawConfig, u: RawConfig, source: Option<PathBuf>) -> Conf
             retry: Duration::from_secs(ud.retry_s.or(dd.retry_s).expect(MISSING).0),
             memory_mb: ud.memory_mb.or(dd.memory_mb).expect(MISSING).0,
         },
-        render: preset(&render),
+        render: Preset {
+            align,
+            ..preset(&render)
+        },
         cameras,
     }
 }
@@ -347,5 +364,6 @@ fn preset(r: &RawRender) -> Preset {
         min_confidence: r.min_confidence.expect(MISSING).0,
         luminance_calibration: r.luminance_calibration.expect(MISSING).0,
         primaries: r.primaries.expect(MISSING),
+        align: AlignMode::default(),
     }
 }

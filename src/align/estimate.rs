@@ -1,0 +1,945 @@
+//! Estimating one frame's transform onto the reference: the log-radiance pyramid, the
+//! coarse search and the Gauss–Newton refinement (the method is in the parent module's
+//! docs).
+
+use nalgebra::{DMatrix, DVector, Matrix3, Vector3};
+use rayon::prelude::*;
+
+use super::{
+    COARSEST_SIDE, ESTIMATION_PIXELS, FrameAlignment, IDENTITY_PX, MAX_UNCERTAINTY_PX,
+    MIN_CORRELATION, MIN_OVERLAP, Motion, SEARCH_RANGE, WELL_EXPOSED_HIGH, WELL_EXPOSED_LOW,
+};
+use crate::frame::{Frame, Samples};
+use crate::response::InverseResponse;
+
+/// Gauss–Newton iterations per level at most.
+const MAX_ITERATIONS: usize = 60;
+
+/// A level has converged when an update moves no corner by more than this many of its
+/// pixels.
+const CONVERGED_PX: f64 = 0.002;
+
+/// Samples one Gauss–Newton iteration reads at most (a regular subsample of the level).
+const SAMPLES_PER_ITERATION: usize = 120_000;
+
+/// The damping `λ` a level's refinement starts from, and the least it falls to.
+const INITIAL_DAMPING: f64 = 1e-4;
+
+/// A refinement whose damping must rise above this has reached its minimum.
+const MAX_DAMPING: f64 = 1e4;
+
+/// The least number of samples a Gauss–Newton iteration needs.
+const MIN_SAMPLES: usize = 200;
+
+/// One level of a frame's log-radiance pyramid: a value per block of `step × step`
+/// full-resolution pixels.
+pub(super) struct Level {
+    width: usize,
+    height: usize,
+    /// Full-resolution pixels per block side.
+    step: f64,
+    /// `ln(mean g(B)) − ln e`, row by row.
+    log: Vec<f32>,
+    /// Every sample of the block well exposed.
+    usable: Vec<bool>,
+    /// The block's mean [`log_weight`] (0 when not usable).
+    weight: Vec<f32>,
+    /// Usable, and so are its four neighbours (its gradient is clean).
+    solid: Vec<bool>,
+    /// Central differences of `log`, per block.
+    grad_x: Vec<f32>,
+    grad_y: Vec<f32>,
+}
+
+impl Level {
+    fn new(width: usize, height: usize, step: f64, log: Vec<f32>, weight: Vec<f32>) -> Level {
+        let log = smooth(width, height, &log);
+        let usable = weight.iter().map(|&w| w > 0.0).collect();
+        let mut level = Level {
+            width,
+            height,
+            step,
+            log,
+            usable,
+            weight,
+            solid: Vec::new(),
+            grad_x: Vec::new(),
+            grad_y: Vec::new(),
+        };
+        level.gradients();
+        level
+    }
+
+    /// The solid blocks (see [`erode`]) and the central differences of the smoothed
+    /// values.
+    fn gradients(&mut self) {
+        let (w, h) = (self.width, self.height);
+        let (mut gx, mut gy) = (vec![0f32; w * h], vec![0f32; w * h]);
+        for y in 1..h.saturating_sub(1) {
+            for x in 1..w.saturating_sub(1) {
+                let i = y * w + x;
+                gx[i] = 0.5 * (self.log[i + 1] - self.log[i - 1]);
+                gy[i] = 0.5 * (self.log[i + w] - self.log[i - w]);
+            }
+        }
+        self.solid = erode(w, h, &self.usable, SOLID_RADIUS);
+        (self.grad_x, self.grad_y) = (gx, gy);
+    }
+
+    /// Half the size: 2 × 2 block means, usable when all four are.
+    fn half(&self) -> Level {
+        let (w, h) = (self.width / 2, self.height / 2);
+        let mut log = vec![0f32; w * h];
+        let mut weight = vec![0f32; w * h];
+        for y in 0..h {
+            for x in 0..w {
+                let i = 2 * y * self.width + 2 * x;
+                let quad = [i, i + 1, i + self.width, i + self.width + 1];
+                log[y * w + x] = quad.iter().map(|&q| self.log[q]).sum::<f32>() / 4.0;
+                if quad.iter().all(|&q| self.usable[q]) {
+                    weight[y * w + x] = quad.iter().map(|&q| self.weight[q]).sum::<f32>() / 4.0;
+                }
+            }
+        }
+        Level::new(w, h, self.step * 2.0, log, weight)
+    }
+
+    /// The value, gradient and weight at level coordinates `(x, y)`, bilinear, when its
+    /// four neighbours are solid.
+    fn sample(&self, x: f64, y: f64) -> Option<(f64, f64, f64, f64)> {
+        if !(x >= 0.0 && y >= 0.0) {
+            return None;
+        }
+        let (x0, y0) = (x as usize, y as usize);
+        if x0 + 1 >= self.width || y0 + 1 >= self.height {
+            return None;
+        }
+        let i = y0 * self.width + x0;
+        let quad = [i, i + 1, i + self.width, i + self.width + 1];
+        if !quad.iter().all(|&q| self.solid[q]) {
+            return None;
+        }
+        let (fx, fy) = ((x - x0 as f64) as f32, (y - y0 as f64) as f32);
+        let weights = [
+            (1.0 - fx) * (1.0 - fy),
+            fx * (1.0 - fy),
+            (1.0 - fx) * fy,
+            fx * fy,
+        ];
+        let mix = |v: &[f32]| -> f64 {
+            f64::from(
+                quad.iter()
+                    .zip(&weights)
+                    .map(|(&q, &w)| v[q] * w)
+                    .sum::<f32>(),
+            )
+        };
+        Some((
+            mix(&self.log),
+            mix(&self.grad_x),
+            mix(&self.grad_y),
+            mix(&self.weight),
+        ))
+    }
+}
+
+/// A block is solid when every block within this many of it (a square) is usable: its
+/// smoothed value (radius 1) and that value's central differences (radius 1 more) then
+/// read no unusable block, so two frames whose usable areas differ still compare alike.
+const SOLID_RADIUS: usize = 2;
+
+/// The blocks whose every neighbour within `radius` (a square) is `usable`; the blocks
+/// within `radius` of the level's edge are not solid.
+fn erode(width: usize, height: usize, usable: &[bool], radius: usize) -> Vec<bool> {
+    let run = |line: &mut dyn Iterator<Item = bool>, n: usize| -> Vec<bool> {
+        let values: Vec<bool> = line.collect();
+        (0..n)
+            .map(|i| {
+                i >= radius && i + radius < n && values[i - radius..=i + radius].iter().all(|&v| v)
+            })
+            .collect()
+    };
+    let mut rows = vec![false; width * height];
+    for y in 0..height {
+        let eroded = run(
+            &mut usable[y * width..(y + 1) * width].iter().copied(),
+            width,
+        );
+        rows[y * width..(y + 1) * width].copy_from_slice(&eroded);
+    }
+    let mut out = vec![false; width * height];
+    for x in 0..width {
+        let eroded = run(&mut (0..height).map(|y| rows[y * width + x]), height);
+        for (y, v) in eroded.into_iter().enumerate() {
+            out[y * width + x] = v;
+        }
+    }
+    out
+}
+
+/// `log` filtered by the binomial kernel `[1 2 1]/4` in both directions (renormalised at
+/// the level's edge): the gradients then follow the image's shape, not its finest
+/// texture, and Gauss–Newton's linearisation holds over a wider move.
+fn smooth(width: usize, height: usize, log: &[f32]) -> Vec<f32> {
+    const KERNEL: [f32; 3] = [0.25, 0.5, 0.25];
+    let mut out = log.to_vec();
+    for y in 0..height {
+        for x in 0..width {
+            let (mut sum, mut weight) = (0.0f32, 0.0f32);
+            for (dy, ky) in KERNEL.iter().enumerate() {
+                let Some(yy) = (y + dy).checked_sub(1).filter(|&v| v < height) else {
+                    continue;
+                };
+                for (dx, kx) in KERNEL.iter().enumerate() {
+                    let Some(xx) = (x + dx).checked_sub(1).filter(|&v| v < width) else {
+                        continue;
+                    };
+                    sum += ky * kx * log[yy * width + xx];
+                    weight += ky * kx;
+                }
+            }
+            if weight > 0.0 {
+                out[y * width + x] = sum / weight;
+            }
+        }
+    }
+    out
+}
+
+/// The weight of a log-radiance sample of brightness `B` (a fraction of full scale): 0
+/// outside [`WELL_EXPOSED_LOW`]..=[`WELL_EXPOSED_HIGH`], else `B²`, the inverse variance of
+/// `ln g(B)` under code-value noise up to a constant factor (`σ_ln g ≈ γ·σ_B/B` for a
+/// response `g ≈ B^γ`; for a raw's linear signal `σ_ln s = σ_s/s`).
+pub(super) fn log_weight(b: f32) -> f32 {
+    if (WELL_EXPOSED_LOW as f32..=WELL_EXPOSED_HIGH as f32).contains(&b) {
+        b * b
+    } else {
+        0.0
+    }
+}
+
+/// A frame's levels, finest first.
+pub(super) struct Pyramid {
+    levels: Vec<Level>,
+}
+
+/// The block size of the finest level for a `width × height` frame: the smallest
+/// multiple of `tile` with at most [`ESTIMATION_PIXELS`] blocks.
+pub(super) fn step_for(width: usize, height: usize, tile: usize) -> usize {
+    let step = ((width * height) as f64 / ESTIMATION_PIXELS as f64)
+        .sqrt()
+        .ceil() as usize;
+    step.max(1).div_ceil(tile) * tile
+}
+
+impl Pyramid {
+    /// The pyramid of a frame of codes through `response` at relative `exposure`.
+    pub(super) fn of_frame(
+        frame: &Frame,
+        response: &InverseResponse,
+        exposure: f64,
+        step: usize,
+    ) -> Pyramid {
+        let (w, c) = (frame.width() as usize, frame.channels());
+        let levels = frame.bit_depth().levels();
+        let tables: Vec<Vec<f32>> = (0..c)
+            .map(|ch| response.table(ch.min(response.channels() - 1), levels))
+            .collect();
+        let max = frame.bit_depth().max_code() as f32;
+        let row = |y: usize, values: &mut [f32], weights: &mut [f32]| {
+            let mut fill = |code: &dyn Fn(usize) -> usize| {
+                for x in 0..w {
+                    let (mut sum, mut worst) = (0.0f32, f32::INFINITY);
+                    for (ch, table) in tables.iter().enumerate() {
+                        let k = code((y * w + x) * c + ch);
+                        sum += table[k];
+                        worst = worst.min(log_weight(k as f32 / max));
+                    }
+                    values[x] = sum / c as f32;
+                    weights[x] = worst;
+                }
+            };
+            match frame.samples() {
+                Samples::Eight(v) => fill(&|i| usize::from(v[i])),
+                Samples::Sixteen(v) => fill(&|i| usize::from(v[i])),
+            }
+        };
+        Pyramid::from_rows(w, frame.height() as usize, step, exposure, row)
+    }
+
+    /// The pyramid of a `width × height` image whose row `y` `row(y, values, weights)`
+    /// fills with linear values (≥ 0) and their [`log_weight`]s (0: not usable), at
+    /// relative `exposure`. A block's weight is its pixels' mean, 0 unless all are usable.
+    pub(super) fn from_rows<F>(
+        width: usize,
+        height: usize,
+        step: usize,
+        exposure: f64,
+        row: F,
+    ) -> Pyramid
+    where
+        F: Fn(usize, &mut [f32], &mut [f32]) + Sync,
+    {
+        let (lw, lh) = (width / step, height / step);
+        let log_e = exposure.ln() as f32;
+        let mut log = vec![0f32; lw * lh];
+        let mut weight = vec![0f32; lw * lh];
+        let area = (step * step) as f32;
+        log.par_chunks_mut(lw.max(1))
+            .zip(weight.par_chunks_mut(lw.max(1)))
+            .enumerate()
+            .for_each_init(
+                || (vec![0f32; width], vec![0f32; width], vec![0f32; lw]),
+                |(values, weights, sums), (j, (log_row, weight_row))| {
+                    sums.fill(0.0);
+                    weight_row.fill(0.0);
+                    let mut usable = vec![true; lw];
+                    for y in j * step..(j + 1) * step {
+                        row(y, values, weights);
+                        for (i, ((sum, wsum), good)) in sums
+                            .iter_mut()
+                            .zip(weight_row.iter_mut())
+                            .zip(usable.iter_mut())
+                            .enumerate()
+                        {
+                            let block = i * step..(i + 1) * step;
+                            *sum += values[block.clone()].iter().sum::<f32>();
+                            *wsum += weights[block.clone()].iter().sum::<f32>();
+                            *good &= weights[block].iter().all(|&o| o > 0.0);
+                        }
+                    }
+                    for (((l, wt), &sum), &good) in log_row
+                        .iter_mut()
+                        .zip(weight_row.iter_mut())
+                        .zip(&*sums)
+                        .zip(&usable)
+                    {
+                        let mean = sum / area;
+                        *wt = if good && mean > 0.0 { *wt / area } else { 0.0 };
+                        *l = mean.max(1e-12).ln() - log_e;
+                    }
+                },
+            );
+        let mut levels = vec![Level::new(lw, lh, step as f64, log, weight)];
+        while let Some(last) = levels.last()
+            && last.width.min(last.height) / 2 >= COARSEST_SIDE
+        {
+            let half = last.half();
+            levels.push(half);
+        }
+        Pyramid { levels }
+    }
+}
+
+/// Full-resolution normalisation `ũ = (u − c)/s`: `c` the frame's centre, `s` half its
+/// longer side.
+pub(super) struct Geometry {
+    cx: f64,
+    cy: f64,
+    s: f64,
+    width: f64,
+    height: f64,
+}
+
+impl Geometry {
+    pub(super) fn new(width: u32, height: u32) -> Geometry {
+        let (w, h) = (f64::from(width), f64::from(height));
+        Geometry {
+            cx: (w - 1.0) / 2.0,
+            cy: (h - 1.0) / 2.0,
+            s: w.max(h) / 2.0,
+            width: w,
+            height: h,
+        }
+    }
+
+    /// Block `(x, y)` of a level of `step` (its centre is full-resolution pixel
+    /// `step·x + (step − 1)/2`) in normalised coordinates.
+    fn to_normalised(&self, step: f64, x: f64, y: f64) -> (f64, f64) {
+        let o = (step - 1.0) / 2.0;
+        (
+            (step * x + o - self.cx) / self.s,
+            (step * y + o - self.cy) / self.s,
+        )
+    }
+
+    fn to_level(&self, step: f64, u: f64, v: f64) -> (f64, f64) {
+        let o = (step - 1.0) / 2.0;
+        (
+            (self.s * u + self.cx - o) / step,
+            (self.s * v + self.cy - o) / step,
+        )
+    }
+
+    /// The full-resolution pixel transform `N⁻¹·H·N` of a normalised one, scaled so that
+    /// its last entry is 1.
+    fn pixel_matrix(&self, h: &Matrix3<f64>) -> [[f64; 3]; 3] {
+        let n = Matrix3::new(
+            1.0 / self.s,
+            0.0,
+            -self.cx / self.s,
+            0.0,
+            1.0 / self.s,
+            -self.cy / self.s,
+            0.0,
+            0.0,
+            1.0,
+        );
+        let n_inv = Matrix3::new(self.s, 0.0, self.cx, 0.0, self.s, self.cy, 0.0, 0.0, 1.0);
+        let p = n_inv * h * n;
+        let p = p / p[(2, 2)];
+        [
+            [p[(0, 0)], p[(0, 1)], p[(0, 2)]],
+            [p[(1, 0)], p[(1, 1)], p[(1, 2)]],
+            [p[(2, 0)], p[(2, 1)], p[(2, 2)]],
+        ]
+    }
+
+    /// The largest distance, in full-resolution pixels, between where `a` and `b` take the
+    /// frame's four corners.
+    fn corner_shift(&self, a: &Matrix3<f64>, b: &Matrix3<f64>) -> f64 {
+        let corners = [
+            (0.0, 0.0),
+            (self.width - 1.0, 0.0),
+            (0.0, self.height - 1.0),
+            (self.width - 1.0, self.height - 1.0),
+        ];
+        corners
+            .iter()
+            .map(|&(x, y)| {
+                let u = Vector3::new((x - self.cx) / self.s, (y - self.cy) / self.s, 1.0);
+                let (p, q) = (a * u, b * u);
+                let (dx, dy) = (p.x / p.z - q.x / q.z, p.y / p.z - q.y / q.z);
+                dx.hypot(dy) * self.s
+            })
+            .fold(0.0, f64::max)
+    }
+}
+
+/// The motion and photometric parameters being estimated.
+#[derive(Debug, Clone, Copy)]
+struct State {
+    motion: Motion,
+    /// Translation `(tx, ty)`; rigid `(θ, tx, ty)`; homography `H − I` row by row, the
+    /// last entry left out.
+    p: [f64; 8],
+    gain: f64,
+    bias: f64,
+}
+
+impl State {
+    fn params(&self) -> usize {
+        match self.motion {
+            Motion::Translation => 2,
+            Motion::Rigid => 3,
+            Motion::Homography => 8,
+        }
+    }
+
+    fn matrix(&self) -> Matrix3<f64> {
+        let p = &self.p;
+        match self.motion {
+            Motion::Translation => Matrix3::new(1.0, 0.0, p[0], 0.0, 1.0, p[1], 0.0, 0.0, 1.0),
+            Motion::Rigid => {
+                let (s, c) = p[0].sin_cos();
+                Matrix3::new(c, -s, p[1], s, c, p[2], 0.0, 0.0, 1.0)
+            }
+            Motion::Homography => Matrix3::new(
+                1.0 + p[0],
+                p[1],
+                p[2],
+                p[3],
+                1.0 + p[4],
+                p[5],
+                p[6],
+                p[7],
+                1.0,
+            ),
+        }
+    }
+
+    /// The same transform (as near as the model allows) as model `motion`.
+    fn as_motion(&self, motion: Motion) -> State {
+        let m = self.matrix();
+        let m = m / m[(2, 2)];
+        let p = match motion {
+            Motion::Translation => [m[(0, 2)], m[(1, 2)], 0.0, 0.0, 0.0, 0.0, 0.0, 0.0],
+            Motion::Rigid => {
+                let angle = (m[(1, 0)] - m[(0, 1)]).atan2(m[(0, 0)] + m[(1, 1)]);
+                [angle, m[(0, 2)], m[(1, 2)], 0.0, 0.0, 0.0, 0.0, 0.0]
+            }
+            Motion::Homography => [
+                m[(0, 0)] - 1.0,
+                m[(0, 1)],
+                m[(0, 2)],
+                m[(1, 0)],
+                m[(1, 1)] - 1.0,
+                m[(1, 2)],
+                m[(2, 0)],
+                m[(2, 1)],
+            ],
+        };
+        State { motion, p, ..*self }
+    }
+
+    /// `∂x′/∂p` and `∂y′/∂p` at the normalised point `(u, v)`, which the transform takes to
+    /// `(x′, y′) = (X/W, Y/W)`.
+    fn jacobian(&self, u: f64, v: f64, xp: f64, yp: f64, w: f64) -> ([f64; 8], [f64; 8]) {
+        let mut dx = [0.0; 8];
+        let mut dy = [0.0; 8];
+        match self.motion {
+            Motion::Translation => {
+                dx[0] = 1.0;
+                dy[1] = 1.0;
+            }
+            Motion::Rigid => {
+                let (s, c) = self.p[0].sin_cos();
+                dx[..3].copy_from_slice(&[-s * u - c * v, 1.0, 0.0]);
+                dy[..3].copy_from_slice(&[c * u - s * v, 0.0, 1.0]);
+            }
+            Motion::Homography => {
+                let r = 1.0 / w;
+                dx = [u * r, v * r, r, 0.0, 0.0, 0.0, -u * xp * r, -v * xp * r];
+                dy = [0.0, 0.0, 0.0, u * r, v * r, r, -u * yp * r, -v * yp * r];
+            }
+        }
+        (dx, dy)
+    }
+}
+
+/// Parameters at most: eight of motion, gain, offset.
+const MAX_PARAMS: usize = 10;
+
+/// The Gauss–Newton normal equations of one pass: `JᵀJ`, `Jᵀr`, `Σ r²` and the count.
+#[derive(Clone)]
+struct Normal {
+    jtj: [[f64; MAX_PARAMS]; MAX_PARAMS],
+    jtr: [f64; MAX_PARAMS],
+    sse: f64,
+    count: usize,
+}
+
+impl Normal {
+    fn zero() -> Normal {
+        Normal {
+            jtj: [[0.0; MAX_PARAMS]; MAX_PARAMS],
+            jtr: [0.0; MAX_PARAMS],
+            sse: 0.0,
+            count: 0,
+        }
+    }
+
+    fn add(mut self, other: Normal) -> Normal {
+        for (row, other) in self.jtj.iter_mut().zip(&other.jtj) {
+            for (a, b) in row.iter_mut().zip(other) {
+                *a += b;
+            }
+        }
+        for (a, b) in self.jtr.iter_mut().zip(&other.jtr) {
+            *a += b;
+        }
+        self.sse += other.sse;
+        self.count += other.count;
+        self
+    }
+
+    fn mean_square(&self) -> f64 {
+        self.sse / self.count.max(1) as f64
+    }
+
+    fn rms(&self) -> f64 {
+        self.mean_square().sqrt()
+    }
+
+    /// The `n × n` matrix and the vector of the first `n` parameters.
+    fn system(&self, n: usize) -> (DMatrix<f64>, DVector<f64>) {
+        let a = DMatrix::from_fn(n, n, |i, j| self.jtj[i.min(j)][i.max(j)]);
+        (a, DVector::from_fn(n, |i, _| self.jtr[i]))
+    }
+}
+
+/// One pass over the reference level: the normal equations of the residual
+/// `gain·L_k(T·x) + bias − L_ref(x)` in the first `motion` motion parameters of `state`
+/// (0: gain and offset only), gain and offset.
+fn accumulate(
+    reference: &Level,
+    moving: &Level,
+    geometry: &Geometry,
+    state: &State,
+    motion: usize,
+) -> Normal {
+    let (w, h) = (reference.width, reference.height);
+    let stride = (((w * h) as f64 / SAMPLES_PER_ITERATION as f64)
+        .sqrt()
+        .floor() as usize)
+        .max(1);
+    let m = state.matrix();
+    let step = reference.step;
+    let to_level = geometry.s / step;
+    let n = motion + 2;
+    (0..h)
+        .into_par_iter()
+        .step_by(stride)
+        .fold(Normal::zero, |mut acc, y| {
+            for x in (0..w).step_by(stride) {
+                let i = y * w + x;
+                if !reference.solid[i] {
+                    continue;
+                }
+                let (u, v) = geometry.to_normalised(step, x as f64, y as f64);
+                let p = m * Vector3::new(u, v, 1.0);
+                let (xp, yp) = (p.x / p.z, p.y / p.z);
+                let (lx, ly) = geometry.to_level(step, xp, yp);
+                let Some((value, gx, gy, moving_weight)) = moving.sample(lx, ly) else {
+                    continue;
+                };
+                // Inverse variance of the difference of two log values.
+                let reference_weight = f64::from(reference.weight[i]);
+                let weight = reference_weight * moving_weight / (reference_weight + moving_weight);
+                let r = state.gain * value + state.bias - f64::from(reference.log[i]);
+                let mut j = [0.0; MAX_PARAMS];
+                let (dx, dy) = state.jacobian(u, v, xp, yp, p.z);
+                let (gu, gv) = (gx * to_level, gy * to_level);
+                for k in 0..motion {
+                    j[k] = state.gain * (gu * dx[k] + gv * dy[k]);
+                }
+                j[motion] = value;
+                j[motion + 1] = 1.0;
+                for a in 0..n {
+                    for b in a..n {
+                        acc.jtj[a][b] += weight * j[a] * j[b];
+                    }
+                    acc.jtr[a] += weight * j[a] * r;
+                }
+                acc.sse += weight * r * r;
+                acc.count += 1;
+            }
+            acc
+        })
+        .reduce(Normal::zero, Normal::add)
+}
+
+/// The damped Gauss–Newton step `δ = −(JᵀJ + λ·diag(JᵀJ))⁻¹Jᵀr`, `None` when the
+/// system is singular.
+fn solve(normal: &Normal, n: usize, damping: f64) -> Option<DVector<f64>> {
+    let (mut a, b) = normal.system(n);
+    for i in 0..n {
+        a[(i, i)] *= 1.0 + damping;
+    }
+    a.cholesky().map(|c| -c.solve(&b))
+}
+
+/// Refines `state` on one level by damped Gauss–Newton (Levenberg–Marquardt: the
+/// diagonal of `JᵀJ` raised by the factor `1 + λ`, `λ` divided by 10 after a step that
+/// lowers the mean squared residual and multiplied by 10 after one that does not) until an
+/// accepted step moves no corner by more than [`CONVERGED_PX`] of the level's pixels, or
+/// no step short of `λ` = [`MAX_DAMPING`] lowers the residual: the state and its normal
+/// equations, or why it failed.
+fn refine(
+    reference: &Level,
+    moving: &Level,
+    geometry: &Geometry,
+    mut state: State,
+) -> Result<(State, Normal), String> {
+    let n = state.params();
+    let mut current = accumulate(reference, moving, geometry, &state, n);
+    let mut damping = INITIAL_DAMPING;
+    for _ in 0..MAX_ITERATIONS {
+        if current.count < MIN_SAMPLES {
+            return Err(format!(
+                "only {} blocks overlap the reference once moved",
+                current.count
+            ));
+        }
+        let Some(delta) = solve(&current, n + 2, damping) else {
+            return Err("the registration's equations are singular (too little texture)".into());
+        };
+        let mut trial = state;
+        for (p, d) in trial.p.iter_mut().zip(delta.iter().take(n)) {
+            *p += d;
+        }
+        trial.gain += delta[n];
+        trial.bias += delta[n + 1];
+        let moved = geometry.corner_shift(&state.matrix(), &trial.matrix()) / reference.step;
+        if !moved.is_finite() {
+            return Err("the registration diverged".into());
+        }
+        let next = accumulate(reference, moving, geometry, &trial, n);
+        let better = next.count >= MIN_SAMPLES && next.mean_square() <= current.mean_square();
+        if better {
+            (state, current) = (trial, next);
+            damping = (damping / 10.0).max(INITIAL_DAMPING);
+            if moved < CONVERGED_PX {
+                return Ok((state, current));
+            }
+        } else {
+            damping *= 10.0;
+            if damping > MAX_DAMPING {
+                return Ok((state, current));
+            }
+        }
+    }
+    Err(format!(
+        "the registration did not converge in {MAX_ITERATIONS} iterations"
+    ))
+}
+
+/// The standard deviation, in full-resolution pixels, of the displacement the motion
+/// parameters imply: `σ/√λ_min` of the motion block's Schur complement (gain and offset
+/// eliminated), in units of displacement at the frame's edge (`s·p`).
+fn uncertainty_px(normal: &Normal, motion: usize, geometry: &Geometry) -> f64 {
+    let (a, _) = normal.system(motion + 2);
+    let amm = a.view((0, 0), (motion, motion));
+    let amp = a.view((0, motion), (motion, 2));
+    let app = a.view((motion, motion), (2, 2)).into_owned();
+    let Some(app_inv) = app.try_inverse() else {
+        return f64::INFINITY;
+    };
+    let schur = amm - amp * app_inv * amp.transpose();
+    let smallest = schur
+        .symmetric_eigen()
+        .eigenvalues
+        .iter()
+        .copied()
+        .fold(f64::INFINITY, f64::min);
+    let per_px = smallest / (geometry.s * geometry.s);
+    if per_px <= 0.0 {
+        return f64::INFINITY;
+    }
+    let sigma2 = normal.sse / normal.count.max(1) as f64;
+    (sigma2 / per_px).sqrt()
+}
+
+/// The best integer shift of the coarsest level within [`SEARCH_RANGE`], by normalised
+/// cross-correlation over blocks usable in both: `(dx, dy)` in its blocks, or why none.
+fn coarse_search(reference: &Level, moving: &Level) -> Result<(i64, i64), String> {
+    let (w, h) = (reference.width as i64, reference.height as i64);
+    let range = (SEARCH_RANGE * w.max(h) as f64).ceil() as i64 + 1;
+    let shifts: Vec<(i64, i64)> = (-range..=range)
+        .flat_map(|dy| (-range..=range).map(move |dx| (dx, dy)))
+        .collect();
+    let scored: Vec<(f64, (i64, i64))> = shifts
+        .par_iter()
+        .map(|&(dx, dy)| (correlation(reference, moving, dx, dy), (dx, dy)))
+        .collect();
+    let (best, (dx, dy)) =
+        scored.iter().copied().fold(
+            (f64::NEG_INFINITY, (0, 0)),
+            |a, b| if b.0 > a.0 { b } else { a },
+        );
+    if best.is_nan() || best < MIN_CORRELATION {
+        return Err(format!(
+            "too little texture in common with the reference (correlation {best:.2} < {MIN_CORRELATION})"
+        ));
+    }
+    if dx.abs() == range || dy.abs() == range {
+        return Err(format!(
+            "moved more than the search range ({:.0} % of the frame's longer side)",
+            SEARCH_RANGE * 100.0
+        ));
+    }
+    Ok((dx, dy))
+}
+
+/// Zero-mean normalised cross-correlation of `reference(x)` and `moving(x + d)` over the
+/// blocks usable in both (−1 when fewer than a quarter of the level's blocks are).
+fn correlation(reference: &Level, moving: &Level, dx: i64, dy: i64) -> f64 {
+    let (w, h) = (reference.width as i64, reference.height as i64);
+    let (mut n, mut sa, mut sb, mut saa, mut sbb, mut sab) = (0.0, 0.0, 0.0, 0.0, 0.0, 0.0);
+    for y in 0.max(-dy)..h.min(h - dy) {
+        for x in 0.max(-dx)..w.min(w - dx) {
+            let i = (y * w + x) as usize;
+            let k = ((y + dy) * w + x + dx) as usize;
+            if reference.usable[i] && moving.usable[k] {
+                let (a, b) = (f64::from(reference.log[i]), f64::from(moving.log[k]));
+                n += 1.0;
+                sa += a;
+                sb += b;
+                saa += a * a;
+                sbb += b * b;
+                sab += a * b;
+            }
+        }
+    }
+    if n < (w * h) as f64 * MIN_OVERLAP / 4.0 || n < 16.0 {
+        return -1.0;
+    }
+    let cov = sab - sa * sb / n;
+    let (va, vb) = (saa - sa * sa / n, sbb - sb * sb / n);
+    if va <= 0.0 || vb <= 0.0 {
+        return -1.0;
+    }
+    cov / (va * vb).sqrt()
+}
+
+/// The share of the finest level's blocks usable in both frames at the same place.
+fn overlap(reference: &Level, moving: &Level) -> f64 {
+    let both = reference
+        .usable
+        .iter()
+        .zip(&moving.usable)
+        .filter(|&(&a, &b)| a && b)
+        .count();
+    both as f64 / reference.usable.len().max(1) as f64
+}
+
+/// Every frame's alignment onto frame `reference` (input order), models capped at
+/// `model`.
+pub(super) fn register_all(
+    pyramids: &[Pyramid],
+    reference: usize,
+    geometry: &Geometry,
+    model: Motion,
+) -> Vec<FrameAlignment> {
+    pyramids
+        .iter()
+        .enumerate()
+        .map(|(k, pyramid)| {
+            if k == reference {
+                FrameAlignment::unmoved(None)
+            } else {
+                register(&pyramids[reference], pyramid, geometry, model)
+            }
+        })
+        .collect()
+}
+
+/// One frame onto the reference (see the parent module's docs for the steps and the
+/// fallbacks).
+fn register(
+    reference: &Pyramid,
+    moving: &Pyramid,
+    geometry: &Geometry,
+    model: Motion,
+) -> FrameAlignment {
+    let (fine_ref, fine_mov) = (&reference.levels[0], &moving.levels[0]);
+    let shared = overlap(fine_ref, fine_mov);
+    if shared < MIN_OVERLAP {
+        return FrameAlignment::unmoved(Some(format!(
+            "only {:.1} % of the frame is well exposed in both it and the reference (< {:.0} %): not aligned",
+            shared * 100.0,
+            MIN_OVERLAP * 100.0
+        )));
+    }
+    let (state, normal, note) = match descend(reference, moving, geometry, model) {
+        Ok(found) => found,
+        Err(why) => return FrameAlignment::unmoved(Some(format!("{why}: not aligned"))),
+    };
+    let matrix = state.matrix();
+    let displacement = geometry.corner_shift(&Matrix3::identity(), &matrix);
+    if displacement < IDENTITY_PX {
+        return FrameAlignment {
+            displacement_px: displacement,
+            ..FrameAlignment::unmoved(note)
+        };
+    }
+    let still = identity_rms(fine_ref, fine_mov, geometry);
+    if normal.rms() >= still {
+        return FrameAlignment {
+            displacement_px: displacement,
+            ..FrameAlignment::unmoved(Some(format!(
+                "the estimated move ({displacement:.2} px) does not reduce the residual \
+                 ({:.4} against {still:.4} unmoved): not aligned",
+                normal.rms()
+            )))
+        };
+    }
+    FrameAlignment {
+        transform: geometry.pixel_matrix(&matrix),
+        motion: Some(state.motion),
+        displacement_px: displacement,
+        note,
+    }
+}
+
+/// The coarse search, then Gauss–Newton from the coarsest level to the finest (the
+/// model's schedule in the parent module's docs), then the model simplified while its
+/// parameters are not determined: the state, the finest level's normal equations and a
+/// note when the model was simplified.
+fn descend(
+    reference: &Pyramid,
+    moving: &Pyramid,
+    geometry: &Geometry,
+    model: Motion,
+) -> Result<(State, Normal, Option<String>), String> {
+    let top = reference.levels.len().min(moving.levels.len()) - 1;
+    let (dx, dy) = coarse_search(&reference.levels[top], &moving.levels[top])?;
+    let scale = reference.levels[top].step / geometry.s;
+    let mut state = State {
+        motion: Motion::Translation,
+        p: [
+            dx as f64 * scale,
+            dy as f64 * scale,
+            0.0,
+            0.0,
+            0.0,
+            0.0,
+            0.0,
+            0.0,
+        ],
+        gain: 1.0,
+        bias: 0.0,
+    };
+    let mut finest = None;
+    for level in (0..=top).rev() {
+        let target = if level == top {
+            Motion::Translation
+        } else {
+            model
+        };
+        if state.motion != target {
+            state = state.as_motion(target);
+        }
+        let start = state;
+        let (refined, normal) = refine(
+            &reference.levels[level],
+            &moving.levels[level],
+            geometry,
+            state,
+        )?;
+        state = refined;
+        if level == 0 {
+            finest = Some((start, normal));
+        }
+    }
+    let Some((start, mut normal)) = finest else {
+        return Err("no level to refine".into());
+    };
+    let mut note = None;
+    let (fine_ref, fine_mov) = (&reference.levels[0], &moving.levels[0]);
+    loop {
+        let spread = uncertainty_px(&normal, state.params(), geometry);
+        if spread <= MAX_UNCERTAINTY_PX {
+            return Ok((state, normal, note));
+        }
+        let Some(simpler) = state.motion.simpler() else {
+            return Err(format!(
+                "too little texture to register the frame (±{spread:.2} px)"
+            ));
+        };
+        note = Some(
+            format!(
+                "the texture does not determine a {:?} model (±{spread:.2} px): {:?} used",
+                state.motion, simpler
+            )
+            .to_lowercase(),
+        );
+        (state, normal) = refine(fine_ref, fine_mov, geometry, start.as_motion(simpler))?;
+    }
+}
+
+/// The residual's RMS without moving the frame, gain and offset fitted.
+fn identity_rms(reference: &Level, moving: &Level, geometry: &Geometry) -> f64 {
+    let mut state = State {
+        motion: Motion::Translation,
+        p: [0.0; 8],
+        gain: 1.0,
+        bias: 0.0,
+    };
+    let normal = accumulate(reference, moving, geometry, &state, 0);
+    if let Some(delta) = solve(&normal, 2, 0.0) {
+        state.gain += delta[0];
+        state.bias += delta[1];
+    }
+    accumulate(reference, moving, geometry, &state, 0).rms()
+}
