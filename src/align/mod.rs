@@ -396,6 +396,12 @@ pub fn align(frames: &[AlignFrame<'_>], response: &InverseResponse, mode: AlignM
         return Alignment::unmoved(mode, reference, frames.len(), None);
     };
     let first = frames[reference].frame;
+    let shape = |f: &Frame| (f.width(), f.height(), f.channels(), f.bit_depth());
+    if frames.iter().any(|f| shape(f.frame) != shape(first)) {
+        // The merge refuses such a bracket, naming the files.
+        let note = "the frames differ in size or depth: not aligned".to_string();
+        return Alignment::unmoved(mode, reference, frames.len(), Some(note));
+    }
     if first.width().min(first.height()) < SMALLEST_SIDE {
         let note = format!("the frames are under {SMALLEST_SIDE} pixels on a side: not aligned");
         return Alignment::unmoved(mode, reference, frames.len(), Some(note));
