@@ -355,11 +355,21 @@ enum Verdict {
 
 /// Decides, for every frame of `frames` but the reference (the frame alignment registers
 /// the others onto, [`crate::align::choose_reference`]), where it is left out of the
-/// merge (module docs). Frames must share size, depth and channels (the merge checks it).
+/// merge (module docs). Frames that do not share size, depth and channels get no masks
+/// (the merge refuses them).
 pub fn ghost_masks(frames: &[BracketFrame<'_>], response: &InverseResponse) -> GhostMasks {
     let views: Vec<&Frame> = frames.iter().map(|f| f.frame).collect();
     let reference = crate::align::choose_reference(&views);
     let n = frames.len();
+    let shape = |f: &Frame| (f.width(), f.height(), f.channels(), f.bit_depth());
+    if views.iter().any(|f| shape(f) != shape(views[0])) {
+        // Not one bracket: nothing to compare; the merge refuses it, naming the files.
+        return GhostMasks {
+            reference,
+            masks: vec![None; n],
+            left_out: vec![0.0; n],
+        };
+    }
     let codes = Codes::new(frames, response);
     let planes = Planes::of(frames);
     let first = frames[0].frame;

@@ -287,6 +287,12 @@ impl Lab for DarkroomLab {
         stages.extend(developed.stages);
         let mut notes: Vec<String> = unmixed.note.into_iter().collect();
         notes.extend(developed.warnings);
+        if let Some(d) = developed.deghost.as_ref().filter(|d| d.share > 0.0) {
+            notes.push(format!(
+                "deghosted: {:.1} % of pixels merged without some frame (a moving subject)",
+                100.0 * d.share
+            ));
+        }
         notes.extend(measure_notes);
         let mut pooling = developed.response.pooling;
         if let Some(p) = pooling.as_mut()
@@ -392,7 +398,11 @@ impl DarkroomLab {
                 &exposures,
                 RatioSource::Exif,
                 policy,
-                MergeOptions::default(),
+                MergeOptions {
+                    align: preset.align,
+                    deghost: preset.deghost,
+                    ..MergeOptions::default()
+                },
                 &prints,
             )?)
         }

@@ -172,6 +172,9 @@ pub struct Preset {
     pub primaries: OutputPrimaries,
     /// How the frames are aligned before the merge (`[merge] align`, or the camera's).
     pub align: crate::align::AlignMode,
+    /// Whether frames that disagree with the reference are left out (`[merge] deghost`,
+    /// or the camera's).
+    pub deghost: crate::merge::Deghost,
 }
 
 /// The EXR's RGB primaries as the configuration names them (`primaries = "ap1"`).

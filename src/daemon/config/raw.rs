@@ -9,6 +9,7 @@ use std::time::Duration;
 use serde::Deserialize;
 
 use crate::align::AlignMode;
+use crate::merge::Deghost;
 
 use super::{
     BracketRules, CameraPreset, Config, ConfigError, Daemon, Folders, Preset, Recalibrate, Singles,
@@ -112,6 +113,7 @@ pub struct RawConfig {
 #[serde(deny_unknown_fields)]
 struct RawMerge {
     align: Option<AlignMode>,
+    deghost: Option<Deghost>,
 }
 
 #[derive(Debug, Default, Deserialize)]
@@ -183,8 +185,9 @@ struct RawPreset {
     min_confidence: Option<Fraction>,
     luminance_calibration: Option<Calibration>,
     primaries: Option<super::OutputPrimaries>,
-    // The [merge] key a camera may override.
+    // The [merge] keys a camera may override.
     align: Option<AlignMode>,
+    deghost: Option<Deghost>,
 }
 
 impl RawPreset {
@@ -272,6 +275,7 @@ pub(super) fn merge(d: RawConfig, u: RawConfig, source: Option<PathBuf>) -> Conf
     let render = overlay(&dr, &ur);
     let (dm, um) = (d.merge.unwrap_or_default(), u.merge.unwrap_or_default());
     let align = um.align.or(dm.align).expect(MISSING);
+    let deghost = um.deghost.or(dm.deghost).expect(MISSING);
     let rescan = uw.rescan_s.or(dw.rescan_s).expect(MISSING).0;
     let cameras = u
         .camera
@@ -282,6 +286,7 @@ pub(super) fn merge(d: RawConfig, u: RawConfig, source: Option<PathBuf>) -> Conf
             preset: Preset {
                 name: Some(name),
                 align: p.align.unwrap_or(align),
+                deghost: p.deghost.unwrap_or(deghost),
                 ..preset(&overlay(&render, &p.render()))
             },
         })
@@ -324,6 +329,7 @@ pub(super) fn merge(d: RawConfig, u: RawConfig, source: Option<PathBuf>) -> Conf
         },
         render: Preset {
             align,
+            deghost,
             ..preset(&render)
         },
         cameras,
@@ -365,5 +371,6 @@ fn preset(r: &RawRender) -> Preset {
         luminance_calibration: r.luminance_calibration.expect(MISSING).0,
         primaries: r.primaries.expect(MISSING),
         align: AlignMode::default(),
+        deghost: Deghost::default(),
     }
 }
