@@ -12,7 +12,9 @@
 //! first gathered over the whole frame (every [`STATS_STRIDE`]-th pixel of every
 //! [`STATS_STRIDE`]-th row) by channel and by the anchor's tone ([`TONE_BINS`] bins of its
 //! code), giving per bin a centre `m` (the median) and a spread `s = 1.4826·MAD`; a bin with
-//! fewer than [`MIN_SAMPLES`] takes the channel's pooled figures. The frame disagrees in a
+//! fewer than [`MIN_SAMPLES`] takes the channel's pooled figures; `|m|` is held within
+//! 0.3 stop and `s` within 0.5 stop ([`MAX_CENTRE_STOPS`], [`MAX_SPREAD_STOPS`]), so a bin
+//! that only a subject fills cannot make it look still. The frame disagrees in a
 //! channel when
 //!
 //! ```text
@@ -83,6 +85,14 @@ pub const STATS_STRIDE: usize = 4;
 
 /// Fewest residuals for a tone bin's own statistics.
 pub const MIN_SAMPLES: u32 = 64;
+
+/// The largest centre `|m|` (stops) a still scene is granted: a bin whose residuals all
+/// come from a subject (its tones the reference shows nowhere else) cannot pass the
+/// subject off as the scene's own.
+pub const MAX_CENTRE_STOPS: f64 = 0.3;
+
+/// The largest spread `s` (stops) a still scene is granted, for the same reason.
+pub const MAX_SPREAD_STOPS: f64 = 0.5;
 
 /// Bins of the residual's histogram, over `±RESIDUAL_RANGE`.
 const RESIDUAL_BINS: usize = 256;
@@ -228,6 +238,14 @@ impl<'a> Planes<'a> {
         }
     }
 
+    /// Samples in one frame.
+    fn samples(&self) -> usize {
+        match self {
+            Planes::Eight(v) => v[0].len(),
+            Planes::Sixteen(v) => v[0].len(),
+        }
+    }
+
     /// The code of sample `i` of frame `k`.
     #[inline]
     fn code(&self, k: usize, i: usize) -> usize {
@@ -249,7 +267,7 @@ impl Residuals {
     fn of(planes: &Planes<'_>, codes: &Codes, width: usize, k: usize, a: usize) -> Residuals {
         let channels = codes.channels;
         let per_bin = RESIDUAL_BINS;
-        let rows = planes.len(channels) / (width * channels).max(1);
+        let rows = planes.samples() / (width * channels).max(1);
         let histogram = (0..rows)
             .into_par_iter()
             .step_by(STATS_STRIDE)
@@ -300,16 +318,6 @@ impl Residuals {
     }
 }
 
-impl Planes<'_> {
-    /// Samples in one frame.
-    fn len(&self, _channels: usize) -> usize {
-        match self {
-            Planes::Eight(v) => v[0].len(),
-            Planes::Sixteen(v) => v[0].len(),
-        }
-    }
-}
-
 /// The histogram slot of residual `r`.
 #[inline]
 fn residual_bin(r: f32) -> usize {
@@ -317,7 +325,8 @@ fn residual_bin(r: f32) -> usize {
     (t.max(0.0) as usize).min(RESIDUAL_BINS - 1)
 }
 
-/// Median and `1.4826·MAD` of a residual histogram, `None` below [`MIN_SAMPLES`].
+/// Median and `1.4826·MAD` of a residual histogram, within [`MAX_CENTRE_STOPS`] and
+/// [`MAX_SPREAD_STOPS`]; `None` below [`MIN_SAMPLES`].
 fn centre_and_spread(histogram: &[u32]) -> Option<(f32, f32)> {
     let total: u32 = histogram.iter().sum();
     if total < MIN_SAMPLES {
@@ -341,7 +350,14 @@ fn centre_and_spread(histogram: &[u32]) -> Option<(f32, f32)> {
         within += histogram.get(median + d).copied().unwrap_or(0);
     }
     let centre = -RESIDUAL_RANGE + (median as f32 + 0.5) * width;
-    Some((centre, 1.4826 * d as f32 * width))
+    let (max_centre, max_spread) = (
+        (MAX_CENTRE_STOPS * std::f64::consts::LN_2) as f32,
+        (MAX_SPREAD_STOPS * std::f64::consts::LN_2) as f32,
+    );
+    Some((
+        centre.clamp(-max_centre, max_centre),
+        (1.4826 * d as f32 * width).min(max_spread),
+    ))
 }
 
 /// How a frame compares with its anchor at one pixel.
@@ -633,19 +649,21 @@ mod tests {
         ];
         let camera = Camera::default();
         let masks = ghost_masks(&bracket(&frames, &camera), &linear());
-        assert_eq!(
-            masks.reference, 0,
-            "the frame that exposes most pixels well"
-        );
-        assert!(masks.masks[0].is_none(), "the reference is never left out");
-        let mask = masks.masks[1].as_ref().expect("frame 1 disagrees");
-        // Inside the square of frame 1 and inside the reference's square: left out.
-        assert_eq!(mask[32 * 64 + 48], 0);
-        assert_eq!(mask[32 * 64 + 16], 0);
-        // Far from both: kept.
-        assert_eq!(mask[4 * 64 + 4], 255);
-        assert_eq!(mask[60 * 64 + 60], 255);
-        assert!(masks.masks[2].is_some());
+        let r = masks.reference;
+        assert!(masks.masks[r].is_none(), "the reference is never left out");
+        // The squares' centres: x = 16, 48 and 32 in frames 0, 1 and 2; row 32.
+        let centre = [32 * 64 + 16, 32 * 64 + 48, 32 * 64 + 32];
+        for k in (0..3).filter(|&k| k != r) {
+            let mask = masks.masks[k]
+                .as_ref()
+                .expect("every other frame disagrees");
+            // Inside its own square and inside the reference's: left out.
+            assert_eq!(mask[centre[k]], 0, "frame {k} in its square");
+            assert_eq!(mask[centre[r]], 0, "frame {k} in the reference's square");
+            // Far from both: kept.
+            assert_eq!(mask[4 * 64 + 4], 255);
+            assert_eq!(mask[60 * 64 + 60], 255);
+        }
         assert!(
             masks.share() > 0.05 && masks.share() < 0.5,
             "{}",
@@ -658,7 +676,10 @@ mod tests {
         let frames = [(shot(1.0, Some(8)), 1.0), (shot(2.0, Some(40)), 2.0)];
         let camera = Camera::default();
         let masks = ghost_masks(&bracket(&frames, &camera), &linear());
-        let mask = masks.masks[1].as_ref().expect("frame 1 disagrees");
+        let other = 1 - masks.reference;
+        let mask = masks.masks[other]
+            .as_ref()
+            .expect("the other frame disagrees");
         let row = &mask[32 * 64..33 * 64];
         let steepest = row
             .windows(2)
