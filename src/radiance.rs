@@ -3,6 +3,7 @@
 //! Values are `f32`, interleaved like the frames they came from (1 or 3 channels).
 //! Radiance is relative: the merge's convention (see `merge`) fixes the scale.
 
+use nalgebra::{Matrix3, Vector3};
 use rayon::prelude::*;
 
 /// Anything radiance can be read from: a [`RadianceMap`], or a merge evaluated on demand
@@ -235,4 +236,74 @@ impl RadianceMap {
     pub fn into_pixels(self) -> Vec<f32> {
         self.pixels
     }
+}
+
+/// The primaries of linear RGB: red, green, blue and white chromaticities `(x, y)` (CIE 1931).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Gamut(pub [(f64, f64); 4]);
+
+/// D65 white.
+const D65: (f64, f64) = (0.3127, 0.3290);
+
+impl Gamut {
+    /// ITU-R BT.709 / sRGB (filmback's working primaries), D65.
+    pub const REC709: Gamut = Gamut([(0.64, 0.33), (0.30, 0.60), (0.15, 0.06), D65]);
+    /// ACES AP1 (ACEScg, ACEScct), ACES white; Academy S-2014-004.
+    pub const AP1: Gamut = Gamut([
+        (0.713, 0.293),
+        (0.165, 0.830),
+        (0.128, 0.044),
+        (0.32168, 0.33767),
+    ]);
+    /// ARRI Wide Gamut 4, D65; ARRI "LogC4 Logarithmic Color Space" specification (2022).
+    pub const AWG4: Gamut = Gamut([(0.7347, 0.2653), (0.1424, 0.8576), (0.0991, -0.0308), D65]);
+    /// Sony S-Gamut3.Cine, D65; Sony "Technical Summary for S-Gamut3.Cine/S-Log3 and
+    /// S-Gamut3/S-Log3".
+    pub const SGAMUT3_CINE: Gamut = Gamut([(0.766, 0.275), (0.225, 0.800), (0.089, -0.087), D65]);
+    /// ACES AP0 (ACES2065-1), ACES white; SMPTE ST 2065-1.
+    pub const AP0: Gamut = Gamut([
+        (0.7347, 0.2653),
+        (0.0, 1.0),
+        (0.0001, -0.0770),
+        (0.32168, 0.33767),
+    ]);
+    /// Display P3: the DCI-P3 primaries with a D65 white (SMPTE EG 432-1).
+    pub const DISPLAY_P3: Gamut = Gamut([(0.680, 0.320), (0.265, 0.690), (0.150, 0.060), D65]);
+    /// ITU-R BT.2020, D65.
+    pub const REC2020: Gamut = Gamut([(0.708, 0.292), (0.170, 0.797), (0.131, 0.046), D65]);
+
+    /// RGB → XYZ (`Y_white = 1`) and the white's XYZ.
+    fn to_xyz(self) -> (Matrix3<f64>, Vector3<f64>) {
+        let xyz = |(x, y): (f64, f64)| Vector3::new(x / y, 1.0, (1.0 - x - y) / y);
+        let c = self.0;
+        let m = Matrix3::from_columns(&[xyz(c[0]), xyz(c[1]), xyz(c[2])]);
+        let white = xyz(c[3]);
+        // Distinct primaries span XYZ, so `m` is invertible for every gamut above.
+        let s = m.try_inverse().unwrap_or_else(Matrix3::zeros) * white;
+        (m * Matrix3::from_diagonal(&s), white)
+    }
+
+    /// The matrix taking linear RGB in `self` to linear RGB in `to`:
+    /// `M_to⁻¹ · CAT(W_self → W_to) · M_self` with the Bradford adaptation, so that a
+    /// neutral stays neutral; exactly the identity from a gamut to itself.
+    pub fn matrix_to(self, to: Gamut) -> [[f64; 3]; 3] {
+        if self == to {
+            return [[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]];
+        }
+        let bradford = Matrix3::new(
+            0.8951, 0.2664, -0.1614, -0.7502, 1.7135, 0.0367, 0.0389, -0.0685, 1.0296,
+        );
+        let (m_from, w_from) = self.to_xyz();
+        let (m_to, w_to) = to.to_xyz();
+        let gain = (bradford * w_to).component_div(&(bradford * w_from));
+        let inverse = |m: Matrix3<f64>| m.try_inverse().unwrap_or_else(Matrix3::zeros);
+        let cat = inverse(bradford) * Matrix3::from_diagonal(&gain) * bradford;
+        let t = inverse(m_to) * cat * m_from;
+        [0, 1, 2].map(|r| [0, 1, 2].map(|c| t[(r, c)]))
+    }
+}
+
+/// `m · v` for a row-major 3×3 matrix.
+pub fn apply_matrix(m: &[[f64; 3]; 3], v: [f64; 3]) -> [f64; 3] {
+    m.map(|row| row[0] * v[0] + row[1] * v[1] + row[2] * v[2])
 }

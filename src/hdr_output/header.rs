@@ -14,9 +14,7 @@ pub(super) fn text(s: &str) -> Text {
 
 pub(super) fn image_attributes(size: Vec2<usize>, primaries: Primaries) -> ImageAttributes {
     let mut attributes = ImageAttributes::new(IntegerBounds::from_dimensions(size));
-    let [r, g, b, w] = primaries
-        .chromaticities()
-        .map(|(x, y)| Vec2(x as f32, y as f32));
+    let [r, g, b, w] = primaries.gamut().0.map(|(x, y)| Vec2(x as f32, y as f32));
     attributes.chromaticities = Some(Chromaticities {
         red: r,
         green: g,

@@ -51,7 +51,7 @@ use rayon::prelude::*;
 
 use crate::atomic::{self, Overwrite, PublishError};
 use crate::metadata::{Camera, CaptureTime, Exposure};
-use crate::radiance::{RadianceMap, RadianceSource};
+use crate::radiance::{Gamut, RadianceMap, RadianceSource};
 
 mod attribute_order;
 mod header;
@@ -135,13 +135,12 @@ pub enum Primaries {
 }
 
 impl Primaries {
-    /// Red, green, blue and white chromaticities `(x, y)`.
-    pub fn chromaticities(self) -> [(f64, f64); 4] {
-        const ACES_WHITE: (f64, f64) = (0.32168, 0.33767);
+    /// The gamut: red, green, blue and white chromaticities `(x, y)`.
+    pub fn gamut(self) -> Gamut {
         match self {
-            Primaries::Rec709 => [(0.64, 0.33), (0.30, 0.60), (0.15, 0.06), (0.3127, 0.3290)],
-            Primaries::Ap0 => [(0.7347, 0.2653), (0.0, 1.0), (0.0001, -0.0770), ACES_WHITE],
-            Primaries::Ap1 => [(0.713, 0.293), (0.165, 0.830), (0.128, 0.044), ACES_WHITE],
+            Primaries::Rec709 => Gamut::REC709,
+            Primaries::Ap0 => Gamut::AP0,
+            Primaries::Ap1 => Gamut::AP1,
         }
     }
 
@@ -157,29 +156,7 @@ impl Primaries {
     /// The 3×3 matrix (row-major) from linear Rec. 709 to these primaries (see the type's
     /// docs); the identity for Rec. 709.
     pub fn matrix_from_709(self) -> [[f64; 3]; 3] {
-        use nalgebra::{Matrix3, Vector3};
-        if self == Primaries::Rec709 {
-            return [[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]];
-        }
-        let to_xyz = |p: Primaries| {
-            let c = p.chromaticities();
-            let xyz = |(x, y): (f64, f64)| Vector3::new(x / y, 1.0, (1.0 - x - y) / y);
-            let m = Matrix3::from_columns(&[xyz(c[0]), xyz(c[1]), xyz(c[2])]);
-            let white = xyz(c[3]);
-            let s = m.try_inverse().expect("primaries span XYZ") * white;
-            (m * Matrix3::from_diagonal(&s), white)
-        };
-        let bradford = Matrix3::new(
-            0.8951, 0.2664, -0.1614, -0.7502, 1.7135, 0.0367, 0.0389, -0.0685, 1.0296,
-        );
-        let (m709, d65) = to_xyz(Primaries::Rec709);
-        let (m, white) = to_xyz(self);
-        let gain = (bradford * white).component_div(&(bradford * d65));
-        let cat = bradford.try_inverse().expect("Bradford is invertible")
-            * Matrix3::from_diagonal(&gain)
-            * bradford;
-        let t = m.try_inverse().expect("primaries span XYZ") * cat * m709;
-        [0, 1, 2].map(|r| [0, 1, 2].map(|c| t[(r, c)]))
+        Gamut::REC709.matrix_to(self.gamut())
     }
 }
 

@@ -27,13 +27,12 @@
 use std::io::{self, Write};
 use std::path::Path;
 
-use nalgebra::{Matrix3, Vector3};
-
 use super::{Look, RenderingError};
 use crate::atomic::{self, Overwrite};
 use crate::display::Depth;
 use crate::film::{self, Key, Kind, PrintingDensity, Stock};
-use crate::radiance::RadianceMap;
+pub use crate::radiance::Gamut;
+use crate::radiance::{RadianceMap, apply_matrix};
 
 /// The scene-linear value that is the stock's metered mid grey in every LUT: an 18 %
 /// grey card.
@@ -50,63 +49,6 @@ pub const LINEAR_LOG_STOPS: (f64, f64) = (-10.0, 8.0);
 pub const CINEON_DENSITY_PER_CODE: f64 = 0.002;
 /// The film minimum's Cineon code value.
 pub const CINEON_BASE_CODE: f64 = 95.0;
-
-/// A gamut: red, green, blue and white chromaticities `(x, y)`.
-#[derive(Debug, Clone, Copy, PartialEq)]
-pub struct Gamut(pub [(f64, f64); 4]);
-
-/// D65 white.
-const D65: (f64, f64) = (0.3127, 0.3290);
-
-impl Gamut {
-    /// ITU-R BT.709 / sRGB (filmback's working primaries), D65.
-    pub const REC709: Gamut = Gamut([(0.64, 0.33), (0.30, 0.60), (0.15, 0.06), D65]);
-    /// ACES AP1 (ACEScg, ACEScct), ACES white; Academy S-2014-004.
-    pub const AP1: Gamut = Gamut([
-        (0.713, 0.293),
-        (0.165, 0.830),
-        (0.128, 0.044),
-        (0.32168, 0.33767),
-    ]);
-    /// ARRI Wide Gamut 4, D65; ARRI "LogC4 Logarithmic Color Space" specification (2022).
-    pub const AWG4: Gamut = Gamut([(0.7347, 0.2653), (0.1424, 0.8576), (0.0991, -0.0308), D65]);
-    /// Sony S-Gamut3.Cine, D65; Sony "Technical Summary for S-Gamut3.Cine/S-Log3 and
-    /// S-Gamut3/S-Log3".
-    pub const SGAMUT3_CINE: Gamut = Gamut([(0.766, 0.275), (0.225, 0.800), (0.089, -0.087), D65]);
-    /// Display P3: the DCI-P3 primaries with a D65 white (SMPTE EG 432-1).
-    pub const DISPLAY_P3: Gamut = Gamut([(0.680, 0.320), (0.265, 0.690), (0.150, 0.060), D65]);
-
-    /// RGB → XYZ (`Y_white = 1`) and the white's XYZ.
-    fn to_xyz(self) -> (Matrix3<f64>, Vector3<f64>) {
-        let xyz = |(x, y): (f64, f64)| Vector3::new(x / y, 1.0, (1.0 - x - y) / y);
-        let c = self.0;
-        let m = Matrix3::from_columns(&[xyz(c[0]), xyz(c[1]), xyz(c[2])]);
-        let white = xyz(c[3]);
-        // Distinct primaries span XYZ, so `m` is invertible for every gamut above.
-        let s = m.try_inverse().unwrap_or_else(Matrix3::zeros) * white;
-        (m * Matrix3::from_diagonal(&s), white)
-    }
-
-    /// The matrix taking linear RGB in `self` to linear RGB in `to`:
-    /// `M_to⁻¹ · CAT(W_self → W_to) · M_self` with the Bradford adaptation, so that a
-    /// neutral stays neutral.
-    pub fn matrix_to(self, to: Gamut) -> [[f64; 3]; 3] {
-        let bradford = Matrix3::new(
-            0.8951, 0.2664, -0.1614, -0.7502, 1.7135, 0.0367, 0.0389, -0.0685, 1.0296,
-        );
-        let (m_from, w_from) = self.to_xyz();
-        let (m_to, w_to) = to.to_xyz();
-        let gain = (bradford * w_to).component_div(&(bradford * w_from));
-        let inverse = |m: Matrix3<f64>| m.try_inverse().unwrap_or_else(Matrix3::zeros);
-        let cat = inverse(bradford) * Matrix3::from_diagonal(&gain) * bradford;
-        let t = inverse(m_to) * cat * m_from;
-        [0, 1, 2].map(|r| [0, 1, 2].map(|c| t[(r, c)]))
-    }
-}
-
-fn apply(m: &[[f64; 3]; 3], v: [f64; 3]) -> [f64; 3] {
-    m.map(|row| row[0] * v[0] + row[1] * v[1] + row[2] * v[2])
-}
 
 /// The LUT's input: a shaper from code value to scene-linear light, and its gamut.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -506,7 +448,7 @@ pub fn film_lut(look: &Look, spec: LutSpec) -> Result<Lut, RenderingError> {
         })
     };
     let to_working = spec.input.gamut().matrix_to(Gamut::REC709);
-    let scene = |v: [f64; 3]| apply(&to_working, v.map(|x| spec.input.decode(x)));
+    let scene = |v: [f64; 3]| apply_matrix(&to_working, v.map(|x| spec.input.decode(x)));
     let table = match spec.part {
         LutPart::Whole => {
             let map = grid_map(&scene)?;
@@ -516,7 +458,7 @@ pub fn film_lut(look: &Look, spec: LutSpec) -> Result<Lut, RenderingError> {
                 .chunks_exact(3)
                 .map(|px| {
                     let linear = [0, 1, 2].map(|c| srgb_decode(f64::from(px[c]) / 65535.0));
-                    apply(&to_display, linear).map(|l| spec.output.encode(l) as f32)
+                    apply_matrix(&to_display, linear).map(|l| spec.output.encode(l) as f32)
                 })
                 .collect()
         }
@@ -587,7 +529,7 @@ fn print_table(
     Lut::grid(size)
         .map(|v| {
             let linear = [0, 1, 2].map(|c| print.reflectance(c, light[c], cineon_density(v[c])));
-            apply(&to_display, linear).map(|l| output.encode(l) as f32)
+            apply_matrix(&to_display, linear).map(|l| output.encode(l) as f32)
         })
         .collect()
 }
@@ -675,16 +617,16 @@ mod tests {
         ] {
             let there = g.matrix_to(Gamut::REC709);
             let back = Gamut::REC709.matrix_to(g);
-            let grey = apply(&there, [0.5; 3]);
+            let grey = apply_matrix(&there, [0.5; 3]);
             assert!(
                 grey.iter().all(|v| (v - 0.5).abs() < 1e-4),
                 "{g:?} {grey:?}"
             );
-            let x = apply(&back, apply(&there, [0.2, 0.5, 0.9]));
+            let x = apply_matrix(&back, apply_matrix(&there, [0.2, 0.5, 0.9]));
             assert!((0..3).all(|c| (x[c] - [0.2, 0.5, 0.9][c]).abs() < 1e-9));
         }
         // Rec. 709 red in P3 (the published matrix's first column: 0.8225, 0.0332, 0.0171).
-        let red = apply(&Gamut::REC709.matrix_to(Gamut::DISPLAY_P3), [1.0, 0.0, 0.0]);
+        let red = apply_matrix(&Gamut::REC709.matrix_to(Gamut::DISPLAY_P3), [1.0, 0.0, 0.0]);
         for (got, want) in red.iter().zip([0.8225, 0.0332, 0.0171]) {
             assert!((got - want).abs() < 1e-3, "{red:?}");
         }
