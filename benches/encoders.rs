@@ -16,7 +16,7 @@
 //! `benches/encoders.py` reads them, times its encoders, checks the EXRs decode to the
 //! same halves, and reports sizes and the JPEGs' PSNR against the 8-bit source (both
 //! decoded by Pillow). The Python side runs with `FILMBACK_ENCODERS_PYTHON`, else
-//! `/tmp/filmback-encoders-venv/bin/python` or CI's `/tmp/filmback-openexr-venv/bin/python`
+//! `/tmp/filmback-encoders-venv/bin/python` or CI's `/tmp/filmback-check-venv/bin/python`
 //! when present, else `python3`; a missing package skips its half of the comparison.
 //! Ours and theirs alternate, `--rounds R` times (default 2), each timing the best of
 //! `--runs N` calls (default 3); the table keeps each one's best over the rounds.
@@ -504,7 +504,7 @@ fn python() -> String {
     }
     [
         "/tmp/filmback-encoders-venv/bin/python",
-        "/tmp/filmback-openexr-venv/bin/python",
+        "/tmp/filmback-check-venv/bin/python",
     ]
     .into_iter()
     .find(|p| Path::new(p).exists())

@@ -10,6 +10,7 @@ use std::hint::black_box;
 use std::path::Path;
 use std::time::{Duration, Instant};
 
+use filmback::display::ColourSpace::Srgb;
 use filmback::display::Depth;
 use filmback::film::{self, Catalogue, ColourMode, Key};
 use filmback::radiance::RadianceMap;
@@ -299,8 +300,15 @@ fn main() {
             // encoder (developing on one core while the encoder runs on the other) …
             let (t_total, streamed) = best(|| {
                 let mut out = Vec::with_capacity(8 << 20);
-                rendering::encode_look(&map, &look, Format::Jpeg { quality }, &exif, &mut out)
-                    .expect("encodes");
+                rendering::encode_look(
+                    &map,
+                    &look,
+                    Format::Jpeg { quality },
+                    Srgb,
+                    &exif,
+                    &mut out,
+                )
+                .expect("encodes");
                 out
             });
             // … against the two stages one after the other.
@@ -416,7 +424,7 @@ fn looks_alone(map: &RadianceMap, catalogue: &Catalogue) {
     for (name, look) in &looks {
         let (t_all, _) = best(|| {
             let mut out = Vec::with_capacity(8 << 20);
-            rendering::encode_look(map, look, format, &exif, &mut out).expect("encodes");
+            rendering::encode_look(map, look, format, Srgb, &exif, &mut out).expect("encodes");
             out.len()
         });
         let image = look.render(map, Depth::Eight).expect("renders");
@@ -493,6 +501,7 @@ fn tone_maps(map: &RadianceMap) {
                 map,
                 &look,
                 Format::Jpeg { quality: 92 },
+                Srgb,
                 &SourceExif::default(),
                 &mut out,
             )

@@ -155,6 +155,7 @@ fn main() {
         radiance_hdr: false,
         looks: &[],
         format: Format::Jpeg { quality: 90 },
+        space: filmback::display::ColourSpace::Srgb,
         exif: &exif,
         overwrite: Overwrite::Replace,
         luminance_calibration: 1.0,

@@ -1,11 +1,14 @@
-//! The display end of the pipeline: an sRGB-encoded RGB image at 8 or 16 bits, the sRGB
-//! transfer function and ICC profile, and Rec. 709 luminance. Film stocks and tone maps
+//! The display end of the pipeline: an RGB image at 8 or 16 bits, developed for sRGB
+//! and re-encoded for a wide-gamut display on request ([`ColourSpace`]), the transfer
+//! functions and ICC profiles, and Rec. 709 luminance. Film stocks and tone maps
 //! produce a [`DisplayImage`]; the rendering encoders write it.
 
 use std::borrow::Cow;
 use std::sync::OnceLock;
 
 use rayon::prelude::*;
+
+use crate::radiance::Gamut;
 
 /// Rec. 709 / sRGB luminance of linear RGB: `L = 0.2126 R + 0.7152 G + 0.0722 B`.
 pub fn luminance(r: f32, g: f32, b: f32) -> f32 {
@@ -21,12 +24,14 @@ pub enum Depth {
     Sixteen,
 }
 
-/// A display image: RGB, sRGB-encoded, 8 or 16 bits per sample.
+/// A display image: RGB encoded for a display ([`ColourSpace`], sRGB unless
+/// [`DisplayImage::in_space`] re-encoded it), 8 or 16 bits per sample.
 #[derive(Debug, Clone, PartialEq)]
 pub struct DisplayImage {
     width: u32,
     height: u32,
     samples: Samples,
+    space: ColourSpace,
 }
 
 #[derive(Debug, Clone, PartialEq)]
@@ -52,6 +57,7 @@ impl DisplayImage {
             width,
             height,
             samples: Samples::Sixteen(samples),
+            space: ColourSpace::Srgb,
         }
     }
 
@@ -65,6 +71,7 @@ impl DisplayImage {
             width,
             height,
             samples: Samples::Eight(samples),
+            space: ColourSpace::Srgb,
         }
     }
 
@@ -78,6 +85,11 @@ impl DisplayImage {
         self.height
     }
 
+    /// The display the samples are encoded for.
+    pub fn space(&self) -> ColourSpace {
+        self.space
+    }
+
     /// Bits per sample.
     pub fn depth(&self) -> Depth {
         match self.samples {
@@ -86,7 +98,7 @@ impl DisplayImage {
         }
     }
 
-    /// Interleaved sRGB-encoded RGB at 16 bits (8-bit images scaled by 257).
+    /// Interleaved encoded RGB at 16 bits (8-bit images scaled by 257).
     pub fn samples(&self) -> Cow<'_, [u16]> {
         match &self.samples {
             Samples::Sixteen(s) => Cow::Borrowed(s),
@@ -94,7 +106,7 @@ impl DisplayImage {
         }
     }
 
-    /// Interleaved sRGB-encoded RGB at 8 bits ([`to_8bit`] of 16-bit images).
+    /// Interleaved encoded RGB at 8 bits ([`to_8bit`] of 16-bit images).
     pub fn to_u8(&self) -> Cow<'_, [u8]> {
         match &self.samples {
             Samples::Eight(s) => Cow::Borrowed(s),
@@ -114,17 +126,12 @@ impl DisplayImage {
 
     /// The image at `depth` (a copy only when it differs).
     pub fn at_depth(self, depth: Depth) -> DisplayImage {
-        match (depth, &self.samples) {
-            (Depth::Eight, Samples::Sixteen(_)) => {
-                let s = self.to_u8().into_owned();
-                DisplayImage::new_8bit(self.width, self.height, s)
-            }
-            (Depth::Sixteen, Samples::Eight(_)) => {
-                let s = self.samples().into_owned();
-                DisplayImage::new(self.width, self.height, s)
-            }
-            _ => self,
-        }
+        let samples = match (depth, &self.samples) {
+            (Depth::Eight, Samples::Sixteen(_)) => Samples::Eight(self.to_u8().into_owned()),
+            (Depth::Sixteen, Samples::Eight(_)) => Samples::Sixteen(self.samples().into_owned()),
+            _ => return self,
+        };
+        DisplayImage { samples, ..self }
     }
 }
 
@@ -196,29 +203,181 @@ pub fn srgb_encode_u8(x: f32) -> u8 {
     table[((x.to_bits() >> SHIFT) - base) as usize]
 }
 
-/// The sRGB ICC profile embedded in every output: built by the `moxcms` crate from the IEC 61966-2.1 colorants (primaries x,y = 0.64,0.33 /
-/// 0.30,0.60 / 0.15,0.06, D65 white, adapted to the D50 PCS) and the sRGB parametric
-/// tone curve (γ 2.4, linear toe below 0.04045). About 0.5 kB. Its header's creation
-/// date (bytes 24–35, which the encoder sets to the time of encoding; the profile carries
-/// no MD5 ID that would cover it) is fixed at IEC 61966-2-1's publication, 1999-10-18
-/// 00:00:00, so that the same rendering gives the same file.
-pub fn srgb_icc_profile() -> &'static [u8] {
-    static PROFILE: OnceLock<Vec<u8>> = OnceLock::new();
-    PROFILE.get_or_init(|| {
-        let mut srgb = moxcms::ColorProfile::new_srgb();
-        // moxcms tags it with coding-independent code points for limited-range Y'CbCr
-        // video (matrix BT.709, narrow range); the colorants and curves say all there is.
-        srgb.cicp = None;
-        let mut profile = srgb
-            .encode()
-            .unwrap_or_else(|e| panic!("moxcms cannot encode its own sRGB profile: {e:?}"));
-        let date: Vec<u8> = [1999u16, 10, 18, 0, 0, 0]
-            .iter()
-            .flat_map(|v| v.to_be_bytes())
+/// The display a rendering is encoded for: its primaries (all with a D65 white) and
+/// transfer function. Looks are developed in linear Rec. 709 light; a wider space holds
+/// the same colours (`rgb_space = M · rgb_709`, [`Gamut::matrix_to`]) in a container a
+/// wide-gamut pipeline takes as it is.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, serde::Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum ColourSpace {
+    /// sRGB (IEC 61966-2.1): Rec. 709 primaries, the sRGB transfer function (default).
+    #[default]
+    Srgb,
+    /// Display P3: P3 primaries (SMPTE EG 432-1), D65, the sRGB transfer function.
+    #[serde(rename = "p3")]
+    DisplayP3,
+    /// ITU-R BT.2020 primaries, D65, the BT.2020 / BT.709 transfer function
+    /// (`V = 4.5·L` below `β = 0.018054`, `α·L^0.45 − (α − 1)` above, `α = 1.099297`).
+    Rec2020,
+}
+
+impl ColourSpace {
+    /// Every space, in the order the docs list them.
+    pub const ALL: [ColourSpace; 3] = [
+        ColourSpace::Srgb,
+        ColourSpace::DisplayP3,
+        ColourSpace::Rec2020,
+    ];
+
+    /// The name as typed (`--colour-space p3`, `colour_space = "rec2020"`).
+    pub fn name(self) -> &'static str {
+        match self {
+            ColourSpace::Srgb => "srgb",
+            ColourSpace::DisplayP3 => "p3",
+            ColourSpace::Rec2020 => "rec2020",
+        }
+    }
+
+    /// The space's primaries and white.
+    pub fn gamut(self) -> Gamut {
+        match self {
+            ColourSpace::Srgb => Gamut::REC709,
+            ColourSpace::DisplayP3 => Gamut::DISPLAY_P3,
+            ColourSpace::Rec2020 => Gamut::REC2020,
+        }
+    }
+
+    /// The code value of linear display light `l` (clamped to `[0, 1]`, NaN to 0).
+    pub fn encode(self, l: f32) -> f32 {
+        match self {
+            ColourSpace::Srgb | ColourSpace::DisplayP3 => srgb_encode(l),
+            ColourSpace::Rec2020 => rec2020_encode(l),
+        }
+    }
+
+    /// The ITU-T H.273 code points of a PNG `cICP` chunk: colour primaries (1 BT.709,
+    /// 12 P3 D65, 9 BT.2020), transfer (13 sRGB, 1 BT.709), matrix 0 (RGB), full range 1.
+    pub fn cicp(self) -> [u8; 4] {
+        match self {
+            ColourSpace::Srgb => [1, 13, 0, 1],
+            ColourSpace::DisplayP3 => [12, 13, 0, 1],
+            ColourSpace::Rec2020 => [9, 1, 0, 1],
+        }
+    }
+
+    /// The ICC profile embedded in every file of this space, built by the `moxcms` crate
+    /// (colorants adapted to the D50 PCS, the transfer function as a parametric curve),
+    /// with a fixed creation date so that the same rendering gives the same file.
+    pub fn icc_profile(self) -> &'static [u8] {
+        static PROFILES: [OnceLock<Vec<u8>>; 3] =
+            [OnceLock::new(), OnceLock::new(), OnceLock::new()];
+        let (slot, build): (usize, fn() -> moxcms::ColorProfile) = match self {
+            ColourSpace::Srgb => (0, moxcms::ColorProfile::new_srgb),
+            ColourSpace::DisplayP3 => (1, moxcms::ColorProfile::new_display_p3),
+            ColourSpace::Rec2020 => (2, moxcms::ColorProfile::new_bt2020),
+        };
+        PROFILES[slot].get_or_init(|| fixed_date_profile(build()))
+    }
+}
+
+impl std::str::FromStr for ColourSpace {
+    type Err = String;
+
+    /// `srgb`, `p3` (or `display-p3`), `rec2020` (or `bt2020`), any case.
+    fn from_str(text: &str) -> Result<ColourSpace, String> {
+        match text.trim().to_ascii_lowercase().as_str() {
+            "srgb" => Ok(ColourSpace::Srgb),
+            "p3" | "display-p3" | "displayp3" => Ok(ColourSpace::DisplayP3),
+            "rec2020" | "bt2020" | "rec.2020" => Ok(ColourSpace::Rec2020),
+            _ => Err(format!(
+                "{text:?} is not a colour space: expected srgb, p3 or rec2020"
+            )),
+        }
+    }
+}
+
+/// BT.2020's transfer function (the BT.709 OETF at 12-bit precision) of linear `l`,
+/// clamped to `[0, 1]` (NaN to 0).
+pub fn rec2020_encode(l: f32) -> f32 {
+    const ALPHA: f32 = 1.099_296_8;
+    const BETA: f32 = 0.018_053_97;
+    if l.is_nan() || l <= 0.0 {
+        0.0
+    } else if l >= 1.0 {
+        1.0
+    } else if l < BETA {
+        4.5 * l
+    } else {
+        ALPHA * l.powf(0.45) - (ALPHA - 1.0)
+    }
+}
+
+/// Linear light of an sRGB code value `v ∈ [0, 1]` (the inverse of [`srgb_encode`]).
+pub fn srgb_decode(v: f32) -> f32 {
+    if v <= 0.040_45 {
+        v / 12.92
+    } else {
+        ((v + 0.055) / 1.055).powf(2.4)
+    }
+}
+
+impl DisplayImage {
+    /// The image, developed for sRGB, encoded for `space` instead: each pixel decoded to
+    /// linear Rec. 709 light, taken to the space's primaries, clamped to `[0, 1]` and
+    /// encoded with its transfer function at the image's depth. sRGB returns it as is.
+    pub fn in_space(self, space: ColourSpace) -> DisplayImage {
+        if space == ColourSpace::Srgb {
+            return self;
+        }
+        let m = Gamut::REC709
+            .matrix_to(space.gamut())
+            .map(|row| row.map(|v| v as f32));
+        let depth = self.depth();
+        let decode: Vec<f32> = (0..=u16::MAX)
+            .map(|v| srgb_decode(f32::from(v) / 65535.0))
             .collect();
-        profile[24..36].copy_from_slice(&date);
-        profile
-    })
+        let mut samples = self.samples().into_owned();
+        samples.par_chunks_mut(3 << 12).for_each(|band| {
+            for px in band.chunks_exact_mut(3) {
+                let l = [0, 1, 2].map(|c| decode[usize::from(px[c])]);
+                for (out, row) in px.iter_mut().zip(&m) {
+                    let v = row[0] * l[0] + row[1] * l[1] + row[2] * l[2];
+                    *out = (space.encode(v) * 65535.0).round() as u16;
+                }
+            }
+        });
+        let wide = DisplayImage {
+            samples: Samples::Sixteen(samples),
+            space,
+            ..self
+        };
+        wide.at_depth(depth)
+    }
+}
+
+/// The sRGB ICC profile ([`ColourSpace::icc_profile`]): the IEC 61966-2.1 colorants
+/// (primaries x,y = 0.64,0.33 / 0.30,0.60 / 0.15,0.06, D65 white, adapted to the D50 PCS)
+/// and the sRGB parametric tone curve (γ 2.4, linear toe below 0.04045); about 0.5 kB.
+pub fn srgb_icc_profile() -> &'static [u8] {
+    ColourSpace::Srgb.icc_profile()
+}
+
+/// `profile` encoded without its `cicp` tag (moxcms tags its profiles with code points for
+/// limited-range Y'CbCr video, matrix BT.709, narrow range; the colorants and curves say
+/// all there is), its creation date (header bytes 24–35, which the encoder sets to the
+/// time of encoding; the profile carries no MD5 ID that would cover it) fixed at
+/// IEC 61966-2-1's publication, 1999-10-18 00:00:00.
+fn fixed_date_profile(mut profile: moxcms::ColorProfile) -> Vec<u8> {
+    profile.cicp = None;
+    let mut bytes = profile
+        .encode()
+        .unwrap_or_else(|e| panic!("moxcms cannot encode its own profile: {e:?}"));
+    let date: Vec<u8> = [1999u16, 10, 18, 0, 0, 0]
+        .iter()
+        .flat_map(|v| v.to_be_bytes())
+        .collect();
+    bytes[24..36].copy_from_slice(&date);
+    bytes
 }
 
 #[cfg(test)]

@@ -11,6 +11,7 @@ mod align;
 mod cache_cli;
 mod calibrate;
 mod cli;
+mod colour;
 mod common;
 mod daemon;
 mod deghost;

@@ -380,6 +380,7 @@ fn render_all_writes_each_look_atomically_and_refuses_to_clobber() {
         dir: dir.path(),
         stem: "scene",
         format: Format::Png16,
+        space: filmback::display::ColourSpace::Srgb,
         overwrite: Overwrite::Refuse,
         exif: &exif,
     };

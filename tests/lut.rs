@@ -63,8 +63,13 @@ fn lab(rgb: [f64; 3], gamut: Gamut) -> [f64; 3] {
     [116.0 * fy - 16.0, 500.0 * (fx - fy), 200.0 * (fy - fz)]
 }
 
+/// CIELAB (D65) of sRGB code values `v ∈ [0, 1]` (IEC 61966-2.1).
+pub(crate) fn srgb_lab(v: [f64; 3]) -> [f64; 3] {
+    lab(v.map(|x| OutputEncoding::Srgb.decode(x)), Gamut::REC709)
+}
+
 /// CIEDE2000 (Sharma, Wu & Dalal 2005, kL = kC = kH = 1).
-fn delta_e2000(a: [f64; 3], b: [f64; 3]) -> f64 {
+pub(crate) fn delta_e2000(a: [f64; 3], b: [f64; 3]) -> f64 {
     use std::f64::consts::PI;
     let (l1, a1, b1) = (a[0], a[1], a[2]);
     let (l2, a2, b2) = (b[0], b[1], b[2]);
@@ -467,7 +472,7 @@ fn python() -> String {
         return p;
     }
     let tmp = std::env::var("TMPDIR").unwrap_or_else(|_| "/tmp".into());
-    let venv = Path::new(&tmp).join("filmback-ocio-venv/bin/python");
+    let venv = Path::new(&tmp).join("filmback-check-venv/bin/python");
     if venv.exists() {
         venv.display().to_string()
     } else {

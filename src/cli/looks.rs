@@ -3,6 +3,7 @@
 use std::path::PathBuf;
 
 use anyhow::{Context, Result, bail};
+use filmback::display::ColourSpace;
 use filmback::film::{Catalogue, ColourMode, Key};
 use filmback::rendering::{self, Format, Look};
 
@@ -20,6 +21,10 @@ pub struct LookArgs {
     /// Encoding of the renderings: jpeg, jpeg:QUALITY, png, png16, tiff.
     #[arg(long, default_value = "jpeg")]
     pub format: String,
+    /// The display the renderings are encoded for: srgb, p3 (Display P3) or rec2020; each
+    /// file carries the space's ICC profile.
+    #[arg(long, default_value = "srgb", value_name = "SPACE")]
+    pub colour_space: String,
     /// How film layers share the light: per-layer, luminance, neutral.
     #[arg(long, default_value = "per-layer")]
     pub colour: String,
@@ -47,5 +52,12 @@ impl LookArgs {
         let looks = rendering::looks(&catalogue, &self.film, &self.tonemap, 0.0, colour, key)
             .context("--film/--tonemap")?;
         Ok((looks, self.format.parse()?))
+    }
+
+    /// The display the renderings are encoded for (`--colour-space`).
+    pub fn colour_space(&self) -> Result<ColourSpace> {
+        self.colour_space
+            .parse()
+            .map_err(|e: String| anyhow::anyhow!("--colour-space: {e}"))
     }
 }

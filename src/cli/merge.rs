@@ -182,6 +182,7 @@ pub fn run(args: Args) -> anyhow::Result<ExitCode> {
         radiance_hdr: args.radiance_hdr,
         looks: &looks,
         format,
+        space: args.looks.colour_space()?,
         exif: &exif,
         overwrite: if args.force {
             Overwrite::Replace

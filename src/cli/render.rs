@@ -54,6 +54,7 @@ pub fn run(args: Args) -> Result<ExitCode> {
         dir: &args.output,
         stem: &stem,
         format,
+        space: args.looks.colour_space()?,
         overwrite: if args.force {
             Overwrite::Replace
         } else {

@@ -340,6 +340,7 @@ impl DarkroomLab {
             format: Format::Jpeg {
                 quality: preset.jpeg_quality,
             },
+            space: preset.colour_space,
             exif,
             // A complete file under a job's name is a leftover of an interrupted earlier
             // attempt at this same job (names are unique per bracket): replace it.

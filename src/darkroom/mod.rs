@@ -26,6 +26,7 @@ use std::time::{Duration, Instant};
 use crate::align::{self, AlignFrame, AlignMode, Alignment};
 use crate::atomic::{self, Overwrite, PublishError};
 use crate::deghost::{self, GhostMasks};
+use crate::display::ColourSpace;
 use crate::frame::{Frame, LoadedFrame, Samples};
 use crate::hdr_output::{self, ExrOptions, FrameRecord, OutputError, Provenance, Written};
 use crate::merge::{
@@ -130,6 +131,8 @@ pub struct Prints<'a> {
     pub looks: &'a [Look],
     /// Encoding of the renderings.
     pub format: Format,
+    /// The display the renderings are encoded for.
+    pub space: ColourSpace,
     /// EXIF carried into the renderings.
     pub exif: &'a SourceExif,
     /// Replace existing files or refuse.
@@ -618,6 +621,7 @@ fn print_looks(
             dir: prints.dir,
             stem: prints.stem,
             format: prints.format,
+            space: prints.space,
             overwrite: prints.overwrite,
             exif: prints.exif,
         },

@@ -35,6 +35,7 @@ fn prints<'a>(
         radiance_hdr: false,
         looks,
         format,
+        space: crate::display::ColourSpace::Srgb,
         exif,
         overwrite: Overwrite::Refuse,
         luminance_calibration: 1.0,

@@ -1,6 +1,6 @@
-//! Encoding display images as files — JPEG, PNG 8/16-bit or TIFF 16-bit, each with an
-//! embedded sRGB ICC profile and the source frame's EXIF — and streaming a film look
-//! into the JPEG encoder band by band.
+//! Encoding display images as files — JPEG, PNG 8/16-bit or TIFF 16-bit, each with the
+//! ICC profile of its colour space (and a PNG's `cICP` chunk) and the source frame's
+//! EXIF — and streaming an sRGB look into the JPEG encoder band by band.
 
 use std::io::Cursor;
 use std::path::{Path, PathBuf};
@@ -9,7 +9,7 @@ use std::str::FromStr;
 use super::source_exif::Storage;
 use super::{Look, RenderingError, SourceExif, jpeg};
 use crate::atomic::{self, Overwrite, PublishError};
-use crate::display::{Depth, DisplayImage, srgb_icc_profile};
+use crate::display::{ColourSpace, Depth, DisplayImage};
 use crate::film;
 use crate::radiance::RadianceSource;
 use exif::{Field, In, Tag, Value};
@@ -77,7 +77,8 @@ impl FromStr for Format {
     }
 }
 
-/// Encodes `image` in `format` with the sRGB profile and the EXIF block, into `out`.
+/// Encodes `image` in `format` with its colour space's profile and the EXIF block, into
+/// `out`.
 pub fn encode(
     image: &DisplayImage,
     format: Format,
@@ -93,35 +94,51 @@ pub fn encode(
             let copy = |first: usize, band: &mut [u8]| {
                 band.copy_from_slice(&rgb[first * row..][..band.len()]);
             };
-            jpeg::encode_bands(w, h, quality, decorate(&block), copy, out)
+            let decorate = decorate(&block, image.space());
+            jpeg::encode_bands(w, h, quality, decorate, copy, out)
         }
         Format::Png8 | Format::Png16 => {
-            use image::ImageEncoder;
             let block = exif.tiff_block(w, h, Storage::Rgb)?;
-            let mut encoder = image::codecs::png::PngEncoder::new(out);
-            encoder
-                .set_icc_profile(srgb_icc_profile().to_vec())
-                .map_err(|e| e.to_string())?;
-            encoder
-                .set_exif_metadata(block)
-                .map_err(|e| e.to_string())?;
-            if format == Format::Png8 {
-                encoder.write_image(&image.to_u8(), w, h, image::ExtendedColorType::Rgb8)
-            } else {
-                let bytes: Vec<u8> = image
-                    .samples()
-                    .iter()
-                    .flat_map(|s| s.to_ne_bytes())
-                    .collect();
-                encoder.write_image(&bytes, w, h, image::ExtendedColorType::Rgb16)
-            }
-            .map_err(|e| e.to_string())
+            png(image, format == Format::Png16, block, out).map_err(|e| e.to_string())
         }
         Format::Tiff16 => {
             let bytes = tiff16(image, exif)?;
             out.write_all(&bytes).map_err(|e| e.to_string())
         }
     }
+}
+
+/// A PNG of `image` (16 bits per sample when `sixteen`) with the space's ICC profile
+/// (`iCCP`), its code points (`cICP`, which a PNG reader takes before `iCCP`) and the
+/// EXIF block (`eXIf`).
+fn png(
+    image: &DisplayImage,
+    sixteen: bool,
+    exif: Vec<u8>,
+    out: &mut impl std::io::Write,
+) -> Result<(), ::png::EncodingError> {
+    let mut info = ::png::Info::with_size(image.width(), image.height());
+    info.color_type = ::png::ColorType::Rgb;
+    info.bit_depth = if sixteen {
+        ::png::BitDepth::Sixteen
+    } else {
+        ::png::BitDepth::Eight
+    };
+    info.icc_profile = Some(image.space().icc_profile().into());
+    info.exif_metadata = Some(exif.into());
+    let mut writer = ::png::Encoder::with_info(out, info)?.write_header()?;
+    writer.write_chunk(::png::chunk::ChunkType(*b"cICP"), &image.space().cicp())?;
+    if sixteen {
+        let bytes: Vec<u8> = image
+            .samples()
+            .iter()
+            .flat_map(|s| s.to_be_bytes())
+            .collect();
+        writer.write_image_data(&bytes)?;
+    } else {
+        writer.write_image_data(&image.to_u8())?;
+    }
+    writer.finish()
 }
 
 /// A baseline uncompressed 16-bit RGB TIFF (little-endian) with the ICC profile (tag
@@ -150,7 +167,10 @@ fn tiff16(image: &DisplayImage, exif: &SourceExif) -> Result<Vec<u8>, String> {
         tiff(277, Value::Short(vec![3])),
         tiff(278, Value::Long(vec![rows_per_strip])),
         tiff(284, Value::Short(vec![1])),
-        tiff(34675, Value::Undefined(srgb_icc_profile().to_vec(), 0)),
+        tiff(
+            34675,
+            Value::Undefined(image.space().icc_profile().to_vec(), 0),
+        ),
     ];
     fields.extend(exif.rendering_fields(w, h, Storage::Rgb));
     let mut writer = exif::experimental::Writer::new();
@@ -197,13 +217,15 @@ fn stream_jpeg(
     out: &mut impl std::io::Write,
 ) -> Result<(), String> {
     let block = exif.tiff_block(w, h, Storage::Jpeg)?;
-    jpeg::encode_bands(w, h, quality, decorate(&block), develop, out)
+    let decorate = decorate(&block, ColourSpace::Srgb);
+    jpeg::encode_bands(w, h, quality, decorate, develop, out)
 }
 
-/// Adds the EXIF block (APP1) and then the sRGB profile (APP2) to a JPEG encoder, in the
-/// order Exif (CIPA DC-008) asks: APP1 first after the JFIF header.
+/// Adds the EXIF block (APP1) and then the profile of `space` (APP2) to a JPEG encoder,
+/// in the order Exif (CIPA DC-008) asks: APP1 first after the JFIF header.
 fn decorate(
     block: &[u8],
+    space: ColourSpace,
 ) -> impl Fn(
     &mut rusty_jpeg::encode::Encoder<&mut Vec<u8>>,
 ) -> Result<(), rusty_jpeg::encode::EncodingError>
@@ -212,16 +234,19 @@ fn decorate(
         let mut app1 = b"Exif\0\0".to_vec();
         app1.extend_from_slice(block);
         encoder.add_app_segment(1, app1)?;
-        encoder.add_icc_profile(srgb_icc_profile())
+        encoder.add_icc_profile(space.icc_profile())
     }
 }
 
-/// Renders `look` and encodes it in `format`; to JPEG, film looks and tone maps are
-/// developed band by band while the encoder runs ([`encode_film_jpeg`]).
+/// Renders `look` for `space` and encodes it in `format`; to an sRGB JPEG, film looks and
+/// tone maps are developed band by band while the encoder runs ([`encode_film_jpeg`]).
+/// Another space is developed at 16 bits, re-encoded ([`DisplayImage::in_space`]) and
+/// then reduced to the format's depth.
 pub fn encode_look(
     map: &dyn RadianceSource,
     look: &Look,
     format: Format,
+    space: ColourSpace,
     exif: &SourceExif,
     out: &mut impl std::io::Write,
 ) -> Result<(), RenderingError> {
@@ -231,6 +256,11 @@ pub fn encode_look(
         reason,
     };
     match (look, format) {
+        _ if space != ColourSpace::Srgb => {
+            let image = look.render(map, Depth::Sixteen)?.in_space(space);
+            return encode(&image.at_depth(format.depth()), format, exif, out)
+                .map_err(encode_error);
+        }
         (Look::Film { .. }, Format::Jpeg { quality }) => {
             let emulsion = look.emulsion(map)?;
             let exposure = emulsion.expose(map);

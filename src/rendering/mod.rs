@@ -1,7 +1,7 @@
 //! Display renderings: the looks a radiance map can be shown with (film stocks, tone
-//! maps), and encoding them as files — JPEG, PNG 8/16-bit or TIFF 16-bit, each with an
-//! embedded sRGB ICC profile and the source frame's EXIF (with `Software = filmback`),
-//! published atomically.
+//! maps), and encoding them as files — JPEG, PNG 8/16-bit or TIFF 16-bit, for sRGB,
+//! Display P3 or Rec. 2020, each with the space's ICC profile and the source frame's EXIF
+//! (with `Software = filmback`), published atomically.
 //!
 //! JPEG goes through the `rusty_jpeg` crate (a fork of `jpeg-encoder` with AVX2 kernels
 //! chosen at run time; the same bytes at 4:4:4, 1.45× faster on 24 MP, `docs/performance.md`);
@@ -13,7 +13,7 @@
 use std::path::{Path, PathBuf};
 
 use crate::atomic::{self, Overwrite, PublishError};
-use crate::display::{Depth, DisplayImage};
+use crate::display::{ColourSpace, Depth, DisplayImage};
 use crate::film::{self, Catalogue, ColourMode, FilmError, Key, Stock};
 use crate::radiance::RadianceSource;
 use crate::tonemap;
@@ -215,6 +215,8 @@ pub struct Outputs<'a> {
     pub stem: &'a str,
     /// Encoding.
     pub format: Format,
+    /// The display the renderings are encoded for.
+    pub space: ColourSpace,
     /// Replace existing files or refuse.
     pub overwrite: Overwrite,
     /// EXIF carried into every file.
@@ -234,7 +236,7 @@ pub fn render_all(
         let path = look_path(outputs.dir, outputs.stem, look, outputs.format);
         let mut failure = None;
         let published = atomic::publish_with(&path, outputs.overwrite, |w| {
-            encode_look(map, look, outputs.format, outputs.exif, w).map_err(|e| {
+            encode_look(map, look, outputs.format, outputs.space, outputs.exif, w).map_err(|e| {
                 let reason = e.to_string();
                 failure = Some(e);
                 reason

@@ -170,6 +170,8 @@ pub struct Preset {
     pub luminance_calibration: f64,
     /// RGB primaries of the EXR.
     pub primaries: OutputPrimaries,
+    /// The display the renderings are encoded for.
+    pub colour_space: crate::display::ColourSpace,
     /// How the frames are aligned before the merge (`[merge] align`, or the camera's).
     pub align: crate::align::AlignMode,
     /// Whether frames that disagree with the reference are left out (`[merge] deghost`,

@@ -9,6 +9,7 @@ use std::time::Duration;
 use serde::Deserialize;
 
 use crate::align::AlignMode;
+use crate::display::ColourSpace;
 use crate::merge::Deghost;
 
 use super::{
@@ -168,6 +169,7 @@ struct RawRender {
     min_confidence: Option<Fraction>,
     luminance_calibration: Option<Calibration>,
     primaries: Option<super::OutputPrimaries>,
+    colour_space: Option<ColourSpace>,
 }
 
 #[derive(Debug, Default, Clone, Deserialize)]
@@ -185,6 +187,7 @@ struct RawPreset {
     min_confidence: Option<Fraction>,
     luminance_calibration: Option<Calibration>,
     primaries: Option<super::OutputPrimaries>,
+    colour_space: Option<ColourSpace>,
     // The [merge] keys a camera may override.
     align: Option<AlignMode>,
     deghost: Option<Deghost>,
@@ -202,6 +205,7 @@ impl RawPreset {
             min_confidence: self.min_confidence,
             luminance_calibration: self.luminance_calibration,
             primaries: self.primaries,
+            colour_space: self.colour_space,
         }
     }
 }
@@ -347,6 +351,7 @@ fn overlay(base: &RawRender, over: &RawRender) -> RawRender {
         min_confidence: over.min_confidence.or(base.min_confidence),
         luminance_calibration: over.luminance_calibration.or(base.luminance_calibration),
         primaries: over.primaries.or(base.primaries),
+        colour_space: over.colour_space.or(base.colour_space),
     }
 }
 
@@ -370,6 +375,7 @@ fn preset(r: &RawRender) -> Preset {
         min_confidence: r.min_confidence.expect(MISSING).0,
         luminance_calibration: r.luminance_calibration.expect(MISSING).0,
         primaries: r.primaries.expect(MISSING),
+        colour_space: r.colour_space.expect(MISSING),
         align: AlignMode::default(),
         deghost: Deghost::default(),
     }

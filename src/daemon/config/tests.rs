@@ -417,3 +417,21 @@ fn luminance_calibration_and_primaries_are_checked() {
     assert_eq!(key, "primaries");
     assert!(message.contains("ap0"), "{message}");
 }
+
+/// `colour_space`: sRGB by default, per camera over `[render]`, a bad name refused with
+/// the names it takes.
+#[test]
+fn colour_space_is_per_camera_and_checked() {
+    use crate::display::ColourSpace;
+    let c = Config::from_str("", Some(Path::new("s.toml"))).unwrap();
+    assert_eq!(c.render.colour_space, ColourSpace::Srgb);
+    let text =
+        "[render]\ncolour_space = \"p3\"\n[camera.\"Canon EOS R5\"]\ncolour_space = \"rec2020\"\n";
+    let c = Config::from_str(text, Some(Path::new("s.toml"))).unwrap();
+    assert_eq!(c.render.colour_space, ColourSpace::DisplayP3);
+    let r5 = c.preset_for(Some("Canon EOS R5"), None);
+    assert_eq!(r5.colour_space, ColourSpace::Rec2020);
+    let (line, _, key, message) = invalid("[render]\ncolour_space = \"adobe\"\n");
+    assert_eq!((line, key.as_str()), (2, "colour_space"));
+    assert!(message.contains("rec2020"), "{message}");
+}
