@@ -5,9 +5,11 @@
 
 Without files it makes its own: two small PNG frames of a ramp through the sRGB curve,
 two stops apart (pure Python, no imaging package), merged by `filmback merge --srgb` as
-half/PIZ and float/ZIP with `--confidence`, and as half/PIZ without it. Each file must open in the reference
-reader with R, G, B (and confidence.Y where written) of the right type, finite values,
-and filmback's header attributes. Exits 0 with a "skipped" note when the `OpenEXR`
+half/PIZ and float/ZIP with `--confidence`, as half/PIZ without it, and as an ACES
+container (AP0, half, uncompressed). Each file must open in the reference reader with R,
+G, B (and confidence.Y where written) of the right type, finite values, and filmback's
+header attributes; only the ACES container carries `acesImageContainerFlag = 1`, with
+the AP0 primaries and no compression. Exits 0 with a "skipped" note when the `OpenEXR`
 package is not installed, 1 on any failure.
 """
 from __future__ import annotations
@@ -77,11 +79,26 @@ def make_bracket(folder: str) -> list[str]:
     return paths
 
 
-def check(path: str, dtype: str, confidence: bool) -> list[str]:
+def check_aces(path: str, header: dict, aces: bool) -> list[str]:
+    """The ACES container's flag where it qualifies (SMPTE ST 2065-4), and only there."""
+    flag = header.get("acesImageContainerFlag")
+    if not aces:
+        return [f"{path}: acesImageContainerFlag {flag} on a file that is not one"] if flag else []
+    problems = [] if flag == 1 else [f"{path}: acesImageContainerFlag is {flag}, expected 1"]
+    red = np.asarray(header.get("chromaticities", [0])).ravel()[:2]
+    if not np.allclose(red, [0.7347, 0.2653], atol=1e-4):
+        problems.append(f"{path}: chromaticities red {red}, expected AP0's")
+    if "NO_COMPRESSION" not in str(header.get("compression")):
+        problems.append(f"{path}: compression {header.get('compression')}, expected none")
+    return problems
+
+
+def check(path: str, dtype: str, confidence: bool, aces: bool = False) -> list[str]:
     problems = []
     with OpenEXR.File(path) as f:
         header = f.header()
         channels = f.channels()
+        problems += check_aces(path, header, aces)
         for key in REQUIRED:
             if key not in header:
                 problems.append(f"{path}: header lacks {key}")
@@ -122,21 +139,23 @@ def main() -> int:
             frames = make_bracket(tmp)
             # With --confidence the merge is buffered; without, an 8-bit pair is merged
             # while the file is encoded: check both paths.
-            for sample, compression, dtype, confidence in (
-                ("half", "piz", "float16", True),
-                ("float", "zip", "float32", True),
-                ("half", "piz", "float16", False),
+            for sample, compression, dtype, confidence, aces in (
+                ("half", "piz", "float16", True, False),
+                ("float", "zip", "float32", True, False),
+                ("half", "piz", "float16", False, False),
+                ("half", "none", "float16", False, True),
             ):
                 out = os.path.join(tmp, f"generated-{sample}-{compression}-{confidence}")
                 run = subprocess.run(
                     [a.bin, "merge", *frames, "-o", out, "--srgb",
                      "--times", "1/400,1/100", "--exr", sample, "--compression", compression]
-                    + (["--confidence"] if confidence else []),
+                    + (["--confidence"] if confidence else [])
+                    + (["--primaries", "ap0"] if aces else []),
                     capture_output=True, text=True)
                 if run.returncode != 0:
                     problems.append(f"filmback merge failed: {run.stderr.strip()}")
                     continue
-                problems += check(os.path.join(out, "dark.exr"), dtype, confidence=confidence)
+                problems += check(os.path.join(out, "dark.exr"), dtype, confidence, aces)
                 checked += 1
     for p in problems:
         print(f"openexr_check: FAIL {p}")

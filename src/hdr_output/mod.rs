@@ -173,6 +173,18 @@ pub struct ExrOptions {
     pub primaries: Primaries,
 }
 
+impl ExrOptions {
+    /// Whether an RGB map written with these options is an ACES image container file
+    /// (SMPTE ST 2065-4: AP0 primaries with the ACES white, half floats, no compression,
+    /// scan lines, R, G and B only — so no confidence channel), whose header then carries
+    /// `acesImageContainerFlag = 1`.
+    pub fn is_aces_container(&self) -> bool {
+        self.primaries == Primaries::Ap0
+            && self.sample == SampleFormat::Half
+            && self.compression == ExrCompression::None
+    }
+}
+
 /// One input frame as recorded in the header.
 #[derive(Debug, Clone, PartialEq)]
 pub struct FrameRecord {
@@ -321,6 +333,12 @@ pub fn encode_exr<W: Write + Seek, S: RadianceSource + ?Sized>(
     };
     header.own_attributes = layer_attributes(provenance, scale, primaries);
     header.shared_attributes = image_attributes(size, primaries);
+    if options.is_aces_container() && map.channels() == 3 && confidence.is_none() {
+        header
+            .own_attributes
+            .other
+            .insert(text("acesImageContainerFlag"), x::AttributeValue::I32(1));
+    }
     let matrix = (primaries != Primaries::Rec709)
         .then(|| primaries.matrix_from_709().map(|row| row.map(|v| v as f32)));
 

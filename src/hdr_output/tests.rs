@@ -513,6 +513,57 @@ fn aces_primaries_keep_grey_and_place_red() {
     assert_eq!(Primaries::Rec709.matrix_from_709()[0], [1.0, 0.0, 0.0]);
 }
 
+/// `acesImageContainerFlag = 1` exactly when the file is an ACES container (AP0, half,
+/// uncompressed, RGB only): not for PIZ, float, AP1 or with a confidence channel.
+#[test]
+fn only_an_aces_container_says_it_is_one() {
+    use exr::prelude::{AttributeValue, Text};
+    let map = RadianceMap::new(2, 1, 3, vec![0.5, 0.5, 0.5, 1.0, 0.0, 0.0]).unwrap();
+    let container = ExrOptions {
+        primaries: Primaries::Ap0,
+        compression: ExrCompression::None,
+        ..ExrOptions::default()
+    };
+    let flag = |options: ExrOptions, confidence: Option<&[f32]>| {
+        let mut bytes = std::io::Cursor::new(Vec::new());
+        encode_exr(
+            &mut bytes,
+            &map,
+            confidence,
+            &Provenance::default(),
+            options,
+        )
+        .unwrap();
+        let meta = exr::meta::MetaData::read_from_buffered(
+            std::io::Cursor::new(bytes.into_inner()),
+            false,
+        )
+        .unwrap();
+        meta.headers[0]
+            .own_attributes
+            .other
+            .get(&Text::from("acesImageContainerFlag"))
+            .cloned()
+    };
+    assert_eq!(flag(container, None), Some(AttributeValue::I32(1)));
+    let piz = ExrOptions {
+        compression: ExrCompression::Piz,
+        ..container
+    };
+    let float = ExrOptions {
+        sample: SampleFormat::Float,
+        ..container
+    };
+    let ap1 = ExrOptions {
+        primaries: Primaries::Ap1,
+        ..container
+    };
+    for options in [piz, float, ap1] {
+        assert_eq!(flag(options, None), None, "{options:?}");
+    }
+    assert_eq!(flag(container, Some(&[1.0, 0.5])), None, "with confidence");
+}
+
 /// An AP1 file holds the converted values and says so: `chromaticities` are AP1's with
 /// the ACES white and `colorInteropID` is `lin_ap1_scene`; a grey pixel keeps its value.
 #[test]
