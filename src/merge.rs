@@ -117,6 +117,16 @@ pub enum Weighting {
     NoiseAware,
 }
 
+impl Weighting {
+    /// The name as the command line and `--json` spell it (`hat`, `noise-aware`).
+    pub fn name(self) -> &'static str {
+        match self {
+            Weighting::Hat => "hat",
+            Weighting::NoiseAware => "noise-aware",
+        }
+    }
+}
+
 /// One frame of a bracket, as the merge needs it.
 #[derive(Debug, Clone, Copy)]
 pub struct BracketFrame<'a> {
@@ -1435,6 +1445,14 @@ fn count_clipped_everywhere<T: Copy + Into<usize> + Sync>(
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// The EXR header's `filmbackWeighting` and `--json` spell a weighting alike.
+    #[test]
+    fn a_weighting_has_one_name() {
+        for w in [Weighting::Hat, Weighting::NoiseAware] {
+            assert_eq!(serde_json::to_value(w).unwrap(), w.name());
+        }
+    }
 
     fn grey(width: u32, codes: Vec<u8>) -> Frame {
         let h = codes.len() as u32 / width;

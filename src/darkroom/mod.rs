@@ -326,7 +326,7 @@ pub fn develop(
     #[cfg(not(feature = "raw"))]
     let raw_merged: Option<(ChosenResponse, merge::Merged, Alignment)> = None;
     let scaled = raw_merged.is_some();
-    let mut weighting = format!("{:?}", options.weighting);
+    let mut weighting = options.weighting.name().to_string();
     let mut ghosts = None;
     // The moved frames resampled onto the reference grid; they outlive the merge.
     let warped: Vec<Option<Frame>>;
