@@ -125,38 +125,6 @@ impl InverseResponse {
     }
 }
 
-/// Named speed/accuracy settings for calibration that a config can pick (measured by
-/// `benches/calibrate_speed.rs`; the table is in `docs/performance.md`).
-#[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
-#[serde(rename_all = "lowercase")]
-pub enum Preset {
-    /// Every 16th pixel of every 16th row.
-    Fast,
-    /// Every 4th pixel of every 4th row.
-    Balanced,
-    /// Every pixel.
-    Accurate,
-}
-
-impl Preset {
-    /// Histogram stride.
-    pub fn stride(self) -> usize {
-        match self {
-            Preset::Fast => 16,
-            Preset::Balanced => 4,
-            Preset::Accurate => 1,
-        }
-    }
-
-    /// Model size.
-    ///
-    /// Always `auto`: a fixed degree 6 saves ~30 ms at 24 MP but costs S-shaped curves
-    /// 0.02 stops (`benches/calibrate_speed.rs`).
-    pub fn degree(self) -> Degree {
-        Degree::Auto
-    }
-}
-
 /// Number of samples per channel in a calibrated [`InverseResponse`] (`g(i/1023)`).
 pub const CALIBRATED_SAMPLES: usize = 1024;
 
