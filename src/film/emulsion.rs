@@ -432,13 +432,13 @@ impl Emulsion {
     /// (the optics' wide terms are computed here; a source that does not hold its pixels,
     /// a merge evaluated on demand, is evaluated whole for them). Radiance that is NaN or
     /// negative counts as no light, `+∞` as 10³⁰.
-    pub fn expose<'a>(&self, map: &'a dyn RadianceSource) -> Exposure<'a> {
+    pub fn expose<'a>(&self, map: &'a dyn RadianceSource) -> LatentImage<'a> {
         if !self.has_optics() {
             let by_code = map
                 .code_pairs()
                 .filter(|_| self.grained.is_none() && self.mode != ColourMode::Luminance)
                 .map(|pairs| self.by_code(&pairs));
-            return Exposure {
+            return LatentImage {
                 map,
                 filter: None,
                 by_code,
@@ -470,7 +470,7 @@ impl Emulsion {
             }
         };
         let filter = optics::Filter::new(pixels, map.channels(), w, h, &terms);
-        Exposure {
+        LatentImage {
             map,
             filter: Some(filter),
             by_code: None,
@@ -636,7 +636,7 @@ fn keep_chromaticity(e: [f32; 3], l: f32, t: f32) -> [u16; 3] {
 
 /// The light inside the film ([`Emulsion::expose`]): the radiance map, through the
 /// look's optics if it has any, a band of rows at a time.
-pub struct Exposure<'a> {
+pub struct LatentImage<'a> {
     map: &'a dyn RadianceSource,
     filter: Option<optics::Filter<'a>>,
     /// The display tables by code pair, when the map is a merged pair and the look
@@ -650,7 +650,7 @@ struct ByCode {
     eight: [Vec<u8>; 3],
 }
 
-impl Exposure<'_> {
+impl LatentImage<'_> {
     /// Width in pixels.
     pub fn width(&self) -> u32 {
         self.map.width()
@@ -709,12 +709,12 @@ impl Emulsion {
 
     /// Develops rows `first..first + out.len()/(3·width)` of the exposure into 8-bit RGB
     /// `out` (bands of rows in parallel): the unit the streaming JPEG writer pulls.
-    pub fn render_rows_8bit(&self, exposure: &Exposure<'_>, first: usize, out: &mut [u8]) {
+    pub fn render_rows_8bit(&self, exposure: &LatentImage<'_>, first: usize, out: &mut [u8]) {
         self.develop(exposure, first, out);
     }
 
     /// Develops rows from `first` into RGB `out` at the depth of `T`.
-    fn develop<T: Sample>(&self, exposure: &Exposure<'_>, first: usize, out: &mut [T]) {
+    fn develop<T: Sample>(&self, exposure: &LatentImage<'_>, first: usize, out: &mut [T]) {
         let width = exposure.width() as usize;
         if let (Some(by_code), Some(pairs)) = (&exposure.by_code, exposure.map.code_pairs()) {
             let tables = T::by_code(by_code);

@@ -41,7 +41,7 @@ use std::str::FromStr;
 use serde::Deserialize;
 
 pub use emulsion::{
-    ColourMode, Emulsion, Exposure, ExposureTable, Key, TABLE_MAX_ERROR_D, render, scene_key,
+    ColourMode, Emulsion, ExposureTable, Key, LatentImage, TABLE_MAX_ERROR_D, render, scene_key,
 };
 pub use print::{FilterPack, Paper, PrintSetup};
 pub use spectral::PrintingDensity;

@@ -189,7 +189,7 @@ fn tiff16(image: &DisplayImage, exif: &SourceExif) -> Result<Vec<u8>, String> {
 /// JPEG error.
 /// `exposure` is the light inside the film ([`film::Emulsion::expose`]).
 pub fn encode_film_jpeg(
-    exposure: &film::Exposure<'_>,
+    exposure: &film::LatentImage<'_>,
     emulsion: &film::Emulsion,
     quality: u8,
     exif: &SourceExif,

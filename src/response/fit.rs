@@ -261,8 +261,8 @@ impl ChannelFit {
     }
 
     /// The curve with its basis built once, to evaluate at many tones.
-    pub fn curve(&self) -> Curve {
-        Curve {
+    pub fn curve(&self) -> LogResponse {
+        LogResponse {
             basis: self.basis(),
             coefficients: self.coefficients.clone(),
             log_floor: self.log_floor,
@@ -294,13 +294,13 @@ impl ChannelFit {
 /// A fitted `ln g` with its spline basis built once, to evaluate at many tones
 /// ([`ChannelFit::curve`]).
 #[derive(Debug, Clone)]
-pub struct Curve {
+pub struct LogResponse {
     basis: Basis,
     coefficients: Vec<f64>,
     log_floor: f64,
 }
 
-impl Curve {
+impl LogResponse {
     /// `ln g(b)` for `b > 0`: the spline of `x = ln b` on `[x₀, 0]`, and below `b₀` the
     /// power law `g(b₀)·(b/b₀)^s` with the end slope `s = max(0.5, u'(x₀))`.
     pub fn log_g(&self, b: f64) -> f64 {
@@ -587,11 +587,11 @@ impl Problem {
 
     /// The curve of the penalised solution at smoothness `λ` on all equations (what
     /// [`finish`] reports on, without the report).
-    fn curve(&self, lambda: f64, log_floor: f64) -> Curve {
+    fn curve(&self, lambda: f64, log_floor: f64) -> LogResponse {
         let rows: Vec<usize> = (0..self.equations()).collect();
         let (a, y) = self.system(lambda, &rows);
         let d = nnls(&a, &y, None);
-        Curve {
+        LogResponse {
             basis: self.basis.clone(),
             coefficients: self.basis.coefficients(d.as_slice()),
             log_floor,
