@@ -11,6 +11,7 @@
 //! group that closes with one frame is a single, never dropped: the daemon renders or
 //! reports it.
 
+use std::cmp::Ordering;
 use std::collections::BTreeMap;
 use std::fmt;
 use std::ops::Range;
@@ -202,6 +203,15 @@ pub fn fingerprint<'a>(inputs: impl IntoIterator<Item = &'a Input>) -> String {
         journal::fnv1a(journal::fnv1a(h, k.as_bytes()), &[0xff])
     });
     format!("{h:016x}")
+}
+
+/// The order in which the frames of one batch (a scan of a folder, a burst) enter the
+/// grouper: capture time, then path. The daemon's intake and `filmback plan` both use it,
+/// so a folder gives the same brackets to either.
+pub fn capture_order(a: &Capture, b: &Capture) -> Ordering {
+    a.time_s
+        .total_cmp(&b.time_s)
+        .then_with(|| a.input.path.cmp(&b.input.path))
 }
 
 /// The frames of one body not yet closed into a group.
@@ -422,6 +432,21 @@ impl Grouper {
             self.open.remove(&camera);
         }
         Some(capture)
+    }
+
+    /// Groups a batch of frames all on disk at once (a folder scanned whole): pushed in
+    /// [`capture_order`] at one instant, as the daemon takes a settled batch, then every
+    /// run closed, as the gap clock closes them once nothing more arrives. Returns the
+    /// groups in the order they closed.
+    pub fn group_all(rules: BracketRules, mut captures: Vec<Capture>) -> Vec<Closed> {
+        captures.sort_by(capture_order);
+        let mut grouper = Grouper::new(rules);
+        let mut closed = Vec::with_capacity(captures.len());
+        for capture in captures {
+            closed.extend(grouper.push(capture, 0.0));
+        }
+        closed.extend(grouper.expire(f64::INFINITY));
+        closed
     }
 
     /// Restarts the gap clock of every open group: called while the daemon is not taking
