@@ -764,6 +764,48 @@ mod tests {
         }
     }
 
+    /// A folder scanned whole, in any listing order, gives the groups the frames give
+    /// arriving one by one in capture order and closed by the gap.
+    #[test]
+    fn grouping_a_batch_gives_the_groups_of_arrival_in_capture_order() {
+        let (x, y) = (cam("EOS R5"), cam("EOS R6"));
+        let shots = vec![
+            shot("x1", &x, 0.0, 0.0),
+            shot("x2", &x, 1.0, 0.3),
+            shot("x3", &x, 2.0, 0.6),
+            shot("y1", &y, 0.0, 0.1),
+            shot("y2", &y, 1.0, 0.4),
+            shot("x4", &x, 0.0, 9.0),
+            shot("y3", &y, 0.0, 20.0),
+        ];
+        let mut arrived = Grouper::new(rules(3));
+        let mut expected: Vec<Vec<String>> = Vec::new();
+        let mut sorted = shots.clone();
+        sorted.sort_by(capture_order);
+        for (i, s) in sorted.into_iter().enumerate() {
+            expected.extend(arrived.push(s, i as f64 * 0.01).iter().map(names));
+        }
+        expected.extend(arrived.expire(1e9).iter().map(names));
+        expected.sort();
+        let mut reversed = shots;
+        reversed.reverse();
+        let mut got: Vec<Vec<String>> = Grouper::group_all(rules(3), reversed)
+            .iter()
+            .map(names)
+            .collect();
+        got.sort();
+        assert_eq!(got, expected);
+        assert_eq!(
+            got,
+            [
+                vec!["x1", "x2", "x3"],
+                vec!["x4"],
+                vec!["y1", "y2"],
+                vec!["y3"]
+            ]
+        );
+    }
+
     #[test]
     fn fingerprint_is_order_free_and_sees_changes() {
         let a = Input {

@@ -50,8 +50,8 @@ pub(super) fn freeze(
             continue;
         };
         cache.put(&entry).map_err(|source| PlanError::Response {
-            camera: camera.clone(),
-            source,
+            camera: camera.to_string(),
+            source: Box::new(source),
         })?;
         files.insert(camera.clone(), cache.path_for(camera));
     }
@@ -59,7 +59,7 @@ pub(super) fn freeze(
 }
 
 /// At most `n` of `items`, spread evenly: item `⌊k·len/n⌋` for `k < n`.
-fn spread<'a, T>(items: &'a [T], n: usize) -> Vec<&'a T> {
+fn spread<T>(items: &[T], n: usize) -> Vec<&T> {
     if items.len() <= n {
         return items.iter().collect();
     }

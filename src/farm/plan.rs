@@ -39,10 +39,10 @@ pub enum PlanError {
     /// A body's frozen response could not be written.
     #[error("frozen response of {camera}: {source}")]
     Response {
-        /// The body.
-        camera: CameraId,
+        /// The body, as the cache names it.
+        camera: String,
         /// Why.
-        source: crate::daemon::cache::CacheError,
+        source: Box<crate::daemon::cache::CacheError>,
     },
     /// A record could not be encoded.
     #[error("{path}: cannot encode a record: {source}")]
@@ -171,95 +171,145 @@ pub fn write_plan(options: &PlanOptions<'_>) -> Result<PlanSummary, PlanError> {
     };
     let root = std::fs::canonicalize(options.root).map_err(root_error)?;
     std::fs::read_dir(&root).map_err(root_error)?;
-    let out = std::path::absolute(options.out).unwrap_or_else(|_| options.out.to_path_buf());
     let config = options.config;
-    let survey = survey(&root, config);
-    let mut groups = Grouper::group_all(config.bracket, survey.captures);
+    let mut survey = survey(&root, config);
+    let captures = std::mem::take(&mut survey.captures);
+    let mut groups = Grouper::group_all(config.bracket, captures);
     groups.sort_by(|a, b| capture_order(a.frames()[0], b.frames()[0]));
     let state = sidecar(options.plan);
+    let plan_dir = options.plan.parent().unwrap_or(Path::new(""));
     let frozen = if options.pooled {
         frozen::freeze(&groups, config, &state)?
     } else {
         HashMap::new()
     };
-    let plan_dir = options.plan.parent().unwrap_or(Path::new(""));
-    let relative = |p: &Path| p.strip_prefix(&root).unwrap_or(p).to_path_buf();
-    let mut unused: Vec<Unused> = survey
-        .unused
-        .iter()
-        .map(|(path, reason)| Unused {
-            path: relative(path),
-            reason: reason.clone(),
-        })
-        .collect();
-    let mut looks = LooksByPreset::default();
-    let mut stems = HashSet::new();
-    let mut tasks = Vec::with_capacity(groups.len());
-    for closed in groups {
-        if let Closed::Single(c, alone) = &closed
-            && config.bracket.singles == Singles::Report
-        {
-            unused.push(Unused {
-                path: relative(&c.input.path),
-                reason: format!("a single frame ({alone}); [bracket] singles = \"report\""),
-            });
-            continue;
-        }
-        let stem = unique_stem(&closed, &mut stems);
-        let job = job_of(&closed, config, &out, stem);
-        let names = looks.names(&job)?;
-        let footprints: Vec<Footprint> = closed
-            .frames()
-            .iter()
-            .filter_map(|c| survey.taken.get(&c.input.path).map(|t| t.footprint))
-            .collect();
-        let response = frozen
-            .get(&job.camera)
-            .map(|file| relative_to(plan_dir, file).to_string_lossy().into_owned());
-        tasks.push(task(
-            tasks.len(),
-            &closed,
-            job,
-            names,
-            response,
-            job_bytes(&footprints),
-            &relative,
-        ));
-    }
+    let mut planner = Planner::new(options, &root, plan_dir, &survey, frozen);
+    let tasks = planner.tasks(groups)?;
+    let Planner {
+        out,
+        frozen,
+        mut unused,
+        ..
+    } = planner;
     unused.sort_by(|a, b| a.path.cmp(&b.path));
+    let response = if options.pooled {
+        ResponsePlan::Pooled {
+            folder: relative_to(plan_dir, &state),
+        }
+    } else {
+        ResponsePlan::Fitted
+    };
     let header = Header {
         format: FORMAT.to_string(),
         version: VERSION,
-        root,
+        root: root.clone(),
         out,
         tasks: tasks.len(),
         unused: unused.len(),
-        response: if options.pooled {
-            ResponsePlan::Pooled {
-                folder: relative_to(plan_dir, &state),
-            }
-        } else {
-            ResponsePlan::Fitted
-        },
+        response,
         largest_task_bytes: tasks.iter().map(|t| t.memory_bytes).max().unwrap_or(0),
         config: options.config_text.to_string(),
     };
+    let mut responses: Vec<PathBuf> = frozen.into_values().collect();
+    responses.sort();
     let summary = PlanSummary {
         tasks: tasks.len(),
         brackets: tasks.iter().filter(|t| t.kind == TaskKind::Bracket).count(),
         unused: unused.len(),
         largest_task_bytes: header.largest_task_bytes,
-        responses: {
-            let mut files: Vec<PathBuf> = frozen.into_values().collect();
-            files.sort();
-            files
-        },
+        responses,
     };
     let records = std::iter::once(Record::Header(header))
         .chain(tasks.into_iter().map(Record::Task))
         .chain(unused.into_iter().map(Record::Unused));
     publish(options.plan, records)?;
     Ok(summary)
+}
+
+/// What turns closed groups into task lines.
+struct Planner<'a> {
+    config: &'a Config,
+    /// The output folder, absolute.
+    out: PathBuf,
+    /// The planned folder, resolved.
+    root: &'a Path,
+    /// The plan's folder.
+    plan_dir: &'a Path,
+    /// Each body's frozen curve (`pooled` plans).
+    frozen: HashMap<CameraId, PathBuf>,
+    /// Each frame's decoded size, by path.
+    taken: &'a HashMap<PathBuf, Taken>,
+    looks: LooksByPreset,
+    /// The output stems given so far.
+    stems: HashSet<String>,
+    /// Files that are no task, with the reason.
+    unused: Vec<Unused>,
+}
+
+impl<'a> Planner<'a> {
+    /// A planner of `root` for `options` with its survey and frozen curves.
+    fn new(
+        options: &PlanOptions<'a>,
+        root: &'a Path,
+        plan_dir: &'a Path,
+        survey: &'a Survey,
+        frozen: HashMap<CameraId, PathBuf>,
+    ) -> Planner<'a> {
+        Planner {
+            config: options.config,
+            out: std::path::absolute(options.out).unwrap_or_else(|_| options.out.to_path_buf()),
+            root,
+            plan_dir,
+            frozen,
+            taken: &survey.taken,
+            looks: LooksByPreset::default(),
+            stems: HashSet::new(),
+            unused: survey
+                .unused
+                .iter()
+                .map(|(path, reason)| Unused {
+                    path: relative_to(root, path),
+                    reason: reason.clone(),
+                })
+                .collect(),
+        }
+    }
+
+    /// One task per group, in order; a single is an unused file under `singles = "report"`.
+    fn tasks(&mut self, groups: Vec<Closed>) -> Result<Vec<Task>, PlanError> {
+        let mut tasks = Vec::with_capacity(groups.len());
+        for closed in groups {
+            if let Closed::Single(c, alone) = &closed
+                && self.config.bracket.singles == Singles::Report
+            {
+                self.unused.push(Unused {
+                    path: relative_to(self.root, &c.input.path),
+                    reason: format!("a single frame ({alone}); [bracket] singles = \"report\""),
+                });
+                continue;
+            }
+            let stem = unique_stem(&closed, &mut self.stems);
+            let job = job_of(&closed, self.config, &self.out, stem);
+            let outputs = self.looks.names(&job)?;
+            let footprints: Vec<Footprint> = closed
+                .frames()
+                .iter()
+                .filter_map(|c| self.taken.get(&c.input.path).map(|t| t.footprint))
+                .collect();
+            let response = self.frozen.get(&job.camera).map(|file| {
+                relative_to(self.plan_dir, file)
+                    .to_string_lossy()
+                    .into_owned()
+            });
+            let planned = Planned {
+                outputs,
+                response,
+                memory_bytes: job_bytes(&footprints),
+            };
+            tasks.push(task(tasks.len(), &closed, job, planned, self.root));
+        }
+        Ok(tasks)
+    }
 }
 
 /// The folder beside a plan that holds its frozen curves: `PLAN.d` (the response cache
@@ -350,16 +400,19 @@ impl LooksByPreset {
     }
 }
 
-/// The plan's line for a job.
-fn task(
-    index: usize,
-    closed: &Closed,
-    job: Job,
+/// What the plan adds to a job for its line.
+struct Planned {
+    /// The output file names.
     outputs: Vec<String>,
+    /// The frozen curve's file, relative to the plan's folder.
     response: Option<String>,
+    /// The memory estimate, bytes.
     memory_bytes: u64,
-    relative: &dyn Fn(&Path) -> PathBuf,
-) -> Task {
+}
+
+/// The plan's line for a job; paths relative to `root`.
+fn task(index: usize, closed: &Closed, job: Job, planned: Planned, root: &Path) -> Task {
+    let relative = |p: &Path| relative_to(root, p);
     let frames = job
         .frames
         .iter()
@@ -387,7 +440,7 @@ fn task(
         camera: job.camera,
         frames,
         stem: job.stem,
-        response,
+        response: planned.response,
         looks: job
             .preset
             .films
@@ -395,7 +448,7 @@ fn task(
             .chain(&job.preset.tonemaps)
             .cloned()
             .collect(),
-        outputs,
-        memory_bytes,
+        outputs: planned.outputs,
+        memory_bytes: planned.memory_bytes,
     }
 }

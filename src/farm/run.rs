@@ -16,7 +16,7 @@ use super::{
     EXIT_BAD_INPUT, EXIT_RETRY, FORMAT, Header, PlannedFrame, Record, ResponsePlan, Task, VERSION,
 };
 use crate::atomic;
-use crate::daemon::bracket::{Capture, Input, fingerprint};
+use crate::daemon::bracket::{Capture, fingerprint};
 use crate::daemon::cache::{CacheError, CachedResponse, ResponseCache};
 use crate::daemon::config::{Config, ConfigError, Recalibrate};
 use crate::daemon::intake::{self, Probe};
@@ -74,7 +74,7 @@ pub enum RunError {
         what: String,
     },
     /// The index is not one of the plan's tasks.
-    #[error("{path}: task {index} is out of range: the plan has {tasks} task(s), 0 to {tasks}-1")]
+    #[error("{path}: task {index} is out of range: the plan has {tasks} task(s), numbered from 0")]
     OutOfRange {
         /// The plan.
         path: PathBuf,
@@ -181,43 +181,65 @@ pub fn run_task(options: &RunOptions<'_>) -> Result<RunOutcome, RunError> {
     let root = options.root.unwrap_or(&header.root);
     let out = options.out.unwrap_or(&header.out);
     let outputs: Vec<PathBuf> = task.outputs.iter().map(|name| out.join(name)).collect();
-    // A set sealed by an attempt killed while publishing: finish it.
-    let stage = atomic::stage_folder(out, &task.id);
+    if finished(out, &task.id, &outputs) && !options.force {
+        return Ok(RunOutcome::AlreadyDone { outputs });
+    }
+    let job = job_of(options, &header, &config, task, root, out)?;
+    std::fs::create_dir_all(out).map_err(|source| RunError::Out {
+        path: out.to_path_buf(),
+        source,
+    })?;
+    let processed = develop(&job)?;
+    Ok(RunOutcome::Developed {
+        outputs: processed.outputs,
+        notes: processed.notes,
+    })
+}
+
+/// True when every output is in `out`, after finishing the set an attempt at task `id`
+/// sealed before it was killed in the middle of publishing.
+fn finished(out: &Path, id: &str, outputs: &[PathBuf]) -> bool {
+    let stage = atomic::stage_folder(out, id);
     if atomic::interrupted_sets(out)
         .iter()
         .any(|s| s.stage == stage)
     {
         atomic::recover_set(&stage, out);
     }
-    let finished = outputs
+    outputs
         .iter()
-        .all(|p| std::fs::symlink_metadata(p).is_ok_and(|m| m.is_file()));
-    if finished && !options.force {
-        return Ok(RunOutcome::AlreadyDone { outputs });
-    }
-    let cached = frozen_response(options.plan, &header, &task)?;
+        .all(|p| std::fs::symlink_metadata(p).is_ok_and(|m| m.is_file()))
+}
+
+/// The daemon's job for `task`: its frames read again and checked, the preset of its
+/// body under the plan's configuration, its frozen curve if it names one (used as is:
+/// `recalibrate = "never"`).
+fn job_of(
+    options: &RunOptions<'_>,
+    header: &Header,
+    config: &Config,
+    task: Task,
+    root: &Path,
+    out: &Path,
+) -> Result<Job, RunError> {
+    let cached = frozen_response(options.plan, header, &task)?;
     let frames = task
         .frames
         .iter()
         .map(|f| reread(root, f))
         .collect::<Result<Vec<Capture>, RunError>>()?;
-    let inputs: Vec<&Input> = frames.iter().map(|c| &c.input).collect();
-    if fingerprint(inputs.iter().copied()) != task.id {
-        return Err(RunError::NotAPlan {
-            path: options.plan.to_path_buf(),
-            line: options.index + 2,
-            what: format!("task {}: its id does not match its frames", task.index),
-        });
+    if fingerprint(frames.iter().map(|c| &c.input)) != task.id {
+        return Err(not_a_plan(
+            options.plan,
+            options.index + 2,
+            format!("task {}: its id does not match its frames", task.index),
+        ));
     }
-    let mut preset = preset_of(&config, &task.camera).clone();
+    let mut preset = preset_of(config, &task.camera).clone();
     if cached.is_some() {
         preset.recalibrate = Recalibrate::Never;
     }
-    std::fs::create_dir_all(out).map_err(|source| RunError::Out {
-        path: out.to_path_buf(),
-        source,
-    })?;
-    let job = Job {
+    Ok(Job {
         id: task.id,
         camera: task.camera,
         frames,
@@ -226,11 +248,6 @@ pub fn run_task(options: &RunOptions<'_>) -> Result<RunOutcome, RunError> {
         out: out.to_path_buf(),
         stem: task.stem,
         stocks: config.folders.stocks.clone(),
-    };
-    let processed = develop(&job)?;
-    Ok(RunOutcome::Developed {
-        outputs: processed.outputs,
-        notes: processed.notes,
     })
 }
 
@@ -373,4 +390,62 @@ fn parse(
         line,
         source,
     })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn io(code: i32) -> std::io::Error {
+        std::io::Error::from_raw_os_error(code)
+    }
+
+    /// Output failures, a full disk and transient read errors are retried; everything
+    /// about the input or the plan is not.
+    #[test]
+    fn what_a_farm_should_do_follows_the_error() {
+        let path = PathBuf::from("x");
+        let retry = [
+            RunError::Job(JobError::Output {
+                path: path.clone(),
+                reason: "No space left on device".into(),
+            }),
+            RunError::ReadPlan {
+                path: path.clone(),
+                source: io(libc::EIO),
+            },
+            RunError::Out {
+                path: path.clone(),
+                source: io(libc::ENOSPC),
+            },
+            RunError::Unreadable {
+                path: path.clone(),
+                reason: "permission denied".into(),
+            },
+        ];
+        for e in retry {
+            assert_eq!(e.verdict(), Verdict::RetryLater, "{e}");
+            assert_eq!(e.verdict().exit_code(), EXIT_RETRY);
+        }
+        let bad = [
+            RunError::Job(JobError::Frame {
+                path: path.clone(),
+                reason: "corrupt".into(),
+            }),
+            RunError::Job(JobError::Bracket("sizes differ".into())),
+            RunError::ReadPlan {
+                path: path.clone(),
+                source: io(libc::ENOENT),
+            },
+            RunError::OutOfRange {
+                path: path.clone(),
+                index: 3,
+                tasks: 3,
+            },
+        ];
+        for e in bad {
+            assert_eq!(e.verdict(), Verdict::BadInput, "{e}");
+            assert_eq!(e.verdict().exit_code(), EXIT_BAD_INPUT);
+        }
+    }
 }
