@@ -247,6 +247,53 @@ fn a_task_is_idempotent_and_a_finished_set_is_kept_unless_forced() {
     assert!(run(&plan_file, 0, &[]).status.success());
     assert_eq!(files(&out), first);
     assert!(!stage.exists());
+    // Killed while renaming a sealed set into place: the next attempt finishes it.
+    std::fs::create_dir_all(&stage).unwrap();
+    for name in &task.outputs {
+        std::fs::rename(out.join(name), stage.join(name)).unwrap();
+    }
+    filmback::atomic::seal_set(&stage).unwrap();
+    std::fs::rename(stage.join("a-1.exr"), &exr).unwrap();
+    let finished = run(&plan_file, 0, &[]);
+    assert!(finished.status.success());
+    assert!(text(&finished.stderr).contains("already done"));
+    assert_eq!(files(&out), first);
+    assert!(!stage.exists());
+}
+
+/// `run` killed at any moment leaves the set whole or absent (or, killed between the
+/// renames of a sealed set, a set the next attempt finishes), and the next run publishes.
+#[test]
+fn a_task_killed_at_any_moment_leaves_nothing_partial() {
+    let dir = tempfile::tempdir().unwrap();
+    let (plan_file, out) = planned(dir.path(), &[]);
+    let task = &tasks(&plan_file)[0];
+    for delay_ms in [2, 10, 25, 50, 100, 200] {
+        for name in &task.outputs {
+            let _ = std::fs::remove_file(out.join(name));
+        }
+        let mut child = filmback()
+            .arg("run")
+            .arg(&plan_file)
+            .args(["--index", "0"])
+            .stderr(std::process::Stdio::null())
+            .spawn()
+            .unwrap();
+        std::thread::sleep(std::time::Duration::from_millis(delay_ms));
+        let _ = child.kill();
+        child.wait().unwrap();
+        // A kill between the renames of a sealed set (microseconds) leaves it for the
+        // next attempt to finish, as the staging folder records.
+        let seen = rig::visible(&out);
+        let sealed = !filmback::atomic::interrupted_sets(&out).is_empty();
+        assert!(
+            seen.is_empty() || seen == task.outputs || sealed,
+            "killed after {delay_ms} ms: {seen:?}"
+        );
+    }
+    assert!(run(&plan_file, 0, &[]).status.success());
+    assert_eq!(rig::visible(&out), task.outputs);
+    assert!(!filmback::atomic::stage_folder(&out, &task.id).exists());
 }
 
 /// Input that retrying cannot fix exits with the bad-input status and says why: an index
