@@ -23,9 +23,15 @@ fn config_text(root: &Path) -> String {
     rig::config_text(root, "").replace("[render]\n", "[render]\nrecalibrate = \"always\"\n")
 }
 
-/// Two brackets of one body, one of another, a single frame and a truncated JPEG.
+/// Two brackets of one body, one of another, a single frame, a truncated JPEG and (with
+/// the `raw` feature) a bracket shot RAW+JPEG.
 fn synthetic_folder(ingest: &Path) {
     std::fs::create_dir_all(ingest).unwrap();
+    #[cfg(feature = "raw")]
+    {
+        rig::put(ingest, &rig::raw_aeb("EOS R8", 100, "r"));
+        rig::put(ingest, &rig::aeb("EOS R8", 100, "r"));
+    }
     let mut frames = rig::aeb("EOS R5", 0, "a");
     frames.extend(rig::aeb("EOS R5", 20, "b"));
     frames.extend(rig::aeb("EOS R6", 40, "c"));
@@ -184,6 +190,20 @@ fn the_plan_run_as_an_array_publishes_what_the_daemon_does() {
     );
     for (name, bytes) in &farm {
         assert!(watched[name] == *bytes, "{name} differs from the daemon's");
+    }
+    #[cfg(feature = "raw")]
+    {
+        let raw = planned
+            .iter()
+            .find(|t| t.stem == "r-1")
+            .expect("the raw bracket");
+        assert_eq!(raw.frames.len(), 3);
+        assert!(raw.frames.iter().all(|f| {
+            f.path.extension().is_some_and(|e| e == "dng")
+                && f.companion
+                    .as_ref()
+                    .is_some_and(|c| c.path.extension().is_some_and(|e| e == "jpg"))
+        }));
     }
     if real {
         assert!(
