@@ -4,8 +4,8 @@
 //! one `run` per index; `docs/farm.md` has the recipes.
 //!
 //! The plan groups the folder as the daemon does, through the daemon's own parts: the
-//! listing of [`crate::daemon::intake::scan`], the probe (EXIF, header, a JPEG's end),
-//! the RAW+JPEG pairing of [`crate::daemon::intake::Stems`] and the
+//! listing of the ingest folder (`daemon::intake::scan`), the probe (EXIF, header, a
+//! JPEG's end), the RAW+JPEG pairing by stem (`daemon::intake::Stems`) and the
 //! [`crate::daemon::bracket::Grouper`] ([`Grouper::group_all`]: a folder scanned whole,
 //! as the daemon takes a settled batch). A task is developed by the daemon's lab
 //! ([`crate::daemon::DarkroomLab`]) and published as one set through [`crate::atomic`]:
