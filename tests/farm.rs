@@ -358,6 +358,15 @@ fn bad_input_has_its_own_exit_status_and_a_reason() {
     bad(run(&broken, 1, &[]), "truncated");
     std::fs::write(&broken, lines[1..].join("\n")).unwrap();
     bad(run(&broken, 0, &[]), "header");
+    let overlap = filmback()
+        .arg("plan")
+        .arg(dir.path().join("ingest"))
+        .args(["-o", "/dev/null/never", "--out"])
+        .arg(dir.path().join("ingest"))
+        .output()
+        .unwrap();
+    assert!(!overlap.status.success());
+    assert!(text(&overlap.stderr).contains("would be taken as frames"));
     // b-2.jpg replaced by another frame after the plan was made.
     let other = rig::aeb("EOS R5", 40, "x").remove(1).1;
     std::fs::write(dir.path().join("ingest/b-2.jpg"), other).unwrap();

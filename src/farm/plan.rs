@@ -44,6 +44,17 @@ pub enum PlanError {
         /// Why.
         source: Box<crate::daemon::cache::CacheError>,
     },
+    /// The output folder is the planned folder, or inside it when sub-folders are
+    /// planned: the outputs would be taken as frames by the next plan.
+    #[error(
+        "output folder {out} is inside the planned folder {root}; its files would be taken as frames"
+    )]
+    Overlap {
+        /// The output folder.
+        out: PathBuf,
+        /// The planned folder.
+        root: PathBuf,
+    },
     /// A record could not be encoded.
     #[error("{path}: cannot encode a record: {source}")]
     Encode {
@@ -165,12 +176,7 @@ fn survey(root: &Path, config: &Config) -> Survey {
 
 /// Writes the plan of `options.root` (see the module docs of [`crate::farm`]).
 pub fn write_plan(options: &PlanOptions<'_>) -> Result<PlanSummary, PlanError> {
-    let root_error = |source| PlanError::Root {
-        path: options.root.to_path_buf(),
-        source,
-    };
-    let root = std::fs::canonicalize(options.root).map_err(root_error)?;
-    std::fs::read_dir(&root).map_err(root_error)?;
+    let (root, out) = folders(options)?;
     let config = options.config;
     let mut survey = survey(&root, config);
     let captures = std::mem::take(&mut survey.captures);
@@ -183,7 +189,7 @@ pub fn write_plan(options: &PlanOptions<'_>) -> Result<PlanSummary, PlanError> {
     } else {
         HashMap::new()
     };
-    let mut planner = Planner::new(options, &root, plan_dir, &survey, frozen);
+    let mut planner = Planner::new(options.config, out, &root, plan_dir, &survey, frozen);
     let tasks = planner.tasks(groups)?;
     let Planner {
         out,
@@ -226,6 +232,23 @@ pub fn write_plan(options: &PlanOptions<'_>) -> Result<PlanSummary, PlanError> {
     Ok(summary)
 }
 
+/// The planned folder (resolved) and the output folder (absolute; resolved when it
+/// exists), refused when the outputs would land among the planned frames.
+fn folders(options: &PlanOptions<'_>) -> Result<(PathBuf, PathBuf), PlanError> {
+    let root_error = |source| PlanError::Root {
+        path: options.root.to_path_buf(),
+        source,
+    };
+    let root = std::fs::canonicalize(options.root).map_err(root_error)?;
+    std::fs::read_dir(&root).map_err(root_error)?;
+    let out = std::path::absolute(options.out).unwrap_or_else(|_| options.out.to_path_buf());
+    let out = std::fs::canonicalize(&out).unwrap_or(out);
+    if out == root || (options.config.watch.recursive && out.starts_with(&root)) {
+        return Err(PlanError::Overlap { out, root });
+    }
+    Ok((root, out))
+}
+
 /// What turns closed groups into task lines.
 struct Planner<'a> {
     config: &'a Config,
@@ -247,17 +270,18 @@ struct Planner<'a> {
 }
 
 impl<'a> Planner<'a> {
-    /// A planner of `root` for `options` with its survey and frozen curves.
+    /// A planner of `root` publishing into `out`, with its survey and frozen curves.
     fn new(
-        options: &PlanOptions<'a>,
+        config: &'a Config,
+        out: PathBuf,
         root: &'a Path,
         plan_dir: &'a Path,
         survey: &'a Survey,
         frozen: HashMap<CameraId, PathBuf>,
     ) -> Planner<'a> {
         Planner {
-            config: options.config,
-            out: std::path::absolute(options.out).unwrap_or_else(|_| options.out.to_path_buf()),
+            config,
+            out,
             root,
             plan_dir,
             frozen,
