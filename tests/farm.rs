@@ -256,6 +256,22 @@ fn a_task_is_idempotent_and_a_finished_set_is_kept_unless_forced() {
     assert_eq!(std::fs::read(&exr).unwrap(), b"edited by hand");
     assert!(run(&plan_file, 0, &["--force"]).status.success());
     assert_eq!(files(&out), first, "forced: the same bytes again");
+    // Another attempt running (holding the task's lock): retry later, nothing touched.
+    let lock_path = {
+        let mut name = filmback::atomic::stage_folder(&out, &task.id).into_os_string();
+        name.push(".lock");
+        PathBuf::from(name)
+    };
+    let lock = std::fs::File::create(&lock_path).unwrap();
+    lock.try_lock().unwrap();
+    let busy = run(&plan_file, 0, &["--force"]);
+    assert_eq!(
+        busy.status.code(),
+        Some(i32::from(filmback::farm::EXIT_RETRY))
+    );
+    assert!(text(&busy.stderr).contains("another attempt"));
+    drop(lock);
+    assert_eq!(files(&out), first);
     // A killed attempt's unsealed staging folder: nothing visible, the next run publishes.
     for name in &task.outputs {
         std::fs::remove_file(out.join(name)).unwrap();

@@ -109,8 +109,14 @@ pub enum RunError {
     /// bracket that cannot be developed.
     #[error(transparent)]
     Job(#[from] JobError),
-    /// The output folder cannot be created.
-    #[error("{path}: cannot create the output folder: {source}")]
+    /// Another attempt at the task is running.
+    #[error("{path}: another attempt at this task holds its lock; retry later")]
+    Busy {
+        /// The task's lock file.
+        path: PathBuf,
+    },
+    /// The output folder, or the task's lock file in it, cannot be created.
+    #[error("{path}: cannot create: {source}")]
     Out {
         /// The folder.
         path: PathBuf,
@@ -133,9 +139,9 @@ impl RunError {
             RunError::Response(CacheError::Io { source, .. }) if transient(source) => {
                 Verdict::RetryLater
             }
-            RunError::Unreadable { .. } | RunError::Job(JobError::Output { .. }) => {
-                Verdict::RetryLater
-            }
+            RunError::Unreadable { .. }
+            | RunError::Busy { .. }
+            | RunError::Job(JobError::Output { .. }) => Verdict::RetryLater,
             _ => Verdict::BadInput,
         }
     }
@@ -181,19 +187,69 @@ pub fn run_task(options: &RunOptions<'_>) -> Result<RunOutcome, RunError> {
     let root = options.root.unwrap_or(&header.root);
     let out = options.out.unwrap_or(&header.out);
     let outputs: Vec<PathBuf> = task.outputs.iter().map(|name| out.join(name)).collect();
-    if finished(out, &task.id, &outputs) && !options.force {
-        return Ok(RunOutcome::AlreadyDone { outputs });
-    }
-    let job = job_of(options, &header, &config, task, root, out)?;
     std::fs::create_dir_all(out).map_err(|source| RunError::Out {
         path: out.to_path_buf(),
         source,
     })?;
+    let _lock = TaskLock::take(out, &task.id)?;
+    if finished(out, &task.id, &outputs) && !options.force {
+        return Ok(RunOutcome::AlreadyDone { outputs });
+    }
+    let job = job_of(options, &header, &config, task, root, out)?;
     let processed = develop(&job)?;
     Ok(RunOutcome::Developed {
         outputs: processed.outputs,
         notes: processed.notes,
     })
+}
+
+/// A task's lock file beside its staging folder, `.filmback-stage-<id>.lock` in the output
+/// folder, held (`flock`, exclusive) while the task is checked, developed and published,
+/// so that two attempts at one task (an engine that started it twice) never share the
+/// staging folder. Removed, still held, when the task ends; one left by a killed attempt
+/// is taken over (the kernel released its lock).
+struct TaskLock {
+    path: PathBuf,
+    _file: std::fs::File,
+}
+
+impl TaskLock {
+    /// Takes the lock of task `id` in `out`, or [`RunError::Busy`] while another attempt
+    /// holds it (or has just removed it).
+    fn take(out: &Path, id: &str) -> Result<TaskLock, RunError> {
+        use std::os::unix::fs::MetadataExt;
+        let mut name = atomic::stage_folder(out, id).into_os_string();
+        name.push(".lock");
+        let path = PathBuf::from(name);
+        let io = |source| RunError::Out {
+            path: path.clone(),
+            source,
+        };
+        let file = std::fs::OpenOptions::new()
+            .write(true)
+            .create(true)
+            .truncate(false)
+            .open(&path)
+            .map_err(io)?;
+        match file.try_lock() {
+            Ok(()) => {}
+            Err(std::fs::TryLockError::WouldBlock) => return Err(RunError::Busy { path }),
+            Err(std::fs::TryLockError::Error(e)) => return Err(io(e)),
+        }
+        // Locked after the attempt that held it removed it: this inode guards nothing.
+        let inode = |m: std::fs::Metadata| (m.dev(), m.ino());
+        let held = file.metadata().map(inode).map_err(io)?;
+        if std::fs::metadata(&path).map(inode).ok() != Some(held) {
+            return Err(RunError::Busy { path });
+        }
+        Ok(TaskLock { path, _file: file })
+    }
+}
+
+impl Drop for TaskLock {
+    fn drop(&mut self) {
+        let _ = std::fs::remove_file(&self.path);
+    }
 }
 
 /// True when every output is in `out`, after finishing the set an attempt at task `id`
@@ -422,6 +478,7 @@ mod tests {
                 path: path.clone(),
                 reason: "permission denied".into(),
             },
+            RunError::Busy { path: path.clone() },
         ];
         for e in retry {
             assert_eq!(e.verdict(), Verdict::RetryLater, "{e}");
