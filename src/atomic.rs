@@ -458,23 +458,33 @@ fn stage_folders(dir: &Path) -> Vec<PathBuf> {
 
 /// Finishes or removes the staging folders an interrupted [`publish_set`] left in `dir`.
 pub fn recover_sets(dir: &Path) -> Vec<Recovered> {
-    let mut done = Vec::new();
-    for stage in stage_folders(dir) {
-        if stage.join(COMPLETE).is_file() {
-            let mut moved = Vec::new();
-            for from in staged(&stage).unwrap_or_default() {
-                let to = dir.join(from.file_name().expect("read_dir names files"));
-                if fs::rename(&from, &to).is_ok() {
-                    moved.push(to);
-                }
+    stage_folders(dir)
+        .into_iter()
+        .map(|stage| recover_set(&stage, dir))
+        .collect()
+}
+
+/// Finishes or removes one staging folder `stage` of `dir` that an interrupted
+/// [`publish_set`] left: a sealed set ([`seal_set`]) has the rest of its files moved into
+/// place, an unsealed one is removed (nothing of it was visible).
+pub fn recover_set(stage: &Path, dir: &Path) -> Recovered {
+    let done = if stage.join(COMPLETE).is_file() {
+        let mut moved = Vec::new();
+        for from in staged(stage).unwrap_or_default() {
+            let Some(name) = from.file_name() else {
+                continue;
+            };
+            let to = dir.join(name);
+            if fs::rename(&from, &to).is_ok() {
+                moved.push(to);
             }
-            sync_folder(dir);
-            done.push(Recovered::Completed(stage.clone(), moved));
-        } else {
-            done.push(Recovered::RolledBack(stage.clone()));
         }
-        let _ = fs::remove_dir_all(&stage);
-    }
+        sync_folder(dir);
+        Recovered::Completed(stage.to_path_buf(), moved)
+    } else {
+        Recovered::RolledBack(stage.to_path_buf())
+    };
+    let _ = fs::remove_dir_all(stage);
     done
 }
 

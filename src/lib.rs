@@ -24,7 +24,9 @@
 //!
 //! Above the pipeline: [`synthetic`] renders ground-truth brackets (and the demo feed) for
 //! tests and demos; [`daemon`] is the service `filmback watch` runs (configuration, bracket
-//! grouping, journal, response cache, queue, status).
+//! grouping, journal, response cache, queue, status); [`farm`] plans a folder tree into
+//! tasks with the daemon's grouping and runs one task per index on a render farm
+//! (`filmback plan`, `filmback run`).
 
 pub mod atomic;
 pub mod metadata;
@@ -45,3 +47,4 @@ pub mod rendering;
 pub mod darkroom;
 pub mod synthetic;
 pub mod daemon;
+pub mod farm;

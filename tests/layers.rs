@@ -6,7 +6,7 @@
 use std::path::{Path, PathBuf};
 
 /// The library's top-level modules, bottom first.
-const LAYERS: [&str; 18] = [
+const LAYERS: [&str; 19] = [
     "atomic",
     "metadata",
     "raw",
@@ -25,6 +25,7 @@ const LAYERS: [&str; 18] = [
     "darkroom",
     "synthetic",
     "daemon",
+    "farm",
 ];
 
 fn rust_files(dir: &Path, out: &mut Vec<PathBuf>) {

@@ -14,8 +14,10 @@ mod hook;
 mod inspect;
 mod looks;
 mod merge;
+mod plan;
 mod redo;
 mod render;
+mod run;
 mod status;
 mod watch;
 
@@ -51,6 +53,10 @@ enum Command {
     Cache(cache::Args),
     /// gphoto2 hook script: hand each finished download to the ingest folder atomically.
     Hook(hook::Args),
+    /// Group a folder tree into a render-farm plan: one JSON line per bracket or single.
+    Plan(plan::Args),
+    /// Develop one task of a plan (a farm's array task); exit 0 done, 75 retry, 65 bad input.
+    Run(run::Args),
 }
 
 /// Exit status when the reader of standard output went away (`filmback … | head -1`):
@@ -108,6 +114,8 @@ pub fn main() -> ExitCode {
         Command::CheckConfig(args) => check_config::run(args),
         Command::Cache(args) => cache::run(args),
         Command::Hook(args) => hook::run(args),
+        Command::Plan(args) => plan::run(args),
+        Command::Run(args) => run::run(args),
     };
     match result {
         Ok(code) => code,

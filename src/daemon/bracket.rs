@@ -11,6 +11,7 @@
 //! group that closes with one frame is a single, never dropped: the daemon renders or
 //! reports it.
 
+use std::cmp::Ordering;
 use std::collections::BTreeMap;
 use std::fmt;
 use std::ops::Range;
@@ -202,6 +203,15 @@ pub fn fingerprint<'a>(inputs: impl IntoIterator<Item = &'a Input>) -> String {
         journal::fnv1a(journal::fnv1a(h, k.as_bytes()), &[0xff])
     });
     format!("{h:016x}")
+}
+
+/// The order in which the frames of one batch (a scan of a folder, a burst) enter the
+/// grouper: capture time, then path. The daemon's intake and `filmback plan` both use it,
+/// so a folder gives the same brackets to either.
+pub fn capture_order(a: &Capture, b: &Capture) -> Ordering {
+    a.time_s
+        .total_cmp(&b.time_s)
+        .then_with(|| a.input.path.cmp(&b.input.path))
 }
 
 /// The frames of one body not yet closed into a group.
@@ -422,6 +432,21 @@ impl Grouper {
             self.open.remove(&camera);
         }
         Some(capture)
+    }
+
+    /// Groups a batch of frames all on disk at once (a folder scanned whole): pushed in
+    /// [`capture_order`] at one instant, as the daemon takes a settled batch, then every
+    /// run closed, as the gap clock closes them once nothing more arrives. Returns the
+    /// groups in the order they closed.
+    pub fn group_all(rules: BracketRules, mut captures: Vec<Capture>) -> Vec<Closed> {
+        captures.sort_by(capture_order);
+        let mut grouper = Grouper::new(rules);
+        let mut closed = Vec::with_capacity(captures.len());
+        for capture in captures {
+            closed.extend(grouper.push(capture, 0.0));
+        }
+        closed.extend(grouper.expire(f64::INFINITY));
+        closed
     }
 
     /// Restarts the gap clock of every open group: called while the daemon is not taking
@@ -737,6 +762,48 @@ mod tests {
             expected.sort();
             assert_eq!(out, expected, "seed {seed}");
         }
+    }
+
+    /// A folder scanned whole, in any listing order, gives the groups the frames give
+    /// arriving one by one in capture order and closed by the gap.
+    #[test]
+    fn grouping_a_batch_gives_the_groups_of_arrival_in_capture_order() {
+        let (x, y) = (cam("EOS R5"), cam("EOS R6"));
+        let shots = vec![
+            shot("x1", &x, 0.0, 0.0),
+            shot("x2", &x, 1.0, 0.3),
+            shot("x3", &x, 2.0, 0.6),
+            shot("y1", &y, 0.0, 0.1),
+            shot("y2", &y, 1.0, 0.4),
+            shot("x4", &x, 0.0, 9.0),
+            shot("y3", &y, 0.0, 20.0),
+        ];
+        let mut arrived = Grouper::new(rules(3));
+        let mut expected: Vec<Vec<String>> = Vec::new();
+        let mut sorted = shots.clone();
+        sorted.sort_by(capture_order);
+        for (i, s) in sorted.into_iter().enumerate() {
+            expected.extend(arrived.push(s, i as f64 * 0.01).iter().map(names));
+        }
+        expected.extend(arrived.expire(1e9).iter().map(names));
+        expected.sort();
+        let mut reversed = shots;
+        reversed.reverse();
+        let mut got: Vec<Vec<String>> = Grouper::group_all(rules(3), reversed)
+            .iter()
+            .map(names)
+            .collect();
+        got.sort();
+        assert_eq!(got, expected);
+        assert_eq!(
+            got,
+            [
+                vec!["x1", "x2", "x3"],
+                vec!["x4"],
+                vec!["y1", "y2"],
+                vec!["y3"]
+            ]
+        );
     }
 
     #[test]

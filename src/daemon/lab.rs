@@ -219,22 +219,7 @@ impl Lab for DarkroomLab {
         let job = unmixed.job.as_ref().unwrap_or(job);
         let frames = unmixed.frames;
         let decode = start.elapsed();
-        let preset = &job.preset;
-        let mut catalogue = Catalogue::builtin().map_err(|e| JobError::Bracket(e.to_string()))?;
-        if let Some(dir) = &job.stocks {
-            catalogue = catalogue
-                .with_folder(dir)
-                .map_err(|e| JobError::Bracket(e.to_string()))?;
-        }
-        let looks = rendering::looks(
-            &catalogue,
-            &preset.films,
-            &preset.tonemaps,
-            preset.t,
-            ColourMode::PerLayer,
-            Key::LogAverage,
-        )
-        .map_err(|e| JobError::Bracket(format!("preset: {e}")))?;
+        let looks = looks_of(&job.preset, job.stocks.as_deref())?;
         // The renderings carry the first frame's EXIF (camera, lens, exposure, date,
         // artist, copyright); a frame whose file vanished since decoding carries none.
         // Opened without following a link, as the intake does.
@@ -328,25 +313,7 @@ impl DarkroomLab {
         dir: &Path,
     ) -> Result<darkroom::Developed, JobError> {
         let preset = &job.preset;
-        let prints = Prints {
-            dir,
-            stem: &job.stem,
-            exr: (preset.exr && !job.is_single()).then(|| ExrOptions {
-                primaries: preset.primaries.into(),
-                ..ExrOptions::default()
-            }),
-            radiance_hdr: false,
-            looks,
-            format: Format::Jpeg {
-                quality: preset.jpeg_quality,
-            },
-            space: preset.colour_space,
-            exif,
-            // A complete file under a job's name is a leftover of an interrupted earlier
-            // attempt at this same job (names are unique per bracket): replace it.
-            overwrite: Overwrite::Replace,
-            luminance_calibration: preset.luminance_calibration,
-        };
+        let prints = prints(job, looks, exif, dir);
         let channels = frames[0].frame.channels();
         if job.is_single() {
             Ok(darkroom::develop_single(
@@ -407,6 +374,56 @@ impl DarkroomLab {
                 &prints,
             )?)
         }
+    }
+}
+
+/// The looks of a preset (its films, then its tone maps), with the stocks of `stocks`
+/// beside the built-in ones.
+pub(crate) fn looks_of(preset: &Preset, stocks: Option<&Path>) -> Result<Vec<Look>, JobError> {
+    let mut catalogue = Catalogue::builtin().map_err(|e| JobError::Bracket(e.to_string()))?;
+    if let Some(dir) = stocks {
+        catalogue = catalogue
+            .with_folder(dir)
+            .map_err(|e| JobError::Bracket(e.to_string()))?;
+    }
+    rendering::looks(
+        &catalogue,
+        &preset.films,
+        &preset.tonemaps,
+        preset.t,
+        ColourMode::PerLayer,
+        Key::LogAverage,
+    )
+    .map_err(|e| JobError::Bracket(format!("preset: {e}")))
+}
+
+/// What a job writes into `dir`: `STEM.exr` for a bracket when its preset asks for it,
+/// and one JPEG per look at the preset's quality ([`Prints::paths`] names them).
+pub(crate) fn prints<'a>(
+    job: &'a Job,
+    looks: &'a [Look],
+    exif: &'a SourceExif,
+    dir: &'a Path,
+) -> Prints<'a> {
+    let preset = &job.preset;
+    Prints {
+        dir,
+        stem: &job.stem,
+        exr: (preset.exr && !job.is_single()).then(|| ExrOptions {
+            primaries: preset.primaries.into(),
+            ..ExrOptions::default()
+        }),
+        radiance_hdr: false,
+        looks,
+        format: Format::Jpeg {
+            quality: preset.jpeg_quality,
+        },
+        space: preset.colour_space,
+        exif,
+        // A complete file under a job's name is a leftover of an interrupted earlier
+        // attempt at this same job (names are unique per bracket): replace it.
+        overwrite: Overwrite::Replace,
+        luminance_calibration: preset.luminance_calibration,
     }
 }
 

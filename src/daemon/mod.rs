@@ -23,8 +23,8 @@ pub mod cache;
 pub mod config;
 pub mod journal;
 
-mod intake;
-mod lab;
+pub(crate) mod intake;
+pub(crate) mod lab;
 mod queue;
 mod settle;
 mod status;

@@ -521,11 +521,7 @@ impl State {
             }
         }
         // A batch (start-up scan, burst) enters in capture-time order.
-        frames.sort_by(|a, b| {
-            a.time_s
-                .total_cmp(&b.time_s)
-                .then_with(|| a.input.path.cmp(&b.input.path))
-        });
+        frames.sort_by(super::bracket::capture_order);
         let now = self.now_s();
         for c in frames {
             let path = c.input.path.clone();
