@@ -70,9 +70,14 @@ impl Rig {
 
     /// Starts a daemon with `lab` on `root` (kept when the rig ends: a restart).
     pub fn start_in(root: &Path, lab: Arc<dyn Lab>) -> Rig {
+        Rig::start_with(root, &config_text(root, ""), lab)
+    }
+
+    /// Starts a daemon with `lab` on `root` under the configuration `text`.
+    pub fn start_with(root: &Path, text: &str, lab: Arc<dyn Lab>) -> Rig {
         std::fs::create_dir_all(root.join("ingest")).unwrap();
-        let config = Config::from_str(&config_text(root, ""), Some(Path::new("test.toml")))
-            .expect("test config is valid");
+        let config =
+            Config::from_str(text, Some(Path::new("test.toml"))).expect("test config is valid");
         let (control, rx) = tokio::sync::mpsc::channel(4);
         let thread = std::thread::spawn(move || {
             let rt = tokio::runtime::Builder::new_multi_thread()
