@@ -339,6 +339,25 @@ impl State {
         } else {
             Vec::new()
         };
+        self.announce(closed, dev, stem, took, &archived);
+        self.release(closed);
+        for path in replaced {
+            info!(file = %path.display(), "replaced while its bracket developed: developing it again");
+            self.consider(path, Arrival::Writing);
+        }
+        Ok(())
+    }
+
+    /// Tells the viewer and the `on_developed` hook that `closed` was published under
+    /// `stem`; `archived` lists the inputs moved to the archive and where.
+    fn announce(
+        &mut self,
+        closed: &Closed,
+        dev: &Processed,
+        stem: String,
+        took: Duration,
+        archived: &[(PathBuf, PathBuf)],
+    ) {
         if let Some(viewer) = &self.viewer {
             let frame_paths = closed
                 .frames()
@@ -359,19 +378,13 @@ impl State {
             let run = super::hooks::Developed {
                 command,
                 stem,
-                camera: camera.to_string(),
+                camera: closed.camera().to_string(),
                 outputs: dev.outputs.clone(),
             };
             self.hooks
                 .get_or_insert_with(super::hooks::Hooks::start)
                 .developed(run);
         }
-        self.release(closed);
-        for path in replaced {
-            info!(file = %path.display(), "replaced while its bracket developed: developing it again");
-            self.consider(path, Arrival::Writing);
-        }
-        Ok(())
     }
 
     /// The frames of `closed` whose file is no longer the one read (another size, mtime

@@ -60,60 +60,68 @@ impl Metrics {
             lagged: Counter::default(),
             registry: Registry::default(),
         };
-        let r = &mut registry;
+        m.register(&mut registry);
+        Metrics { registry, ..m }
+    }
+
+    /// Registers every metric in `r` under its name and help text.
+    fn register(&self, r: &mut Registry) {
         r.register(
             "developed",
             "Brackets and single frames developed, by kind",
-            m.developed.clone(),
+            self.developed.clone(),
         );
         r.register(
             "rejected",
             "Files set aside as rejected",
-            m.rejected.clone(),
+            self.rejected.clone(),
         );
         r.register(
             "retries",
             "Retries scheduled (outputs not written, files unreadable, frames missing)",
-            m.retries.clone(),
+            self.retries.clone(),
         );
         r.register(
             "stage_seconds",
             "Wall time of each stage of a development, seconds",
-            m.stages.clone(),
+            self.stages.clone(),
         );
         r.register(
             "develop_seconds",
             "Wall time of a whole development, seconds",
-            m.total.clone(),
+            self.total.clone(),
         );
-        r.register("responses", "Developments by the origin of the response used (fitted, pooled, cached, standard, raw)", m.responses.clone());
+        r.register("responses", "Developments by the origin of the response used (fitted, pooled, cached, standard, raw)", self.responses.clone());
         r.register(
             "queue_depth",
             "Closed brackets waiting for a job",
-            m.queued.clone(),
+            self.queued.clone(),
         );
-        r.register("in_flight", "Brackets developing now", m.in_flight.clone());
+        r.register(
+            "in_flight",
+            "Brackets developing now",
+            self.in_flight.clone(),
+        );
         r.register(
             "memory_in_use_bytes",
             "Memory budget held by the brackets developing, bytes",
-            m.memory_in_use.clone(),
+            self.memory_in_use.clone(),
         );
         r.register(
             "memory_budget_bytes",
             "The memory budget ([daemon] memory_mb), bytes",
-            m.memory_budget.clone(),
+            self.memory_budget.clone(),
         );
         r.register(
             "viewer_clients",
             "Clients connected to the event stream",
-            m.subscribers.clone(),
+            self.subscribers.clone(),
         );
         r.register(
             "viewer_events_dropped",
             "Events a slow client missed",
-            m.lagged.clone(),
+            self.lagged.clone(),
         );
-        Metrics { registry, ..m }
     }
 
     /// Counts a development: its kind, the response's origin and its stages' times.

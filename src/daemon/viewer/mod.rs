@@ -322,41 +322,7 @@ pub(crate) fn record_of(
     stem: &str,
     took: std::time::Duration,
 ) -> Record {
-    let frames = closed.frames();
-    let darkest = frames
-        .iter()
-        .filter_map(|c| c.exposure)
-        .filter(|e| *e > 0.0)
-        .fold(f64::INFINITY, f64::min);
-    let frames = frames
-        .iter()
-        .map(|c| FrameRecord {
-            name: file_name(&c.input.path),
-            stops: c
-                .exposure
-                .filter(|e| *e > 0.0 && darkest.is_finite())
-                .map(|e| (e / darkest).log2()),
-            thumb: None,
-        })
-        .collect();
-    let outputs: Vec<OutputRecord> = dev
-        .outputs
-        .iter()
-        .map(|p| {
-            let name = file_name(p);
-            let look = look_of(stem, &name);
-            OutputRecord {
-                film: look
-                    .as_deref()
-                    .is_some_and(|l| crate::tonemap::Operator::parse(l).is_none()),
-                look,
-                name,
-                file: String::new(),
-                preview: None,
-                thumb: None,
-            }
-        })
-        .collect();
+    let outputs = output_records(stem, &dev.outputs);
     Record {
         id: 0,
         stem: stem.to_string(),
@@ -366,7 +332,7 @@ pub(crate) fn record_of(
             super::bracket::Closed::Single(..) => "single",
         },
         at: super::journal::unix_now(),
-        frames,
+        frames: frame_records(closed),
         looks: outputs.iter().filter_map(|o| o.look.clone()).collect(),
         outputs,
         response: dev.source.to_string(),
@@ -394,6 +360,48 @@ fn shared_record<S: serde::Serializer>(record: &Arc<Record>, s: S) -> Result<S::
 /// Serialises shared records as a sequence of the records themselves.
 fn shared_records<S: serde::Serializer>(records: &[Arc<Record>], s: S) -> Result<S::Ok, S::Error> {
     s.collect_seq(records.iter().map(AsRef::as_ref))
+}
+
+/// The frames of `closed` with their exposures above the darkest, in stops.
+fn frame_records(closed: &super::bracket::Closed) -> Vec<FrameRecord> {
+    let frames = closed.frames();
+    let darkest = frames
+        .iter()
+        .filter_map(|c| c.exposure)
+        .filter(|e| *e > 0.0)
+        .fold(f64::INFINITY, f64::min);
+    frames
+        .iter()
+        .map(|c| FrameRecord {
+            name: file_name(&c.input.path),
+            stops: c
+                .exposure
+                .filter(|e| *e > 0.0 && darkest.is_finite())
+                .map(|e| (e / darkest).log2()),
+            thumb: None,
+        })
+        .collect()
+}
+
+/// The outputs named with their looks (URLs are filled in with the previews).
+fn output_records(stem: &str, outputs: &[PathBuf]) -> Vec<OutputRecord> {
+    outputs
+        .iter()
+        .map(|p| {
+            let name = file_name(p);
+            let look = look_of(stem, &name);
+            OutputRecord {
+                film: look
+                    .as_deref()
+                    .is_some_and(|l| crate::tonemap::Operator::parse(l).is_none()),
+                look,
+                name,
+                file: String::new(),
+                preview: None,
+                thumb: None,
+            }
+        })
+        .collect()
 }
 
 fn file_name(path: &Path) -> String {
