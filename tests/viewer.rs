@@ -584,6 +584,12 @@ fn the_page_in_chromium_shows_a_new_bracket_without_reload() {
         serde_json::json!({ "type": "keyDown", "key": "ArrowLeft", "code": "ArrowLeft", "windowsVirtualKeyCode": 37 }),
     );
     browser.wait("(() => { const i = document.getElementById('shot'); return i.alt.includes('velvia50') && i.complete && i.naturalWidth === 480; })()");
+    // The other views: the body's curve drawn from the cache, the daemon's counts.
+    browser.eval("document.querySelector('nav button[data-view=cameras]').click()");
+    browser.wait("document.querySelectorAll('#cameras canvas').length === 1 && document.getElementById('cameras').textContent.includes('Studio Cam')");
+    browser.eval("document.querySelector('nav button[data-view=service]').click()");
+    browser.wait("document.getElementById('service').textContent.includes('STUDIO-1')");
+    browser.eval("document.querySelector('nav button[data-view=latest]').click()");
     let shot = browser.call(
         "Page.captureScreenshot",
         serde_json::json!({ "format": "png" }),
