@@ -608,7 +608,14 @@ fn the_page_in_chromium_shows_a_new_bracket_without_reload() {
         "only {lit} lit pixels in the stage (centre {centre:?})"
     );
     if let Some(keep) = std::env::var_os("FILMBACK_VIEWER_SCREENSHOT") {
-        std::fs::write(keep, &png).unwrap();
+        // Kept for the docs: 1024×640, PNG at its best compression (small enough for a
+        // repository; Chromium's own PNG is fast, not small).
+        use image::codecs::png::{CompressionType, FilterType, PngEncoder};
+        let file = std::fs::File::create(keep).unwrap();
+        let png = PngEncoder::new_with_quality(file, CompressionType::Best, FilterType::Adaptive);
+        let small =
+            image::imageops::resize(&picture, 1024, 640, image::imageops::FilterType::Triangle);
+        small.write_with_encoder(png).unwrap();
     }
     drop(browser);
     rig.stop();
