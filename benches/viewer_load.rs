@@ -6,8 +6,10 @@
 //!
 //! Each run starts a daemon ([`DarkroomLab`], Velvia 50 and linear looks, `jobs = 2`) on a
 //! fresh folder, drops `--brackets` three-frame AEBs of `--mp` megapixels at once and
-//! times from the drop to the last bracket journaled; it prints brackets per minute and
-//! the ratio of each run to the one without the viewer.
+//! times from the drop to the last bracket journaled; it prints brackets per minute, the
+//! CPU time of the whole process per bracket (user + system: the darkroom, the server
+//! and, in the last run, the clients' threads), and each run's ratio to the one without
+//! the viewer. On a machine shared with other work the CPU time is the steadier measure.
 
 use std::io::{BufRead, BufReader, Read, Write};
 use std::net::{SocketAddr, TcpStream};
@@ -28,6 +30,31 @@ fn arg(name: &str, default: u32) -> u32 {
         .and_then(|i| args.get(i + 1))
         .and_then(|v| v.parse().ok())
         .unwrap_or(default)
+}
+
+/// Seconds of CPU (user + system) this process has used, from `/proc/self/stat`.
+fn cpu_seconds() -> f64 {
+    let stat = std::fs::read_to_string("/proc/self/stat").unwrap_or_default();
+    let fields: Vec<&str> = stat
+        .rsplit(')')
+        .next()
+        .unwrap_or("")
+        .split_whitespace()
+        .collect();
+    // Fields 14 and 15 of stat(5) are utime and stime; after the ')' they are 12th, 13th.
+    let ticks: f64 = fields
+        .get(11..13)
+        .map(|f| f.iter().filter_map(|v| v.parse::<f64>().ok()).sum())
+        .unwrap_or(0.0);
+    ticks / 100.0
+}
+
+/// One run's measures.
+struct Measured {
+    /// Wall seconds from the drop to the last bracket journaled.
+    wall: f64,
+    /// CPU seconds of the process over the same time.
+    cpu: f64,
 }
 
 fn config(root: &Path, viewer: bool) -> Config {
@@ -94,8 +121,8 @@ fn client(address: SocketAddr, fetched: Arc<AtomicUsize>) {
     }
 }
 
-/// Runs one stream of brackets; returns the seconds from the drop to the last journaled.
-fn run(frames: &[Vec<(String, Vec<u8>)>], viewer: bool, clients: usize) -> f64 {
+/// Runs one stream of brackets.
+fn run(frames: &[Vec<(String, Vec<u8>)>], viewer: bool, clients: usize) -> Measured {
     let dir = tempfile::tempdir().expect("temporary folder");
     let root = dir.path();
     std::fs::create_dir_all(root.join("ingest")).expect("ingest");
@@ -134,6 +161,7 @@ fn run(frames: &[Vec<(String, Vec<u8>)>], viewer: bool, clients: usize) -> f64 {
         std::thread::sleep(Duration::from_millis(300));
     }
     let t = Instant::now();
+    let cpu = cpu_seconds();
     for bracket in frames {
         for (name, bytes) in bracket {
             demo::drop_frame(&root.join("ingest"), name, bytes).expect("drop");
@@ -150,7 +178,10 @@ fn run(frames: &[Vec<(String, Vec<u8>)>], viewer: bool, clients: usize) -> f64 {
         }
         std::thread::sleep(Duration::from_millis(20));
     }
-    let seconds = t.elapsed().as_secs_f64();
+    let measured = Measured {
+        wall: t.elapsed().as_secs_f64(),
+        cpu: cpu_seconds() - cpu,
+    };
     let _ = control.blocking_send(Control::Stop);
     let _ = daemon.join();
     if clients > 0 {
@@ -159,7 +190,7 @@ fn run(frames: &[Vec<(String, Vec<u8>)>], viewer: bool, clients: usize) -> f64 {
             fetched.load(Ordering::Relaxed) as f64 / 1e6
         );
     }
-    seconds
+    measured
 }
 
 fn main() {
@@ -180,23 +211,26 @@ fn main() {
                 .collect()
         })
         .collect();
-    let per_minute = |s: f64| f64::from(brackets) * 60.0 / s;
+    let n = f64::from(brackets);
+    let report = |label: &str, m: &Measured, off: Option<&Measured>| {
+        let ratio = off.map_or_else(String::new, |o| {
+            format!(
+                ", throughput {:.3} × off, CPU {:.3} × off",
+                o.wall / m.wall,
+                m.cpu / o.cpu
+            )
+        });
+        println!(
+            "  {label:<22} {:6.2} s, {:5.1} brackets/min, {:5.2} CPU-s a bracket{ratio}",
+            m.wall,
+            n * 60.0 / m.wall,
+            m.cpu / n
+        );
+    };
     let off = run(&frames, false, 0);
-    println!(
-        "  viewer off:            {off:6.2} s, {:5.1} brackets/min",
-        per_minute(off)
-    );
+    report("viewer off:", &off, None);
     let idle = run(&frames, true, 0);
-    println!(
-        "  viewer on, no clients: {idle:6.2} s, {:5.1} brackets/min, throughput {:.3} × off",
-        per_minute(idle),
-        off / idle
-    );
+    report("viewer on, no clients:", &idle, Some(&off));
     let busy = run(&frames, true, clients);
-    println!(
-        "  viewer on, {clients} clients: {busy:6.2} s, {:5.1} brackets/min, throughput {:.3} × off, {:.3} × no clients",
-        per_minute(busy),
-        off / busy,
-        idle / busy
-    );
+    report(&format!("viewer on, {clients} clients:"), &busy, Some(&off));
 }
