@@ -238,6 +238,53 @@ fn a_bracket_reaches_the_event_stream_previews_and_metrics() {
     rig.stop();
 }
 
+/// `[viewer]` is checked as the other sections are: beyond loopback only with a token,
+/// tokens long enough, one source of it; a token file's first line is the token, and the
+/// configuration's debug form never shows it.
+#[test]
+fn viewer_settings_are_checked() {
+    use filmback::daemon::config::Config;
+    let check = |text: &str| Config::from_str(text, Some(Path::new("v.toml")));
+    let error = |text: &str| check(text).unwrap_err().to_string();
+    assert!(check("[viewer]\nport = 0\n").is_ok());
+    let open = error("[viewer]\nbind = \"0.0.0.0\"\n");
+    assert!(open.starts_with("v.toml:2:1: viewer.bind:"), "{open}");
+    let short = error("[viewer]\nbind = \"0.0.0.0\"\ntoken = \"short\"\n");
+    assert!(
+        short.contains("viewer.token: a token needs at least 16"),
+        "{short}"
+    );
+    let spaced = error("[viewer]\ntoken = \"has a space in it, sadly\"\n");
+    assert!(spaced.contains("without spaces"), "{spaced}");
+    assert!(error("[viewer]\nport = 70000\n").contains("0..=65535"));
+    let dir = tempfile::tempdir().unwrap();
+    let file = dir.path().join("token");
+    std::fs::write(&file, format!("{TOKEN}\nignored\n")).unwrap();
+    let both = format!(
+        "token = \"{TOKEN}\"\ntoken_file = {:?}\n",
+        file.display().to_string()
+    );
+    assert!(error(&format!("[viewer]\n{both}")).contains("not both"));
+    let from_file = format!(
+        "[viewer]\nbind = \"0.0.0.0\"\ntoken_file = {:?}\n",
+        file.display().to_string()
+    );
+    let config = check(&from_file).unwrap();
+    assert_eq!(
+        config.viewer.token.as_ref().map(|t| t.expose()),
+        Some(TOKEN)
+    );
+    assert!(
+        !format!("{config:?}").contains(TOKEN),
+        "the token leaked into Debug"
+    );
+    let missing = error("[viewer]\ntoken_file = \"/nonexistent/filmback-token\"\n");
+    assert!(
+        missing.starts_with("/nonexistent/filmback-token: cannot read"),
+        "{missing}"
+    );
+}
+
 /// A lab that publishes one small rendering per job and counts its jobs.
 fn counting_lab(calls: Arc<AtomicUsize>) -> impl Fn(&Job) -> Result<Processed, JobError> {
     move |job: &Job| {
