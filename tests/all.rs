@@ -25,6 +25,7 @@ mod merge;
 mod raw;
 mod real_files;
 mod synthetic;
+mod viewer;
 
 /// Every `tests/*.rs` file (this one aside) is declared as a module above, so none is
 /// left unbuilt and unrun.

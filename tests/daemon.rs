@@ -1321,6 +1321,7 @@ fn the_memory_budget_rejects_what_cannot_fit_and_runs_the_rest_in_turn() {
             stages: Vec::new(),
             notes: Vec::new(),
             measured: None,
+            facts: Default::default(),
         })
     };
     // Each bracket (`daemon::job_bytes`): 1400 × 1000 px × (3 frames × 3 B + 3 B + 26 B)

@@ -73,6 +73,7 @@ pub fn run(args: Args) -> anyhow::Result<ExitCode> {
         // The last snapshot of a daemon that was killed still says it runs.
         s.running = false;
         s.watching = false;
+        s.viewer = None;
     }
     // A daemon that can no longer replace status.json leaves an old snapshot behind.
     let stale = running && !daemon::state_writable(&args.state);
@@ -136,6 +137,9 @@ pub fn run(args: Args) -> anyhow::Result<ExitCode> {
         None => println!("daemon        never ran here"),
     }
     if let Some(s) = snap.as_ref().filter(|_| running) {
+        if let Some(url) = &s.viewer {
+            println!("  viewer      {url}");
+        }
         let now = journal::unix_now();
         for r in &s.retries {
             println!(

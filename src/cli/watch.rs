@@ -29,9 +29,9 @@ pub struct Args {
     /// State folder: journal, response cache, status (overrides the file).
     #[arg(long, value_name = "DIR")]
     state: Option<PathBuf>,
-    /// Demonstration: after start, drop a synthetic three-frame bracket with EXIF into the
-    /// ingest folder (as a tethering tool would) and print the outputs once it is
-    /// developed; the daemon goes on watching until Ctrl-C.
+    /// Demonstration: after start, print the viewer's address, drop a synthetic
+    /// three-frame bracket with EXIF into the ingest folder (as a tethering tool would) and
+    /// print the outputs once it is developed; the daemon goes on watching until Ctrl-C.
     #[arg(long)]
     demo: bool,
 }
@@ -174,6 +174,19 @@ fn forward_signals(
     })
 }
 
+/// The viewer's address as the running daemon's status snapshot gives it (after start,
+/// within 5 s), or `None` when it is not served.
+async fn viewer_url(state: &Path) -> Option<String> {
+    let deadline = tokio::time::Instant::now() + Duration::from_secs(5);
+    while tokio::time::Instant::now() < deadline {
+        if let Some(snapshot) = daemon::read_snapshot(state).filter(|s| s.running) {
+            return snapshot.viewer;
+        }
+        tokio::time::sleep(Duration::from_millis(100)).await;
+    }
+    None
+}
+
 /// The synthetic scene of the demonstration (`synthetic::scene`'s seed).
 const DEMO_SCENE: u64 = 7;
 
@@ -183,6 +196,9 @@ const DEMO_SCENE: u64 = 7;
 /// what was written.
 async fn demo_bracket(ingest: &Path, state: &Path) -> anyhow::Result<()> {
     tokio::time::sleep(Duration::from_millis(500)).await;
+    if let Some(url) = viewer_url(state).await {
+        println!("the tether station: open {url} to see the demo bracket arrive");
+    }
     let stamp = filmback::daemon::journal::unix_now();
     let shots = demo::aeb("Demo Camera", Some("0001"), (stamp % 3600) as u32);
     // One scene every time, so the demonstration shows the same thing on every machine

@@ -88,6 +88,57 @@ pub struct Processed {
     pub notes: Vec<String>,
     /// The body's JPEG curve measured from the raw frames' companion JPEGs, if any.
     pub measured: Option<MeasuredResponse>,
+    /// What the development measured beyond its outputs (shown by the viewer).
+    pub facts: Facts,
+}
+
+/// What a development measured beyond its outputs, for the viewer and its events.
+#[derive(Debug, Clone, Default, PartialEq, serde::Serialize)]
+pub struct Facts {
+    /// Share of samples clipped high or low in every frame (no frame exposed them
+    /// well; the merge could only bound them), `0..=1`.
+    pub clipped_everywhere: f64,
+    /// How the frames were aligned, for a bracket.
+    pub alignment: Option<Aligned>,
+    /// Share of pixels at least one frame was left out of by deghosting (`0..=1`), when
+    /// deghosting ran.
+    pub deghosted: Option<f64>,
+    /// The response used, in one line (as the log and the EXR header give it).
+    pub response: String,
+}
+
+/// The alignment of a bracket in brief.
+#[derive(Debug, Clone, PartialEq, serde::Serialize)]
+pub struct Aligned {
+    /// The mode asked for (`auto`, `translation`, `rigid`, `homography`, `off`).
+    pub mode: String,
+    /// The largest displacement of any frame's corners, pixels.
+    pub largest_shift_px: f64,
+}
+
+impl Facts {
+    /// The facts of `d`, developed from frames of `samples` samples each
+    /// (`width · height · channels` of the first frame).
+    fn of(d: &darkroom::Developed, samples: u64) -> Facts {
+        let clipped = d.clipped.0 + d.clipped.1;
+        Facts {
+            clipped_everywhere: if samples == 0 {
+                0.0
+            } else {
+                (clipped as f64 / samples as f64).min(1.0)
+            },
+            alignment: d.alignment.as_ref().map(|a| Aligned {
+                mode: format!("{:?}", a.mode).to_lowercase(),
+                largest_shift_px: a
+                    .frames
+                    .iter()
+                    .map(|f| f.displacement_px)
+                    .fold(0.0, f64::max),
+            }),
+            deghosted: d.deghost.as_ref().map(|g| g.share),
+            response: d.response.summary.clone(),
+        }
+    }
 }
 
 /// Why a job failed; the variant decides what the daemon does next.
@@ -268,6 +319,10 @@ impl Lab for DarkroomLab {
             },
             reason: e.to_string(),
         })?;
+        let first = &frames[0].frame;
+        let samples =
+            u64::from(first.width()) * u64::from(first.height()) * first.channels() as u64;
+        let facts = Facts::of(&developed, samples);
         let mut stages = vec![("decode", decode)];
         stages.extend(developed.stages);
         let mut notes: Vec<String> = unmixed.note.into_iter().collect();
@@ -299,6 +354,7 @@ impl Lab for DarkroomLab {
             stages,
             notes,
             measured,
+            facts,
         })
     }
 }

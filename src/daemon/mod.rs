@@ -23,11 +23,13 @@ pub mod cache;
 pub mod config;
 pub mod journal;
 
+mod hooks;
 pub(crate) mod intake;
 pub(crate) mod lab;
 mod queue;
 mod settle;
 mod status;
+mod viewer;
 
 use std::collections::{HashMap, HashSet, VecDeque};
 use std::path::{Path, PathBuf};
@@ -38,8 +40,9 @@ use tokio::sync::mpsc;
 use tokio::task::JoinSet;
 use tracing::{info, warn};
 
-pub use lab::{DarkroomLab, Job, JobError, Lab, Processed};
+pub use lab::{Aligned, DarkroomLab, Facts, Job, JobError, Lab, Processed};
 pub use status::{Retry, STATUS_FILE, Snapshot, lock_held, read_snapshot, state_writable};
+pub use viewer::{PREVIEW_FOLDER, ViewerError};
 
 use crate::atomic;
 use bracket::{Closed, Grouper, Input};
@@ -319,6 +322,10 @@ struct State {
     last_report: Instant,
     last_watchdog: Instant,
     watchdog: Option<Duration>,
+    /// The tether station's server, when it is served.
+    viewer: Option<viewer::Station>,
+    /// The thread running `[hooks]` commands, once one was needed.
+    hooks: Option<hooks::Hooks>,
 }
 
 /// Runs the daemon until [`Control::Stop`] (or the control sender is dropped).
@@ -350,6 +357,11 @@ pub async fn run(
     ] {
         remove_temporaries(&dir, Duration::ZERO);
     }
+    if let Ok(stems) = std::fs::read_dir(folders.state.join(PREVIEW_FOLDER)) {
+        for stem in stems.filter_map(Result::ok) {
+            remove_temporaries(&stem.path(), Duration::ZERO);
+        }
+    }
     // In ingest a `filmback hook` may be handing a frame over right now: only what a
     // killed hook left (its download is still where gphoto2 saved it).
     remove_temporaries(&folders.ingest, STALE_HAND_OVER);
@@ -369,6 +381,7 @@ pub async fn run(
     }
     let mut journal = Journal::open(&folders.state)?;
     journal.resolve_inputs(|p| root.identity(p));
+    let viewer = open_viewer(&config).await;
     let (notices, mut rx) = mpsc::unbounded_channel();
     let now = Instant::now();
     let mut st = State {
@@ -405,6 +418,8 @@ pub async fn run(
         last_report: now,
         last_watchdog: now,
         watchdog: sd_notify::watchdog_enabled(),
+        viewer,
+        hooks: None,
     };
     st.check_folder().await;
     info!(
@@ -468,6 +483,21 @@ pub async fn run(
         "stopped"
     );
     Ok(st.summary)
+}
+
+/// The viewer's server, when `[viewer] enabled`; one that cannot be served is logged and
+/// the daemon runs without it (the darkroom never depends on it).
+async fn open_viewer(config: &Config) -> Option<viewer::Station> {
+    if !config.viewer.enabled {
+        return None;
+    }
+    match viewer::Station::open(&config.viewer, &config.folders.state).await {
+        Ok(station) => Some(station),
+        Err(e) => {
+            warn!(error = %e, "the viewer is not served; the daemon goes on without it");
+            None
+        }
+    }
 }
 
 /// Refuses folders that overlap once links are resolved (the configuration's check is

@@ -262,6 +262,10 @@ impl State {
         for note in &dev.notes {
             warn!(bracket = %closed.stem(), "{note}");
         }
+        let stem = work
+            .supersedes
+            .as_ref()
+            .map_or_else(|| self.output_stem(closed), |s| s.stem.clone());
         let at = journal::unix_now();
         let entry = match closed {
             Closed::Bracket(b) => Entry::Bracket {
@@ -330,15 +334,57 @@ impl State {
             ),
         }
         let replaced = self.replaced_since_read(closed);
-        if replaced.is_empty() {
-            self.archive(closed);
-        }
+        let archived = if replaced.is_empty() {
+            self.archive(closed)
+        } else {
+            Vec::new()
+        };
+        self.announce(closed, dev, stem, took, &archived);
         self.release(closed);
         for path in replaced {
             info!(file = %path.display(), "replaced while its bracket developed: developing it again");
             self.consider(path, Arrival::Writing);
         }
         Ok(())
+    }
+
+    /// Tells the viewer and the `on_developed` hook that `closed` was published under
+    /// `stem`; `archived` lists the inputs moved to the archive and where.
+    fn announce(
+        &mut self,
+        closed: &Closed,
+        dev: &Processed,
+        stem: String,
+        took: Duration,
+        archived: &[(PathBuf, PathBuf)],
+    ) {
+        if let Some(viewer) = &self.viewer {
+            let frame_paths = closed
+                .frames()
+                .iter()
+                .map(|c| {
+                    archived
+                        .iter()
+                        .find(|(from, _)| *from == c.input.path)
+                        .map_or_else(|| c.input.path.clone(), |(_, to)| to.clone())
+                })
+                .collect();
+            viewer.developed(super::viewer::Published {
+                record: super::viewer::record_of(closed, dev, &stem, took),
+                frame_paths,
+            });
+        }
+        if let Some(command) = self.config.hooks.on_developed.clone() {
+            let run = super::hooks::Developed {
+                command,
+                stem,
+                camera: closed.camera().to_string(),
+                outputs: dev.outputs.clone(),
+            };
+            self.hooks
+                .get_or_insert_with(super::hooks::Hooks::start)
+                .developed(run);
+        }
     }
 
     /// The frames of `closed` whose file is no longer the one read (another size, mtime
@@ -430,6 +476,14 @@ impl State {
             retry_in_s = delay.as_secs_f64(),
             "will retry"
         );
+        if let Some(viewer) = &self.viewer {
+            viewer.retry(super::Retry {
+                what: work.closed.stem(),
+                reason: reason.clone(),
+                attempts: work.attempts + 1,
+                next: journal::unix_now() + delay.as_secs(),
+            });
+        }
         self.retries.push((
             Instant::now() + delay,
             Work {
@@ -459,10 +513,12 @@ impl State {
 
     /// Moves finished inputs to the archive folder, when configured, with the JPEGs set
     /// aside beside their raws ([`archive_file`]: never replacing an archived file).
-    pub(super) fn archive(&self, closed: &Closed) {
+    /// Returns each file moved and where it went.
+    pub(super) fn archive(&self, closed: &Closed) -> Vec<(PathBuf, PathBuf)> {
         let Some(dir) = &self.config.folders.archive else {
-            return;
+            return Vec::new();
         };
+        let mut moved = Vec::new();
         let files = closed
             .frames()
             .into_iter()
@@ -470,13 +526,15 @@ impl State {
         for input in files {
             match archive_file(&input.path, &self.config.folders.ingest, dir) {
                 Ok(to) => {
-                    tracing::debug!(file = %input.path.display(), to = %to.display(), "archived")
+                    tracing::debug!(file = %input.path.display(), to = %to.display(), "archived");
+                    moved.push((input.path.clone(), to));
                 }
                 Err(e) => {
                     warn!(file = %input.path.display(), archive = %dir.display(), error = %e, "cannot archive input");
                 }
             }
         }
+        moved
     }
 }
 

@@ -697,6 +697,14 @@ impl State {
         entry.attempts += 1;
         entry.next = now + delay;
         entry.reason.clone_from(&reason);
+        if let Some(viewer) = &self.viewer {
+            viewer.retry(super::Retry {
+                what: path.display().to_string(),
+                reason: reason.clone(),
+                attempts: entry.attempts,
+                next: super::journal::unix_now() + delay.as_secs(),
+            });
+        }
         warn!(
             file = %path.display(),
             reason = %reason,
@@ -710,6 +718,9 @@ impl State {
         warn!(file = %input.path.display(), reason = %reason, "rejected");
         self.taken.remove(&input.path);
         self.summary.rejected += 1;
+        if let Some(viewer) = &self.viewer {
+            viewer.rejected(&input.path, &reason);
+        }
         let path = input.path.clone();
         self.journal.record(Entry::Rejected {
             input,

@@ -48,6 +48,16 @@ pub struct Snapshot {
     pub finished: usize,
     /// Rejected in this run.
     pub rejected: usize,
+    /// Bytes of the memory budget held by the brackets developing (absent in snapshots
+    /// of older versions).
+    #[serde(default)]
+    pub memory_in_use: u64,
+    /// The memory budget, bytes (`[daemon] memory_mb` · 10⁶).
+    #[serde(default)]
+    pub memory_budget: u64,
+    /// The viewer's address (`http://HOST:PORT/`) while it is served.
+    #[serde(default)]
+    pub viewer: Option<String>,
 }
 
 /// One thing the daemon will try again.
@@ -117,6 +127,13 @@ impl State {
             retries: self.retry_list(),
             finished: self.summary.finished,
             rejected: self.summary.rejected,
+            memory_in_use: self.in_use,
+            memory_budget: self.budget_bytes(),
+            viewer: self
+                .viewer
+                .as_ref()
+                .filter(|_| running)
+                .map(|v| format!("http://{}/", v.address)),
         }
     }
 
@@ -177,6 +194,9 @@ impl State {
         let json = serde_json::to_vec_pretty(&snap).expect("snapshot serialises");
         if let Err(e) = atomic::publish(&path, &json, Overwrite::Replace) {
             warn!(error = %e, "cannot write status snapshot");
+        }
+        if let Some(viewer) = &self.viewer {
+            viewer.status(&snap, self.in_use, self.budget_bytes());
         }
         self.last_snapshot = Some(snap);
     }

@@ -75,6 +75,13 @@ impl Rig {
         Rig::start_with(root, config, lab)
     }
 
+    /// Starts a daemon with `lab` on `root` under the configuration `text`.
+    pub fn start_with_text(root: &Path, text: &str, lab: Arc<dyn Lab>) -> Rig {
+        let config =
+            Config::from_str(text, Some(Path::new("test.toml"))).expect("test config is valid");
+        Rig::start_with(root, config, lab)
+    }
+
     /// Starts a daemon with `lab` on `root` under `config` (whose folders should be
     /// those of [`config_text`]).
     pub fn start_with(root: &Path, config: Config, lab: Arc<dyn Lab>) -> Rig {

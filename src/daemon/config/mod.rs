@@ -229,6 +229,66 @@ pub struct Config {
     pub render: Preset,
     /// Per-camera presets.
     pub cameras: Vec<CameraPreset>,
+    /// The tether station's page, events and metrics.
+    pub viewer: Viewer,
+    /// Commands run on the daemon's events.
+    pub hooks: Hooks,
+}
+
+/// Commands run on the daemon's events (`[hooks]`).
+#[derive(Debug, Clone, PartialEq, Default)]
+pub struct Hooks {
+    /// Run by `/bin/sh -c` after a bracket or single frame is published, with its outputs
+    /// as the positional parameters (`"$@"`) and `FILMBACK_STEM`, `FILMBACK_CAMERA` set.
+    pub on_developed: Option<String>,
+}
+
+/// Shortest token accepted for the viewer (characters).
+pub const MIN_TOKEN_CHARS: usize = 16;
+
+/// A secret the viewer's clients present (`Authorization: Bearer …` or `?token=…`):
+/// printable ASCII without spaces, at least [`MIN_TOKEN_CHARS`] long once checked. Its
+/// `Debug` form never shows it.
+#[derive(Clone, PartialEq, Eq)]
+pub struct Token(pub(crate) String);
+
+impl Token {
+    /// The secret itself.
+    pub fn expose(&self) -> &str {
+        &self.0
+    }
+
+    /// Why this text is not a usable token, if it is not.
+    fn fault(&self) -> Option<String> {
+        if self.0.chars().count() < MIN_TOKEN_CHARS {
+            return Some(format!(
+                "a token needs at least {MIN_TOKEN_CHARS} characters"
+            ));
+        }
+        if !self.0.chars().all(|c| c.is_ascii_graphic()) {
+            return Some("a token is printable ASCII without spaces".to_string());
+        }
+        None
+    }
+}
+
+impl std::fmt::Debug for Token {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str("Token(…)")
+    }
+}
+
+/// Where and how the viewer is served (`[viewer]`).
+#[derive(Debug, Clone, PartialEq)]
+pub struct Viewer {
+    /// Serve it at all.
+    pub enabled: bool,
+    /// Address and port to listen on (port 0: the system chooses).
+    pub address: std::net::SocketAddr,
+    /// The token every request must carry; always set when `address` is not loopback.
+    pub token: Option<Token>,
+    /// The file the token was read from, if it came from one.
+    pub token_file: Option<PathBuf>,
 }
 
 impl Config {
@@ -251,9 +311,10 @@ impl Config {
         let label = path.map_or_else(|| PathBuf::from("<built-in defaults>"), Path::to_path_buf);
         let defaults: RawConfig = parse(DEFAULT_TOML, Path::new("<built-in defaults>"))?;
         let user: RawConfig = parse(text, &label)?;
-        let config = merge(defaults, user, path.map(Path::to_path_buf));
+        let mut config = merge(defaults, user, path.map(Path::to_path_buf));
         config.check_folders(&label)?;
         config.check_looks(&label, text)?;
+        config.check_viewer(&label, text)?;
         Ok(config)
     }
 
@@ -306,6 +367,50 @@ impl Config {
                     })?;
                 }
             }
+        }
+        Ok(())
+    }
+
+    /// Reads the viewer's token file, checks the token, and refuses a bind address other
+    /// than loopback without one. An error names the line of the key in `text`.
+    fn check_viewer(&mut self, label: &Path, text: &str) -> Result<(), ConfigError> {
+        let invalid = |key: &str, message: String| ConfigError::Invalid {
+            path: label.to_path_buf(),
+            line: line_of_key(text, key),
+            column: 1,
+            key: format!("viewer.{key}"),
+            message,
+        };
+        let v = &mut self.viewer;
+        if let Some(file) = &v.token_file {
+            if v.token.is_some() {
+                return Err(invalid(
+                    "token_file",
+                    "give the token or a token file, not both".into(),
+                ));
+            }
+            let read = std::fs::read_to_string(file).map_err(|source| ConfigError::Read {
+                path: file.clone(),
+                source,
+            })?;
+            v.token = Some(Token(read.lines().next().unwrap_or("").trim().to_string()));
+        }
+        let key = if v.token_file.is_some() {
+            "token_file"
+        } else {
+            "token"
+        };
+        if let Some(fault) = v.token.as_ref().and_then(Token::fault) {
+            return Err(invalid(key, fault));
+        }
+        if !v.address.ip().is_loopback() && v.token.is_none() {
+            return Err(invalid(
+                "bind",
+                format!(
+                    "{} is not a loopback address: the viewer then requires `token` or `token_file`",
+                    v.address.ip()
+                ),
+            ));
         }
         Ok(())
     }

@@ -13,8 +13,8 @@ use crate::display::ColourSpace;
 use crate::merge::Deghost;
 
 use super::{
-    BracketRules, CameraPreset, Config, ConfigError, Daemon, Folders, Preset, Recalibrate, Singles,
-    Watch, WatchMode,
+    BracketRules, CameraPreset, Config, ConfigError, Daemon, Folders, Hooks, Preset, Recalibrate,
+    Singles, Viewer, Watch, WatchMode,
 };
 
 /// A number checked while it is read, so a bad value is reported at its line.
@@ -57,6 +57,7 @@ bounded!(Jobs, usize, 1, 64, "brackets");
 bounded!(QueueLen, usize, 1, 100_000, "brackets");
 bounded!(RetrySeconds, u64, 1, 3600, "seconds");
 bounded!(MemoryMb, u64, 64, 16_777_216, "MB");
+bounded!(Port, u16, 0, 65_535, "TCP port");
 bounded!(Stops, f64, -10.0, 10.0, "stops");
 bounded!(Quality, u8, 1, 100, "JPEG quality");
 bounded!(Fraction, f64, 0.0, 1.0, "confidence");
@@ -106,8 +107,41 @@ pub struct RawConfig {
     daemon: Option<RawDaemon>,
     render: Option<RawRender>,
     merge: Option<RawMerge>,
+    viewer: Option<RawViewer>,
+    hooks: Option<RawHooks>,
     #[serde(default)]
     camera: BTreeMap<String, RawPreset>,
+}
+
+#[derive(Debug, Default, Deserialize)]
+#[serde(deny_unknown_fields)]
+struct RawHooks {
+    on_developed: Option<HookCommand>,
+}
+
+/// A shell command line, not empty.
+#[derive(Debug, Clone, Deserialize)]
+#[serde(try_from = "String")]
+struct HookCommand(String);
+
+impl TryFrom<String> for HookCommand {
+    type Error = String;
+    fn try_from(s: String) -> Result<Self, String> {
+        if s.trim().is_empty() {
+            return Err("an empty command; leave the key out to run none".into());
+        }
+        Ok(HookCommand(s))
+    }
+}
+
+#[derive(Debug, Default, Deserialize)]
+#[serde(deny_unknown_fields)]
+struct RawViewer {
+    enabled: Option<bool>,
+    bind: Option<std::net::IpAddr>,
+    port: Option<Port>,
+    token: Option<String>,
+    token_file: Option<PathBuf>,
 }
 
 #[derive(Debug, Default, Deserialize)]
@@ -281,6 +315,16 @@ pub(super) fn merge(d: RawConfig, u: RawConfig, source: Option<PathBuf>) -> Conf
     let align = um.align.or(dm.align).expect(MISSING);
     let deghost = um.deghost.or(dm.deghost).expect(MISSING);
     let rescan = uw.rescan_s.or(dw.rescan_s).expect(MISSING).0;
+    let (dv, uv) = (d.viewer.unwrap_or_default(), u.viewer.unwrap_or_default());
+    let viewer = Viewer {
+        enabled: uv.enabled.or(dv.enabled).expect(MISSING),
+        address: std::net::SocketAddr::new(
+            uv.bind.or(dv.bind).expect(MISSING),
+            uv.port.or(dv.port).expect(MISSING).0,
+        ),
+        token: uv.token.map(super::Token),
+        token_file: uv.token_file,
+    };
     let cameras = u
         .camera
         .into_iter()
@@ -337,6 +381,14 @@ pub(super) fn merge(d: RawConfig, u: RawConfig, source: Option<PathBuf>) -> Conf
             ..preset(&render)
         },
         cameras,
+        viewer,
+        hooks: Hooks {
+            on_developed: u
+                .hooks
+                .and_then(|h| h.on_developed)
+                .or_else(|| d.hooks.and_then(|h| h.on_developed))
+                .map(|c| c.0),
+        },
     }
 }
 
