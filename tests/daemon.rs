@@ -24,7 +24,8 @@ use filmback::synthetic::{self, Encoding, ResponseCurve, Sensor};
 const W: u16 = 96;
 const H: u16 = 64;
 
-/// Test settings: short settle and gap, small queue. `overrides` are `(section, line)`
+/// Test settings: short settle and gap, small queue, no viewer (its previews would cost
+/// every bracket, and rigs running at once would contend for its port). `overrides` are `(section, line)`
 /// pairs: the line replaces that key's default line (or is added to the section).
 fn config_text(root: &Path, overrides: &[(&str, &str)]) -> String {
     let mut text = format!(
@@ -46,6 +47,8 @@ retry_s = 1
 [render]
 films = []
 tonemaps = ["linear"]
+[viewer]
+enabled = false
 "#,
         ingest = root.join("ingest").display(),
         out = root.join("out").display(),

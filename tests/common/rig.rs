@@ -43,10 +43,17 @@ retry_s = 1
 films = []
 tonemaps = ["linear"]
 {extra}
+{viewer}
 "#,
         ingest = root.join("ingest").display(),
         out = root.join("out").display(),
         state = root.join("state").display(),
+        // No viewer unless `extra` sets one up: its previews would cost every bracket.
+        viewer = if extra.contains("[viewer]") {
+            ""
+        } else {
+            "[viewer]\nenabled = false"
+        },
     )
 }
 
