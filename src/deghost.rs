@@ -83,6 +83,10 @@ pub const TONE_BINS: usize = 32;
 /// Pixels and rows between the samples of a pair's residual statistics.
 pub const STATS_STRIDE: usize = 4;
 
+/// Pixels and rows between the points the comparison reads (a half-resolution grid: four
+/// points per block).
+pub const COMPARE_STRIDE: usize = 2;
+
 /// Fewest residuals for a tone bin's own statistics.
 pub const MIN_SAMPLES: u32 = 64;
 
@@ -147,12 +151,12 @@ enum Tone {
     Bright,
 }
 
-/// Per code of one frame and channel: its `ln x` (or the bound at the range's edge), `σ` of
-/// it, where it lies, and its tone bin.
+/// Per code of one frame and channel: its `ln x` (or the bound at the range's edge), the
+/// noise term `Z²σ²` of it, where it lies, and its tone bin.
 #[derive(Clone, Copy)]
 struct Code {
     value: f32,
-    sigma: f32,
+    noise: f32,
     tone: Tone,
     bin: u8,
 }
@@ -172,19 +176,22 @@ impl Codes {
         let mut table = Vec::with_capacity(frames.len() * channels * levels);
         for f in frames {
             for c in 0..channels {
-                // `ln x` and its σ at brightness `b` of this frame and channel.
+                // `ln x` and `Z²σ²` at brightness `b` of this frame and channel.
                 let at = |b: f64| {
                     let x = response.eval(c, b).max(1e-9);
                     let (lo, hi) = ((b - 1.0 / 256.0).max(0.0), (b + 1.0 / 256.0).min(1.0));
                     let slope = (response.eval(c, hi) - response.eval(c, lo)) / (hi - lo);
                     let var =
                         ((slope * CODE_NOISE / 255.0).powi(2) + x / FULL_WELL_ELECTRONS) / (x * x);
-                    ((x * e_ref / f.exposure).ln() as f32, var.sqrt() as f32)
+                    (
+                        (x * e_ref / f.exposure).ln() as f32,
+                        (NOISE_SIGMAS * NOISE_SIGMAS * var) as f32,
+                    )
                 };
                 let (bottom, top) = (at(WELL_EXPOSED.0), at(WELL_EXPOSED.1));
                 for code in 0..levels {
                     let b = code as f64 / (levels - 1) as f64;
-                    let ((value, sigma), tone) = if b < WELL_EXPOSED.0 {
+                    let ((value, noise), tone) = if b < WELL_EXPOSED.0 {
                         (bottom, Tone::Dark)
                     } else if b > WELL_EXPOSED.1 {
                         (top, Tone::Bright)
@@ -194,7 +201,7 @@ impl Codes {
                     let bin = (code * TONE_BINS / levels) as u8;
                     table.push(Code {
                         value,
-                        sigma,
+                        noise,
                         tone,
                         bin,
                     });
@@ -214,61 +221,62 @@ impl Codes {
     }
 }
 
-/// The codes of every frame, at the bracket's depth.
-enum Planes<'a> {
-    Eight(Vec<&'a [u8]>),
-    Sixteen(Vec<&'a [u16]>),
+/// A frame's code type, 8 or 16 bits.
+trait Sample: Copy + Send + Sync {
+    fn index(self) -> usize;
 }
 
-impl<'a> Planes<'a> {
-    fn of(frames: &[BracketFrame<'a>]) -> Planes<'a> {
-        let eight = |f: &'a Frame| match f.samples() {
-            Samples::Eight(v) => v.as_slice(),
-            Samples::Sixteen(_) => &[],
-        };
-        let sixteen = |f: &'a Frame| match f.samples() {
-            Samples::Sixteen(v) => v.as_slice(),
-            Samples::Eight(_) => &[],
-        };
-        match frames[0].frame.samples() {
-            Samples::Eight(_) => Planes::Eight(frames.iter().map(|f| eight(f.frame)).collect()),
-            Samples::Sixteen(_) => {
-                Planes::Sixteen(frames.iter().map(|f| sixteen(f.frame)).collect())
-            }
-        }
-    }
-
-    /// Samples in one frame.
-    fn samples(&self) -> usize {
-        match self {
-            Planes::Eight(v) => v[0].len(),
-            Planes::Sixteen(v) => v[0].len(),
-        }
-    }
-
-    /// The code of sample `i` of frame `k`.
+impl Sample for u8 {
     #[inline]
-    fn code(&self, k: usize, i: usize) -> usize {
-        match self {
-            Planes::Eight(v) => usize::from(v[k][i]),
-            Planes::Sixteen(v) => usize::from(v[k][i]),
-        }
+    fn index(self) -> usize {
+        usize::from(self)
     }
+}
+
+impl Sample for u16 {
+    #[inline]
+    fn index(self) -> usize {
+        usize::from(self)
+    }
+}
+
+/// The bracket's codes as read by the test: the frames' sample slices (input order), the
+/// code table and the frame's width.
+struct Bracket<'a, T> {
+    planes: Vec<&'a [T]>,
+    codes: Codes,
+    width: usize,
+    height: usize,
+}
+
+impl<T: Sample> Bracket<'_, T> {
+    /// The [`Code`] of sample `i` (channel `c`) of frame `k`.
+    #[inline]
+    fn code(&self, k: usize, c: usize, i: usize) -> Code {
+        self.codes.get(k, c, self.planes[k][i].index())
+    }
+}
+
+/// A pair's residual statistics in one tone bin: the centre `m` and `Z²s²`.
+#[derive(Clone, Copy)]
+struct Bin {
+    centre: f32,
+    spread: f32,
 }
 
 /// What a pair's residuals `ln x_k − ln x_a` are in a still scene, per channel and tone bin
-/// of the anchor: `(m, s)`, their median and `1.4826·MAD`.
+/// of the anchor: their median and `1.4826·MAD`.
 struct Residuals {
-    bins: Vec<(f32, f32)>,
+    bins: Vec<Bin>,
 }
 
 impl Residuals {
     /// Gathers the pair `(k, a)`'s residuals over every [`STATS_STRIDE`]-th pixel.
-    fn of(planes: &Planes<'_>, codes: &Codes, width: usize, k: usize, a: usize) -> Residuals {
-        let channels = codes.channels;
+    fn of<T: Sample>(bracket: &Bracket<'_, T>, k: usize, a: usize) -> Residuals {
+        let channels = bracket.codes.channels;
+        let width = bracket.width;
         let per_bin = RESIDUAL_BINS;
-        let rows = planes.samples() / (width * channels).max(1);
-        let histogram = (0..rows)
+        let histogram = (0..bracket.height)
             .into_par_iter()
             .step_by(STATS_STRIDE)
             .fold(
@@ -277,10 +285,7 @@ impl Residuals {
                     for x in (0..width).step_by(STATS_STRIDE) {
                         for c in 0..channels {
                             let i = (y * width + x) * channels + c;
-                            let (xk, xa) = (
-                                codes.get(k, c, planes.code(k, i)),
-                                codes.get(a, c, planes.code(a, i)),
-                            );
+                            let (xk, xa) = (bracket.code(k, c, i), bracket.code(a, c, i));
                             if xk.tone == Tone::Good {
                                 let slot = residual_bin(xk.value - xa.value);
                                 h[(c * TONE_BINS + usize::from(xa.bin)) * per_bin + slot] += 1;
@@ -306,14 +311,19 @@ impl Residuals {
             }
             let fallback = centre_and_spread(&pooled).unwrap_or((0.0, 0.0));
             for bin in channel.chunks(per_bin) {
-                bins.push(centre_and_spread(bin).unwrap_or(fallback));
+                let (centre, s) = centre_and_spread(bin).unwrap_or(fallback);
+                let z = NOISE_SIGMAS as f32;
+                bins.push(Bin {
+                    centre,
+                    spread: z * z * s * s,
+                });
             }
         }
         Residuals { bins }
     }
 
     #[inline]
-    fn get(&self, channel: usize, bin: u8) -> (f32, f32) {
+    fn get(&self, channel: usize, bin: u8) -> Bin {
         self.bins[channel * TONE_BINS + usize::from(bin)]
     }
 }
@@ -365,7 +375,11 @@ fn centre_and_spread(histogram: &[u32]) -> Option<(f32, f32)> {
 enum Verdict {
     /// No channel the frame exposes well.
     Unknown,
-    Agree,
+    /// Every channel the frame exposes well agrees; `anchored` when the anchor exposes
+    /// some channel well.
+    Agree {
+        anchored: bool,
+    },
     Disagree,
 }
 
@@ -377,46 +391,94 @@ pub fn ghost_masks(frames: &[BracketFrame<'_>], response: &InverseResponse) -> G
     let views: Vec<&Frame> = frames.iter().map(|f| f.frame).collect();
     let reference = crate::align::choose_reference(&views);
     let n = frames.len();
+    let unmasked = GhostMasks {
+        reference,
+        masks: vec![None; n],
+        left_out: vec![0.0; n],
+    };
     let shape = |f: &Frame| (f.width(), f.height(), f.channels(), f.bit_depth());
     if views.iter().any(|f| shape(f) != shape(views[0])) {
         // Not one bracket: nothing to compare; the merge refuses it, naming the files.
-        return GhostMasks {
-            reference,
-            masks: vec![None; n],
-            left_out: vec![0.0; n],
-        };
+        return unmasked;
     }
+    let eight: Option<Vec<&[u8]>> = views
+        .iter()
+        .map(|f| match f.samples() {
+            Samples::Eight(v) => Some(v.as_slice()),
+            Samples::Sixteen(_) => None,
+        })
+        .collect();
+    let sixteen: Option<Vec<&[u16]>> = views
+        .iter()
+        .map(|f| match f.samples() {
+            Samples::Sixteen(v) => Some(v.as_slice()),
+            Samples::Eight(_) => None,
+        })
+        .collect();
+    let (width, height) = (views[0].width() as usize, views[0].height() as usize);
     let codes = Codes::new(frames, response);
-    let planes = Planes::of(frames);
-    let first = frames[0].frame;
-    let (width, height) = (first.width() as usize, first.height() as usize);
-    // A bracket of more than 256 frames compares each with the reference alone.
-    let mut anchor = vec![u8::try_from(reference).unwrap_or(0); width * height];
+    let (masks, left_out) = match (eight, sixteen) {
+        (Some(planes), _) => decide(
+            frames,
+            reference,
+            &Bracket {
+                planes,
+                codes,
+                width,
+                height,
+            },
+        ),
+        (_, Some(planes)) => decide(
+            frames,
+            reference,
+            &Bracket {
+                planes,
+                codes,
+                width,
+                height,
+            },
+        ),
+        _ => return unmasked,
+    };
+    GhostMasks {
+        reference,
+        masks,
+        left_out,
+    }
+}
+
+/// Per input frame, its mask (or `None`) and the share of pixels left out.
+fn decide<T: Sample>(
+    frames: &[BracketFrame<'_>],
+    reference: usize,
+    bracket: &Bracket<'_, T>,
+) -> (Vec<Option<Vec<u8>>>, Vec<f64>) {
+    let n = frames.len();
+    let (width, height) = (bracket.width, bracket.height);
+    // The anchor of every point of the comparison grid. A bracket of more than 256 frames
+    // compares each with the reference alone.
+    let grid = width.div_ceil(COMPARE_STRIDE) * height.div_ceil(COMPARE_STRIDE);
+    let mut anchor = vec![u8::try_from(reference).unwrap_or(0); grid];
     let mut masks = vec![None; n];
     let mut left_out = vec![0.0; n];
     let order = by_distance(frames, reference);
     for (rank, &k) in order.iter().enumerate().skip(1) {
         let mut residuals: Vec<Option<Residuals>> = (0..n).map(|_| None).collect();
         for &a in &order[..rank] {
-            residuals[a] = Some(Residuals::of(&planes, &codes, width, k, a));
+            residuals[a] = Some(Residuals::of(bracket, k, a));
         }
         let pair = Pair {
-            planes: &planes,
-            codes: &codes,
+            bracket,
             residuals: &residuals,
             k,
         };
-        let disagree = pair.compare(&mut anchor, width);
+        let disagree = pair.compare(&mut anchor);
         if let Some(mask) = mask_of(&disagree, width, height) {
             left_out[k] = mask.iter().filter(|&&m| m < 128).count() as f64 / mask.len() as f64;
             masks[k] = Some(mask);
         }
     }
-    GhostMasks {
-        reference,
-        masks,
-        left_out,
-    }
+    (masks, left_out)
 }
 
 /// Input indices, the reference first, then by `|ln(e_k/e_ref)|` (stable).
@@ -434,39 +496,45 @@ fn by_distance(frames: &[BracketFrame<'_>], reference: usize) -> Vec<usize> {
 }
 
 /// Frame `k` against the anchors of the frames before it.
-struct Pair<'a> {
-    planes: &'a Planes<'a>,
-    codes: &'a Codes,
+struct Pair<'a, T> {
+    bracket: &'a Bracket<'a, T>,
     /// Per anchor frame, the residual statistics of `(k, anchor)`.
     residuals: &'a [Option<Residuals>],
     k: usize,
 }
 
-impl Pair<'_> {
-    /// Per block, the share of the pixels it compared that disagree (a grid of
-    /// `⌈w/BLOCK⌉ × ⌈h/BLOCK⌉`). Where the anchor exposes no channel well and `k` does
-    /// and agrees with it, `k` becomes the anchor.
-    fn compare(&self, anchor: &mut [u8], width: usize) -> Vec<f32> {
+impl<T: Sample> Pair<'_, T> {
+    /// Per block, the share of the grid points it compared that disagree (a grid of
+    /// `⌈w/BLOCK⌉ × ⌈h/BLOCK⌉`). The points are every [`COMPARE_STRIDE`]-th pixel of every
+    /// [`COMPARE_STRIDE`]-th row; `anchor` holds one anchor per point. Where the anchor
+    /// exposes no channel well and `k` does and agrees with it, `k` becomes the anchor.
+    fn compare(&self, anchor: &mut [u8]) -> Vec<f32> {
+        let (width, height) = (self.bracket.width, self.bracket.height);
         let blocks_x = width.div_ceil(BLOCK);
-        let mut share = vec![0.0f32; blocks_x * (anchor.len() / width.max(1)).div_ceil(BLOCK)];
+        let grid_x = width.div_ceil(COMPARE_STRIDE);
+        let per_block = BLOCK / COMPARE_STRIDE;
+        let mut share = vec![0.0f32; blocks_x * height.div_ceil(BLOCK)];
         anchor
-            .par_chunks_mut(width * BLOCK)
+            .par_chunks_mut(grid_x * per_block)
             .zip(share.par_chunks_mut(blocks_x))
             .enumerate()
             .for_each(|(band, (anchors, shares))| {
                 let mut counts = vec![(0u32, 0u32); blocks_x];
-                for (i, a) in anchors.iter_mut().enumerate() {
-                    let p = band * BLOCK * width + i;
-                    let count = &mut counts[(i % width) / BLOCK];
-                    match self.verdict(p, usize::from(*a)) {
-                        Verdict::Disagree => *count = (count.0 + 1, count.1 + 1),
-                        Verdict::Agree => {
-                            count.1 += 1;
-                            if !self.exposes(usize::from(*a), p) {
-                                *a = self.k as u8;
+                for (row, anchors) in anchors.chunks_mut(grid_x).enumerate() {
+                    let y = (band * per_block + row) * COMPARE_STRIDE;
+                    for (gx, a) in anchors.iter_mut().enumerate() {
+                        let p = y * width + gx * COMPARE_STRIDE;
+                        let count = &mut counts[gx / per_block];
+                        match self.verdict(p, usize::from(*a)) {
+                            Verdict::Disagree => *count = (count.0 + 1, count.1 + 1),
+                            Verdict::Agree { anchored } => {
+                                count.1 += 1;
+                                if !anchored {
+                                    *a = self.k as u8;
+                                }
                             }
+                            Verdict::Unknown => {}
                         }
-                        Verdict::Unknown => {}
                     }
                 }
                 for (s, (bad, seen)) in shares.iter_mut().zip(counts) {
@@ -480,46 +548,39 @@ impl Pair<'_> {
         share
     }
 
-    /// True when frame `f` exposes some channel of pixel `p` well.
-    fn exposes(&self, f: usize, p: usize) -> bool {
-        let channels = self.codes.channels;
-        (0..channels).any(|c| {
-            let code = self.planes.code(f, p * channels + c);
-            self.codes.get(f, c, code).tone == Tone::Good
-        })
-    }
-
-    /// Frame `k` against `anchor` at pixel `p` (module docs).
+    /// Frame `k` against `anchor` at pixel `p` (module docs): channel by channel,
+    /// `e = |r − m| − δ` (one-sided where the anchor is a bound) disagrees when
+    /// `e > 0` and `e² > max(Z²(σ_k² + σ_a²), Z²s²)`.
     #[inline]
     fn verdict(&self, p: usize, anchor: usize) -> Verdict {
         let Some(residuals) = self.residuals[anchor].as_ref() else {
             return Verdict::Unknown;
         };
         let tolerance = (TOLERANCE_STOPS * std::f64::consts::LN_2) as f32;
-        let channels = self.codes.channels;
-        let mut seen = false;
+        let channels = self.bracket.codes.channels;
+        let (mut seen, mut anchored) = (false, false);
         for c in 0..channels {
             let i = p * channels + c;
-            let x = self.codes.get(self.k, c, self.planes.code(self.k, i));
+            let a = self.bracket.code(anchor, c, i);
+            anchored |= a.tone == Tone::Good;
+            let x = self.bracket.code(self.k, c, i);
             if x.tone != Tone::Good {
                 continue;
             }
-            let a = self.codes.get(anchor, c, self.planes.code(anchor, i));
-            let (centre, spread) = residuals.get(c, a.bin);
-            let allowed = NOISE_SIGMAS as f32 * x.sigma.hypot(a.sigma).max(spread) + tolerance;
-            let r = x.value - a.value - centre;
-            let off = match a.tone {
-                Tone::Good => r.abs() > allowed,
-                Tone::Bright => r < -allowed,
-                Tone::Dark => r > allowed,
-            };
-            if off {
+            let bin = residuals.get(c, a.bin);
+            let r = x.value - a.value - bin.centre;
+            let excess = match a.tone {
+                Tone::Good => r.abs(),
+                Tone::Bright => -r,
+                Tone::Dark => r,
+            } - tolerance;
+            if excess > 0.0 && excess * excess > (x.noise + a.noise).max(bin.spread) {
                 return Verdict::Disagree;
             }
             seen = true;
         }
         if seen {
-            Verdict::Agree
+            Verdict::Agree { anchored }
         } else {
             Verdict::Unknown
         }
