@@ -9,13 +9,20 @@
 //! `r = ln x_k − ln x_a`. In a still bracket `r` is noise plus what the single response
 //! does not model (its fitting error, the camera's tone processing, the codec), which
 //! depends on the tone; a moving subject is an outlier. So the residuals of the pair are
-//! first gathered over the whole frame (every [`STATS_STRIDE`]-th pixel of every
-//! [`STATS_STRIDE`]-th row) by channel and by the anchor's tone ([`TONE_BINS`] bins of its
-//! code), giving per bin a centre `m` (the median) and a spread `s = 1.4826·MAD`; a bin with
-//! fewer than [`MIN_SAMPLES`] takes the channel's pooled figures; `|m|` is held within
-//! 0.3 stop and `s` within 0.5 stop ([`MAX_CENTRE_STOPS`], [`MAX_SPREAD_STOPS`]), so a bin
-//! that only a subject fills cannot make it look still. The frame disagrees in a
-//! channel when
+//! first gathered over the whole frame (every `s`-th pixel of every `s`-th row, `s` up to
+//! [`STATS_STRIDE`] as [`STATS_PIXELS`] allows) by channel and by the anchor's tone ([`TONE_BINS`] bins of its
+//! code), giving per bin a centre `m` and a spread `s = 1.4826·MAD` around it; a bin with
+//! fewer than [`MIN_SAMPLES`] takes the channel's pooled figures.
+//!
+//! What the response does not model is scene-wide and smooth in tone; a subject is
+//! compact. So the frame is cut into [`TILES`] × [`TILES`] tiles, and every tile holding at
+//! least [`MIN_TILE_SAMPLES`] of a bin's residuals votes with its own median. A bin with at
+//! least [`SCENE_WIDE_TILES`] votes (a quarter of the tiles) is scene-wide: `m` is the
+//! median of the votes (a subject would have to fill half of the bin's tiles to move it)
+//! and `m`, `s` are taken as they are. A bin with fewer votes is local, and may be a
+//! subject's own tones: `m` is the median of its residuals, held within 0.3 stop, and `s`
+//! within 0.5 stop ([`MAX_CENTRE_STOPS`], [`MAX_SPREAD_STOPS`]), so a bin that only a
+//! subject fills cannot make it look still. The frame disagrees in a channel when
 //!
 //! ```text
 //! |r − m|  >  Z · max(√(σ_k² + σ_a²), s) + δ,           Z = 4,  δ = 0.1 stop · ln 2
@@ -35,15 +42,17 @@
 //! top (the frame disagrees only when `r − m < −allowance`); dark, from above by its
 //! value at the range's bottom (only when `r − m > allowance`).
 //!
-//! A frame disagrees at a pixel when any channel disagrees. Frames are tested in order of
-//! exposure distance from the reference, the anchor of every pixel being the reference
-//! until a frame that exposes the pixel well where the anchor does not (a region the
+//! The comparison reads every [`COMPARE_STRIDE`]-th pixel of every [`COMPARE_STRIDE`]-th
+//! row (four points per block: the mask is decided per block, and a subject covers many).
+//! A frame disagrees at a point when any channel disagrees. Frames are tested in order of
+//! exposure distance from the reference, the anchor of every point being the reference
+//! until a frame that exposes the point well where the anchor does not (a region the
 //! reference clipped or left dark) agrees with it and takes its place.
 //!
 //! # The mask
 //!
 //! Disagreement is counted over blocks of [`BLOCK`]×[`BLOCK`] pixels. A block is left out
-//! where the share of disagreeing pixels, averaged over its 3×3 neighbourhood, exceeds
+//! where the share of disagreeing points, averaged over its 3×3 neighbourhood, exceeds
 //! [`GHOST_SHARE`] (isolated noise never reaches it; a subject does). The left-out blocks
 //! grow by one block and are feathered by two box filters of one block, and the mask is
 //! interpolated bilinearly back to pixels: a frame's weight falls smoothly to 0 over about
@@ -80,8 +89,12 @@ pub const GHOST_SHARE: f32 = 0.3;
 /// Bins of the anchor's code over which a pair's residuals are gathered.
 pub const TONE_BINS: usize = 32;
 
-/// Pixels and rows between the samples of a pair's residual statistics.
+/// The most pixels and rows between the samples of a pair's residual statistics.
 pub const STATS_STRIDE: usize = 4;
+
+/// The statistics read every `s`-th pixel of every `s`-th row, `s` the largest stride up
+/// to [`STATS_STRIDE`] that leaves at least this many pixels (1 for a frame under 4 MP).
+pub const STATS_PIXELS: usize = 1_000_000;
 
 /// Pixels and rows between the points the comparison reads (a half-resolution grid: four
 /// points per block).
@@ -97,6 +110,16 @@ pub const MAX_CENTRE_STOPS: f64 = 0.3;
 
 /// The largest spread `s` (stops) a still scene is granted, for the same reason.
 pub const MAX_SPREAD_STOPS: f64 = 0.5;
+
+/// Tiles per side of the grid over which a bin's centre is voted.
+pub const TILES: usize = 8;
+
+/// Fewest residuals of a tone bin in a tile for the tile to vote on the bin's centre.
+pub const MIN_TILE_SAMPLES: u32 = 8;
+
+/// Fewest voting tiles (a quarter of them) for a tone bin to count as scene-wide: its
+/// centre is then the median of the tiles' medians and neither figure is capped.
+pub const SCENE_WIDE_TILES: usize = 16;
 
 /// Bins of the residual's histogram, over `±RESIDUAL_RANGE`.
 const RESIDUAL_BINS: usize = 256;
@@ -250,6 +273,13 @@ struct Bracket<'a, T> {
 }
 
 impl<T: Sample> Bracket<'_, T> {
+    /// The stride of the residual statistics: `min(STATS_STRIDE, ⌊√(P/STATS_PIXELS)⌋)`,
+    /// at least 1, for `P` pixels.
+    fn stats_stride(&self) -> usize {
+        let ratio = (self.width * self.height / STATS_PIXELS) as f64;
+        (ratio.sqrt() as usize).clamp(1, STATS_STRIDE)
+    }
+
     /// The [`Code`] of sample `i` (channel `c`) of frame `k`.
     #[inline]
     fn code(&self, k: usize, c: usize, i: usize) -> Code {
@@ -271,51 +301,44 @@ struct Residuals {
 }
 
 impl Residuals {
-    /// Gathers the pair `(k, a)`'s residuals over every [`STATS_STRIDE`]-th pixel.
+    /// Gathers the pair `(k, a)`'s residuals over every [`Bracket::stats_stride`]-th pixel,
+    /// tile by tile of a [`TILES`] × [`TILES`] grid, and decides each bin's figures (module docs).
     fn of<T: Sample>(bracket: &Bracket<'_, T>, k: usize, a: usize) -> Residuals {
         let channels = bracket.codes.channels;
-        let width = bracket.width;
-        let per_bin = RESIDUAL_BINS;
-        let histogram = (0..bracket.height)
+        let tiles: Vec<Vec<u32>> = (0..TILES * TILES)
             .into_par_iter()
-            .step_by(STATS_STRIDE)
-            .fold(
-                || vec![0u32; channels * TONE_BINS * per_bin],
-                |mut h, y| {
-                    for x in (0..width).step_by(STATS_STRIDE) {
-                        for c in 0..channels {
-                            let i = (y * width + x) * channels + c;
-                            let (xk, xa) = (bracket.code(k, c, i), bracket.code(a, c, i));
-                            if xk.tone == Tone::Good {
-                                let slot = residual_bin(xk.value - xa.value);
-                                h[(c * TONE_BINS + usize::from(xa.bin)) * per_bin + slot] += 1;
-                            }
-                        }
-                    }
-                    h
-                },
-            )
-            .reduce(
-                || vec![0u32; channels * TONE_BINS * per_bin],
-                |mut a, b| {
-                    a.iter_mut().zip(b).for_each(|(x, y)| *x += y);
-                    a
-                },
-            );
+            .map(|t| bracket.tile_histogram(t, k, a))
+            .collect();
+        let z2 = (NOISE_SIGMAS * NOISE_SIGMAS) as f32;
         let mut bins = Vec::with_capacity(channels * TONE_BINS);
         for c in 0..channels {
-            let channel = &histogram[c * TONE_BINS * per_bin..(c + 1) * TONE_BINS * per_bin];
-            let mut pooled = vec![0u32; per_bin];
-            for bin in channel.chunks(per_bin) {
-                pooled.iter_mut().zip(bin).for_each(|(p, &n)| *p += n);
+            let slot = |b: usize| (c * TONE_BINS + b) * RESIDUAL_BINS;
+            let pooled: Vec<Vec<u32>> = (0..TONE_BINS)
+                .map(|b| {
+                    let mut h = vec![0u32; RESIDUAL_BINS];
+                    for tile in &tiles {
+                        let part = &tile[slot(b)..slot(b) + RESIDUAL_BINS];
+                        h.iter_mut().zip(part).for_each(|(x, &y)| *x += y);
+                    }
+                    h
+                })
+                .collect();
+            let mut channel = vec![0u32; RESIDUAL_BINS];
+            for h in &pooled {
+                channel.iter_mut().zip(h).for_each(|(x, &y)| *x += y);
             }
-            let fallback = centre_and_spread(&pooled).unwrap_or((0.0, 0.0));
-            for bin in channel.chunks(per_bin) {
-                let (centre, s) = centre_and_spread(bin).unwrap_or(fallback);
-                let z = NOISE_SIGMAS as f32;
+            let fallback = centre_and_spread(&channel, &[]).unwrap_or((0.0, 0.0));
+            for (b, histogram) in pooled.iter().enumerate() {
+                let votes: Vec<usize> = tiles
+                    .iter()
+                    .map(|tile| &tile[slot(b)..slot(b) + RESIDUAL_BINS])
+                    .filter(|h| h.iter().sum::<u32>() >= MIN_TILE_SAMPLES)
+                    .map(median_slot)
+                    .collect();
+                let (centre, s) = centre_and_spread(histogram, &votes).unwrap_or(fallback);
                 bins.push(Bin {
                     centre,
-                    spread: z * z * s * s,
+                    spread: z2 * s * s,
                 });
             }
         }
@@ -328,6 +351,33 @@ impl Residuals {
     }
 }
 
+impl<T: Sample> Bracket<'_, T> {
+    /// The residual histogram of the pair `(k, a)` over tile `t` (row by row of the
+    /// [`TILES`] × [`TILES`] grid), per channel and tone bin of the anchor, from every
+    /// [`Bracket::stats_stride`]-th pixel of every such row.
+    fn tile_histogram(&self, t: usize, k: usize, a: usize) -> Vec<u32> {
+        let channels = self.codes.channels;
+        let mut h = vec![0u32; channels * TONE_BINS * RESIDUAL_BINS];
+        let stride = self.stats_stride();
+        let span =
+            |i: usize, n: usize| (i * n / TILES).next_multiple_of(stride)..(i + 1) * n / TILES;
+        let (ys, xs) = (span(t / TILES, self.height), span(t % TILES, self.width));
+        for y in ys.step_by(stride) {
+            for x in xs.clone().step_by(stride) {
+                for c in 0..channels {
+                    let i = (y * self.width + x) * channels + c;
+                    let (xk, xa) = (self.code(k, c, i), self.code(a, c, i));
+                    if xk.tone == Tone::Good {
+                        let slot = residual_bin(xk.value - xa.value);
+                        h[(c * TONE_BINS + usize::from(xa.bin)) * RESIDUAL_BINS + slot] += 1;
+                    }
+                }
+            }
+        }
+        h
+    }
+}
+
 /// The histogram slot of residual `r`.
 #[inline]
 fn residual_bin(r: f32) -> usize {
@@ -335,23 +385,43 @@ fn residual_bin(r: f32) -> usize {
     (t.max(0.0) as usize).min(RESIDUAL_BINS - 1)
 }
 
-/// Median and `1.4826·MAD` of a residual histogram, within [`MAX_CENTRE_STOPS`] and
-/// [`MAX_SPREAD_STOPS`]; `None` below [`MIN_SAMPLES`].
-fn centre_and_spread(histogram: &[u32]) -> Option<(f32, f32)> {
+/// The residual at the centre of histogram slot `slot`, `ln` units.
+fn slot_value(slot: usize) -> f32 {
+    -RESIDUAL_RANGE + (slot as f32 + 0.5) * 2.0 * RESIDUAL_RANGE / RESIDUAL_BINS as f32
+}
+
+/// The slot holding the median of a (non-empty) residual histogram.
+fn median_slot(histogram: &[u32]) -> usize {
     let total: u32 = histogram.iter().sum();
-    if total < MIN_SAMPLES {
-        return None;
-    }
-    let width = 2.0 * RESIDUAL_RANGE / RESIDUAL_BINS as f32;
     let mut seen = 0;
-    let median = histogram
+    histogram
         .iter()
         .position(|&n| {
             seen += n;
             2 * seen >= total
         })
-        .unwrap_or(0);
-    // The median absolute deviation, in whole bins around the median's bin.
+        .unwrap_or(0)
+}
+
+/// A bin's centre and spread from its residual histogram and its tiles' `votes` (each
+/// voting tile's median slot); `None` below [`MIN_SAMPLES`]. With at least
+/// [`SCENE_WIDE_TILES`] votes the centre is the median of the votes and the spread
+/// `1.4826·MAD` around it; with fewer the centre is the histogram's median and the two
+/// are held within [`MAX_CENTRE_STOPS`] and [`MAX_SPREAD_STOPS`].
+fn centre_and_spread(histogram: &[u32], votes: &[usize]) -> Option<(f32, f32)> {
+    let total: u32 = histogram.iter().sum();
+    if total < MIN_SAMPLES {
+        return None;
+    }
+    let scene_wide = votes.len() >= SCENE_WIDE_TILES;
+    let median = if scene_wide {
+        let mut votes = votes.to_vec();
+        votes.sort_unstable();
+        votes[(votes.len() - 1) / 2]
+    } else {
+        median_slot(histogram)
+    };
+    // The median absolute deviation, in whole slots around the centre's slot.
     let mut within = histogram[median];
     let mut d = 0;
     while 2 * within < total && d < RESIDUAL_BINS {
@@ -359,14 +429,20 @@ fn centre_and_spread(histogram: &[u32]) -> Option<(f32, f32)> {
         within += median.checked_sub(d).map_or(0, |i| histogram[i]);
         within += histogram.get(median + d).copied().unwrap_or(0);
     }
-    let centre = -RESIDUAL_RANGE + (median as f32 + 0.5) * width;
+    let (centre, spread) = (
+        slot_value(median),
+        1.4826 * d as f32 * 2.0 * RESIDUAL_RANGE / RESIDUAL_BINS as f32,
+    );
+    if scene_wide {
+        return Some((centre, spread));
+    }
     let (max_centre, max_spread) = (
         (MAX_CENTRE_STOPS * std::f64::consts::LN_2) as f32,
         (MAX_SPREAD_STOPS * std::f64::consts::LN_2) as f32,
     );
     Some((
         centre.clamp(-max_centre, max_centre),
-        (1.4826 * d as f32 * width).min(max_spread),
+        spread.min(max_spread),
     ))
 }
 
@@ -591,6 +667,10 @@ impl<T: Sample> Pair<'_, T> {
 /// when no block is left out.
 fn mask_of(share: &[f32], width: usize, height: usize) -> Option<Vec<u8>> {
     let (bw, bh) = (width.div_ceil(BLOCK), height.div_ceil(BLOCK));
+    // A neighbourhood's mean exceeds the threshold only if one of its blocks does.
+    if share.iter().all(|&s| s <= GHOST_SHARE) {
+        return None;
+    }
     let neighbourhood = box_mean(share, bw, bh, 1);
     let ghost: Vec<f32> = neighbourhood
         .iter()
@@ -608,42 +688,63 @@ fn mask_of(share: &[f32], width: usize, height: usize) -> Option<Vec<u8>> {
 }
 
 /// The mean over the `(2r+1)²` neighbourhood of each cell (clamped at the borders: only
-/// the cells inside the grid count).
+/// the cells inside the grid count), along rows then along columns, rows in parallel.
 fn box_mean(grid: &[f32], w: usize, h: usize, r: usize) -> Vec<f32> {
-    let pass = |src: &[f32], along_x: bool| -> Vec<f32> {
-        let mut out = vec![0.0; src.len()];
-        for y in 0..h {
-            for x in 0..w {
-                let (i, n) = if along_x { (x, w) } else { (y, h) };
-                let (lo, hi) = (i.saturating_sub(r), (i + r).min(n - 1));
-                let at = |j: usize| if along_x { y * w + j } else { j * w + x };
-                let sum: f32 = (lo..=hi).map(|j| src[at(j)]).sum();
-                out[y * w + x] = sum / (hi - lo + 1) as f32;
+    let mut across = vec![0.0f32; grid.len()];
+    across
+        .par_chunks_mut(w)
+        .zip(grid.par_chunks(w))
+        .for_each(|(out, row)| {
+            for (x, o) in out.iter_mut().enumerate() {
+                let (lo, hi) = (x.saturating_sub(r), (x + r).min(w - 1));
+                *o = row[lo..=hi].iter().sum::<f32>() / (hi - lo + 1) as f32;
             }
+        });
+    let mut out = vec![0.0f32; grid.len()];
+    out.par_chunks_mut(w).enumerate().for_each(|(y, row)| {
+        let (lo, hi) = (y.saturating_sub(r), (y + r).min(h - 1));
+        for above in across[lo * w..(hi + 1) * w].chunks(w) {
+            row.iter_mut().zip(above).for_each(|(o, &v)| *o += v);
         }
-        out
-    };
-    pass(&pass(grid, true), false)
+        let n = (hi - lo + 1) as f32;
+        row.iter_mut().for_each(|o| *o /= n);
+    });
+    out
 }
 
 /// Pixel weights `255·(1 − s)` from the block grid `soft` (`s` the left-out share),
-/// interpolated bilinearly between block centres.
+/// interpolated bilinearly between block centres (rounded to the nearest code).
 fn upsample(soft: &[f32], bw: usize, bh: usize, width: usize, height: usize) -> Vec<u8> {
     let coordinate = |p: usize, n: usize| {
         let t = ((p as f32 + 0.5) / BLOCK as f32 - 0.5).clamp(0.0, (n - 1) as f32);
         let i = (t as usize).min(n.saturating_sub(2));
         (i, (i + 1).min(n - 1), t - i as f32)
     };
-    let mut mask = vec![0u8; width * height];
+    let columns: Vec<(usize, usize, f32)> = (0..width).map(|x| coordinate(x, bw)).collect();
+    // Block rows with nothing left out: their pixels are kept.
+    let clear: Vec<bool> = soft
+        .chunks(bw)
+        .map(|r| r.iter().all(|&s| s == 0.0))
+        .collect();
+    let mut mask = vec![255u8; width * height];
     mask.par_chunks_mut(width).enumerate().for_each(|(y, row)| {
         let (y0, y1, fy) = coordinate(y, bh);
-        for (x, m) in row.iter_mut().enumerate() {
-            let (x0, x1, fx) = coordinate(x, bw);
-            let at = |yy: usize, xx: usize| soft[yy * bw + xx];
-            let top = at(y0, x0) * (1.0 - fx) + at(y0, x1) * fx;
-            let bottom = at(y1, x0) * (1.0 - fx) + at(y1, x1) * fx;
-            let s = top * (1.0 - fy) + bottom * fy;
-            *m = (255.0 * (1.0 - s)).round().clamp(0.0, 255.0) as u8;
+        if clear[y0] && clear[y1] {
+            return;
+        }
+        // The block row interpolated to this pixel row, then along it.
+        let (top, bottom) = (&soft[y0 * bw..(y0 + 1) * bw], &soft[y1 * bw..(y1 + 1) * bw]);
+        let line: Vec<f32> = top
+            .iter()
+            .zip(bottom)
+            .map(|(&t, &b)| t + (b - t) * fy)
+            .collect();
+        for (m, &(x0, x1, fx)) in row.iter_mut().zip(&columns) {
+            let (a, b) = (line[x0], line[x1]);
+            if a != 0.0 || b != 0.0 {
+                let s = a + (b - a) * fx;
+                *m = (255.0 * (1.0 - s) + 0.5).clamp(0.0, 255.0) as u8;
+            }
         }
     });
     mask
