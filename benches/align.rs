@@ -2,15 +2,15 @@
 //! what it costs at 24 MP.
 //!
 //! **Accuracy.** Three frames of each real tripod bracket of `../shared/testdata/brackets`
-//! (skipped when absent); the outer two are resampled ([`align::warp_frame`]) by a known
-//! transform: a *nudge* (≤ 3 px and 0.1°) or a *handheld* move (≤ 12 px and 0.5°, with a
+//! (skipped when absent); the two other than the reference ([`align::choose_reference`],
+//! which stays where it is) are resampled ([`align::warp_frame`]) by a known transform: a *nudge* (≤ 3 px and 0.1°) or a *handheld* move (≤ 12 px and 0.5°, with a
 //! mild perspective, the corners moved by ≈ 0.4 % of the longer side). Each is merged
 //! (one response, fitted on the unmoved frames; no deghosting) after: nothing; filmback's
 //! alignment (`--align auto`); the exact inverse move (the floor an aligner can reach:
 //! the frames were resampled twice); and, when Python with OpenCV is found
 //! (`FILMBACK_PYTHON`, else `python3`), OpenCV's `AlignMTB` (`benches/opencv_align.py`).
 //! Against the merge of the unmoved frames: the luminance error in stops (median, p95,
-//! share of pixels off by more than 0.1 stop) over the pixels the middle frame exposes
+//! share of pixels off by more than 0.1 stop) over the pixels the reference exposes
 //! well (every channel within codes 10..245), a margin of 3 % of the longer side left
 //! out, after one global scale (the median ratio). No constant of `align` was set on
 //! these frames (they were set on synthetic scenes, `tests/align.rs`).
@@ -178,12 +178,18 @@ fn accuracy() {
         let g = fitted(&frames);
         let truth = merged(&frames, &g);
         let (w, h) = (frames[0].0.width(), frames[0].0.height());
+        // The frame alignment registers the others onto stays where it is.
+        let views: Vec<&Frame> = frames.iter().map(|(f, _)| f).collect();
+        let reference = align::choose_reference(&views);
         for m in &MOVES {
-            let moves = [
-                Some(matrix(w, h, m.outer[0])),
-                None,
-                Some(matrix(w, h, m.outer[1])),
-            ];
+            let mut outer = m.outer.iter();
+            let moves: Vec<Option<[[f64; 3]; 3]>> = (0..frames.len())
+                .map(|k| {
+                    (k != reference)
+                        .then(|| outer.next().map(|&f| matrix(w, h, f)))
+                        .flatten()
+                })
+                .collect();
             let moved: Vec<(Frame, f64)> = frames
                 .iter()
                 .zip(&moves)
@@ -194,9 +200,9 @@ fn accuracy() {
                 .zip(&moves)
                 .map(|((f, e), t)| (t.map_or_else(|| f.clone(), |t| warped(f, &inverse(&t))), *e))
                 .collect();
-            let error = |fs: &[(Frame, f64)]| errors(&merged(fs, &g), &truth, &frames[1].0);
+            let error = |fs: &[(Frame, f64)]| errors(&merged(fs, &g), &truth, &frames[reference].0);
             let cv = if opencv {
-                opencv_aligned(&python, &name, m.name, &moved)
+                opencv_aligned(&python, &name, m.name, &moved, reference)
                     .map_or_else(|e| format!("failed: {e}"), |fs| error(&fs))
             } else {
                 "skipped".to_string()
@@ -267,13 +273,14 @@ fn aligned(frames: &[(Frame, f64)], g: &InverseResponse) -> (Vec<(Frame, f64)>, 
     (frames, found.join("; "))
 }
 
-/// `frames` aligned by OpenCV's AlignMTB through `benches/opencv_align.py` (frames written
-/// as binary PPM, read back as PNG), or why not.
+/// `frames` aligned by OpenCV's AlignMTB onto frame `reference` through
+/// `benches/opencv_align.py` (frames written as binary PPM, read back as PNG), or why not.
 fn opencv_aligned(
     python: &str,
     bracket: &str,
     case: &str,
     frames: &[(Frame, f64)],
+    reference: usize,
 ) -> Result<Vec<(Frame, f64)>, String> {
     let dir = Path::new(env!("CARGO_TARGET_TMPDIR"))
         .join("align-bench")
@@ -287,6 +294,7 @@ fn opencv_aligned(
             .join("benches/opencv_align.py")
             .display()
             .to_string(),
+        reference.to_string(),
     ];
     for (k, (f, _)) in frames.iter().enumerate() {
         let (input, output) = (
@@ -363,7 +371,8 @@ fn merged(frames: &[(Frame, f64)], g: &InverseResponse) -> RadianceMap {
 }
 
 /// `median / p95 / share > 0.1` of `|log₂(a/b)|` of the luminance, after one global
-/// scale (the median ratio), over the pixels `middle` exposes well, a margin left out.
+/// scale (the median ratio), over the pixels `middle` (the reference) exposes well, a
+/// margin left out.
 fn errors(a: &RadianceMap, b: &RadianceMap, middle: &Frame) -> String {
     let (w, h) = (middle.width() as usize, middle.height() as usize);
     let margin = (0.03 * w.max(h) as f64).ceil() as usize;

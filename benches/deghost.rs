@@ -98,10 +98,13 @@ fn synthetic_cases() -> Vec<Case> {
     .collect()
 }
 
+/// Three files of a bracket with their relative exposures.
+type Files = [(&'static str, f64); 3];
+
 /// Three frames of each real bracket, about two or three stops apart.
 fn real_cases() -> Vec<Case> {
     let dir = common::testdata_brackets();
-    let brackets: [(&str, &str, [(&str, f64); 3]); 5] = [
+    let brackets: [(&str, &str, Files); 5] = [
         (
             "frobisher",
             "frobisher",
