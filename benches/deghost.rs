@@ -11,9 +11,10 @@
 //! the blended merge (`--deghost off`). Also the share of the whole image some frame was
 //! left out of, and, for the still frames, the largest difference deghosting makes (0:
 //! the merge is bit-identical). Split: the constants of `deghost` were set on the
-//! synthetic procedural scene of seed 5 (`tests/deghost.rs`); the rows reported are other
-//! seeds and scene kinds, and the real brackets of `../shared/testdata/brackets`
-//! (frobisher, memorial, learnopencv; skipped when absent).
+//! synthetic procedural scene of seed 5 (`tests/deghost.rs`) and the tile vote on memorial
+//! frames 65–69 (the row says so); the other rows are other seeds and scene kinds, and the
+//! real brackets of `../shared/testdata/brackets` (frobisher, memorial frames 62–66,
+//! learnopencv's two triples; skipped when absent).
 //!
 //! **Cost.** `deghost::ghost_masks` on three 6000×4000 8-bit frames two stops apart (a
 //! still bracket, and the same with the subject moving), and the buffered merge with and
@@ -22,8 +23,8 @@
 //! `cargo bench --bench deghost -- [accuracy | speed] [--runs N]`
 
 use std::path::{Path, PathBuf};
-use std::time::{Duration, Instant};
 
+use filmback::align;
 use filmback::darkroom::{self, GivenResponse, ResponsePolicy, Stages};
 use filmback::deghost::{self, GhostMasks};
 use filmback::frame::{self, BitDepth, Frame, Limits, Samples};
@@ -97,11 +98,15 @@ fn synthetic_cases() -> Vec<Case> {
     .collect()
 }
 
+/// Three files of a bracket with their relative exposures.
+type Files = [(&'static str, f64); 3];
+
 /// Three frames of each real bracket, about two or three stops apart.
 fn real_cases() -> Vec<Case> {
     let dir = common::testdata_brackets();
-    let brackets: [(&str, [(&str, f64); 3]); 3] = [
+    let brackets: [(&str, &str, Files); 5] = [
         (
+            "frobisher",
             "frobisher",
             [
                 ("IMG_2600.jpg", 0.125),
@@ -111,6 +116,7 @@ fn real_cases() -> Vec<Case> {
         ),
         (
             "memorial",
+            "memorial 65–69 (tuned on)",
             [
                 ("memorial0069.png", 0.125),
                 ("memorial0067.png", 0.5),
@@ -118,16 +124,35 @@ fn real_cases() -> Vec<Case> {
             ],
         ),
         (
+            "memorial",
+            "memorial 62–66",
+            [
+                ("memorial0066.png", 1.0),
+                ("memorial0064.png", 4.0),
+                ("memorial0062.png", 16.0),
+            ],
+        ),
+        (
             "learnopencv",
+            "learnopencv 1/30–2.5 s",
             [
                 ("img_0.033.jpg", 1.0 / 30.0),
                 ("img_0.25.jpg", 0.25),
                 ("img_2.5.jpg", 2.5),
             ],
         ),
+        (
+            "learnopencv",
+            "learnopencv 1/4–15 s",
+            [
+                ("img_0.25.jpg", 0.25),
+                ("img_2.5.jpg", 2.5),
+                ("img_15.jpg", 15.0),
+            ],
+        ),
     ];
     let mut cases = Vec::new();
-    for (name, files) in brackets {
+    for (name, label, files) in brackets {
         let paths: Vec<(PathBuf, f64)> = files
             .iter()
             .map(|(f, e)| (dir.join(name).join(f), *e))
@@ -148,7 +173,7 @@ fn real_cases() -> Vec<Case> {
             })
             .collect();
         cases.push(Case {
-            name: format!("real {name}"),
+            name: format!("real {label}"),
             frames,
         });
     }
@@ -208,8 +233,8 @@ fn report(case: &Case) {
             (paste(f, side, from, to), *e)
         })
         .collect();
-    let masks = deghost::ghost_masks(&bracket(&moved, &camera), &fitted(&case.frames));
-    let r = masks.reference;
+    let views: Vec<&Frame> = moved.iter().map(|(f, _)| f).collect();
+    let r = align::choose_reference(&views);
     let still: Vec<(Frame, f64)> = case
         .frames
         .iter()
@@ -343,27 +368,17 @@ fn speed(runs: usize) {
         .collect();
     let g = InverseResponse::srgb(3, 1024);
     let camera = Camera::default();
-    let best = |f: &dyn Fn()| {
-        (0..runs)
-            .map(|_| {
-                let t = Instant::now();
-                f();
-                t.elapsed()
-            })
-            .min()
-            .unwrap_or(Duration::ZERO)
-    };
+    println!("wall time, and CPU time of all threads in parentheses");
     println!("| step | still | moving subject |");
     println!("|---|---|---|");
     let masks_of = |frames: &[(Frame, f64)]| deghost::ghost_masks(&bracket(frames, &camera), &g);
     let masks = (masks_of(&still), masks_of(&moved));
     let row = |name: &str, f: &dyn Fn(&Frames, &GhostMasks)| {
-        let still_t = best(&|| f(&still, &masks.0));
-        let moved_t = best(&|| f(&moved, &masks.1));
+        let still_t = common::best_of(runs, &|| f(&still, &masks.0));
+        let moved_t = common::best_of(runs, &|| f(&moved, &masks.1));
         println!(
-            "| {name} | {:.3} s | {:.3} s |",
-            still_t.as_secs_f64(),
-            moved_t.as_secs_f64()
+            "| {name} | {:.3} s ({:.2} s) | {:.3} s ({:.2} s) |",
+            still_t.0, still_t.1, moved_t.0, moved_t.1
         );
     };
     row("ghost masks", &|frames, _| {

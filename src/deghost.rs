@@ -9,13 +9,20 @@
 //! `r = ln x_k − ln x_a`. In a still bracket `r` is noise plus what the single response
 //! does not model (its fitting error, the camera's tone processing, the codec), which
 //! depends on the tone; a moving subject is an outlier. So the residuals of the pair are
-//! first gathered over the whole frame (every [`STATS_STRIDE`]-th pixel of every
-//! [`STATS_STRIDE`]-th row) by channel and by the anchor's tone ([`TONE_BINS`] bins of its
-//! code), giving per bin a centre `m` (the median) and a spread `s = 1.4826·MAD`; a bin with
-//! fewer than [`MIN_SAMPLES`] takes the channel's pooled figures; `|m|` is held within
-//! 0.3 stop and `s` within 0.5 stop ([`MAX_CENTRE_STOPS`], [`MAX_SPREAD_STOPS`]), so a bin
-//! that only a subject fills cannot make it look still. The frame disagrees in a
-//! channel when
+//! first gathered over the whole frame (every `s`-th pixel of every `s`-th row, `s` up to
+//! [`STATS_STRIDE`] as [`STATS_PIXELS`] allows) by channel and by the anchor's tone ([`TONE_BINS`] bins of its
+//! code), giving per bin a centre `m` and a spread `s = 1.4826·MAD` around it; a bin with
+//! fewer than [`MIN_SAMPLES`] takes the channel's pooled figures.
+//!
+//! What the response does not model is scene-wide and smooth in tone; a subject is
+//! compact. So the frame is cut into [`TILES`] × [`TILES`] tiles, and every tile holding at
+//! least [`MIN_TILE_SAMPLES`] of a bin's residuals votes with its own median. A bin with at
+//! least [`SCENE_WIDE_TILES`] votes (a quarter of the tiles) is scene-wide: `m` is the
+//! median of the votes (a subject would have to fill half of the bin's tiles to move it)
+//! and `m`, `s` are taken as they are. A bin with fewer votes is local, and may be a
+//! subject's own tones: `m` is the median of its residuals, held within 0.3 stop, and `s`
+//! within 0.5 stop ([`MAX_CENTRE_STOPS`], [`MAX_SPREAD_STOPS`]), so a bin that only a
+//! subject fills cannot make it look still. The frame disagrees in a channel when
 //!
 //! ```text
 //! |r − m|  >  Z · max(√(σ_k² + σ_a²), s) + δ,           Z = 4,  δ = 0.1 stop · ln 2
@@ -35,15 +42,17 @@
 //! top (the frame disagrees only when `r − m < −allowance`); dark, from above by its
 //! value at the range's bottom (only when `r − m > allowance`).
 //!
-//! A frame disagrees at a pixel when any channel disagrees. Frames are tested in order of
-//! exposure distance from the reference, the anchor of every pixel being the reference
-//! until a frame that exposes the pixel well where the anchor does not (a region the
+//! The comparison reads every [`COMPARE_STRIDE`]-th pixel of every [`COMPARE_STRIDE`]-th
+//! row (four points per block: the mask is decided per block, and a subject covers many).
+//! A frame disagrees at a point when any channel disagrees. Frames are tested in order of
+//! exposure distance from the reference, the anchor of every point being the reference
+//! until a frame that exposes the point well where the anchor does not (a region the
 //! reference clipped or left dark) agrees with it and takes its place.
 //!
 //! # The mask
 //!
 //! Disagreement is counted over blocks of [`BLOCK`]×[`BLOCK`] pixels. A block is left out
-//! where the share of disagreeing pixels, averaged over its 3×3 neighbourhood, exceeds
+//! where the share of disagreeing points, averaged over its 3×3 neighbourhood, exceeds
 //! [`GHOST_SHARE`] (isolated noise never reaches it; a subject does). The left-out blocks
 //! grow by one block and are feathered by two box filters of one block, and the mask is
 //! interpolated bilinearly back to pixels: a frame's weight falls smoothly to 0 over about
@@ -80,8 +89,16 @@ pub const GHOST_SHARE: f32 = 0.3;
 /// Bins of the anchor's code over which a pair's residuals are gathered.
 pub const TONE_BINS: usize = 32;
 
-/// Pixels and rows between the samples of a pair's residual statistics.
+/// The most pixels and rows between the samples of a pair's residual statistics.
 pub const STATS_STRIDE: usize = 4;
+
+/// The statistics read every `s`-th pixel of every `s`-th row, `s` the largest stride up
+/// to [`STATS_STRIDE`] that leaves at least this many pixels (1 for a frame under 4 MP).
+pub const STATS_PIXELS: usize = 1_000_000;
+
+/// Pixels and rows between the points the comparison reads (a half-resolution grid: four
+/// points per block).
+pub const COMPARE_STRIDE: usize = 2;
 
 /// Fewest residuals for a tone bin's own statistics.
 pub const MIN_SAMPLES: u32 = 64;
@@ -93,6 +110,16 @@ pub const MAX_CENTRE_STOPS: f64 = 0.3;
 
 /// The largest spread `s` (stops) a still scene is granted, for the same reason.
 pub const MAX_SPREAD_STOPS: f64 = 0.5;
+
+/// Tiles per side of the grid over which a bin's centre is voted.
+pub const TILES: usize = 8;
+
+/// Fewest residuals of a tone bin in a tile for the tile to vote on the bin's centre.
+pub const MIN_TILE_SAMPLES: u32 = 8;
+
+/// Fewest voting tiles (a quarter of them) for a tone bin to count as scene-wide: its
+/// centre is then the median of the tiles' medians and neither figure is capped.
+pub const SCENE_WIDE_TILES: usize = 16;
 
 /// Bins of the residual's histogram, over `±RESIDUAL_RANGE`.
 const RESIDUAL_BINS: usize = 256;
@@ -147,12 +174,12 @@ enum Tone {
     Bright,
 }
 
-/// Per code of one frame and channel: its `ln x` (or the bound at the range's edge), `σ` of
-/// it, where it lies, and its tone bin.
+/// Per code of one frame and channel: its `ln x` (or the bound at the range's edge), the
+/// noise term `Z²σ²` of it, where it lies, and its tone bin.
 #[derive(Clone, Copy)]
 struct Code {
     value: f32,
-    sigma: f32,
+    noise: f32,
     tone: Tone,
     bin: u8,
 }
@@ -172,19 +199,22 @@ impl Codes {
         let mut table = Vec::with_capacity(frames.len() * channels * levels);
         for f in frames {
             for c in 0..channels {
-                // `ln x` and its σ at brightness `b` of this frame and channel.
+                // `ln x` and `Z²σ²` at brightness `b` of this frame and channel.
                 let at = |b: f64| {
                     let x = response.eval(c, b).max(1e-9);
                     let (lo, hi) = ((b - 1.0 / 256.0).max(0.0), (b + 1.0 / 256.0).min(1.0));
                     let slope = (response.eval(c, hi) - response.eval(c, lo)) / (hi - lo);
                     let var =
                         ((slope * CODE_NOISE / 255.0).powi(2) + x / FULL_WELL_ELECTRONS) / (x * x);
-                    ((x * e_ref / f.exposure).ln() as f32, var.sqrt() as f32)
+                    (
+                        (x * e_ref / f.exposure).ln() as f32,
+                        (NOISE_SIGMAS * NOISE_SIGMAS * var) as f32,
+                    )
                 };
                 let (bottom, top) = (at(WELL_EXPOSED.0), at(WELL_EXPOSED.1));
                 for code in 0..levels {
                     let b = code as f64 / (levels - 1) as f64;
-                    let ((value, sigma), tone) = if b < WELL_EXPOSED.0 {
+                    let ((value, noise), tone) = if b < WELL_EXPOSED.0 {
                         (bottom, Tone::Dark)
                     } else if b > WELL_EXPOSED.1 {
                         (top, Tone::Bright)
@@ -194,7 +224,7 @@ impl Codes {
                     let bin = (code * TONE_BINS / levels) as u8;
                     table.push(Code {
                         value,
-                        sigma,
+                        noise,
                         tone,
                         bin,
                     });
@@ -214,107 +244,137 @@ impl Codes {
     }
 }
 
-/// The codes of every frame, at the bracket's depth.
-enum Planes<'a> {
-    Eight(Vec<&'a [u8]>),
-    Sixteen(Vec<&'a [u16]>),
+/// A frame's code type, 8 or 16 bits.
+trait Sample: Copy + Send + Sync {
+    fn index(self) -> usize;
 }
 
-impl<'a> Planes<'a> {
-    fn of(frames: &[BracketFrame<'a>]) -> Planes<'a> {
-        let eight = |f: &'a Frame| match f.samples() {
-            Samples::Eight(v) => v.as_slice(),
-            Samples::Sixteen(_) => &[],
-        };
-        let sixteen = |f: &'a Frame| match f.samples() {
-            Samples::Sixteen(v) => v.as_slice(),
-            Samples::Eight(_) => &[],
-        };
-        match frames[0].frame.samples() {
-            Samples::Eight(_) => Planes::Eight(frames.iter().map(|f| eight(f.frame)).collect()),
-            Samples::Sixteen(_) => {
-                Planes::Sixteen(frames.iter().map(|f| sixteen(f.frame)).collect())
-            }
-        }
-    }
-
-    /// Samples in one frame.
-    fn samples(&self) -> usize {
-        match self {
-            Planes::Eight(v) => v[0].len(),
-            Planes::Sixteen(v) => v[0].len(),
-        }
-    }
-
-    /// The code of sample `i` of frame `k`.
+impl Sample for u8 {
     #[inline]
-    fn code(&self, k: usize, i: usize) -> usize {
-        match self {
-            Planes::Eight(v) => usize::from(v[k][i]),
-            Planes::Sixteen(v) => usize::from(v[k][i]),
-        }
+    fn index(self) -> usize {
+        usize::from(self)
     }
+}
+
+impl Sample for u16 {
+    #[inline]
+    fn index(self) -> usize {
+        usize::from(self)
+    }
+}
+
+/// The bracket's codes as read by the test: the frames' sample slices (input order), the
+/// code table and the frame's width.
+struct Bracket<'a, T> {
+    planes: Vec<&'a [T]>,
+    codes: Codes,
+    width: usize,
+    height: usize,
+}
+
+impl<T: Sample> Bracket<'_, T> {
+    /// The stride of the residual statistics: `min(STATS_STRIDE, ⌊√(P/STATS_PIXELS)⌋)`,
+    /// at least 1, for `P` pixels.
+    fn stats_stride(&self) -> usize {
+        let ratio = (self.width * self.height / STATS_PIXELS) as f64;
+        (ratio.sqrt() as usize).clamp(1, STATS_STRIDE)
+    }
+
+    /// The [`Code`] of sample `i` (channel `c`) of frame `k`.
+    #[inline]
+    fn code(&self, k: usize, c: usize, i: usize) -> Code {
+        self.codes.get(k, c, self.planes[k][i].index())
+    }
+}
+
+/// A pair's residual statistics in one tone bin: the centre `m` and `Z²s²`.
+#[derive(Clone, Copy)]
+struct Bin {
+    centre: f32,
+    spread: f32,
 }
 
 /// What a pair's residuals `ln x_k − ln x_a` are in a still scene, per channel and tone bin
-/// of the anchor: `(m, s)`, their median and `1.4826·MAD`.
+/// of the anchor: their median and `1.4826·MAD`.
 struct Residuals {
-    bins: Vec<(f32, f32)>,
+    bins: Vec<Bin>,
 }
 
 impl Residuals {
-    /// Gathers the pair `(k, a)`'s residuals over every [`STATS_STRIDE`]-th pixel.
-    fn of(planes: &Planes<'_>, codes: &Codes, width: usize, k: usize, a: usize) -> Residuals {
-        let channels = codes.channels;
-        let per_bin = RESIDUAL_BINS;
-        let rows = planes.samples() / (width * channels).max(1);
-        let histogram = (0..rows)
+    /// Gathers the pair `(k, a)`'s residuals over every [`Bracket::stats_stride`]-th pixel,
+    /// tile by tile of a [`TILES`] × [`TILES`] grid, and decides each bin's figures (module docs).
+    fn of<T: Sample>(bracket: &Bracket<'_, T>, k: usize, a: usize) -> Residuals {
+        let channels = bracket.codes.channels;
+        let tiles: Vec<Vec<u32>> = (0..TILES * TILES)
             .into_par_iter()
-            .step_by(STATS_STRIDE)
-            .fold(
-                || vec![0u32; channels * TONE_BINS * per_bin],
-                |mut h, y| {
-                    for x in (0..width).step_by(STATS_STRIDE) {
-                        for c in 0..channels {
-                            let i = (y * width + x) * channels + c;
-                            let (xk, xa) = (
-                                codes.get(k, c, planes.code(k, i)),
-                                codes.get(a, c, planes.code(a, i)),
-                            );
-                            if xk.tone == Tone::Good {
-                                let slot = residual_bin(xk.value - xa.value);
-                                h[(c * TONE_BINS + usize::from(xa.bin)) * per_bin + slot] += 1;
-                            }
-                        }
-                    }
-                    h
-                },
-            )
-            .reduce(
-                || vec![0u32; channels * TONE_BINS * per_bin],
-                |mut a, b| {
-                    a.iter_mut().zip(b).for_each(|(x, y)| *x += y);
-                    a
-                },
-            );
+            .map(|t| bracket.tile_histogram(t, k, a))
+            .collect();
+        let z2 = (NOISE_SIGMAS * NOISE_SIGMAS) as f32;
         let mut bins = Vec::with_capacity(channels * TONE_BINS);
         for c in 0..channels {
-            let channel = &histogram[c * TONE_BINS * per_bin..(c + 1) * TONE_BINS * per_bin];
-            let mut pooled = vec![0u32; per_bin];
-            for bin in channel.chunks(per_bin) {
-                pooled.iter_mut().zip(bin).for_each(|(p, &n)| *p += n);
+            let slot = |b: usize| (c * TONE_BINS + b) * RESIDUAL_BINS;
+            let pooled: Vec<Vec<u32>> = (0..TONE_BINS)
+                .map(|b| {
+                    let mut h = vec![0u32; RESIDUAL_BINS];
+                    for tile in &tiles {
+                        let part = &tile[slot(b)..slot(b) + RESIDUAL_BINS];
+                        h.iter_mut().zip(part).for_each(|(x, &y)| *x += y);
+                    }
+                    h
+                })
+                .collect();
+            let mut channel = vec![0u32; RESIDUAL_BINS];
+            for h in &pooled {
+                channel.iter_mut().zip(h).for_each(|(x, &y)| *x += y);
             }
-            let fallback = centre_and_spread(&pooled).unwrap_or((0.0, 0.0));
-            for bin in channel.chunks(per_bin) {
-                bins.push(centre_and_spread(bin).unwrap_or(fallback));
+            let fallback = centre_and_spread(&channel, &[]).unwrap_or((0.0, 0.0));
+            for (b, histogram) in pooled.iter().enumerate() {
+                let votes: Vec<usize> = tiles
+                    .iter()
+                    .map(|tile| &tile[slot(b)..slot(b) + RESIDUAL_BINS])
+                    .filter(|h| h.iter().sum::<u32>() >= MIN_TILE_SAMPLES)
+                    .map(median_slot)
+                    .collect();
+                let (centre, s) = centre_and_spread(histogram, &votes).unwrap_or(fallback);
+                bins.push(Bin {
+                    centre,
+                    spread: z2 * s * s,
+                });
             }
         }
         Residuals { bins }
     }
 
     #[inline]
-    fn get(&self, channel: usize, bin: u8) -> (f32, f32) {
+    fn get(&self, channel: usize, bin: u8) -> Bin {
         self.bins[channel * TONE_BINS + usize::from(bin)]
+    }
+}
+
+impl<T: Sample> Bracket<'_, T> {
+    /// The residual histogram of the pair `(k, a)` over tile `t` (row by row of the
+    /// [`TILES`] × [`TILES`] grid), per channel and tone bin of the anchor, from every
+    /// [`Bracket::stats_stride`]-th pixel of every such row.
+    fn tile_histogram(&self, t: usize, k: usize, a: usize) -> Vec<u32> {
+        let channels = self.codes.channels;
+        let mut h = vec![0u32; channels * TONE_BINS * RESIDUAL_BINS];
+        let stride = self.stats_stride();
+        let span =
+            |i: usize, n: usize| (i * n / TILES).next_multiple_of(stride)..(i + 1) * n / TILES;
+        let (ys, xs) = (span(t / TILES, self.height), span(t % TILES, self.width));
+        for y in ys.step_by(stride) {
+            for x in xs.clone().step_by(stride) {
+                for c in 0..channels {
+                    let i = (y * self.width + x) * channels + c;
+                    let (xk, xa) = (self.code(k, c, i), self.code(a, c, i));
+                    if xk.tone == Tone::Good {
+                        let slot = residual_bin(xk.value - xa.value);
+                        h[(c * TONE_BINS + usize::from(xa.bin)) * RESIDUAL_BINS + slot] += 1;
+                    }
+                }
+            }
+        }
+        h
     }
 }
 
@@ -325,23 +385,43 @@ fn residual_bin(r: f32) -> usize {
     (t.max(0.0) as usize).min(RESIDUAL_BINS - 1)
 }
 
-/// Median and `1.4826·MAD` of a residual histogram, within [`MAX_CENTRE_STOPS`] and
-/// [`MAX_SPREAD_STOPS`]; `None` below [`MIN_SAMPLES`].
-fn centre_and_spread(histogram: &[u32]) -> Option<(f32, f32)> {
+/// The residual at the centre of histogram slot `slot`, `ln` units.
+fn slot_value(slot: usize) -> f32 {
+    -RESIDUAL_RANGE + (slot as f32 + 0.5) * 2.0 * RESIDUAL_RANGE / RESIDUAL_BINS as f32
+}
+
+/// The slot holding the median of a (non-empty) residual histogram.
+fn median_slot(histogram: &[u32]) -> usize {
     let total: u32 = histogram.iter().sum();
-    if total < MIN_SAMPLES {
-        return None;
-    }
-    let width = 2.0 * RESIDUAL_RANGE / RESIDUAL_BINS as f32;
     let mut seen = 0;
-    let median = histogram
+    histogram
         .iter()
         .position(|&n| {
             seen += n;
             2 * seen >= total
         })
-        .unwrap_or(0);
-    // The median absolute deviation, in whole bins around the median's bin.
+        .unwrap_or(0)
+}
+
+/// A bin's centre and spread from its residual histogram and its tiles' `votes` (each
+/// voting tile's median slot); `None` below [`MIN_SAMPLES`]. With at least
+/// [`SCENE_WIDE_TILES`] votes the centre is the median of the votes and the spread
+/// `1.4826·MAD` around it; with fewer the centre is the histogram's median and the two
+/// are held within [`MAX_CENTRE_STOPS`] and [`MAX_SPREAD_STOPS`].
+fn centre_and_spread(histogram: &[u32], votes: &[usize]) -> Option<(f32, f32)> {
+    let total: u32 = histogram.iter().sum();
+    if total < MIN_SAMPLES {
+        return None;
+    }
+    let scene_wide = votes.len() >= SCENE_WIDE_TILES;
+    let median = if scene_wide {
+        let mut votes = votes.to_vec();
+        votes.sort_unstable();
+        votes[(votes.len() - 1) / 2]
+    } else {
+        median_slot(histogram)
+    };
+    // The median absolute deviation, in whole slots around the centre's slot.
     let mut within = histogram[median];
     let mut d = 0;
     while 2 * within < total && d < RESIDUAL_BINS {
@@ -349,14 +429,20 @@ fn centre_and_spread(histogram: &[u32]) -> Option<(f32, f32)> {
         within += median.checked_sub(d).map_or(0, |i| histogram[i]);
         within += histogram.get(median + d).copied().unwrap_or(0);
     }
-    let centre = -RESIDUAL_RANGE + (median as f32 + 0.5) * width;
+    let (centre, spread) = (
+        slot_value(median),
+        1.4826 * d as f32 * 2.0 * RESIDUAL_RANGE / RESIDUAL_BINS as f32,
+    );
+    if scene_wide {
+        return Some((centre, spread));
+    }
     let (max_centre, max_spread) = (
         (MAX_CENTRE_STOPS * std::f64::consts::LN_2) as f32,
         (MAX_SPREAD_STOPS * std::f64::consts::LN_2) as f32,
     );
     Some((
         centre.clamp(-max_centre, max_centre),
-        (1.4826 * d as f32 * width).min(max_spread),
+        spread.min(max_spread),
     ))
 }
 
@@ -365,7 +451,11 @@ fn centre_and_spread(histogram: &[u32]) -> Option<(f32, f32)> {
 enum Verdict {
     /// No channel the frame exposes well.
     Unknown,
-    Agree,
+    /// Every channel the frame exposes well agrees; `anchored` when the anchor exposes
+    /// some channel well.
+    Agree {
+        anchored: bool,
+    },
     Disagree,
 }
 
@@ -377,46 +467,94 @@ pub fn ghost_masks(frames: &[BracketFrame<'_>], response: &InverseResponse) -> G
     let views: Vec<&Frame> = frames.iter().map(|f| f.frame).collect();
     let reference = crate::align::choose_reference(&views);
     let n = frames.len();
+    let unmasked = GhostMasks {
+        reference,
+        masks: vec![None; n],
+        left_out: vec![0.0; n],
+    };
     let shape = |f: &Frame| (f.width(), f.height(), f.channels(), f.bit_depth());
     if views.iter().any(|f| shape(f) != shape(views[0])) {
         // Not one bracket: nothing to compare; the merge refuses it, naming the files.
-        return GhostMasks {
-            reference,
-            masks: vec![None; n],
-            left_out: vec![0.0; n],
-        };
+        return unmasked;
     }
+    let eight: Option<Vec<&[u8]>> = views
+        .iter()
+        .map(|f| match f.samples() {
+            Samples::Eight(v) => Some(v.as_slice()),
+            Samples::Sixteen(_) => None,
+        })
+        .collect();
+    let sixteen: Option<Vec<&[u16]>> = views
+        .iter()
+        .map(|f| match f.samples() {
+            Samples::Sixteen(v) => Some(v.as_slice()),
+            Samples::Eight(_) => None,
+        })
+        .collect();
+    let (width, height) = (views[0].width() as usize, views[0].height() as usize);
     let codes = Codes::new(frames, response);
-    let planes = Planes::of(frames);
-    let first = frames[0].frame;
-    let (width, height) = (first.width() as usize, first.height() as usize);
-    // A bracket of more than 256 frames compares each with the reference alone.
-    let mut anchor = vec![u8::try_from(reference).unwrap_or(0); width * height];
+    let (masks, left_out) = match (eight, sixteen) {
+        (Some(planes), _) => decide(
+            frames,
+            reference,
+            &Bracket {
+                planes,
+                codes,
+                width,
+                height,
+            },
+        ),
+        (_, Some(planes)) => decide(
+            frames,
+            reference,
+            &Bracket {
+                planes,
+                codes,
+                width,
+                height,
+            },
+        ),
+        _ => return unmasked,
+    };
+    GhostMasks {
+        reference,
+        masks,
+        left_out,
+    }
+}
+
+/// Per input frame, its mask (or `None`) and the share of pixels left out.
+fn decide<T: Sample>(
+    frames: &[BracketFrame<'_>],
+    reference: usize,
+    bracket: &Bracket<'_, T>,
+) -> (Vec<Option<Vec<u8>>>, Vec<f64>) {
+    let n = frames.len();
+    let (width, height) = (bracket.width, bracket.height);
+    // The anchor of every point of the comparison grid. A bracket of more than 256 frames
+    // compares each with the reference alone.
+    let grid = width.div_ceil(COMPARE_STRIDE) * height.div_ceil(COMPARE_STRIDE);
+    let mut anchor = vec![u8::try_from(reference).unwrap_or(0); grid];
     let mut masks = vec![None; n];
     let mut left_out = vec![0.0; n];
     let order = by_distance(frames, reference);
     for (rank, &k) in order.iter().enumerate().skip(1) {
         let mut residuals: Vec<Option<Residuals>> = (0..n).map(|_| None).collect();
         for &a in &order[..rank] {
-            residuals[a] = Some(Residuals::of(&planes, &codes, width, k, a));
+            residuals[a] = Some(Residuals::of(bracket, k, a));
         }
         let pair = Pair {
-            planes: &planes,
-            codes: &codes,
+            bracket,
             residuals: &residuals,
             k,
         };
-        let disagree = pair.compare(&mut anchor, width);
+        let disagree = pair.compare(&mut anchor);
         if let Some(mask) = mask_of(&disagree, width, height) {
             left_out[k] = mask.iter().filter(|&&m| m < 128).count() as f64 / mask.len() as f64;
             masks[k] = Some(mask);
         }
     }
-    GhostMasks {
-        reference,
-        masks,
-        left_out,
-    }
+    (masks, left_out)
 }
 
 /// Input indices, the reference first, then by `|ln(e_k/e_ref)|` (stable).
@@ -434,39 +572,45 @@ fn by_distance(frames: &[BracketFrame<'_>], reference: usize) -> Vec<usize> {
 }
 
 /// Frame `k` against the anchors of the frames before it.
-struct Pair<'a> {
-    planes: &'a Planes<'a>,
-    codes: &'a Codes,
+struct Pair<'a, T> {
+    bracket: &'a Bracket<'a, T>,
     /// Per anchor frame, the residual statistics of `(k, anchor)`.
     residuals: &'a [Option<Residuals>],
     k: usize,
 }
 
-impl Pair<'_> {
-    /// Per block, the share of the pixels it compared that disagree (a grid of
-    /// `⌈w/BLOCK⌉ × ⌈h/BLOCK⌉`). Where the anchor exposes no channel well and `k` does
-    /// and agrees with it, `k` becomes the anchor.
-    fn compare(&self, anchor: &mut [u8], width: usize) -> Vec<f32> {
+impl<T: Sample> Pair<'_, T> {
+    /// Per block, the share of the grid points it compared that disagree (a grid of
+    /// `⌈w/BLOCK⌉ × ⌈h/BLOCK⌉`). The points are every [`COMPARE_STRIDE`]-th pixel of every
+    /// [`COMPARE_STRIDE`]-th row; `anchor` holds one anchor per point. Where the anchor
+    /// exposes no channel well and `k` does and agrees with it, `k` becomes the anchor.
+    fn compare(&self, anchor: &mut [u8]) -> Vec<f32> {
+        let (width, height) = (self.bracket.width, self.bracket.height);
         let blocks_x = width.div_ceil(BLOCK);
-        let mut share = vec![0.0f32; blocks_x * (anchor.len() / width.max(1)).div_ceil(BLOCK)];
+        let grid_x = width.div_ceil(COMPARE_STRIDE);
+        let per_block = BLOCK / COMPARE_STRIDE;
+        let mut share = vec![0.0f32; blocks_x * height.div_ceil(BLOCK)];
         anchor
-            .par_chunks_mut(width * BLOCK)
+            .par_chunks_mut(grid_x * per_block)
             .zip(share.par_chunks_mut(blocks_x))
             .enumerate()
             .for_each(|(band, (anchors, shares))| {
                 let mut counts = vec![(0u32, 0u32); blocks_x];
-                for (i, a) in anchors.iter_mut().enumerate() {
-                    let p = band * BLOCK * width + i;
-                    let count = &mut counts[(i % width) / BLOCK];
-                    match self.verdict(p, usize::from(*a)) {
-                        Verdict::Disagree => *count = (count.0 + 1, count.1 + 1),
-                        Verdict::Agree => {
-                            count.1 += 1;
-                            if !self.exposes(usize::from(*a), p) {
-                                *a = self.k as u8;
+                for (row, anchors) in anchors.chunks_mut(grid_x).enumerate() {
+                    let y = (band * per_block + row) * COMPARE_STRIDE;
+                    for (gx, a) in anchors.iter_mut().enumerate() {
+                        let p = y * width + gx * COMPARE_STRIDE;
+                        let count = &mut counts[gx / per_block];
+                        match self.verdict(p, usize::from(*a)) {
+                            Verdict::Disagree => *count = (count.0 + 1, count.1 + 1),
+                            Verdict::Agree { anchored } => {
+                                count.1 += 1;
+                                if !anchored {
+                                    *a = self.k as u8;
+                                }
                             }
+                            Verdict::Unknown => {}
                         }
-                        Verdict::Unknown => {}
                     }
                 }
                 for (s, (bad, seen)) in shares.iter_mut().zip(counts) {
@@ -480,46 +624,39 @@ impl Pair<'_> {
         share
     }
 
-    /// True when frame `f` exposes some channel of pixel `p` well.
-    fn exposes(&self, f: usize, p: usize) -> bool {
-        let channels = self.codes.channels;
-        (0..channels).any(|c| {
-            let code = self.planes.code(f, p * channels + c);
-            self.codes.get(f, c, code).tone == Tone::Good
-        })
-    }
-
-    /// Frame `k` against `anchor` at pixel `p` (module docs).
+    /// Frame `k` against `anchor` at pixel `p` (module docs): channel by channel,
+    /// `e = |r − m| − δ` (one-sided where the anchor is a bound) disagrees when
+    /// `e > 0` and `e² > max(Z²(σ_k² + σ_a²), Z²s²)`.
     #[inline]
     fn verdict(&self, p: usize, anchor: usize) -> Verdict {
         let Some(residuals) = self.residuals[anchor].as_ref() else {
             return Verdict::Unknown;
         };
         let tolerance = (TOLERANCE_STOPS * std::f64::consts::LN_2) as f32;
-        let channels = self.codes.channels;
-        let mut seen = false;
+        let channels = self.bracket.codes.channels;
+        let (mut seen, mut anchored) = (false, false);
         for c in 0..channels {
             let i = p * channels + c;
-            let x = self.codes.get(self.k, c, self.planes.code(self.k, i));
+            let a = self.bracket.code(anchor, c, i);
+            anchored |= a.tone == Tone::Good;
+            let x = self.bracket.code(self.k, c, i);
             if x.tone != Tone::Good {
                 continue;
             }
-            let a = self.codes.get(anchor, c, self.planes.code(anchor, i));
-            let (centre, spread) = residuals.get(c, a.bin);
-            let allowed = NOISE_SIGMAS as f32 * x.sigma.hypot(a.sigma).max(spread) + tolerance;
-            let r = x.value - a.value - centre;
-            let off = match a.tone {
-                Tone::Good => r.abs() > allowed,
-                Tone::Bright => r < -allowed,
-                Tone::Dark => r > allowed,
-            };
-            if off {
+            let bin = residuals.get(c, a.bin);
+            let r = x.value - a.value - bin.centre;
+            let excess = match a.tone {
+                Tone::Good => r.abs(),
+                Tone::Bright => -r,
+                Tone::Dark => r,
+            } - tolerance;
+            if excess > 0.0 && excess * excess > (x.noise + a.noise).max(bin.spread) {
                 return Verdict::Disagree;
             }
             seen = true;
         }
         if seen {
-            Verdict::Agree
+            Verdict::Agree { anchored }
         } else {
             Verdict::Unknown
         }
@@ -530,6 +667,10 @@ impl Pair<'_> {
 /// when no block is left out.
 fn mask_of(share: &[f32], width: usize, height: usize) -> Option<Vec<u8>> {
     let (bw, bh) = (width.div_ceil(BLOCK), height.div_ceil(BLOCK));
+    // A neighbourhood's mean exceeds the threshold only if one of its blocks does.
+    if share.iter().all(|&s| s <= GHOST_SHARE) {
+        return None;
+    }
     let neighbourhood = box_mean(share, bw, bh, 1);
     let ghost: Vec<f32> = neighbourhood
         .iter()
@@ -547,42 +688,63 @@ fn mask_of(share: &[f32], width: usize, height: usize) -> Option<Vec<u8>> {
 }
 
 /// The mean over the `(2r+1)²` neighbourhood of each cell (clamped at the borders: only
-/// the cells inside the grid count).
+/// the cells inside the grid count), along rows then along columns, rows in parallel.
 fn box_mean(grid: &[f32], w: usize, h: usize, r: usize) -> Vec<f32> {
-    let pass = |src: &[f32], along_x: bool| -> Vec<f32> {
-        let mut out = vec![0.0; src.len()];
-        for y in 0..h {
-            for x in 0..w {
-                let (i, n) = if along_x { (x, w) } else { (y, h) };
-                let (lo, hi) = (i.saturating_sub(r), (i + r).min(n - 1));
-                let at = |j: usize| if along_x { y * w + j } else { j * w + x };
-                let sum: f32 = (lo..=hi).map(|j| src[at(j)]).sum();
-                out[y * w + x] = sum / (hi - lo + 1) as f32;
+    let mut across = vec![0.0f32; grid.len()];
+    across
+        .par_chunks_mut(w)
+        .zip(grid.par_chunks(w))
+        .for_each(|(out, row)| {
+            for (x, o) in out.iter_mut().enumerate() {
+                let (lo, hi) = (x.saturating_sub(r), (x + r).min(w - 1));
+                *o = row[lo..=hi].iter().sum::<f32>() / (hi - lo + 1) as f32;
             }
+        });
+    let mut out = vec![0.0f32; grid.len()];
+    out.par_chunks_mut(w).enumerate().for_each(|(y, row)| {
+        let (lo, hi) = (y.saturating_sub(r), (y + r).min(h - 1));
+        for above in across[lo * w..(hi + 1) * w].chunks(w) {
+            row.iter_mut().zip(above).for_each(|(o, &v)| *o += v);
         }
-        out
-    };
-    pass(&pass(grid, true), false)
+        let n = (hi - lo + 1) as f32;
+        row.iter_mut().for_each(|o| *o /= n);
+    });
+    out
 }
 
 /// Pixel weights `255·(1 − s)` from the block grid `soft` (`s` the left-out share),
-/// interpolated bilinearly between block centres.
+/// interpolated bilinearly between block centres (rounded to the nearest code).
 fn upsample(soft: &[f32], bw: usize, bh: usize, width: usize, height: usize) -> Vec<u8> {
     let coordinate = |p: usize, n: usize| {
         let t = ((p as f32 + 0.5) / BLOCK as f32 - 0.5).clamp(0.0, (n - 1) as f32);
         let i = (t as usize).min(n.saturating_sub(2));
         (i, (i + 1).min(n - 1), t - i as f32)
     };
-    let mut mask = vec![0u8; width * height];
+    let columns: Vec<(usize, usize, f32)> = (0..width).map(|x| coordinate(x, bw)).collect();
+    // Block rows with nothing left out: their pixels are kept.
+    let clear: Vec<bool> = soft
+        .chunks(bw)
+        .map(|r| r.iter().all(|&s| s == 0.0))
+        .collect();
+    let mut mask = vec![255u8; width * height];
     mask.par_chunks_mut(width).enumerate().for_each(|(y, row)| {
         let (y0, y1, fy) = coordinate(y, bh);
-        for (x, m) in row.iter_mut().enumerate() {
-            let (x0, x1, fx) = coordinate(x, bw);
-            let at = |yy: usize, xx: usize| soft[yy * bw + xx];
-            let top = at(y0, x0) * (1.0 - fx) + at(y0, x1) * fx;
-            let bottom = at(y1, x0) * (1.0 - fx) + at(y1, x1) * fx;
-            let s = top * (1.0 - fy) + bottom * fy;
-            *m = (255.0 * (1.0 - s)).round().clamp(0.0, 255.0) as u8;
+        if clear[y0] && clear[y1] {
+            return;
+        }
+        // The block row interpolated to this pixel row, then along it.
+        let (top, bottom) = (&soft[y0 * bw..(y0 + 1) * bw], &soft[y1 * bw..(y1 + 1) * bw]);
+        let line: Vec<f32> = top
+            .iter()
+            .zip(bottom)
+            .map(|(&t, &b)| t + (b - t) * fy)
+            .collect();
+        for (m, &(x0, x1, fx)) in row.iter_mut().zip(&columns) {
+            let (a, b) = (line[x0], line[x1]);
+            if a != 0.0 || b != 0.0 {
+                let s = a + (b - a) * fx;
+                *m = (255.0 * (1.0 - s) + 0.5).clamp(0.0, 255.0) as u8;
+            }
         }
     });
     mask

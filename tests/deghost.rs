@@ -178,3 +178,30 @@ fn a_wrong_response_does_not_make_ghosts() {
         masks.share()
     );
 }
+
+#[test]
+fn a_tone_curve_the_response_does_not_model_does_not_make_ghosts() {
+    // The short frame through gamma 1.8, the others through sRGB, all merged through the
+    // sRGB inverse: the short frame reads 0.25–0.7 stop dark, by tone, all over the frame.
+    let base = scene(WIDTH, HEIGHT, 17);
+    let g = true_response(&ResponseCurve::Srgb);
+    let frames: Vec<Frame> = EXPOSURES
+        .iter()
+        .enumerate()
+        .map(|(k, &e)| {
+            let curve = if k == 0 {
+                ResponseCurve::Gamma(1.8)
+            } else {
+                ResponseCurve::Srgb
+            };
+            expose(&base, e, &Sensor { curve, ..sensor(4) })
+        })
+        .collect();
+    let camera = Camera::default();
+    let masks = deghost::ghost_masks(&bracket(&frames, &camera), &g);
+    assert!(
+        masks.share() < 0.01,
+        "{:.4} of the pixels left out",
+        masks.share()
+    );
+}

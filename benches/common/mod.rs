@@ -103,3 +103,32 @@ pub fn real_scene(frames: &[(PathBuf, f64)], pixels: f64) -> Result<RadianceMap,
     let borrowed: Vec<(&Frame, f64)> = loaded.iter().map(|(f, e)| (f, *e)).collect();
     synthetic::real_place(&borrowed, pixels).map_err(|e| e.to_string())
 }
+
+/// The CPU time this process has used so far, all threads, user and system, in seconds
+/// (`/proc/self/stat`, in the kernel's fixed 1/100 s ticks); `None` where it cannot be
+/// read. On a busy machine wall time includes the waits for a core; CPU time divided by
+/// the cores a step keeps busy is what the step costs on an idle machine.
+pub fn cpu_seconds() -> Option<f64> {
+    let stat = std::fs::read_to_string("/proc/self/stat").ok()?;
+    // The fields after the command name (in parentheses, which may hold spaces).
+    let fields: Vec<&str> = stat.rsplit_once(')')?.1.split_whitespace().collect();
+    let ticks = |i: usize| fields.get(i)?.parse::<f64>().ok();
+    // utime and stime are fields 14 and 15 of the line; the state, field 3, is index 0.
+    Some((ticks(11)? + ticks(12)?) / 100.0)
+}
+
+/// The least wall time and the least CPU time (all threads) of `runs` runs of `f`, in
+/// seconds (CPU time NaN where it cannot be read).
+pub fn best_of(runs: usize, f: &dyn Fn()) -> (f64, f64) {
+    let (mut wall, mut cpu) = (f64::INFINITY, f64::INFINITY);
+    for _ in 0..runs.max(1) {
+        let (t, c) = (std::time::Instant::now(), cpu_seconds());
+        f();
+        wall = wall.min(t.elapsed().as_secs_f64());
+        cpu = cpu.min(match (c, cpu_seconds()) {
+            (Some(a), Some(b)) => b - a,
+            _ => f64::NAN,
+        });
+    }
+    (wall, cpu)
+}

@@ -81,6 +81,8 @@ mod warp;
 
 use std::fmt::Write as _;
 
+use rayon::prelude::*;
+
 use crate::frame::{Frame, Samples};
 use crate::response::InverseResponse;
 
@@ -367,17 +369,23 @@ fn well_exposed_score(frame: &Frame) -> f64 {
         frame.channels(),
     );
     let max = f64::from(frame.bit_depth().max_code());
-    let score = |codes: &dyn Fn(usize) -> u32| {
-        let mut sum = 0.0;
-        for y in (0..h).step_by(REFERENCE_STRIDE) {
-            for x in (0..w).step_by(REFERENCE_STRIDE) {
-                let i = (y * w + x) * c;
-                sum += (i..i + c)
-                    .map(|s| exposure_weight(f64::from(codes(s)) / max))
-                    .fold(1.0, f64::min);
-            }
-        }
-        sum
+    // Row sums in parallel, added in row order (the same score on every call).
+    let score = |codes: &(dyn Fn(usize) -> u32 + Sync)| {
+        let rows: Vec<f64> = (0..h)
+            .into_par_iter()
+            .step_by(REFERENCE_STRIDE)
+            .map(|y| {
+                let mut sum = 0.0;
+                for x in (0..w).step_by(REFERENCE_STRIDE) {
+                    let i = (y * w + x) * c;
+                    sum += (i..i + c)
+                        .map(|s| exposure_weight(f64::from(codes(s)) / max))
+                        .fold(1.0, f64::min);
+                }
+                sum
+            })
+            .collect();
+        rows.iter().sum::<f64>()
     };
     match frame.samples() {
         Samples::Eight(v) => score(&|i| u32::from(v[i])),

@@ -638,8 +638,10 @@ fn print_looks(
 /// `frames·S·bytes_per_sample` (the decoded frames, held as codes; the merge makes no
 /// per-frame float buffer) `+ (frames − 1)·S·bytes_per_sample` (each frame but the
 /// reference resampled onto the reference grid when alignment moves it,
-/// [`crate::align`]; its estimation pyramids are under a megabyte a frame) `+`
-/// [`working_memory_bytes`]: with looks, `4·S` (the
+/// [`crate::align`]; its estimation pyramids are under a megabyte a frame) `+ (frames −
+/// 1)·P` (the deghosting masks, one byte per pixel of each frame but the reference, held
+/// through the merge, [`crate::deghost`]; the comparison's own grids, under `P` bytes,
+/// are freed before the merge's buffers exist) `+` [`working_memory_bytes`]: with looks, `4·S` (the
 /// radiance map, `f32`; an 8-bit pair whose looks have no optics needs none, so its
 /// peak stays `4·S` under the bound) `+ 2·S` (the EXR encoded in memory before it is
 /// published, at most its uncompressed half-float size) `+ 8·P` (the largest working set of one look:
@@ -649,9 +651,10 @@ fn print_looks(
 /// confidence layer) the merge runs inside the encoder and only the `2·S` of the EXR is
 /// added.
 ///
-/// So each frame adds twice its own decoded size: a 24 MP 8-bit RGB pair with two looks
-/// is bounded by 847 MB, a 5-frame 24 MP bracket written only as EXR by 792 MB, a
-/// 7-frame 45 MP (8256 × 5504) bracket by 2.96 GB with looks and 2.04 GB without.
+/// So each frame adds twice its own decoded size and a byte per pixel: a 24 MP 8-bit RGB
+/// pair with two looks is bounded by 871 MB, a 5-frame 24 MP bracket written only as EXR
+/// by 888 MB, a 7-frame 45 MP (8256 × 5504) bracket by 3.24 GB with looks and 2.32 GB
+/// without.
 pub fn job_memory_bytes(
     width: u32,
     height: u32,
@@ -662,8 +665,11 @@ pub fn job_memory_bytes(
 ) -> u64 {
     let samples = u64::from(width) * u64::from(height) * channels as u64;
     let frame = samples * bytes_per_sample as u64;
-    let warped = frames.saturating_sub(1) as u64;
-    frames as u64 * frame + warped * frame + working_memory_bytes(width, height, channels, looks)
+    let pixels = u64::from(width) * u64::from(height);
+    let others = frames.saturating_sub(1) as u64;
+    frames as u64 * frame
+        + others * (frame + pixels)
+        + working_memory_bytes(width, height, channels, looks)
 }
 
 /// The part of [`job_memory_bytes`] that does not grow with the frames, for a

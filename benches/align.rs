@@ -1,0 +1,462 @@
+//! `cargo bench --bench align`: how well alignment undoes a known move of real frames, and
+//! what it costs at 24 MP.
+//!
+//! **Accuracy.** Three frames of each real tripod bracket of `../shared/testdata/brackets`
+//! (skipped when absent); the two other than the reference ([`align::choose_reference`],
+//! which stays where it is) are resampled ([`align::warp_frame`]) by a known transform: a *nudge* (≤ 3 px and 0.1°) or a *handheld* move (≤ 12 px and 0.5°, with a
+//! mild perspective, the corners moved by ≈ 0.4 % of the longer side). Each is merged
+//! (one response, fitted on the unmoved frames; no deghosting) after: nothing; filmback's
+//! alignment (`--align auto`); the exact inverse move (the floor an aligner can reach:
+//! the frames were resampled twice); and, when Python with OpenCV is found
+//! (`FILMBACK_PYTHON`, else `python3`), OpenCV's `AlignMTB` (`benches/opencv_align.py`).
+//! Against the merge of the unmoved frames: the luminance error in stops (median, p95,
+//! share of pixels off by more than 0.1 stop) over the pixels the reference exposes
+//! well (every channel within codes 10..245), a margin of 3 % of the longer side left
+//! out, after one global scale (the median ratio). No constant of `align` was set on
+//! these frames (they were set on synthetic scenes, `tests/align.rs`).
+//!
+//! **Cost.** `align::align` and `align::warp_frames` on three 6000×4000 8-bit frames two
+//! stops apart (the synthetic procedural scene), the outer ones moved as a handheld
+//! bracket; best of `--runs N` (default 3).
+//!
+//! `cargo bench --bench align -- [accuracy | speed] [--runs N]`
+
+use std::path::{Path, PathBuf};
+use std::process::Command;
+
+use filmback::align::{self, AlignFrame, AlignMode};
+use filmback::darkroom::{self, GivenResponse, ResponsePolicy, Stages};
+use filmback::frame::{self, BitDepth, Frame, Limits, Samples};
+use filmback::merge::{self, BracketFrame, MergeOptions};
+use filmback::metadata::Camera;
+use filmback::radiance::RadianceMap;
+use filmback::response::{InverseResponse, RatioSource};
+use filmback::synthetic::{ResponseCurve, SceneKind, Sensor, expose};
+
+mod common;
+
+/// One outer frame's move: a shift `(dx, dy)` in pixels, a rotation in degrees about the
+/// centre, and the perspective terms `(px, py)` in coordinates normalised by half the
+/// longer side.
+#[derive(Clone, Copy)]
+struct FrameMove((f64, f64), f64, (f64, f64));
+
+/// A move of the outer frames, first and last.
+struct Move {
+    name: &'static str,
+    outer: [FrameMove; 2],
+}
+
+const MOVES: [Move; 2] = [
+    Move {
+        name: "nudge (≤ 3 px, 0.1°)",
+        outer: [
+            FrameMove((2.3, -1.7), 0.08, (0.0, 0.0)),
+            FrameMove((-2.8, 1.2), -0.1, (0.0, 0.0)),
+        ],
+    },
+    Move {
+        name: "handheld (≤ 12 px, 0.5°, perspective)",
+        outer: [
+            FrameMove((9.5, -7.2), 0.4, (0.004, -0.003)),
+            FrameMove((-11.3, 6.1), -0.5, (-0.003, 0.004)),
+        ],
+    },
+];
+
+fn main() {
+    let args: Vec<String> = std::env::args().collect();
+    let all = !args.iter().any(|a| a == "accuracy" || a == "speed");
+    let runs = common::arg("--runs").map_or(3, |r| r.parse().expect("--runs N"));
+    if all || args.iter().any(|a| a == "accuracy") {
+        accuracy();
+    }
+    if all || args.iter().any(|a| a == "speed") {
+        speed(runs);
+    }
+}
+
+/// The pixel matrix (reference pixel → moved frame's pixel) of one outer frame's move in
+/// a `w × h` frame: `C·H·C⁻¹`, `C` taking normalised coordinates (centre `c`, unit half
+/// the longer side `s`) to pixels.
+fn matrix(w: u32, h: u32, m: FrameMove) -> [[f64; 3]; 3] {
+    let FrameMove((dx, dy), degrees, (px, py)) = m;
+    let (cx, cy) = (f64::from(w - 1) / 2.0, f64::from(h - 1) / 2.0);
+    let s = f64::from(w.max(h)) / 2.0;
+    let (sin, cos) = degrees.to_radians().sin_cos();
+    let n = nalgebra::Matrix3::new(cos, -sin, dx / s, sin, cos, dy / s, px, py, 1.0);
+    let c = nalgebra::Matrix3::new(s, 0.0, cx, 0.0, s, cy, 0.0, 0.0, 1.0);
+    let c_inv = nalgebra::Matrix3::new(1.0 / s, 0.0, -cx / s, 0.0, 1.0 / s, -cy / s, 0.0, 0.0, 1.0);
+    to_array(&(c * n * c_inv))
+}
+
+fn to_array(m: &nalgebra::Matrix3<f64>) -> [[f64; 3]; 3] {
+    let mut out = [[0.0; 3]; 3];
+    for (r, row) in out.iter_mut().enumerate() {
+        for (c, v) in row.iter_mut().enumerate() {
+            *v = m[(r, c)] / m[(2, 2)];
+        }
+    }
+    out
+}
+
+fn inverse(t: &[[f64; 3]; 3]) -> [[f64; 3]; 3] {
+    let m = nalgebra::Matrix3::from_fn(|r, c| t[r][c]);
+    to_array(&m.try_inverse().expect("an invertible move"))
+}
+
+/// `frame` resampled so that pixel `x` shows what `frame` shows at `T·x`.
+fn warped(frame: &Frame, t: &[[f64; 3]; 3]) -> Frame {
+    align::warp_frame(frame, frame, t).expect("same shape")
+}
+
+/// Three frames of each real bracket, two or three stops apart.
+fn real_cases() -> Vec<(String, Vec<(Frame, f64)>)> {
+    let dir = common::testdata_brackets();
+    let brackets: [(&str, [(&str, f64); 3]); 3] = [
+        (
+            "frobisher",
+            [
+                ("IMG_2600.jpg", 0.125),
+                ("IMG_2601.jpg", 1.0),
+                ("IMG_2602.jpg", 8.0),
+            ],
+        ),
+        (
+            "memorial",
+            [
+                ("memorial0069.png", 0.125),
+                ("memorial0067.png", 0.5),
+                ("memorial0065.png", 2.0),
+            ],
+        ),
+        (
+            "learnopencv",
+            [
+                ("img_0.033.jpg", 1.0 / 30.0),
+                ("img_0.25.jpg", 0.25),
+                ("img_2.5.jpg", 2.5),
+            ],
+        ),
+    ];
+    let mut cases = Vec::new();
+    for (name, files) in brackets {
+        let paths: Vec<(PathBuf, f64)> = files
+            .iter()
+            .map(|(f, e)| (dir.join(name).join(f), *e))
+            .collect();
+        if !paths.iter().all(|(p, _)| p.exists()) {
+            println!("skipped {name}: {} is absent", dir.join(name).display());
+            continue;
+        }
+        let frames = paths
+            .iter()
+            .map(|(p, e)| {
+                let frame = frame::load(p, Limits::default()).expect("a real frame");
+                (frame.frame, *e)
+            })
+            .collect();
+        cases.push((name.to_string(), frames));
+    }
+    cases
+}
+
+fn accuracy() {
+    println!("real frames moved by known transforms: luminance error in stops");
+    println!("| bracket | move | unaligned | filmback | move undone (floor) | OpenCV AlignMTB |");
+    println!("|---|---|---|---|---|---|");
+    let python = std::env::var("FILMBACK_PYTHON").unwrap_or_else(|_| "python3".to_string());
+    let opencv = Command::new(&python)
+        .args(["-c", "import cv2"])
+        .status()
+        .is_ok_and(|s| s.success());
+    if !opencv {
+        println!("(OpenCV column skipped: `{python} -c 'import cv2'` failed; set FILMBACK_PYTHON)");
+    }
+    let mut found = Vec::new();
+    for (name, frames) in real_cases() {
+        let g = fitted(&frames);
+        let truth = merged(&frames, &g);
+        let (w, h) = (frames[0].0.width(), frames[0].0.height());
+        // The frame alignment registers the others onto stays where it is.
+        let views: Vec<&Frame> = frames.iter().map(|(f, _)| f).collect();
+        let reference = align::choose_reference(&views);
+        for m in &MOVES {
+            let mut outer = m.outer.iter();
+            let moves: Vec<Option<[[f64; 3]; 3]>> = (0..frames.len())
+                .map(|k| {
+                    (k != reference)
+                        .then(|| outer.next().map(|&f| matrix(w, h, f)))
+                        .flatten()
+                })
+                .collect();
+            let moved: Vec<(Frame, f64)> = frames
+                .iter()
+                .zip(&moves)
+                .map(|((f, e), t)| (t.map_or_else(|| f.clone(), |t| warped(f, &t)), *e))
+                .collect();
+            let undone: Vec<(Frame, f64)> = moved
+                .iter()
+                .zip(&moves)
+                .map(|((f, e), t)| (t.map_or_else(|| f.clone(), |t| warped(f, &inverse(&t))), *e))
+                .collect();
+            let error = |fs: &[(Frame, f64)]| errors(&merged(fs, &g), &truth, &frames[reference].0);
+            let cv = if opencv {
+                opencv_aligned(&python, &name, m.name, &moved, reference)
+                    .map_or_else(|e| format!("failed: {e}"), |fs| error(&fs))
+            } else {
+                "skipped".to_string()
+            };
+            let (ours, what) = aligned(&moved, &g);
+            println!(
+                "| {name} ({w}×{h}) | {} | {} | {} | {} | {cv} |",
+                m.name,
+                error(&moved),
+                error(&ours),
+                error(&undone),
+            );
+            let truth: Vec<String> = moves
+                .iter()
+                .enumerate()
+                .filter_map(|(k, t)| t.map(|t| (k, inverse(&t))))
+                .map(|(k, t)| {
+                    let ((dx, dy), angle) = align::FrameAlignment {
+                        transform: t,
+                        ..align::FrameAlignment::unmoved(None)
+                    }
+                    .shift_and_rotation(w, h);
+                    format!("frame {k}: ({dx:.2}, {dy:.2}) px {angle:.3}°")
+                })
+                .collect();
+            found.push(format!(
+                "{name}, {}: true {}; found {what}",
+                m.name,
+                truth.join("; ")
+            ));
+        }
+    }
+    println!("\nwhat the aligner found (reference pixel → frame pixel):");
+    found.iter().for_each(|line| println!("{line}"));
+}
+
+/// `frames` after filmback's alignment (mode auto), and one line per frame saying what it
+/// found (model, shift at the centre, rotation, note).
+fn aligned(frames: &[(Frame, f64)], g: &InverseResponse) -> (Vec<(Frame, f64)>, String) {
+    let views: Vec<AlignFrame> = frames
+        .iter()
+        .map(|(frame, exposure)| AlignFrame {
+            frame,
+            exposure: *exposure,
+        })
+        .collect();
+    let alignment = align::align(&views, g, AlignMode::Auto);
+    let (w, h) = (frames[0].0.width(), frames[0].0.height());
+    let found: Vec<String> = alignment
+        .frames
+        .iter()
+        .enumerate()
+        .map(|(k, f)| {
+            let ((dx, dy), angle) = f.shift_and_rotation(w, h);
+            let note = f.note.as_deref().unwrap_or("");
+            format!(
+                "frame {k}: {:?} ({dx:.2}, {dy:.2}) px {angle:.3}° {note}",
+                f.motion
+            )
+        })
+        .collect();
+    let warped = align::warp_frames(&views, &alignment);
+    let frames = frames
+        .iter()
+        .zip(warped)
+        .map(|((f, e), w)| (w.unwrap_or_else(|| f.clone()), *e))
+        .collect();
+    (frames, found.join("; "))
+}
+
+/// `frames` aligned by OpenCV's AlignMTB onto frame `reference` through
+/// `benches/opencv_align.py` (frames written as binary PPM, read back as PNG), or why not.
+fn opencv_aligned(
+    python: &str,
+    bracket: &str,
+    case: &str,
+    frames: &[(Frame, f64)],
+    reference: usize,
+) -> Result<Vec<(Frame, f64)>, String> {
+    let dir = Path::new(env!("CARGO_TARGET_TMPDIR"))
+        .join("align-bench")
+        .join(format!(
+            "{bracket}-{}",
+            case.split(' ').next().unwrap_or("move")
+        ));
+    std::fs::create_dir_all(&dir).map_err(|e| e.to_string())?;
+    let mut args = vec![
+        Path::new(env!("CARGO_MANIFEST_DIR"))
+            .join("benches/opencv_align.py")
+            .display()
+            .to_string(),
+        reference.to_string(),
+    ];
+    for (k, (f, _)) in frames.iter().enumerate() {
+        let (input, output) = (
+            dir.join(format!("{k}.ppm")),
+            dir.join(format!("{k}-mtb.png")),
+        );
+        write_ppm(f, &input).map_err(|e| e.to_string())?;
+        args.extend([input.display().to_string(), output.display().to_string()]);
+    }
+    let status = Command::new(python)
+        .args(&args)
+        .status()
+        .map_err(|e| e.to_string())?;
+    if !status.success() {
+        return Err(format!("opencv_align.py: {status}"));
+    }
+    frames
+        .iter()
+        .enumerate()
+        .map(|(k, (_, e))| {
+            frame::load(&dir.join(format!("{k}-mtb.png")), Limits::default())
+                .map(|l| (l.frame, *e))
+                .map_err(|e| e.to_string())
+        })
+        .collect()
+}
+
+/// An 8-bit RGB frame as binary PPM.
+fn write_ppm(frame: &Frame, path: &Path) -> std::io::Result<()> {
+    let Samples::Eight(codes) = frame.samples() else {
+        return Err(std::io::Error::other("8-bit frames only"));
+    };
+    let mut bytes = format!("P6\n{} {}\n255\n", frame.width(), frame.height()).into_bytes();
+    bytes.extend_from_slice(codes);
+    std::fs::write(path, bytes)
+}
+
+fn bracket<'a>(frames: &'a [(Frame, f64)], camera: &'a Camera) -> Vec<BracketFrame<'a>> {
+    frames
+        .iter()
+        .map(|(frame, exposure)| BracketFrame {
+            source: Path::new("bench"),
+            frame,
+            exposure: *exposure,
+            camera,
+        })
+        .collect()
+}
+
+/// The response the darkroom fits to `frames` (the sRGB inverse when the fit is weak).
+fn fitted(frames: &[(Frame, f64)]) -> InverseResponse {
+    let camera = Camera::default();
+    let policy = ResponsePolicy::Fit {
+        fallback: Some(GivenResponse::standard(frames[0].0.channels())),
+        min_confidence: 0.5,
+        pool: None,
+    };
+    let mut stages = Stages::new();
+    darkroom::choose_response(
+        &bracket(frames, &camera),
+        RatioSource::Argument,
+        policy,
+        &mut stages,
+    )
+    .expect("a response")
+    .response
+}
+
+fn merged(frames: &[(Frame, f64)], g: &InverseResponse) -> RadianceMap {
+    let camera = Camera::default();
+    merge::merge(&bracket(frames, &camera), g, MergeOptions::default())
+        .expect("a bracket")
+        .radiance
+}
+
+/// `median / p95 / share > 0.1` of `|log₂(a/b)|` of the luminance, after one global
+/// scale (the median ratio), over the pixels `middle` (the reference) exposes well, a
+/// margin left out.
+fn errors(a: &RadianceMap, b: &RadianceMap, middle: &Frame) -> String {
+    let (w, h) = (middle.width() as usize, middle.height() as usize);
+    let margin = (0.03 * w.max(h) as f64).ceil() as usize;
+    let good = |x: usize, y: usize| {
+        (0..middle.channels()).all(|c| (10..=245).contains(&middle.code(x as u32, y as u32, c)))
+    };
+    let pixels: Vec<usize> = (margin..h - margin)
+        .flat_map(|y| (margin..w - margin).map(move |x| (x, y)))
+        .filter(|&(x, y)| good(x, y))
+        .map(|(x, y)| y * w + x)
+        .collect();
+    let mut ratio: Vec<f64> = pixels
+        .iter()
+        .map(|&p| (luminance(a, p) / luminance(b, p)).log2())
+        .collect();
+    let scale = common::quantile(&mut ratio.clone(), 0.5);
+    ratio.iter_mut().for_each(|r| *r = (*r - scale).abs());
+    let off = ratio.iter().filter(|&&v| v > 0.1).count() as f64 / ratio.len().max(1) as f64;
+    let median = common::quantile(&mut ratio, 0.5);
+    let p95 = common::quantile(&mut ratio, 0.95);
+    format!("{median:.4} / {p95:.3} / {:.1} %", 100.0 * off)
+}
+
+fn luminance(m: &RadianceMap, p: usize) -> f64 {
+    let c = m.channels();
+    let px = &m.pixels()[p * c..p * c + c];
+    let y = if c == 3 {
+        0.2126 * f64::from(px[0]) + 0.7152 * f64::from(px[1]) + 0.0722 * f64::from(px[2])
+    } else {
+        f64::from(px[0])
+    };
+    y.max(1e-9)
+}
+
+fn speed(runs: usize) {
+    let (w, h) = (6000, 4000);
+    println!("\ncost at {w}×{h}, three 8-bit frames two stops apart, best of {runs}");
+    let radiance = SceneKind::Procedural.render(w, h, 7);
+    let sensor = Sensor {
+        read_noise_dn: 1.0,
+        seed: 7,
+        ..Sensor::noiseless(ResponseCurve::Srgb, BitDepth::Eight)
+    };
+    let handheld = &MOVES[1];
+    let frames: Vec<(Frame, f64)> = [0.25, 1.0, 4.0]
+        .iter()
+        .enumerate()
+        .map(|(k, &e)| {
+            let frame = expose(&radiance, e, &sensor);
+            let frame = match k {
+                0 => warped(&frame, &matrix(w, h, handheld.outer[0])),
+                2 => warped(&frame, &matrix(w, h, handheld.outer[1])),
+                _ => frame,
+            };
+            (frame, e)
+        })
+        .collect();
+    let views: Vec<AlignFrame> = frames
+        .iter()
+        .map(|(frame, exposure)| AlignFrame {
+            frame,
+            exposure: *exposure,
+        })
+        .collect();
+    let g = InverseResponse::srgb(3, 1024);
+    let alignment = align::align(&views, &g, AlignMode::Auto);
+    let estimate = common::best_of(runs, &|| {
+        align::align(&views, &g, AlignMode::Auto);
+    });
+    let warp = common::best_of(runs, &|| {
+        align::warp_frames(&views, &alignment);
+    });
+    println!("wall time, and CPU time of all threads in parentheses");
+    println!("| step | handheld move |");
+    println!("|---|---|");
+    let row =
+        |name: &str, (wall, cpu): (f64, f64)| println!("| {name} | {wall:.3} s ({cpu:.2} s) |");
+    row("`align::align` (estimation)", estimate);
+    row("`align::warp_frames` (two frames)", warp);
+    for (k, f) in alignment.frames.iter().enumerate() {
+        let ((dx, dy), angle) = f.shift_and_rotation(w, h);
+        println!(
+            "frame {k}: {:?}, shift ({dx:.2}, {dy:.2}) px, {angle:.3}°, note {:?}",
+            f.motion, f.note
+        );
+    }
+}
