@@ -15,7 +15,7 @@ use filmback::hdr_output::{self, ExrOptions, Provenance};
 use filmback::radiance::RadianceMap;
 use filmback::rendering::{self, Format, Look, SourceExif};
 
-use crate::common::filmback;
+use crate::common::{filmback, reference_python};
 use crate::lut::{delta_e2000, srgb_lab};
 
 /// A chart of 96 × 48: a grey ramp from 2⁻⁶ to 2⁴ times mid grey along the top half, and
@@ -192,7 +192,7 @@ fn little_cms_reads_the_wide_gamut_files_as_the_srgb_rendering() {
 
 fn run_colour_check(reference: &Path, wide: &[std::path::PathBuf]) {
     let script = Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/colour_check.py");
-    let Ok(out) = Command::new(python())
+    let Ok(out) = Command::new(reference_python("FILMBACK_PILLOW_PYTHON"))
         .arg(script)
         .arg(reference)
         .args(wide)
@@ -208,19 +208,4 @@ fn run_colour_check(reference: &Path, wide: &[std::path::PathBuf]) {
         stdout.contains("skipped")
             || stdout.lines().filter(|l| l.ends_with(" ok")).count() == wide.len()
     );
-}
-
-/// The Python that runs `tests/colour_check.py`: `FILMBACK_PILLOW_PYTHON`, else the venv
-/// `.ci/run` makes, else `python3`.
-fn python() -> String {
-    if let Ok(p) = std::env::var("FILMBACK_PILLOW_PYTHON") {
-        return p;
-    }
-    let tmp = std::env::var("TMPDIR").unwrap_or_else(|_| "/tmp".into());
-    let venv = Path::new(&tmp).join("filmback-check-venv/bin/python");
-    if venv.exists() {
-        venv.display().to_string()
-    } else {
-        "python3".into()
-    }
 }

@@ -21,39 +21,16 @@ use filmback::frame::BitDepth;
 use filmback::synthetic::demo;
 use filmback::synthetic::{self, Encoding, ResponseCurve, Sensor};
 
+use crate::common::rig;
+
 const W: u16 = 96;
 const H: u16 = 64;
 
-/// Test settings: short settle and gap, small queue, no viewer (its previews would cost
-/// every bracket, and rigs running at once would contend for its port). `overrides` are `(section, line)`
+/// The rig's settings ([`rig::config_text`]: short settle and gap, small queue, no
+/// viewer). `overrides` are `(section, line)`
 /// pairs: the line replaces that key's default line (or is added to the section).
 fn config_text(root: &Path, overrides: &[(&str, &str)]) -> String {
-    let mut text = format!(
-        r#"
-[folders]
-ingest = "{ingest}"
-out = "{out}"
-state = "{state}"
-[watch]
-settle_ms = 150
-rescan_s = 2
-[bracket]
-max_gap_s = 1.0
-size = 3
-[daemon]
-jobs = 2
-queue = 8
-retry_s = 1
-[render]
-films = []
-tonemaps = ["linear"]
-[viewer]
-enabled = false
-"#,
-        ingest = root.join("ingest").display(),
-        out = root.join("out").display(),
-        state = root.join("state").display(),
-    );
+    let mut text = rig::config_text(root, "");
     for (section, line) in overrides {
         let key = line.split('=').next().unwrap().trim();
         text = text

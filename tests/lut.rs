@@ -14,7 +14,7 @@ use filmback::rendering::lut::{
     self, Gamut, InputEncoding, LUT_MID_GREY, LutPart, LutSpec, OutputEncoding,
 };
 
-use crate::common::filmback;
+use crate::common::{filmback, reference_python};
 
 /// The limits of the issue: ΔE2000 p95 ≤ 1.0 and max ≤ 3 at 65³.
 const P95_LIMIT: f64 = 1.0;
@@ -465,21 +465,6 @@ fn films_lut_writes_one_or_two_cube_files() {
     assert!(String::from_utf8_lossy(&out.stderr).contains("spatial"));
 }
 
-/// The Python that runs `tests/lut_check.py`: `FILMBACK_OCIO_PYTHON`, else the venv
-/// `.ci/run` makes, else `python3`.
-fn python() -> String {
-    if let Ok(p) = std::env::var("FILMBACK_OCIO_PYTHON") {
-        return p;
-    }
-    let tmp = std::env::var("TMPDIR").unwrap_or_else(|_| "/tmp".into());
-    let venv = Path::new(&tmp).join("filmback-check-venv/bin/python");
-    if venv.exists() {
-        venv.display().to_string()
-    } else {
-        "python3".into()
-    }
-}
-
 fn write_codes(path: &Path, values: &[[f64; 3]]) {
     let bytes: Vec<u8> = values
         .iter()
@@ -558,7 +543,7 @@ fn opencolorio_applies_the_cube_as_filmback_renders() {
         );
         cases.push(format!("{name}:{}", output.name()));
     }
-    let out = Command::new(python())
+    let out = Command::new(reference_python("FILMBACK_OCIO_PYTHON"))
         .arg(Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/lut_check.py"))
         .arg(dir.path())
         .args(&cases)

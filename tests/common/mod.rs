@@ -8,6 +8,21 @@ use filmback::frame::Frame;
 pub mod brackets;
 pub mod rig;
 
+/// The Python that runs a reference check (`tests/*_check.py`): the one `variable` names,
+/// else the venv `.ci/run` makes, else `python3`.
+pub fn reference_python(variable: &str) -> String {
+    if let Ok(p) = std::env::var(variable) {
+        return p;
+    }
+    let tmp = std::env::var("TMPDIR").unwrap_or_else(|_| "/tmp".into());
+    let venv = Path::new(&tmp).join("filmback-check-venv/bin/python");
+    if venv.exists() {
+        venv.display().to_string()
+    } else {
+        "python3".into()
+    }
+}
+
 /// The `filmback` binary Cargo built for these tests.
 pub fn filmback() -> Command {
     Command::new(env!("CARGO_BIN_EXE_filmback"))
