@@ -218,10 +218,44 @@ pub(super) fn log_weight(b: f32) -> f32 {
     }
 }
 
-/// A frame's levels, finest first.
+/// A frame's levels, finest first, its relative exposure and what its finest blocks
+/// measured (for [`Pyramid::clipped_alike`]).
 pub(super) struct Pyramid {
     levels: Vec<Level>,
+    exposure: f64,
+    blocks: Blocks,
 }
+
+/// What a block of the finest level saw, besides well-exposed pixels.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum Tone {
+    /// Every pixel well exposed.
+    Measured,
+    /// Some pixels above the well-exposed range (clipped), none below it.
+    Bright,
+    /// Some pixels below it (in the noise floor), none above it.
+    Dark,
+    /// Some of each.
+    Mixed,
+}
+
+/// The finest level before smoothing: per block its log radiance `ln(mean g) − ln e`
+/// (meaningful where [`Tone::Measured`]), weight and tone, and the log radiances
+/// `[low, high]` the frame measures (the well-exposed range through the response, less
+/// `ln e`).
+struct Blocks {
+    width: usize,
+    height: usize,
+    step: usize,
+    log: Vec<f32>,
+    weight: Vec<f32>,
+    tone: Vec<Tone>,
+    range: (f32, f32),
+}
+
+/// The least span, in natural-log units (one stop), of log radiance two frames must both
+/// measure for [`Pyramid::clipped_alike`] to compare them.
+const LEAST_COMMON_SPAN: f32 = std::f32::consts::LN_2;
 
 /// The block size of the finest level for a `width × height` frame: the smallest
 /// multiple of `tile` with at most [`ESTIMATION_PIXELS`] blocks.
@@ -246,6 +280,9 @@ impl Pyramid {
             .map(|ch| response.table(ch.min(response.channels() - 1), levels))
             .collect();
         let max = frame.bit_depth().max_code() as f32;
+        let (low, high) = super::well_exposed_codes(frame.bit_depth().max_code());
+        let mean_at = |k: u32| tables.iter().map(|t| t[k as usize]).sum::<f32>() / c as f32;
+        let range = (mean_at(low), mean_at(high));
         let row = |y: usize, values: &mut [f32], weights: &mut [f32]| {
             let mut fill = |code: &dyn Fn(usize) -> usize| {
                 for x in 0..w {
@@ -264,17 +301,20 @@ impl Pyramid {
                 Samples::Sixteen(v) => fill(&|i| usize::from(v[i])),
             }
         };
-        Pyramid::from_rows(w, frame.height() as usize, step, exposure, row)
+        Pyramid::from_rows(w, frame.height() as usize, step, exposure, range, row)
     }
 
     /// The pyramid of a `width × height` image whose row `y` `row(y, values, weights)`
     /// fills with linear values (≥ 0) and their [`log_weight`]s (0: not usable), at
-    /// relative `exposure`. A block's weight is its pixels' mean, 0 unless all are usable.
+    /// relative `exposure`; `range` is the linear values that bound the usable ones (an
+    /// unusable pixel is bright above their geometric mean, dark below it). A block's
+    /// weight is its pixels' mean, 0 unless all are usable.
     pub(super) fn from_rows<F>(
         width: usize,
         height: usize,
         step: usize,
         exposure: f64,
+        range: (f32, f32),
         row: F,
     ) -> Pyramid
     where
@@ -282,53 +322,153 @@ impl Pyramid {
     {
         let (lw, lh) = (width / step, height / step);
         let log_e = exposure.ln() as f32;
+        let middle = (range.0.max(f32::MIN_POSITIVE) * range.1).sqrt();
         let mut log = vec![0f32; lw * lh];
         let mut weight = vec![0f32; lw * lh];
+        let mut tone = vec![Tone::Mixed; lw * lh];
         let area = (step * step) as f32;
         log.par_chunks_mut(lw.max(1))
             .zip(weight.par_chunks_mut(lw.max(1)))
+            .zip(tone.par_chunks_mut(lw.max(1)))
             .enumerate()
             .for_each_init(
                 || (vec![0f32; width], vec![0f32; width], vec![0f32; lw]),
-                |(values, weights, sums), (j, (log_row, weight_row))| {
+                |(values, weights, sums), (j, ((log_row, weight_row), tone_row))| {
                     sums.fill(0.0);
                     weight_row.fill(0.0);
-                    let mut usable = vec![true; lw];
+                    // Per block: pixels usable, bright, dark.
+                    let mut counts = vec![(0usize, 0usize, 0usize); lw];
                     for y in j * step..(j + 1) * step {
                         row(y, values, weights);
-                        for (i, ((sum, wsum), good)) in sums
+                        for (i, ((sum, wsum), count)) in sums
                             .iter_mut()
                             .zip(weight_row.iter_mut())
-                            .zip(usable.iter_mut())
+                            .zip(counts.iter_mut())
                             .enumerate()
                         {
                             let block = i * step..(i + 1) * step;
                             *sum += values[block.clone()].iter().sum::<f32>();
                             *wsum += weights[block.clone()].iter().sum::<f32>();
-                            *good &= weights[block].iter().all(|&o| o > 0.0);
+                            for (&v, &o) in values[block.clone()].iter().zip(&weights[block]) {
+                                match (o > 0.0, v >= middle) {
+                                    (true, _) => count.0 += 1,
+                                    (false, true) => count.1 += 1,
+                                    (false, false) => count.2 += 1,
+                                }
+                            }
                         }
                     }
-                    for (((l, wt), &sum), &good) in log_row
+                    let all = step * step;
+                    debug_assert!(counts.iter().all(|c| c.0 + c.1 + c.2 == all));
+                    for ((((l, wt), t), &sum), &count) in log_row
                         .iter_mut()
                         .zip(weight_row.iter_mut())
+                        .zip(tone_row.iter_mut())
                         .zip(&*sums)
-                        .zip(&usable)
+                        .zip(&counts)
                     {
                         let mean = sum / area;
-                        *wt = if good && mean > 0.0 { *wt / area } else { 0.0 };
+                        *t = match count {
+                            (n, _, _) if n == all && mean > 0.0 => Tone::Measured,
+                            (_, 0, _) => Tone::Dark,
+                            (_, _, 0) => Tone::Bright,
+                            _ => Tone::Mixed,
+                        };
+                        *wt = if *t == Tone::Measured {
+                            *wt / area
+                        } else {
+                            0.0
+                        };
                         *l = mean.max(1e-12).ln() - log_e;
                     }
                 },
             );
-        let mut levels = vec![Level::new(lw, lh, step as f64, log, weight)];
-        while let Some(last) = levels.last()
-            && last.width.min(last.height) / 2 >= COARSEST_SIDE
-        {
-            let half = last.half();
-            levels.push(half);
+        let log_range = (
+            range.0.max(1e-12).ln() - log_e,
+            range.1.max(1e-12).ln() - log_e,
+        );
+        let blocks = Blocks {
+            width: lw,
+            height: lh,
+            step,
+            log,
+            weight,
+            tone,
+            range: log_range,
+        };
+        Pyramid {
+            levels: levels(&blocks.log, &blocks.weight, lw, lh, step),
+            exposure,
+            blocks,
         }
-        Pyramid { levels }
     }
+
+    /// This frame and `other` as the log radiance both could have measured, clamped to
+    /// the range both measure (`[max of the lows, min of the highs]`): a block with no
+    /// clipped pixel at its value (dark pixels' values are noisy but below the range), one
+    /// with clipped pixels and none dark at the top when its value (a lower bound) is
+    /// above it, else left out; a block not wholly well exposed weighs as one at the
+    /// range's top (its clamped value carries no noise). Two frames several stops apart
+    /// share few well-exposed blocks, but a window clipped in one and exposed in the
+    /// other is at the top in both: its edges register. `None` when they share less than
+    /// [`LEAST_COMMON_SPAN`].
+    pub(super) fn clipped_alike(&self, other: &Pyramid) -> Option<(Pyramid, Pyramid)> {
+        let low = self.blocks.range.0.max(other.blocks.range.0);
+        let high = self.blocks.range.1.min(other.blocks.range.1);
+        if high - low < LEAST_COMMON_SPAN {
+            return None;
+        }
+        Some((self.clamped(low, high), other.clamped(low, high)))
+    }
+
+    /// [`Pyramid::clipped_alike`]'s image of this frame for the range `[low, high]`.
+    fn clamped(&self, low: f32, high: f32) -> Pyramid {
+        let b = &self.blocks;
+        let top = log_weight(WELL_EXPOSED_HIGH as f32);
+        let (log, weight): (Vec<f32>, Vec<f32>) = b
+            .tone
+            .iter()
+            .zip(b.log.iter().zip(&b.weight))
+            .map(|(tone, (&l, &w))| match tone {
+                Tone::Measured => (l.clamp(low, high), w),
+                Tone::Dark => (l.clamp(low, high), top),
+                Tone::Bright if l >= high => (high, top),
+                Tone::Bright | Tone::Mixed => (l, 0.0),
+            })
+            .unzip();
+        Pyramid {
+            levels: levels(&log, &weight, b.width, b.height, b.step),
+            exposure: self.exposure,
+            blocks: Blocks {
+                width: b.width,
+                height: b.height,
+                step: b.step,
+                log: b.log.clone(),
+                weight: b.weight.clone(),
+                tone: b.tone.clone(),
+                range: (low, high),
+            },
+        }
+    }
+}
+
+/// The levels of a finest `width × height` level of `step`, halved while the shorter
+/// side stays at least [`COARSEST_SIDE`].
+fn levels(log: &[f32], weight: &[f32], width: usize, height: usize, step: usize) -> Vec<Level> {
+    let mut levels = vec![Level::new(
+        width,
+        height,
+        step as f64,
+        log.to_vec(),
+        weight.to_vec(),
+    )];
+    while let Some(last) = levels.last()
+        && last.width.min(last.height) / 2 >= COARSEST_SIDE
+    {
+        let half = last.half();
+        levels.push(half);
+    }
+    levels
 }
 
 /// Full-resolution normalisation `ũ = (u − c)/s`: `c` the frame's centre, `s` half its
@@ -646,10 +786,7 @@ fn refine(
     let mut damping = INITIAL_DAMPING;
     for _ in 0..MAX_ITERATIONS {
         if current.count < MIN_SAMPLES {
-            return Err(format!(
-                "only {} blocks overlap the reference once moved",
-                current.count
-            ));
+            return Err(format!("only {} blocks overlap once moved", current.count));
         }
         let Some(delta) = solve(&current, n + 2, damping) else {
             return Err("the registration's equations are singular (too little texture)".into());
@@ -729,7 +866,7 @@ fn coarse_search(reference: &Level, moving: &Level) -> Result<(i64, i64), String
         );
     if best.is_nan() || best < MIN_CORRELATION {
         return Err(format!(
-            "too little texture in common with the reference (correlation {best:.2} < {MIN_CORRELATION})"
+            "too little texture in common (correlation {best:.2} < {MIN_CORRELATION})"
         ));
     }
     if dx.abs() == range || dy.abs() == range {
@@ -783,73 +920,224 @@ fn overlap(reference: &Level, moving: &Level) -> f64 {
     both as f64 / reference.usable.len().max(1) as f64
 }
 
+/// One frame registered onto another: the transform in normalised coordinates (see
+/// [`Geometry`]), the model and a note when the model was simplified.
+struct Registration {
+    matrix: Matrix3<f64>,
+    motion: Motion,
+    note: Option<String>,
+}
+
 /// Every frame's alignment onto frame `reference` (input order), models capped at
 /// `model`.
+///
+/// Frames are visited outward from the reference in exposure order, the shorter ones and
+/// then the longer ones. Each is registered onto the reference; when that fails (most
+/// often because the two share too few well-exposed blocks, several stops apart), onto
+/// the nearest frame between them in exposure that was registered, and the transforms
+/// composed: `T_k = T_{k←n}·T_n` (reference pixel → frame `n` → frame `k`).
 pub(super) fn register_all(
     pyramids: &[Pyramid],
     reference: usize,
     geometry: &Geometry,
     model: Motion,
 ) -> Vec<FrameAlignment> {
-    pyramids
-        .iter()
-        .enumerate()
-        .map(|(k, pyramid)| {
-            if k == reference {
-                FrameAlignment::unmoved(None)
-            } else {
-                register(&pyramids[reference], pyramid, geometry, model)
-            }
-        })
-        .collect()
+    let mut order: Vec<usize> = (0..pyramids.len()).collect();
+    order.sort_by(|&a, &b| pyramids[a].exposure.total_cmp(&pyramids[b].exposure));
+    let at = order.iter().position(|&k| k == reference).unwrap_or(0);
+    let mut results: Vec<FrameAlignment> = (0..pyramids.len())
+        .map(|_| FrameAlignment::unmoved(None))
+        .collect();
+    let shorter = order[..at].iter().rev();
+    let longer = order[at + 1..].iter();
+    for side in [
+        shorter.copied().collect::<Vec<_>>(),
+        longer.copied().collect(),
+    ] {
+        // The frame nearest in exposure that was registered, with its transform.
+        let mut via: Option<(usize, Registration)> = None;
+        for k in side {
+            let found = register_or_chain(pyramids, reference, via.as_ref(), k, geometry, model);
+            results[k] = match found {
+                Ok(registration) => {
+                    let alignment = settle(&registration, geometry);
+                    via = Some((k, registration));
+                    alignment
+                }
+                Err(why) => FrameAlignment::unmoved(Some(format!("{why}: not aligned"))),
+            };
+        }
+    }
+    results
 }
 
-/// One frame onto the reference (see the parent module's docs for the steps and the
-/// fallbacks).
+/// Frame `k` registered, the first that works of: onto the reference; onto `via` (a
+/// registered frame nearer the reference in exposure, with its transform), composed with
+/// its transform; the same two compared as [`Pyramid::clipped_alike`]. The registration,
+/// or why none worked.
+fn register_or_chain(
+    pyramids: &[Pyramid],
+    reference: usize,
+    via: Option<&(usize, Registration)>,
+    k: usize,
+    geometry: &Geometry,
+    model: Motion,
+) -> Result<Registration, String> {
+    let mut targets = vec![(reference, None)];
+    if let Some((n, through)) = via {
+        targets.push((*n, Some(through)));
+    }
+    let mut failures = Vec::new();
+    for clipped in [false, true] {
+        for &(n, through) in &targets {
+            let found = if clipped {
+                register_clipped(&pyramids[n], &pyramids[k], geometry, model)
+            } else {
+                register(&pyramids[n], &pyramids[k], geometry, model)
+            };
+            match found {
+                Ok(step) => return Ok(compose(step, through, n, reference, clipped)),
+                Err(why) => failures.push(format!(
+                    "onto frame {n}{}: {why}",
+                    if clipped { " clipped alike" } else { "" }
+                )),
+            }
+        }
+    }
+    Err(failures.join("; "))
+}
+
+/// A registration onto frame `n` (`through` its own transform when `n` is not the
+/// reference) as a registration onto the reference, its note saying how it was reached.
+fn compose(
+    step: Registration,
+    through: Option<&Registration>,
+    n: usize,
+    reference: usize,
+    clipped: bool,
+) -> Registration {
+    let mut how = Vec::new();
+    if n != reference {
+        how.push(format!("registered through frame {n}"));
+    }
+    if clipped {
+        how.push("compared where both clip alike".to_string());
+    }
+    how.extend(step.note);
+    let (matrix, motion) = match through {
+        Some(t) => (step.matrix * t.matrix, step.motion.max(t.motion)),
+        None => (step.matrix, step.motion),
+    };
+    Registration {
+        matrix,
+        motion,
+        note: (!how.is_empty()).then(|| how.join("; ")),
+    }
+}
+
+/// The alignment a registration gives a frame: the identity when it moves no pixel by
+/// [`IDENTITY_PX`] or more.
+fn settle(registration: &Registration, geometry: &Geometry) -> FrameAlignment {
+    let displacement = geometry.corner_shift(&Matrix3::identity(), &registration.matrix);
+    let note = registration.note.clone();
+    if displacement < IDENTITY_PX {
+        FrameAlignment {
+            displacement_px: displacement,
+            ..FrameAlignment::unmoved(note)
+        }
+    } else {
+        FrameAlignment {
+            transform: geometry.pixel_matrix(&registration.matrix),
+            motion: Some(registration.motion),
+            displacement_px: displacement,
+            note,
+        }
+    }
+}
+
+/// Frame `moving` registered onto frame `fixed` (see the parent module's docs for the
+/// steps and the fallbacks), or why it cannot be.
 fn register(
-    reference: &Pyramid,
+    fixed: &Pyramid,
     moving: &Pyramid,
     geometry: &Geometry,
     model: Motion,
-) -> FrameAlignment {
-    let (fine_ref, fine_mov) = (&reference.levels[0], &moving.levels[0]);
-    let shared = overlap(fine_ref, fine_mov);
+) -> Result<Registration, String> {
+    let (state, note) = estimate(fixed, moving, geometry, model)?;
+    Ok(Registration {
+        matrix: state.matrix(),
+        motion: state.motion,
+        note,
+    })
+}
+
+/// [`register`] on the two frames compared as [`Pyramid::clipped_alike`], kept unless
+/// the blocks both frames measure well, refined from it, move it by more than
+/// [`CLIPPED_AGREEMENT_PX`] and by more than three standard deviations of the refined
+/// displacement (`σ/√λ_min`, the parent module's uncertainty): a clipped edge that moved
+/// between the frames, by flare or the camera's local tone mapping, must not pass for
+/// the scene.
+fn register_clipped(
+    fixed: &Pyramid,
+    moving: &Pyramid,
+    geometry: &Geometry,
+    model: Motion,
+) -> Result<Registration, String> {
+    let Some((clamped_fixed, clamped_moving)) = fixed.clipped_alike(moving) else {
+        return Err(format!(
+            "they measure less than {LEAST_COMMON_SPAN:.2} (ln) of radiance in common"
+        ));
+    };
+    let (state, note) = estimate(&clamped_fixed, &clamped_moving, geometry, model)?;
+    // Too few well-exposed blocks in common to refine: nothing contradicts the edges.
+    if let Ok((refined, normal)) = refine(&fixed.levels[0], &moving.levels[0], geometry, state) {
+        let apart = geometry.corner_shift(&state.matrix(), &refined.matrix());
+        let spread = uncertainty_px(&normal, refined.params(), geometry);
+        if apart > CLIPPED_AGREEMENT_PX.max(3.0 * spread) {
+            return Err(format!(
+                "the tones both measure put the frame {apart:.1} px (±{spread:.2}) from where \
+                 its clipped edges do"
+            ));
+        }
+    }
+    Ok(Registration {
+        matrix: state.matrix(),
+        motion: state.motion,
+        note,
+    })
+}
+
+/// The largest distance, in pixels, between a registration on clipped edges and its
+/// refinement on the tones both frames measure for the first to be kept.
+const CLIPPED_AGREEMENT_PX: f64 = 1.0;
+
+/// The state of [`register`], with a note when the model was simplified.
+fn estimate(
+    fixed: &Pyramid,
+    moving: &Pyramid,
+    geometry: &Geometry,
+    model: Motion,
+) -> Result<(State, Option<String>), String> {
+    let (fine_fixed, fine_moving) = (&fixed.levels[0], &moving.levels[0]);
+    let shared = overlap(fine_fixed, fine_moving);
     if shared < MIN_OVERLAP {
-        return FrameAlignment::unmoved(Some(format!(
-            "only {:.1} % of the frame is well exposed in both it and the reference (< {:.0} %): not aligned",
+        return Err(format!(
+            "only {:.1} % of the frame is well exposed in both (< {:.0} %)",
             shared * 100.0,
             MIN_OVERLAP * 100.0
-        )));
+        ));
     }
-    let (state, normal, note) = match descend(reference, moving, geometry, model) {
-        Ok(found) => found,
-        Err(why) => return FrameAlignment::unmoved(Some(format!("{why}: not aligned"))),
-    };
-    let matrix = state.matrix();
-    let displacement = geometry.corner_shift(&Matrix3::identity(), &matrix);
-    if displacement < IDENTITY_PX {
-        return FrameAlignment {
-            displacement_px: displacement,
-            ..FrameAlignment::unmoved(note)
-        };
+    let (state, normal, note) = descend(fixed, moving, geometry, model)?;
+    let displacement = geometry.corner_shift(&Matrix3::identity(), &state.matrix());
+    let still = identity_rms(fine_fixed, fine_moving, geometry);
+    if displacement >= IDENTITY_PX && normal.rms() >= still {
+        return Err(format!(
+            "the estimated move ({displacement:.2} px) does not reduce the residual \
+             ({:.4} against {still:.4} unmoved)",
+            normal.rms()
+        ));
     }
-    let still = identity_rms(fine_ref, fine_mov, geometry);
-    if normal.rms() >= still {
-        return FrameAlignment {
-            displacement_px: displacement,
-            ..FrameAlignment::unmoved(Some(format!(
-                "the estimated move ({displacement:.2} px) does not reduce the residual \
-                 ({:.4} against {still:.4} unmoved): not aligned",
-                normal.rms()
-            )))
-        };
-    }
-    FrameAlignment {
-        transform: geometry.pixel_matrix(&matrix),
-        motion: Some(state.motion),
-        displacement_px: displacement,
-        note,
-    }
+    Ok((state, note))
 }
 
 /// The coarse search, then Gauss–Newton from the coarsest level to the finest (the

@@ -251,6 +251,40 @@ fn an_aligned_bracket_is_merged_as_it_is() {
     assert!(!off.moves_any() && off.frames.iter().all(|f| f.note.is_none()));
 }
 
+/// A frame six stops from the reference shares too few well-exposed pixels with it to be
+/// registered directly; it is registered through the frame between them and the two
+/// transforms composed.
+#[test]
+fn a_frame_far_from_the_reference_is_registered_through_its_neighbour() {
+    let scene = scene(19);
+    let exposures = [0.25 / 64.0, 0.25 / 8.0, 0.25];
+    let far = transform(0.25, 3.4, -2.1, 0.0, 0.0);
+    let near = transform(-0.15, -1.8, 2.9, 0.0, 0.0);
+    let frames = frames(&scene, &exposures, &[far, near, IDENTITY]);
+    let alignment = run(&frames, &exposures, AlignMode::Rigid);
+    assert_eq!(alignment.reference, 2);
+    for (k, truth) in [(0, far), (1, near)] {
+        let found = &alignment.frames[k];
+        assert!(found.motion.is_some(), "frame {k}: {:?}", found.note);
+        let error = distance(&found.transform, &truth);
+        assert!(
+            error < 0.2,
+            "frame {k}: corners {error:.3} px off ({found:?})"
+        );
+    }
+    let note = alignment.frames[0].note.as_deref().unwrap_or_default();
+    assert!(note.contains("through frame 1"), "{note:?}");
+    // Without the frame between them, the far frame is compared with the reference
+    // where both clip alike (the scene's edges against clipped and dark areas).
+    let pair = [frames[0].clone(), frames[2].clone()];
+    let alone = run(&pair, &[exposures[0], exposures[2]], AlignMode::Rigid);
+    let found = &alone.frames[0];
+    let note = found.note.as_deref().unwrap_or_default();
+    assert!(note.contains("clip alike"), "{note:?}");
+    let error = distance(&found.transform, &far);
+    assert!(error < 1.0, "alone: corners {error:.3} px off ({found:?})");
+}
+
 /// The frame that fails keeps the identity and says why.
 fn assert_fallback(alignment: &Alignment, k: usize, why: &str) {
     let f = &alignment.frames[k];

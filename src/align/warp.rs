@@ -215,13 +215,21 @@ mod raw {
     }
 
     fn pyramid(f: &MosaicFrame<'_>, step: usize) -> Pyramid {
-        Pyramid::from_rows(f.width, f.height, step, f.exposure, |y, values, weights| {
-            for (x, (v, w)) in values.iter_mut().zip(weights.iter_mut()).enumerate() {
-                let s = f.signal(x, y);
-                *v = s.max(0.0);
-                *w = raw_log_weight(s);
-            }
-        })
+        let range = (RAW_FLOOR, CLIPPED);
+        Pyramid::from_rows(
+            f.width,
+            f.height,
+            step,
+            f.exposure,
+            range,
+            |y, values, weights| {
+                for (x, (v, w)) in values.iter_mut().zip(weights.iter_mut()).enumerate() {
+                    let s = f.signal(x, y);
+                    *v = s.max(0.0);
+                    *w = raw_log_weight(s);
+                }
+            },
+        )
     }
 
     /// The least normalised raw signal a block is estimated from: ten times the read noise of
