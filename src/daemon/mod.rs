@@ -23,6 +23,8 @@ pub mod cache;
 pub mod config;
 pub mod journal;
 
+mod backoff;
+mod candidate;
 mod hooks;
 pub(crate) mod intake;
 pub(crate) mod lab;
@@ -45,8 +47,10 @@ pub use status::{Retry, STATUS_FILE, Snapshot, lock_held, read_snapshot, state_w
 pub use viewer::{PREVIEW_FOLDER, ViewerError};
 
 use crate::atomic;
+use backoff::Unreadable;
 use bracket::{Closed, Grouper, Input};
 use cache::ResponseCache;
+use candidate::Candidate;
 use config::Config;
 use intake::Notice;
 use journal::{Journal, JournalError};
@@ -56,21 +60,8 @@ use journal::{Journal, JournalError};
 /// promises 10 s.
 pub const STOP_GRACE: Duration = Duration::from_secs(8);
 
-/// How long a file still being written keeps open brackets from closing by the gap.
-const WRITER_PATIENCE: Duration = Duration::from_secs(60);
-
 /// Folder in the state folder where `filmback redo STEM` leaves its requests.
 pub const REDO_FOLDER: &str = "redo";
-
-/// Longest delay between retries of a bracket whose outputs could not be written.
-const MAX_RETRY: Duration = Duration::from_secs(300);
-
-/// The wait before the next attempt after `attempts` failed ones, from `[daemon] retry_s`:
-/// `retry · 2^attempts`, at most [`MAX_RETRY`] (outputs that could not be written, files
-/// that could not be read, frames not on disk).
-fn backoff(retry: Duration, attempts: u32) -> Duration {
-    (retry * 2u32.saturating_pow(attempts.min(16))).min(MAX_RETRY)
-}
 
 /// What the daemon can be told while it runs (signals in the binary, channels in tests).
 #[derive(Debug)]
@@ -236,32 +227,6 @@ pub fn job_bytes(frames: &[Footprint]) -> u64 {
         + crate::darkroom::working_memory_bytes(largest.width, largest.height, 3, 1)
 }
 
-/// A file that could not be read (permission denied, I/O error), waiting to be retried.
-#[derive(Debug)]
-struct Unreadable {
-    first_seen: Instant,
-    attempts: u32,
-    next: Instant,
-    reason: String,
-}
-
-/// A file seen but not yet complete.
-#[derive(Debug)]
-struct Candidate {
-    first_seen: Instant,
-    seen: Option<intake::Observed>,
-    stable_since: Instant,
-    /// Its writer closed it or it was renamed into place: the state first observed after
-    /// that notice (`None` until settling has looked), since when it has held, and how
-    /// long it must hold ([`FINISHED_QUIET`], or zero when delivered by filmback).
-    finished: Option<(Option<intake::Observed>, Instant, Duration)>,
-}
-
-/// How long a file must stay unchanged after its writer closed it or it was renamed into
-/// place (at most `settle`): a rewrite just after the close (digiCamControl's EXIF)
-/// restarts the wait; one later than this is a new version, developed again by content.
-const FINISHED_QUIET: Duration = Duration::from_millis(250);
-
 /// The JPEG of a body that shoots RAW+JPEG, settled before its raw: it waits for the raw
 /// (see [`settle`]) and becomes a frame of its own only if none comes.
 #[derive(Debug)]
@@ -271,6 +236,14 @@ struct Held {
 }
 
 type Outcome = (Work, Result<Processed, JobError>, Duration);
+
+/// What woke the daemon's loop.
+enum Event {
+    Notice(Notice),
+    Done(Box<Outcome>),
+    Reload(Box<Config>),
+    Tick,
+}
 
 struct State {
     config: Config,
@@ -421,7 +394,7 @@ pub async fn run(
         viewer,
         hooks: None,
     };
-    st.check_folder().await;
+    st.check_folder(now).await;
     info!(
         ingest = %st.config.folders.ingest.display(),
         out = %st.config.folders.out.display(),
@@ -437,19 +410,28 @@ pub async fn run(
     let mut tick = tokio::time::interval(period);
     tick.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Delay);
     loop {
-        tokio::select! {
-            Some(notice) = rx.recv() => st.notice(notice).await,
+        let event = tokio::select! {
+            Some(notice) = rx.recv() => Event::Notice(notice),
             Some(done) = st.in_flight.join_next(), if !st.in_flight.is_empty() => {
-                st.finish(done.expect("develop panics are caught inside the task"))?;
+                Event::Done(Box::new(done.expect("develop panics are caught inside the task")))
             }
             c = control.recv() => match c {
-                Some(Control::Reload(cfg)) => st.reload(*cfg).await,
+                Some(Control::Reload(cfg)) => Event::Reload(cfg),
                 Some(Control::Stop) | None => break,
             },
-            _ = tick.tick() => st.tick().await?,
+            _ = tick.tick() => Event::Tick,
+        };
+        let now = Instant::now();
+        match event {
+            Event::Notice(notice) => st.notice(notice, now).await,
+            Event::Done(done) => st.finish(*done, now)?,
+            Event::Reload(config) => st.reload(*config, now).await,
+            Event::Tick => st.tick(now).await?,
         }
-        st.dispatch()?;
-        st.report(false);
+        // Listing and probing may have taken time.
+        let now = Instant::now();
+        st.dispatch(now)?;
+        st.report(false, now);
     }
     st.stopping = true;
     let _ = sd_notify::notify(&[
@@ -461,7 +443,8 @@ pub async fn run(
     while !st.in_flight.is_empty() {
         tokio::select! {
             Some(done) = st.in_flight.join_next() => {
-                st.finish(done.expect("develop panics are caught inside the task"))?;
+                let done = done.expect("develop panics are caught inside the task");
+                st.finish(done, Instant::now())?;
             }
             () = tokio::time::sleep_until(deadline) => break,
         }
@@ -476,7 +459,7 @@ pub async fn run(
     // Blocking threads cannot be interrupted; the process exit ends them, and their
     // temporary files are removed at the next start.
     st.in_flight.detach_all();
-    st.report(true);
+    st.report(true, Instant::now());
     info!(
         finished = st.summary.finished,
         rejected = st.summary.rejected,
@@ -586,11 +569,12 @@ impl State {
         self.config.daemon.memory_mb.saturating_mul(1_000_000)
     }
 
-    fn now_s(&self) -> f64 {
-        self.started.elapsed().as_secs_f64()
+    /// Seconds from the start to `now`: the grouper's clock.
+    fn since_start(&self, now: Instant) -> f64 {
+        now.saturating_duration_since(self.started).as_secs_f64()
     }
 
-    async fn reload(&mut self, mut config: Config) {
+    async fn reload(&mut self, mut config: Config, now: Instant) {
         if config.folders != self.configured {
             warn!("folders changed in the configuration; they take effect at the next start");
         }
@@ -603,7 +587,7 @@ impl State {
         if rewatch {
             self.watcher = None;
             self.watched = None;
-            self.check_folder().await;
+            self.check_folder(now).await;
         }
         info!(source = ?self.config.source, "configuration reloaded");
     }
@@ -612,14 +596,6 @@ impl State {
 #[cfg(test)]
 mod tests {
     use super::*;
-
-    #[test]
-    fn backoff_doubles_from_retry_up_to_the_cap() {
-        let retry = Duration::from_secs(5);
-        let waits: Vec<u64> = (0..8).map(|n| backoff(retry, n).as_secs()).collect();
-        assert_eq!(waits, [5, 10, 20, 40, 80, 160, 300, 300]);
-        assert_eq!(backoff(retry, u32::MAX), MAX_RETRY);
-    }
 
     /// Out, state and cache lose every leftover; ingest only those a killed hook left,
     /// not one a running hook is renaming into place.
