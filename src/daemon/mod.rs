@@ -6,9 +6,14 @@
 //!             journal ◄─ cache update ◄─ outputs ◄─ Lab (blocking thread) ◄┘
 //! ```
 //!
-//! One async task owns all state (candidates, grouper, queue, journal, cache); pixel
-//! work runs on blocking threads through the [`Lab`] boundary, at most `jobs` at a
-//! time. A file is taken once its size, mtime, change time and inode were unchanged for
+//! One async task owns all state; pixel work runs on blocking threads through the
+//! [`Lab`] boundary, at most `jobs` at a time. The state is made of owned parts, each
+//! with its own file and tests: the state of every file noticed (`files`: settling,
+//! waiting out a back-off, taken, held, set aside), the settling of one file
+//! (`candidate`), back-off (`backoff`), the grouper ([`bracket`]), the memory budget,
+//! the journal and the response cache. The event loop reads the clock and passes `now`
+//! in; nothing below it reads the clock itself, except after listing or probing files,
+//! which takes time. A file is taken once its size, mtime, change time and inode were unchanged for
 //! `settle_ms` on the daemon's clock (never judged by its mtime, which tethering tools set
 //! to the capture time). When the queue is full, files simply stay on disk as candidates,
 //! and nothing is dropped. Memory is bounded twice: by `jobs` developing brackets, and by the
@@ -25,6 +30,7 @@ pub mod journal;
 
 mod backoff;
 mod candidate;
+mod files;
 mod hooks;
 pub(crate) mod intake;
 pub(crate) mod lab;
@@ -33,7 +39,7 @@ mod settle;
 mod status;
 mod viewer;
 
-use std::collections::{HashMap, HashSet, VecDeque};
+use std::collections::{HashSet, VecDeque};
 use std::path::{Path, PathBuf};
 use std::sync::Arc;
 use std::time::{Duration, Instant};
@@ -47,11 +53,10 @@ pub use status::{Retry, STATUS_FILE, Snapshot, lock_held, read_snapshot, state_w
 pub use viewer::{PREVIEW_FOLDER, ViewerError};
 
 use crate::atomic;
-use backoff::Unreadable;
-use bracket::{Closed, Grouper, Input};
+use bracket::{Closed, Grouper};
 use cache::ResponseCache;
-use candidate::Candidate;
 use config::Config;
+use files::Files;
 use intake::Notice;
 use journal::{Journal, JournalError};
 
@@ -227,14 +232,6 @@ pub fn job_bytes(frames: &[Footprint]) -> u64 {
         + crate::darkroom::working_memory_bytes(largest.width, largest.height, 3, 1)
 }
 
-/// The JPEG of a body that shoots RAW+JPEG, settled before its raw: it waits for the raw
-/// (see [`settle`]) and becomes a frame of its own only if none comes.
-#[derive(Debug)]
-struct Held {
-    capture: bracket::Capture,
-    since: Instant,
-}
-
 type Outcome = (Work, Result<Processed, JobError>, Duration);
 
 /// What woke the daemon's loop.
@@ -267,24 +264,14 @@ struct State {
     watch_retry_at: Instant,
     last_rescan: Instant,
     last_redo: Instant,
-    candidates: HashMap<PathBuf, Candidate>,
     /// The stems of the files noticed in ingest (RAW+JPEG pairing).
     stems: intake::Stems,
-    /// JPEGs of RAW+JPEG captures set aside: as they were then, and their raw.
-    companions: HashMap<PathBuf, (Input, PathBuf)>,
-    /// The same pairs by raw: the JPEG set aside beside it.
-    companion_of_raw: HashMap<PathBuf, Input>,
     /// Bodies seen shooting RAW+JPEG in this run: their JPEGs wait for a raw.
     pairing_bodies: HashSet<bracket::CameraId>,
-    /// JPEGs of those bodies waiting for their raw.
-    held: HashMap<PathBuf, Held>,
-    /// Files whose last read failed transiently, with their back-off.
-    unreadable: HashMap<PathBuf, Unreadable>,
     /// Estimated bytes of the jobs in flight.
     in_use: u64,
-    /// Frames in the grouper, held, queued, waiting to retry or in flight: their decoded
-    /// size, content digest and inode as read.
-    taken: HashMap<PathBuf, intake::Taken>,
+    /// Every file noticed that the daemon has business with, and its state.
+    files: Files,
     queue: VecDeque<Work>,
     /// Brackets whose outputs failed: when to try again, and why.
     retries: Vec<(Instant, Work, String)>,
@@ -373,15 +360,10 @@ pub async fn run(
         watch_retry_at: now,
         last_rescan: now,
         last_redo: now,
-        candidates: HashMap::new(),
         stems: intake::Stems::default(),
-        companions: HashMap::new(),
-        companion_of_raw: HashMap::new(),
         pairing_bodies: HashSet::new(),
-        held: HashMap::new(),
-        unreadable: HashMap::new(),
         in_use: 0,
-        taken: HashMap::new(),
+        files: Files::default(),
         queue: VecDeque::new(),
         retries: Vec::new(),
         in_flight: JoinSet::new(),

@@ -67,8 +67,8 @@ impl State {
                     alone: *alone,
                     outputs: Vec::new(),
                     digests: self
-                        .taken
-                        .get(&capture.input.path)
+                        .files
+                        .taken(&capture.input.path)
                         .map(|t| vec![t.digest])
                         .unwrap_or_default(),
                     at: journal::unix_now(),
@@ -80,7 +80,7 @@ impl State {
             // The JPEGs set aside beside raws, as they have settled by now.
             for frame in work.closed.frames_mut() {
                 if frame.companion.is_none() {
-                    frame.companion = self.companion_of_raw.get(&frame.input.path).cloned();
+                    frame.companion = self.files.companion_of(&frame.input.path).cloned();
                 }
             }
             let camera = work.closed.camera().clone();
@@ -194,7 +194,7 @@ impl State {
 
     pub(super) fn release(&mut self, closed: &Closed) {
         for f in closed.frames() {
-            self.taken.remove(&f.input.path);
+            self.files.release(&f.input.path);
         }
     }
 
@@ -204,7 +204,7 @@ impl State {
         let frames: Vec<_> = closed
             .frames()
             .iter()
-            .filter_map(|c| self.taken.get(&c.input.path).map(|t| t.footprint))
+            .filter_map(|c| self.files.taken(&c.input.path).map(|t| t.footprint))
             .collect();
         job_bytes(&frames)
     }
@@ -250,7 +250,7 @@ impl State {
         let digests: Vec<u64> = closed
             .frames()
             .iter()
-            .map(|c| self.taken.get(&c.input.path).map(|t| t.digest))
+            .map(|c| self.files.taken(&c.input.path).map(|t| t.digest))
             .collect::<Option<_>>()
             .unwrap_or_default();
         let camera = closed.camera().clone();
@@ -407,8 +407,8 @@ impl State {
                 intake::observe(&c.input.path).is_ok_and(|seen| {
                     seen.input != c.input
                         || self
-                            .taken
-                            .get(&c.input.path)
+                            .files
+                            .taken(&c.input.path)
                             .is_some_and(|t| t.inode != seen.inode())
                 })
             })
@@ -431,7 +431,7 @@ impl State {
             return;
         }
         warn!(bracket = %work.closed.stem(), file = %path.display(), "a frame stayed missing; its bracket is developed without it");
-        self.taken.remove(path);
+        self.files.release(path);
         self.requeue_without(&work.closed, path);
     }
 

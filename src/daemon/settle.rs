@@ -39,7 +39,7 @@ use super::bracket::{Alone, Bracket, Capture, Closed, Input};
 use super::intake::{self, Arrival, Notice, Probe};
 use super::journal::{self, Entry};
 use super::{
-    Candidate, DaemonError, Held, REDO_FOLDER, State, Superseded, Unreadable, Work, folder_id,
+    DaemonError, REDO_FOLDER, State, Superseded, Work, files::FileState, files::Held, folder_id,
     job_bytes,
 };
 use crate::atomic;
@@ -114,19 +114,14 @@ impl State {
         let listing = self.listing().await;
         let now = Instant::now();
         for path in listing {
-            let known = self.taken.contains_key(&path)
-                || self.candidates.contains_key(&path)
-                || self.held.contains_key(&path)
-                || self.unreadable.contains_key(&path)
-                || self.companions.contains_key(&path);
-            if known
+            if self.files.state(&path).is_some()
                 || intake::observe(&path).map_or(true, |seen| self.journal.is_settled(&seen.input))
             {
                 continue;
             }
             info!(file = %path.display(), "on disk but not yet reported: its bracket waits for it");
             self.consider(path.clone(), Arrival::Writing, now);
-            found |= self.candidates.contains_key(&path);
+            found |= self.files.is_settling(&path);
         }
         found
     }
@@ -141,27 +136,10 @@ impl State {
             return;
         }
         self.stems.insert(&path);
-        if self.taken.contains_key(&path) {
-            return;
-        }
-        // A JPEG set aside beside its raw, unchanged since.
-        if self
-            .companions
-            .get(&path)
-            .is_some_and(|(input, _)| intake::identify(&path).is_ok_and(|i| i == *input))
-        {
-            return;
-        }
-        // Waiting out its back-off after a read error (see `unreadable`).
-        if self.unreadable.get(&path).is_some_and(|u| !u.due(now)) {
-            return;
-        }
-        match self.candidates.get_mut(&path) {
-            Some(cand) => cand.notice(arrival, now),
-            None => {
-                self.candidates.insert(path, Candidate::new(arrival, now));
-            }
-        }
+        // Unless taken, waiting out its back-off, or a JPEG set aside beside its raw and
+        // unchanged since.
+        let unchanged = |aside: &Input| intake::identify(&aside.path).is_ok_and(|i| i == *aside);
+        self.files.notice(path, arrival, now, unchanged);
     }
 
     /// The raw of the capture whose JPEG (PNG, TIFF) is `path`, when it is one the daemon
@@ -187,16 +165,12 @@ impl State {
             return;
         };
         info!(file = %jpeg.display(), raw = %raw.display(), "the JPEG of a RAW+JPEG capture: set aside beside its raw");
-        self.taken.remove(&jpeg);
-        self.held.remove(&jpeg);
-        self.companion_of_raw.insert(raw.clone(), input.clone());
-        self.companions.insert(jpeg, (input, raw));
+        self.files.set_aside(input, raw);
     }
 
     /// A raw that cannot be a frame gives its JPEG back: that is considered as a frame.
     pub(super) fn unpair(&mut self, raw: &Path, now: Instant) {
-        if let Some(input) = self.companion_of_raw.remove(raw) {
-            self.companions.remove(&input.path);
+        if let Some(input) = self.files.unpair(raw) {
             info!(file = %input.path.display(), raw = %raw.display(), "its raw was rejected: the JPEG is the frame");
             self.consider(input.path, Arrival::Writing, now);
         }
@@ -206,20 +180,24 @@ impl State {
     /// bracket gap without one.
     fn release_held(&mut self, now: Instant) {
         let hold = Duration::from_secs_f64(self.config.bracket.max_gap_s.max(0.0));
-        let mut paths: Vec<PathBuf> = self.held.keys().cloned().collect();
-        paths.sort();
         let now_s = self.since_start(now);
-        for path in paths {
+        for path in self.files.held_paths() {
             if let Some(raw) = self.pairing_raw(&path) {
                 self.set_aside(path, raw);
                 continue;
             }
-            if now.saturating_duration_since(self.held[&path].since) < hold {
+            if self
+                .files
+                .held_since(&path)
+                .is_some_and(|since| now.saturating_duration_since(since) < hold)
+            {
                 continue;
             }
-            let held = self.held.remove(&path).expect("listed above");
+            let Some(capture) = self.files.unhold(&path) else {
+                continue;
+            };
             info!(file = %path.display(), "no raw came for this JPEG: it is the frame");
-            for closed in self.grouper.push(held.capture, now_s) {
+            for closed in self.grouper.push(capture, now_s) {
                 self.queue.push_back(Work::new(closed));
             }
         }
@@ -283,10 +261,7 @@ impl State {
         // A frame still being written (or waiting on disk behind a full queue) may belong
         // to an open bracket: its gap clock starts when intake has caught up. A writer
         // stuck for over a minute no longer holds brackets open.
-        let writing = !self.held.is_empty()
-            || self.candidates.values().any(|c| c.writing(now))
-            || self.unreadable.values().any(|u| u.writing(now));
-        if writing
+        if self.files.writing(now)
             || self.queue.len() >= self.config.daemon.queue
             || (self.grouper.due(now_s) && self.unnoticed_arrivals().await)
         {
@@ -306,13 +281,7 @@ impl State {
         for (_, work, _) in ready {
             self.queue.push_back(work);
         }
-        let again: Vec<PathBuf> = self
-            .unreadable
-            .iter()
-            .filter(|(p, u)| u.due(now) && !self.candidates.contains_key(*p))
-            .map(|(p, _)| p.clone())
-            .collect();
-        for path in again {
+        for path in self.files.due(now) {
             self.consider(path, Arrival::Writing, now);
         }
     }
@@ -329,9 +298,7 @@ impl State {
         let settle = self.config.watch.settle;
         let mut ready = Vec::new();
         let mut gone = Vec::new();
-        let mut paths: Vec<&PathBuf> = self.candidates.keys().collect();
-        paths.sort();
-        let paths: Vec<PathBuf> = paths.into_iter().cloned().collect();
+        let paths = self.files.settling_paths();
         let mut full = false;
         for path in paths {
             if ready.len() >= room {
@@ -354,7 +321,7 @@ impl State {
                 gone.push(path);
                 continue;
             }
-            let Some(cand) = self.candidates.get_mut(&path) else {
+            let Some(cand) = self.files.candidate_mut(&path) else {
                 continue;
             };
             if cand.settled(seen, now, settle) {
@@ -362,7 +329,7 @@ impl State {
             }
         }
         for p in &gone {
-            self.candidates.remove(p);
+            self.files.end_settling(p);
             if std::fs::symlink_metadata(p).is_err() {
                 self.stems.remove(p);
             }
@@ -372,14 +339,14 @@ impl State {
         // the start-up scan, a slow writer), and frames enter the grouper in capture-time
         // order only within one batch. When the queue limits the batch, take what is ready.
         let settling = self
-            .candidates
-            .iter()
-            .any(|(p, c)| !ready.contains(p) && c.writing(now));
+            .files
+            .settling()
+            .any(|(p, s)| !ready.contains(p) && s.candidate.writing(now));
         if settling && !full {
             return Vec::new();
         }
         for p in &ready {
-            self.candidates.remove(p);
+            self.files.end_settling(p);
         }
         ready
     }
@@ -424,7 +391,7 @@ impl State {
         let mut frames = Vec::new();
         for (path, probe) in probed {
             if !matches!(probe, Probe::Unreadable(_)) {
-                self.unreadable.remove(&path);
+                self.files.read(&path);
             }
             match probe {
                 Probe::Frame(c, ..) if self.journal.is_settled(&c.input) => {}
@@ -472,7 +439,7 @@ impl State {
                 );
                 self.reject(c.input, reason, now)?;
             } else {
-                self.taken.insert(c.input.path.clone(), taken);
+                self.files.take(c.input.path.clone(), taken);
                 admitted.push(c);
             }
         }
@@ -508,13 +475,14 @@ impl State {
                 // A raw with a JPEG beside it: its body shoots RAW+JPEG, and a JPEG of
                 // this capture that went ahead of its raw gives way.
                 self.pairing_bodies.insert(c.camera.clone());
-                if self.held.contains_key(&jpeg) || self.grouper.withdraw(&jpeg).is_some() {
+                let held = matches!(self.files.state(&jpeg), Some(FileState::Held(..)));
+                if held || self.grouper.withdraw(&jpeg).is_some() {
                     self.set_aside(jpeg, path.clone());
                 }
             } else if !intake::is_raw(&path) && self.pairing_bodies.contains(&c.camera) {
                 tracing::debug!(file = %path.display(), "a JPEG of a RAW+JPEG body: waiting for its raw");
-                self.held.insert(
-                    c.input.path.clone(),
+                self.files.hold(
+                    &path,
                     Held {
                         capture: c,
                         since: now,
@@ -557,7 +525,7 @@ impl State {
                 "no unchanged frame of the earlier bracket left".to_string(),
             ));
         }
-        if others.iter().any(|p| self.taken.contains_key(p)) {
+        if others.iter().any(|p| self.files.taken(p).is_some()) {
             return Err((new, "its other frames are being developed".to_string()));
         }
         let journaled: Vec<Input> = old.inputs().into_iter().cloned().collect();
@@ -600,7 +568,7 @@ impl State {
             return Err((frames, "frames of another camera".to_string()));
         }
         for (c, taken) in found {
-            self.taken.insert(c.input.path.clone(), taken);
+            self.files.take(c.input.path.clone(), taken);
             frames.push(c);
         }
         frames.sort_by(|a, b| a.time_s.total_cmp(&b.time_s));
@@ -666,12 +634,9 @@ impl State {
     /// [`super::candidate::WRITER_PATIENCE`]),
     /// and `status` shows it with the reason. Nothing is journaled.
     pub(super) fn unreadable_for_now(&mut self, path: PathBuf, reason: String, now: Instant) {
-        let entry = self
-            .unreadable
-            .entry(path.clone())
-            .or_insert_with(|| Unreadable::new(now));
-        let delay = entry.failed(now, self.config.daemon.retry, reason.clone());
-        let attempts = entry.attempts();
+        let (delay, attempts) =
+            self.files
+                .unreadable(&path, now, self.config.daemon.retry, reason.clone());
         if let Some(viewer) = &self.viewer {
             viewer.retry(super::Retry {
                 what: path.display().to_string(),
@@ -696,7 +661,7 @@ impl State {
         now: Instant,
     ) -> Result<(), DaemonError> {
         warn!(file = %input.path.display(), reason = %reason, "rejected");
-        self.taken.remove(&input.path);
+        self.files.release(&input.path);
         self.summary.rejected += 1;
         if let Some(viewer) = &self.viewer {
             viewer.rejected(&input.path, &reason);

@@ -113,6 +113,7 @@ pub fn state_writable(state: &Path) -> bool {
 impl State {
     /// The snapshot at `now`.
     pub(super) fn snapshot(&self, running: bool, now: Instant) -> Snapshot {
+        let files = self.files.counts();
         Snapshot {
             pid: std::process::id(),
             running,
@@ -120,11 +121,11 @@ impl State {
             ingest: self.config.folders.ingest.clone(),
             out: self.config.folders.out.clone(),
             watching: running && self.watcher.is_some(),
-            settling: self.candidates.len(),
-            grouping: self.grouper.waiting() + self.held.len(),
+            settling: files.settling,
+            grouping: self.grouper.waiting() + files.held,
             queued: self.queue.len(),
             in_flight: self.in_flight.len(),
-            retrying: self.retries.len() + self.unreadable.len(),
+            retrying: self.retries.len() + files.retrying,
             retries: self.retry_list(now),
             finished: self.summary.finished,
             rejected: self.summary.rejected,
@@ -153,7 +154,7 @@ impl State {
                 attempts: work.attempts,
                 next: at(*when),
             })
-            .chain(self.unreadable.iter().map(|(path, u)| Retry {
+            .chain(self.files.retrying().map(|(path, u)| Retry {
                 what: path.display().to_string(),
                 reason: u.reason().to_string(),
                 attempts: u.attempts(),
