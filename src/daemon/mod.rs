@@ -17,7 +17,7 @@
 //! `settle_ms` on the daemon's clock (never judged by its mtime, which tethering tools set
 //! to the capture time). When the queue is full, files simply stay on disk as candidates,
 //! and nothing is dropped. Memory is bounded twice: by `jobs` developing brackets, and by the
-//! `memory_mb` budget their estimates ([`job_bytes`]) must fit in.
+//! `memory_mb` budget their estimates ([`job_bytes`]) must fit in (`budget`).
 //!
 //! Errors split as in any service: [`DaemonError`] is fatal (folders cannot be created,
 //! the journal cannot be written); a bad frame, a failed output or a bad reload is
@@ -29,6 +29,7 @@ pub mod config;
 pub mod journal;
 
 mod backoff;
+mod budget;
 mod candidate;
 mod files;
 mod hooks;
@@ -48,6 +49,7 @@ use tokio::sync::mpsc;
 use tokio::task::JoinSet;
 use tracing::{info, warn};
 
+pub use budget::{Footprint, job_bytes};
 pub use lab::{Aligned, DarkroomLab, Facts, Job, JobError, Lab, Processed};
 pub use status::{Retry, STATUS_FILE, Snapshot, lock_held, read_snapshot, state_writable};
 pub use viewer::{PREVIEW_FOLDER, ViewerError};
@@ -199,39 +201,6 @@ struct Superseded {
     outputs: Vec<PathBuf>,
 }
 
-/// The decoded size of one frame, read from its header at intake.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub struct Footprint {
-    /// Width in pixels.
-    pub width: u32,
-    /// Height in pixels.
-    pub height: u32,
-    /// Bytes per decoded pixel (3 for 8-bit RGB, 6 for 16-bit RGB, 1 for 8-bit grey).
-    pub bytes_per_pixel: u32,
-}
-
-/// The memory a job needs, in bytes, for frames `f_i` of `w_i × h_i` pixels and `b_i`
-/// bytes per decoded pixel: each frame's decoded size, once more the largest (a decoder's
-/// buffer beside the converted frame while it decodes), and the darkroom's working set
-/// for an RGB map of the largest frame with looks ([`crate::darkroom::working_memory_bytes`]):
-///
-/// `Σ_i w_i·h_i·b_i + max_i(w_i·h_i·b_i) + (4·3 + 2·3 + 8)·P + 18·64·w`, `P = max_i w_i·h_i`
-///
-/// It does not depend on the configured looks (one or more are assumed), so a reload
-/// cannot change what a running job was counted as. A three-frame bracket of 45 MP 8-bit
-/// JPEGs: `45e6·(3·3 + 3 + 26) ≈ 1.7e9` bytes.
-pub fn job_bytes(frames: &[Footprint]) -> u64 {
-    let pixels = |f: &Footprint| u64::from(f.width) * u64::from(f.height);
-    let decoded = |f: &Footprint| pixels(f) * u64::from(f.bytes_per_pixel);
-    let Some(largest) = frames.iter().max_by_key(|f| pixels(f)) else {
-        return 0;
-    };
-    let transient = frames.iter().map(decoded).max().unwrap_or(0);
-    frames.iter().map(decoded).sum::<u64>()
-        + transient
-        + crate::darkroom::working_memory_bytes(largest.width, largest.height, 3, 1)
-}
-
 type Outcome = (Work, Result<Processed, JobError>, Duration);
 
 /// What woke the daemon's loop.
@@ -269,7 +238,7 @@ struct State {
     /// Bodies seen shooting RAW+JPEG in this run: their JPEGs wait for a raw.
     pairing_bodies: HashSet<bracket::CameraId>,
     /// Estimated bytes of the jobs in flight.
-    in_use: u64,
+    in_use: budget::InUse,
     /// Every file noticed that the daemon has business with, and its state.
     files: Files,
     queue: VecDeque<Work>,
@@ -362,7 +331,7 @@ pub async fn run(
         last_redo: now,
         stems: intake::Stems::default(),
         pairing_bodies: HashSet::new(),
-        in_use: 0,
+        in_use: budget::InUse::default(),
         files: Files::default(),
         queue: VecDeque::new(),
         retries: Vec::new(),
@@ -548,7 +517,7 @@ fn folder_id(dir: &Path) -> Option<(u64, u64)> {
 impl State {
     /// The memory budget, `[daemon] memory_mb` in bytes (MB = 10⁶ bytes).
     fn budget_bytes(&self) -> u64 {
-        self.config.daemon.memory_mb.saturating_mul(1_000_000)
+        budget::budget_bytes(self.config.daemon.memory_mb)
     }
 
     /// Seconds from the start to `now`: the grouper's clock.

@@ -14,7 +14,8 @@ use super::config::{Recalibrate, Singles};
 use super::intake::{self, Arrival};
 use super::journal::{self, Entry};
 use super::{
-    DaemonError, Job, JobError, Outcome, Processed, State, Work, backoff, file_stem, job_bytes,
+    DaemonError, Job, JobError, Outcome, Processed, State, Work, backoff, budget, file_stem,
+    job_bytes,
 };
 use crate::atomic;
 use crate::darkroom::Pooling;
@@ -43,12 +44,11 @@ impl State {
             let budget = self.budget_bytes();
             let single_reported = matches!(&work.closed, Closed::Single(..))
                 && self.config.bracket.singles == Singles::Report;
-            if !single_reported && self.in_use + need > budget {
+            if !single_reported && !self.in_use.fits(need, budget) {
                 if self.in_flight.is_empty() {
                     let reason = format!(
-                        "needs {} MB to develop, more than the memory budget ([daemon] memory_mb = {})",
-                        need.div_ceil(1_000_000),
-                        self.config.daemon.memory_mb
+                        "needs {}",
+                        budget::over_budget(need, self.config.daemon.memory_mb)
                     );
                     self.failed(&work, reason)?;
                     continue;
@@ -113,7 +113,7 @@ impl State {
                 stocks: self.config.folders.stocks.clone(),
             };
             let lab = Arc::clone(&self.lab);
-            self.in_use += need;
+            self.in_use.reserve(need);
             work.reserved = need;
             self.in_flight.spawn_blocking(move || {
                 let t = Instant::now();
@@ -216,7 +216,7 @@ impl State {
         (work, result, took): Outcome,
         now: Instant,
     ) -> Result<(), DaemonError> {
-        self.in_use = self.in_use.saturating_sub(work.reserved);
+        self.in_use.release(work.reserved);
         match result {
             Ok(processed) => self.developed(&work, &processed, took, now)?,
             // A frame not on disk now (moved away, being replaced): not a verdict on it.

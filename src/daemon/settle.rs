@@ -431,11 +431,10 @@ impl State {
             let budget = self.budget_bytes();
             if need > budget {
                 let reason = format!(
-                    "{}×{} pixels need {} MB to develop, more than the memory budget ([daemon] memory_mb = {})",
+                    "{}×{} pixels need {}",
                     footprint.width,
                     footprint.height,
-                    need.div_ceil(1_000_000),
-                    self.config.daemon.memory_mb
+                    super::budget::over_budget(need, self.config.daemon.memory_mb)
                 );
                 self.reject(c.input, reason, now)?;
             } else {
@@ -601,15 +600,7 @@ impl State {
         }
         self.last_redo = now;
         let dir = self.config.folders.state.join(REDO_FOLDER);
-        let Ok(entries) = std::fs::read_dir(&dir) else {
-            return Ok(());
-        };
-        let requests: Vec<PathBuf> = entries
-            .filter_map(Result::ok)
-            .map(|e| e.path())
-            .filter(|p| !atomic::is_temporary(p))
-            .collect();
-        for request in requests {
+        for request in redo_listing(dir).await {
             let stem = request
                 .file_name()
                 .map(|n| n.to_string_lossy().into_owned())
@@ -675,4 +666,24 @@ impl State {
         self.unpair(&path, now);
         Ok(())
     }
+}
+
+/// The requests in the redo folder `dir` (none when it is missing), listed on a blocking
+/// thread, off the loop.
+async fn redo_listing(dir: PathBuf) -> Vec<PathBuf> {
+    tokio::task::spawn_blocking(move || {
+        let Ok(entries) = std::fs::read_dir(&dir) else {
+            return Vec::new();
+        };
+        entries
+            .filter_map(Result::ok)
+            .map(|e| e.path())
+            .filter(|p| !atomic::is_temporary(p))
+            .collect()
+    })
+    .await
+    .unwrap_or_else(|e| {
+        warn!(error = %e, "listing the redo requests did not finish");
+        Vec::new()
+    })
 }

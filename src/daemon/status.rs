@@ -129,7 +129,7 @@ impl State {
             retries: self.retry_list(now),
             finished: self.summary.finished,
             rejected: self.summary.rejected,
-            memory_in_use: self.in_use,
+            memory_in_use: self.in_use.bytes(),
             memory_budget: self.budget_bytes(),
             viewer: self
                 .viewer
@@ -198,7 +198,7 @@ impl State {
             warn!(error = %e, "cannot write status snapshot");
         }
         if let Some(viewer) = &self.viewer {
-            viewer.status(&snap, self.in_use, self.budget_bytes());
+            viewer.status(&snap, self.in_use.bytes(), self.budget_bytes());
         }
         self.last_snapshot = Some(snap);
     }
