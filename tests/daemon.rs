@@ -80,6 +80,9 @@ impl Rig {
             rt.block_on(daemon::run(config, lab, rx))
                 .expect("daemon ran")
         });
+        // Frames put before the watcher runs would be found by the start-up scan with no
+        // writer's close seen, and wait the whole settle window.
+        wait_for_status(&root.join("state"), |s| s.watching);
         Rig {
             _dir: dir,
             root,
