@@ -107,15 +107,22 @@ pub fn fitting_stem(stem: &str) -> std::borrow::Cow<'_, str> {
     format!("{}~{digest}", &stem[..end]).into()
 }
 
-/// FNV-1a (64 bit) of `bytes` as 16 lower-case hex digits: a short name for them, the
-/// same on every platform and in every version (unlike the standard library's hasher).
+/// 64-bit FNV-1a of `bytes` as 16 lower-case hex digits: a short name for them, the same on
+/// every platform and in every version (unlike the standard library's hasher).
 pub fn name_digest(bytes: &[u8]) -> String {
-    let mut h: u64 = 0xcbf2_9ce4_8422_2325;
-    for &b in bytes {
-        h ^= u64::from(b);
-        h = h.wrapping_mul(0x0000_0100_0000_01b3);
-    }
-    format!("{h:016x}")
+    format!("{:016x}", fnv1a(FNV_OFFSET, bytes))
+}
+
+/// The offset basis of 64-bit FNV-1a: the hash of no bytes.
+pub(crate) const FNV_OFFSET: u64 = 0xcbf2_9ce4_8422_2325;
+
+/// 64-bit FNV-1a of `bytes` continued from the hash `h`: for each byte `b`,
+/// `h ← (h ⊕ b) · 0x100000001b3 (mod 2⁶⁴)`. Written here rather than taken from a crate:
+/// five lines, and the digests in journals, output names and caches must not change.
+pub(crate) fn fnv1a(h: u64, bytes: &[u8]) -> u64 {
+    bytes.iter().fold(h, |h, &b| {
+        (h ^ u64::from(b)).wrapping_mul(0x0000_0100_0000_01b3)
+    })
 }
 
 /// Writes the bytes that `produce` streams into the file, then publishes it at `path`.

@@ -80,6 +80,9 @@ impl Rig {
             rt.block_on(daemon::run(config, lab, rx))
                 .expect("daemon ran")
         });
+        // Frames put before the watcher runs would be found by the start-up scan with no
+        // writer's close seen, and wait the whole settle window.
+        wait_for_status(&root.join("state"), |s| s.watching);
         Rig {
             _dir: dir,
             root,
@@ -788,9 +791,9 @@ fn ingest_folder_deleted_and_recreated() {
     put(&rig.ingest(), &aeb("Body A", 10, "g"));
     expect_outputs(&rig.out(), &bracket_outputs(&["g-1"]), T);
     std::fs::remove_dir_all(rig.ingest()).unwrap();
-    std::thread::sleep(Duration::from_millis(500));
+    wait_for_status(&rig.state(), |s| !s.watching);
     std::fs::create_dir(rig.ingest()).unwrap();
-    std::thread::sleep(Duration::from_millis(500));
+    wait_for_status(&rig.state(), |s| s.watching);
     put(&rig.ingest(), &aeb("Body A", 30, "h"));
     expect_outputs(&rig.out(), &bracket_outputs(&["g-1", "h-1"]), T);
     let state = rig.state();
@@ -1359,7 +1362,12 @@ fn sighup_with_a_bad_config_keeps_the_running_one() {
         .args(["-HUP", &child.id().to_string()])
         .status()
         .unwrap();
-    std::thread::sleep(Duration::from_millis(300));
+    let log = config.with_extension("log");
+    let start = Instant::now();
+    while !std::fs::read_to_string(&log).is_ok_and(|l| l.contains("keeping the running one")) {
+        assert!(start.elapsed() < T, "the bad reload was never reported");
+        std::thread::sleep(Duration::from_millis(20));
+    }
     assert!(
         child.try_wait().unwrap().is_none(),
         "daemon survived the bad reload"

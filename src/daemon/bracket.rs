@@ -19,8 +19,8 @@ use std::path::PathBuf;
 
 use serde::{Deserialize, Serialize};
 
+use crate::atomic;
 use crate::daemon::config::BracketRules;
-use crate::daemon::journal;
 
 /// The camera body a frame came from; brackets never mix bodies.
 #[derive(Debug, Clone, Default, PartialEq, Eq, PartialOrd, Ord, Hash, Serialize, Deserialize)]
@@ -199,8 +199,8 @@ pub fn fingerprint<'a>(inputs: impl IntoIterator<Item = &'a Input>) -> String {
         })
         .collect();
     keys.sort();
-    let h = keys.iter().fold(journal::FNV_OFFSET, |h, k| {
-        journal::fnv1a(journal::fnv1a(h, k.as_bytes()), &[0xff])
+    let h = keys.iter().fold(atomic::FNV_OFFSET, |h, k| {
+        atomic::fnv1a(atomic::fnv1a(h, k.as_bytes()), &[0xff])
     });
     format!("{h:016x}")
 }

@@ -19,6 +19,7 @@ use tokio::sync::mpsc::UnboundedSender;
 use crate::atomic;
 use crate::daemon::Footprint;
 use crate::daemon::bracket::{CameraId, Capture, Input};
+use crate::daemon::budget::{MB, megabytes};
 use crate::daemon::config::{Watch, WatchMode};
 use crate::daemon::journal;
 use crate::frame;
@@ -415,8 +416,8 @@ pub(crate) fn probe(path: &Path, max_bytes: u64) -> Probe {
     if before.size > max_bytes {
         let reason = format!(
             "a {} MB file is larger than the memory budget ([daemon] memory_mb = {}): it could never be developed",
-            before.size.div_ceil(1_000_000),
-            max_bytes / 1_000_000
+            megabytes(before.size),
+            max_bytes / MB
         );
         return Probe::Rejected(before, reason);
     }

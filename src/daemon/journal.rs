@@ -24,6 +24,7 @@ use std::path::{Path, PathBuf};
 
 use serde::{Deserialize, Serialize};
 
+use crate::atomic;
 use crate::daemon::bracket::{Alone, CameraId, Input};
 use crate::darkroom::Source;
 
@@ -203,22 +204,10 @@ impl Entry {
     }
 }
 
-/// FNV-1a (64 bit) of a file's bytes: tells a touched file (same content, new
-/// modification time) from a changed one.
+/// FNV-1a (64 bit) of a file's bytes: tells a touched file (same
+/// content, new modification time) from a changed one.
 pub fn content_digest(bytes: &[u8]) -> u64 {
-    fnv1a(FNV_OFFSET, bytes)
-}
-
-/// The offset basis of 64-bit FNV-1a: the hash of no bytes.
-pub(crate) const FNV_OFFSET: u64 = 0xcbf2_9ce4_8422_2325;
-
-/// 64-bit FNV-1a of `bytes` continued from the hash `h`: for each byte `b`,
-/// `h ← (h ⊕ b) · 0x100000001b3 (mod 2⁶⁴)`. Written here rather than taken from a crate:
-/// five lines, and the digests already in journals must not change.
-pub(crate) fn fnv1a(h: u64, bytes: &[u8]) -> u64 {
-    bytes.iter().fold(h, |h, &b| {
-        (h ^ u64::from(b)).wrapping_mul(0x0000_0100_0000_01b3)
-    })
+    atomic::fnv1a(atomic::FNV_OFFSET, bytes)
 }
 
 /// Seconds since the Unix epoch, now.
@@ -585,9 +574,12 @@ mod tests {
     /// 0xaf63dc4c8601ec8c in the FNV authors' test vectors).
     #[test]
     fn the_content_digest_is_64_bit_fnv_1a() {
-        assert_eq!(content_digest(b""), FNV_OFFSET);
+        assert_eq!(content_digest(b""), atomic::FNV_OFFSET);
         assert_eq!(content_digest(b"a"), 0xaf63_dc4c_8601_ec8c);
-        assert_eq!(fnv1a(content_digest(b"fo"), b"o"), content_digest(b"foo"));
+        assert_eq!(
+            atomic::fnv1a(content_digest(b"fo"), b"o"),
+            content_digest(b"foo")
+        );
     }
 
     #[test]

@@ -6,13 +6,18 @@
 //!             journal ◄─ cache update ◄─ outputs ◄─ Lab (blocking thread) ◄┘
 //! ```
 //!
-//! One async task owns all state (candidates, grouper, queue, journal, cache); pixel
-//! work runs on blocking threads through the [`Lab`] boundary, at most `jobs` at a
-//! time. A file is taken once its size, mtime, change time and inode were unchanged for
+//! One async task owns all state; pixel work runs on blocking threads through the
+//! [`Lab`] boundary, at most `jobs` at a time. The state is made of owned parts, each
+//! with its own file and tests: the state of every file noticed (`files`: settling,
+//! waiting out a back-off, taken, held, set aside), the settling of one file
+//! (`candidate`), back-off (`backoff`), the grouper ([`bracket`]), the memory budget,
+//! the journal and the response cache. The event loop reads the clock and passes `now`
+//! in; nothing below it reads the clock itself, except after listing or probing files,
+//! which takes time. A file is taken once its size, mtime, change time and inode were unchanged for
 //! `settle_ms` on the daemon's clock (never judged by its mtime, which tethering tools set
 //! to the capture time). When the queue is full, files simply stay on disk as candidates,
 //! and nothing is dropped. Memory is bounded twice: by `jobs` developing brackets, and by the
-//! `memory_mb` budget their estimates ([`job_bytes`]) must fit in.
+//! `memory_mb` budget their estimates ([`job_bytes`]) must fit in (`budget`).
 //!
 //! Errors split as in any service: [`DaemonError`] is fatal (folders cannot be created,
 //! the journal cannot be written); a bad frame, a failed output or a bad reload is
@@ -23,6 +28,10 @@ pub mod cache;
 pub mod config;
 pub mod journal;
 
+mod backoff;
+mod budget;
+mod candidate;
+mod files;
 mod hooks;
 pub(crate) mod intake;
 pub(crate) mod lab;
@@ -31,7 +40,7 @@ mod settle;
 mod status;
 mod viewer;
 
-use std::collections::{HashMap, HashSet, VecDeque};
+use std::collections::{HashSet, VecDeque};
 use std::path::{Path, PathBuf};
 use std::sync::Arc;
 use std::time::{Duration, Instant};
@@ -40,14 +49,16 @@ use tokio::sync::mpsc;
 use tokio::task::JoinSet;
 use tracing::{info, warn};
 
+pub use budget::{Footprint, job_bytes};
 pub use lab::{Aligned, DarkroomLab, Facts, Job, JobError, Lab, Processed};
 pub use status::{Retry, STATUS_FILE, Snapshot, lock_held, read_snapshot, state_writable};
 pub use viewer::{PREVIEW_FOLDER, ViewerError};
 
 use crate::atomic;
-use bracket::{Closed, Grouper, Input};
+use bracket::{Closed, Grouper};
 use cache::ResponseCache;
 use config::Config;
+use files::Files;
 use intake::Notice;
 use journal::{Journal, JournalError};
 
@@ -56,21 +67,8 @@ use journal::{Journal, JournalError};
 /// promises 10 s.
 pub const STOP_GRACE: Duration = Duration::from_secs(8);
 
-/// How long a file still being written keeps open brackets from closing by the gap.
-const WRITER_PATIENCE: Duration = Duration::from_secs(60);
-
 /// Folder in the state folder where `filmback redo STEM` leaves its requests.
 pub const REDO_FOLDER: &str = "redo";
-
-/// Longest delay between retries of a bracket whose outputs could not be written.
-const MAX_RETRY: Duration = Duration::from_secs(300);
-
-/// The wait before the next attempt after `attempts` failed ones, from `[daemon] retry_s`:
-/// `retry · 2^attempts`, at most [`MAX_RETRY`] (outputs that could not be written, files
-/// that could not be read, frames not on disk).
-fn backoff(retry: Duration, attempts: u32) -> Duration {
-    (retry * 2u32.saturating_pow(attempts.min(16))).min(MAX_RETRY)
-}
 
 /// What the daemon can be told while it runs (signals in the binary, channels in tests).
 #[derive(Debug)]
@@ -203,74 +201,15 @@ struct Superseded {
     outputs: Vec<PathBuf>,
 }
 
-/// The decoded size of one frame, read from its header at intake.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub struct Footprint {
-    /// Width in pixels.
-    pub width: u32,
-    /// Height in pixels.
-    pub height: u32,
-    /// Bytes per decoded pixel (3 for 8-bit RGB, 6 for 16-bit RGB, 1 for 8-bit grey).
-    pub bytes_per_pixel: u32,
-}
-
-/// The memory a job needs, in bytes, for frames `f_i` of `w_i × h_i` pixels and `b_i`
-/// bytes per decoded pixel: each frame's decoded size, once more the largest (a decoder's
-/// buffer beside the converted frame while it decodes), and the darkroom's working set
-/// for an RGB map of the largest frame with looks ([`crate::darkroom::working_memory_bytes`]):
-///
-/// `Σ_i w_i·h_i·b_i + max_i(w_i·h_i·b_i) + (4·3 + 2·3 + 8)·P + 18·64·w`, `P = max_i w_i·h_i`
-///
-/// It does not depend on the configured looks (one or more are assumed), so a reload
-/// cannot change what a running job was counted as. A three-frame bracket of 45 MP 8-bit
-/// JPEGs: `45e6·(3·3 + 3 + 26) ≈ 1.7e9` bytes.
-pub fn job_bytes(frames: &[Footprint]) -> u64 {
-    let pixels = |f: &Footprint| u64::from(f.width) * u64::from(f.height);
-    let decoded = |f: &Footprint| pixels(f) * u64::from(f.bytes_per_pixel);
-    let Some(largest) = frames.iter().max_by_key(|f| pixels(f)) else {
-        return 0;
-    };
-    let transient = frames.iter().map(decoded).max().unwrap_or(0);
-    frames.iter().map(decoded).sum::<u64>()
-        + transient
-        + crate::darkroom::working_memory_bytes(largest.width, largest.height, 3, 1)
-}
-
-/// A file that could not be read (permission denied, I/O error), waiting to be retried.
-#[derive(Debug)]
-struct Unreadable {
-    first_seen: Instant,
-    attempts: u32,
-    next: Instant,
-    reason: String,
-}
-
-/// A file seen but not yet complete.
-#[derive(Debug)]
-struct Candidate {
-    first_seen: Instant,
-    seen: Option<intake::Observed>,
-    stable_since: Instant,
-    /// Its writer closed it or it was renamed into place: the state first observed after
-    /// that notice (`None` until settling has looked), since when it has held, and how
-    /// long it must hold ([`FINISHED_QUIET`], or zero when delivered by filmback).
-    finished: Option<(Option<intake::Observed>, Instant, Duration)>,
-}
-
-/// How long a file must stay unchanged after its writer closed it or it was renamed into
-/// place (at most `settle`): a rewrite just after the close (digiCamControl's EXIF)
-/// restarts the wait; one later than this is a new version, developed again by content.
-const FINISHED_QUIET: Duration = Duration::from_millis(250);
-
-/// The JPEG of a body that shoots RAW+JPEG, settled before its raw: it waits for the raw
-/// (see [`settle`]) and becomes a frame of its own only if none comes.
-#[derive(Debug)]
-struct Held {
-    capture: bracket::Capture,
-    since: Instant,
-}
-
 type Outcome = (Work, Result<Processed, JobError>, Duration);
+
+/// What woke the daemon's loop.
+enum Event {
+    Notice(Notice),
+    Done(Box<Outcome>),
+    Reload(Box<Config>),
+    Tick,
+}
 
 struct State {
     config: Config,
@@ -294,24 +233,14 @@ struct State {
     watch_retry_at: Instant,
     last_rescan: Instant,
     last_redo: Instant,
-    candidates: HashMap<PathBuf, Candidate>,
     /// The stems of the files noticed in ingest (RAW+JPEG pairing).
     stems: intake::Stems,
-    /// JPEGs of RAW+JPEG captures set aside: as they were then, and their raw.
-    companions: HashMap<PathBuf, (Input, PathBuf)>,
-    /// The same pairs by raw: the JPEG set aside beside it.
-    companion_of_raw: HashMap<PathBuf, Input>,
     /// Bodies seen shooting RAW+JPEG in this run: their JPEGs wait for a raw.
     pairing_bodies: HashSet<bracket::CameraId>,
-    /// JPEGs of those bodies waiting for their raw.
-    held: HashMap<PathBuf, Held>,
-    /// Files whose last read failed transiently, with their back-off.
-    unreadable: HashMap<PathBuf, Unreadable>,
     /// Estimated bytes of the jobs in flight.
-    in_use: u64,
-    /// Frames in the grouper, held, queued, waiting to retry or in flight: their decoded
-    /// size, content digest and inode as read.
-    taken: HashMap<PathBuf, intake::Taken>,
+    in_use: budget::InUse,
+    /// Every file noticed that the daemon has business with, and its state.
+    files: Files,
     queue: VecDeque<Work>,
     /// Brackets whose outputs failed: when to try again, and why.
     retries: Vec<(Instant, Work, String)>,
@@ -400,15 +329,10 @@ pub async fn run(
         watch_retry_at: now,
         last_rescan: now,
         last_redo: now,
-        candidates: HashMap::new(),
         stems: intake::Stems::default(),
-        companions: HashMap::new(),
-        companion_of_raw: HashMap::new(),
         pairing_bodies: HashSet::new(),
-        held: HashMap::new(),
-        unreadable: HashMap::new(),
-        in_use: 0,
-        taken: HashMap::new(),
+        in_use: budget::InUse::default(),
+        files: Files::default(),
         queue: VecDeque::new(),
         retries: Vec::new(),
         in_flight: JoinSet::new(),
@@ -421,7 +345,7 @@ pub async fn run(
         viewer,
         hooks: None,
     };
-    st.check_folder().await;
+    st.check_folder(now).await;
     info!(
         ingest = %st.config.folders.ingest.display(),
         out = %st.config.folders.out.display(),
@@ -437,19 +361,28 @@ pub async fn run(
     let mut tick = tokio::time::interval(period);
     tick.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Delay);
     loop {
-        tokio::select! {
-            Some(notice) = rx.recv() => st.notice(notice).await,
+        let event = tokio::select! {
+            Some(notice) = rx.recv() => Event::Notice(notice),
             Some(done) = st.in_flight.join_next(), if !st.in_flight.is_empty() => {
-                st.finish(done.expect("develop panics are caught inside the task"))?;
+                Event::Done(Box::new(done.expect("develop panics are caught inside the task")))
             }
             c = control.recv() => match c {
-                Some(Control::Reload(cfg)) => st.reload(*cfg).await,
+                Some(Control::Reload(cfg)) => Event::Reload(cfg),
                 Some(Control::Stop) | None => break,
             },
-            _ = tick.tick() => st.tick().await?,
+            _ = tick.tick() => Event::Tick,
+        };
+        let now = Instant::now();
+        match event {
+            Event::Notice(notice) => st.notice(notice, now).await,
+            Event::Done(done) => st.finish(*done, now)?,
+            Event::Reload(config) => st.reload(*config, now).await,
+            Event::Tick => st.tick(now).await?,
         }
-        st.dispatch()?;
-        st.report(false);
+        // Listing and probing may have taken time.
+        let now = Instant::now();
+        st.dispatch(now)?;
+        st.report(false, now);
     }
     st.stopping = true;
     let _ = sd_notify::notify(&[
@@ -461,7 +394,8 @@ pub async fn run(
     while !st.in_flight.is_empty() {
         tokio::select! {
             Some(done) = st.in_flight.join_next() => {
-                st.finish(done.expect("develop panics are caught inside the task"))?;
+                let done = done.expect("develop panics are caught inside the task");
+                st.finish(done, Instant::now())?;
             }
             () = tokio::time::sleep_until(deadline) => break,
         }
@@ -476,7 +410,7 @@ pub async fn run(
     // Blocking threads cannot be interrupted; the process exit ends them, and their
     // temporary files are removed at the next start.
     st.in_flight.detach_all();
-    st.report(true);
+    st.report(true, Instant::now());
     info!(
         finished = st.summary.finished,
         rejected = st.summary.rejected,
@@ -583,14 +517,15 @@ fn folder_id(dir: &Path) -> Option<(u64, u64)> {
 impl State {
     /// The memory budget, `[daemon] memory_mb` in bytes (MB = 10⁶ bytes).
     fn budget_bytes(&self) -> u64 {
-        self.config.daemon.memory_mb.saturating_mul(1_000_000)
+        budget::budget_bytes(self.config.daemon.memory_mb)
     }
 
-    fn now_s(&self) -> f64 {
-        self.started.elapsed().as_secs_f64()
+    /// Seconds from the start to `now`: the grouper's clock.
+    fn since_start(&self, now: Instant) -> f64 {
+        now.saturating_duration_since(self.started).as_secs_f64()
     }
 
-    async fn reload(&mut self, mut config: Config) {
+    async fn reload(&mut self, mut config: Config, now: Instant) {
         if config.folders != self.configured {
             warn!("folders changed in the configuration; they take effect at the next start");
         }
@@ -603,7 +538,7 @@ impl State {
         if rewatch {
             self.watcher = None;
             self.watched = None;
-            self.check_folder().await;
+            self.check_folder(now).await;
         }
         info!(source = ?self.config.source, "configuration reloaded");
     }
@@ -612,14 +547,6 @@ impl State {
 #[cfg(test)]
 mod tests {
     use super::*;
-
-    #[test]
-    fn backoff_doubles_from_retry_up_to_the_cap() {
-        let retry = Duration::from_secs(5);
-        let waits: Vec<u64> = (0..8).map(|n| backoff(retry, n).as_secs()).collect();
-        assert_eq!(waits, [5, 10, 20, 40, 80, 160, 300, 300]);
-        assert_eq!(backoff(retry, u32::MAX), MAX_RETRY);
-    }
 
     /// Out, state and cache lose every leftover; ingest only those a killed hook left,
     /// not one a running hook is renaming into place.

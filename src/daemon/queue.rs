@@ -13,7 +13,10 @@ use super::cache::{DISSENTS_TO_REPLACE, Dissent, PooledBracket};
 use super::config::{Recalibrate, Singles};
 use super::intake::{self, Arrival};
 use super::journal::{self, Entry};
-use super::{DaemonError, Job, JobError, Outcome, Processed, State, Work, file_stem, job_bytes};
+use super::{
+    DaemonError, Job, JobError, Outcome, Processed, State, Work, backoff, budget, file_stem,
+    job_bytes,
+};
 use crate::atomic;
 use crate::darkroom::Pooling;
 
@@ -25,13 +28,14 @@ const MISSING_RETRIES: u32 = 4;
 const ARCHIVE_NUMBERS: u32 = 10_000;
 
 impl State {
-    pub(super) fn dispatch(&mut self) -> Result<(), DaemonError> {
+    /// Starts queued jobs while there is room (`jobs`, the memory budget) at `now`.
+    pub(super) fn dispatch(&mut self, now: Instant) -> Result<(), DaemonError> {
         while !self.stopping && self.in_flight.len() < self.config.daemon.jobs {
             let Some(mut work) = self.queue.pop_front() else {
                 break;
             };
             if let Some(missing) = missing_frame(&work.closed) {
-                self.frame_missing(work, &missing)?;
+                self.frame_missing(work, &missing, now);
                 continue;
             }
             // The memory budget: a job starts when its estimate fits beside those
@@ -40,12 +44,11 @@ impl State {
             let budget = self.budget_bytes();
             let single_reported = matches!(&work.closed, Closed::Single(..))
                 && self.config.bracket.singles == Singles::Report;
-            if !single_reported && self.in_use + need > budget {
+            if !single_reported && !self.in_use.fits(need, budget) {
                 if self.in_flight.is_empty() {
                     let reason = format!(
-                        "needs {} MB to develop, more than the memory budget ([daemon] memory_mb = {})",
-                        need.div_ceil(1_000_000),
-                        self.config.daemon.memory_mb
+                        "needs {}",
+                        budget::over_budget(need, self.config.daemon.memory_mb)
                     );
                     self.failed(&work, reason)?;
                     continue;
@@ -64,8 +67,8 @@ impl State {
                     alone: *alone,
                     outputs: Vec::new(),
                     digests: self
-                        .taken
-                        .get(&capture.input.path)
+                        .files
+                        .taken(&capture.input.path)
                         .map(|t| vec![t.digest])
                         .unwrap_or_default(),
                     at: journal::unix_now(),
@@ -77,7 +80,7 @@ impl State {
             // The JPEGs set aside beside raws, as they have settled by now.
             for frame in work.closed.frames_mut() {
                 if frame.companion.is_none() {
-                    frame.companion = self.companion_of_raw.get(&frame.input.path).cloned();
+                    frame.companion = self.files.companion_of(&frame.input.path).cloned();
                 }
             }
             let camera = work.closed.camera().clone();
@@ -110,7 +113,7 @@ impl State {
                 stocks: self.config.folders.stocks.clone(),
             };
             let lab = Arc::clone(&self.lab);
-            self.in_use += need;
+            self.in_use.reserve(need);
             work.reserved = need;
             self.in_flight.spawn_blocking(move || {
                 let t = Instant::now();
@@ -191,7 +194,7 @@ impl State {
 
     pub(super) fn release(&mut self, closed: &Closed) {
         for f in closed.frames() {
-            self.taken.remove(&f.input.path);
+            self.files.release(&f.input.path);
         }
     }
 
@@ -201,28 +204,34 @@ impl State {
         let frames: Vec<_> = closed
             .frames()
             .iter()
-            .filter_map(|c| self.taken.get(&c.input.path).map(|t| t.footprint))
+            .filter_map(|c| self.files.taken(&c.input.path).map(|t| t.footprint))
             .collect();
         job_bytes(&frames)
     }
 
     /// Takes a job's outcome: journal and cache on success; on a bad frame, reject it and
     /// requeue the rest; retry output failures with back-off; record other failures.
-    pub(super) fn finish(&mut self, (work, result, took): Outcome) -> Result<(), DaemonError> {
-        self.in_use = self.in_use.saturating_sub(work.reserved);
+    pub(super) fn finish(
+        &mut self,
+        (work, result, took): Outcome,
+        now: Instant,
+    ) -> Result<(), DaemonError> {
+        self.in_use.release(work.reserved);
         match result {
-            Ok(processed) => self.developed(&work, &processed, took)?,
+            Ok(processed) => self.developed(&work, &processed, took, now)?,
             // A frame not on disk now (moved away, being replaced): not a verdict on it.
             Err(JobError::Frame { path, .. })
                 if is_missing(&path)
                     && work.closed.frames().iter().any(|c| c.input.path == path) =>
             {
-                self.frame_missing(work, &path)?;
+                self.frame_missing(work, &path, now);
             }
-            Err(JobError::Frame { path, reason }) => self.frame_failed(&work, &path, reason)?,
+            Err(JobError::Frame { path, reason }) => {
+                self.frame_failed(&work, &path, reason, now)?;
+            }
             Err(e @ JobError::Output { .. }) => {
                 error!(bracket = %work.closed.stem(), error = %e, "outputs not written");
-                self.retry_later(work, e.to_string());
+                self.retry_later(work, e.to_string(), now);
             }
             Err(JobError::Bracket(reason)) => self.failed(&work, reason)?,
         }
@@ -235,12 +244,13 @@ impl State {
         work: &Work,
         dev: &Processed,
         took: Duration,
+        now: Instant,
     ) -> Result<(), DaemonError> {
         let closed = &work.closed;
         let digests: Vec<u64> = closed
             .frames()
             .iter()
-            .map(|c| self.taken.get(&c.input.path).map(|t| t.digest))
+            .map(|c| self.files.taken(&c.input.path).map(|t| t.digest))
             .collect::<Option<_>>()
             .unwrap_or_default();
         let camera = closed.camera().clone();
@@ -343,7 +353,7 @@ impl State {
         self.release(closed);
         for path in replaced {
             info!(file = %path.display(), "replaced while its bracket developed: developing it again");
-            self.consider(path, Arrival::Writing);
+            self.consider(path, Arrival::Writing, now);
         }
         Ok(())
     }
@@ -397,8 +407,8 @@ impl State {
                 intake::observe(&c.input.path).is_ok_and(|seen| {
                     seen.input != c.input
                         || self
-                            .taken
-                            .get(&c.input.path)
+                            .files
+                            .taken(&c.input.path)
                             .is_some_and(|t| t.inode != seen.inode())
                 })
             })
@@ -410,20 +420,19 @@ impl State {
     /// bracket waits for it with back-off ([`State::retry_later`]), nothing journaled;
     /// after [`MISSING_RETRIES`] it is developed without it (a file that comes back
     /// later is new work).
-    fn frame_missing(&mut self, work: Work, path: &Path) -> Result<(), DaemonError> {
+    fn frame_missing(&mut self, work: Work, path: &Path, now: Instant) {
         if work.attempts < MISSING_RETRIES {
             let reason = format!(
                 "{}: not on disk now; its bracket waits for it",
                 path.display()
             );
             warn!(bracket = %work.closed.stem(), file = %path.display(), "a frame is missing; its bracket waits for it");
-            self.retry_later(work, reason);
-            return Ok(());
+            self.retry_later(work, reason, now);
+            return;
         }
         warn!(bracket = %work.closed.stem(), file = %path.display(), "a frame stayed missing; its bracket is developed without it");
-        self.taken.remove(path);
+        self.files.release(path);
         self.requeue_without(&work.closed, path);
-        Ok(())
     }
 
     /// Queues the frames of `closed` but the one at `path` (a single when one is left).
@@ -453,6 +462,7 @@ impl State {
         work: &Work,
         path: &Path,
         reason: String,
+        now: Instant,
     ) -> Result<(), DaemonError> {
         let closed = &work.closed;
         let frames: Vec<_> = closed.frames().into_iter().cloned().collect();
@@ -462,15 +472,15 @@ impl State {
                 format!("lab named a foreign frame {}: {reason}", path.display()),
             );
         };
-        self.reject(bad.input.clone(), reason)?;
+        self.reject(bad.input.clone(), reason, now)?;
         self.requeue_without(closed, path);
         Ok(())
     }
 
-    /// Outputs could not be written, or a frame is missing: try again after
-    /// `retry · 2^attempts` (at most [`super::MAX_RETRY`]); `status` shows the `reason`.
-    pub(super) fn retry_later(&mut self, work: Work, reason: String) {
-        let delay = super::backoff(self.config.daemon.retry, work.attempts);
+    /// Outputs could not be written, or a frame is missing, at `now`: try again after
+    /// [`backoff::delay`]; `status` shows the `reason`.
+    pub(super) fn retry_later(&mut self, work: Work, reason: String, now: Instant) {
+        let delay = backoff::delay(self.config.daemon.retry, work.attempts);
         info!(
             bracket = %work.closed.stem(),
             retry_in_s = delay.as_secs_f64(),
@@ -485,7 +495,7 @@ impl State {
             });
         }
         self.retries.push((
-            Instant::now() + delay,
+            now + delay,
             Work {
                 attempts: work.attempts + 1,
                 ..work

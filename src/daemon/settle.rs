@@ -39,21 +39,21 @@ use super::bracket::{Alone, Bracket, Capture, Closed, Input};
 use super::intake::{self, Arrival, Notice, Probe};
 use super::journal::{self, Entry};
 use super::{
-    Candidate, DaemonError, FINISHED_QUIET, Held, REDO_FOLDER, State, Superseded, Unreadable,
-    WRITER_PATIENCE, Work, folder_id, job_bytes,
+    DaemonError, REDO_FOLDER, State, Superseded, Work, files::FileState, files::Held, folder_id,
+    job_bytes,
 };
 use crate::atomic;
 
 impl State {
     /// Notices the ingest folder appearing, disappearing or being replaced, and
     /// (re)starts the watcher with a full scan when it (re)appears.
-    pub(super) async fn check_folder(&mut self) {
+    pub(super) async fn check_folder(&mut self, now: Instant) {
         let dir = self.config.folders.ingest.clone();
         let id = folder_id(&dir);
         if id == self.watched && (id.is_none() || self.watcher.is_some()) {
             return;
         }
-        if id == self.watched && Instant::now() < self.watch_retry_at {
+        if id == self.watched && now < self.watch_retry_at {
             return;
         }
         self.watcher = None;
@@ -70,10 +70,10 @@ impl State {
             // Keep going on scans alone (every `poll`); try again in 10 s.
             Err(e) => {
                 error!(error = %e, "cannot watch; falling back to periodic scans");
-                self.watch_retry_at = Instant::now() + Duration::from_secs(10);
+                self.watch_retry_at = now + Duration::from_secs(10);
             }
         }
-        self.rescan().await;
+        self.rescan(now).await;
     }
 
     /// Lists the ingest folder ([`intake::scan`]) on a blocking thread, off the loop: a
@@ -91,14 +91,16 @@ impl State {
             })
     }
 
-    /// Lists the ingest folder again; the stem index is rebuilt from the listing (files
-    /// gone since are forgotten).
-    pub(super) async fn rescan(&mut self) {
-        self.last_rescan = Instant::now();
+    /// Lists the ingest folder again (started at `now`); the stem index is rebuilt from
+    /// the listing (files gone since are forgotten).
+    pub(super) async fn rescan(&mut self, now: Instant) {
+        self.last_rescan = now;
         let listing = self.listing().await;
+        // The listing took time: its files are noticed when it ends.
+        let now = Instant::now();
         self.stems.clear();
         for path in listing {
-            self.consider(path, Arrival::Writing);
+            self.consider(path, Arrival::Writing, now);
         }
     }
 
@@ -109,26 +111,23 @@ impl State {
     /// be its next frame. One listing and one `lstat` per unknown file, once per bracket.
     async fn unnoticed_arrivals(&mut self) -> bool {
         let mut found = false;
-        for path in self.listing().await {
-            let known = self.taken.contains_key(&path)
-                || self.candidates.contains_key(&path)
-                || self.held.contains_key(&path)
-                || self.unreadable.contains_key(&path)
-                || self.companions.contains_key(&path);
-            if known
+        let listing = self.listing().await;
+        let now = Instant::now();
+        for path in listing {
+            if self.files.state(&path).is_some()
                 || intake::observe(&path).map_or(true, |seen| self.journal.is_settled(&seen.input))
             {
                 continue;
             }
             info!(file = %path.display(), "on disk but not yet reported: its bracket waits for it");
-            self.consider(path.clone(), Arrival::Writing);
-            found |= self.candidates.contains_key(&path);
+            self.consider(path.clone(), Arrival::Writing, now);
+            found |= self.files.is_settling(&path);
         }
         found
     }
 
-    /// Makes `path` a candidate (again), as its notice's `arrival` says.
-    pub(super) fn consider(&mut self, path: PathBuf, arrival: Arrival) {
+    /// Makes `path` a candidate (again) at `now`, as its notice's `arrival` says.
+    pub(super) fn consider(&mut self, path: PathBuf, arrival: Arrival, now: Instant) {
         // One name per file, whatever spelling the notice or listing used.
         let path = self.root.identity(&path);
         // Reached through a linked folder (a watcher that followed it): not in ingest.
@@ -137,44 +136,10 @@ impl State {
             return;
         }
         self.stems.insert(&path);
-        if self.taken.contains_key(&path) {
-            return;
-        }
-        // A JPEG set aside beside its raw, unchanged since.
-        if self
-            .companions
-            .get(&path)
-            .is_some_and(|(input, _)| intake::identify(&path).is_ok_and(|i| i == *input))
-        {
-            return;
-        }
-        // Waiting out its back-off after a read error (see `unreadable`).
-        if self
-            .unreadable
-            .get(&path)
-            .is_some_and(|u| Instant::now() < u.next)
-        {
-            return;
-        }
-        let cand = self.candidates.entry(path).or_insert(Candidate {
-            first_seen: Instant::now(),
-            seen: None,
-            stable_since: Instant::now(),
-            finished: None,
-        });
-        match arrival {
-            // Written after a hand-over: another writer's work, which waits as a closed
-            // file does.
-            Arrival::Writing => {
-                if let Some(finished) = &mut cand.finished
-                    && finished.2.is_zero()
-                {
-                    *finished = (None, Instant::now(), FINISHED_QUIET);
-                }
-            }
-            Arrival::Closed => cand.finished = Some((None, Instant::now(), FINISHED_QUIET)),
-            Arrival::Delivered => cand.finished = Some((None, Instant::now(), Duration::ZERO)),
-        }
+        // Unless taken, waiting out its back-off, or a JPEG set aside beside its raw and
+        // unchanged since.
+        let unchanged = |aside: &Input| intake::identify(&aside.path).is_ok_and(|i| i == *aside);
+        self.files.notice(path, arrival, now, unchanged);
     }
 
     /// The raw of the capture whose JPEG (PNG, TIFF) is `path`, when it is one the daemon
@@ -200,127 +165,132 @@ impl State {
             return;
         };
         info!(file = %jpeg.display(), raw = %raw.display(), "the JPEG of a RAW+JPEG capture: set aside beside its raw");
-        self.taken.remove(&jpeg);
-        self.held.remove(&jpeg);
-        self.companion_of_raw.insert(raw.clone(), input.clone());
-        self.companions.insert(jpeg, (input, raw));
+        self.files.set_aside(input, raw);
     }
 
     /// A raw that cannot be a frame gives its JPEG back: that is considered as a frame.
-    pub(super) fn unpair(&mut self, raw: &Path) {
-        if let Some(input) = self.companion_of_raw.remove(raw) {
-            self.companions.remove(&input.path);
+    pub(super) fn unpair(&mut self, raw: &Path, now: Instant) {
+        if let Some(input) = self.files.unpair(raw) {
             info!(file = %input.path.display(), raw = %raw.display(), "its raw was rejected: the JPEG is the frame");
-            self.consider(input.path, Arrival::Writing);
+            self.consider(input.path, Arrival::Writing, now);
         }
     }
 
     /// Held JPEGs: set aside once their raw is noticed, frames once they waited the
     /// bracket gap without one.
-    fn release_held(&mut self) {
+    fn release_held(&mut self, now: Instant) {
         let hold = Duration::from_secs_f64(self.config.bracket.max_gap_s.max(0.0));
-        let mut paths: Vec<PathBuf> = self.held.keys().cloned().collect();
-        paths.sort();
-        let now = self.now_s();
-        for path in paths {
+        let now_s = self.since_start(now);
+        for path in self.files.held_paths() {
             if let Some(raw) = self.pairing_raw(&path) {
                 self.set_aside(path, raw);
                 continue;
             }
-            if self.held[&path].since.elapsed() < hold {
+            if self
+                .files
+                .held_since(&path)
+                .is_some_and(|since| now.saturating_duration_since(since) < hold)
+            {
                 continue;
             }
-            let held = self.held.remove(&path).expect("listed above");
+            let Some(capture) = self.files.unhold(&path) else {
+                continue;
+            };
             info!(file = %path.display(), "no raw came for this JPEG: it is the frame");
-            for closed in self.grouper.push(held.capture, now) {
+            for closed in self.grouper.push(capture, now_s) {
                 self.queue.push_back(Work::new(closed));
             }
         }
     }
 
-    pub(super) async fn notice(&mut self, notice: Notice) {
+    pub(super) async fn notice(&mut self, notice: Notice, now: Instant) {
         match notice {
-            Notice::File { path, arrival } => self.consider(path, arrival),
+            Notice::File { path, arrival } => self.consider(path, arrival, now),
             Notice::Rescan => {
                 warn!("file events may have been lost; rescanning the ingest folder");
-                self.rescan().await;
+                self.rescan(now).await;
             }
         }
     }
 
-    pub(super) async fn tick(&mut self) -> Result<(), DaemonError> {
-        self.check_folder().await;
+    /// The periodic work at `now`: the folder, redo requests, rescans, settling and
+    /// taking files, closing brackets, retries. The clock is read again after the steps
+    /// that list or probe files, which take time.
+    pub(super) async fn tick(&mut self, now: Instant) -> Result<(), DaemonError> {
+        self.check_folder(now).await;
         if !self.stopping {
-            self.redo_requests().await?;
+            self.redo_requests(now).await?;
         }
-        let rescan_due = match self.config.watch.rescan {
-            Some(every) => self.last_rescan.elapsed() >= every,
-            // Without a watcher, scans are all there is.
-            None => false,
-        } || (self.watcher.is_none()
-            && self.last_rescan.elapsed() >= self.config.watch.poll);
-        if rescan_due {
-            self.rescan().await;
+        if self.rescan_due(now) {
+            self.rescan(now).await;
         }
+        let now = Instant::now();
         if !self.stopping {
-            let ready = self.settle();
+            let ready = self.settle(now);
             if !ready.is_empty() {
                 self.take(ready).await?;
             }
-            self.release_held();
         }
-        let now = self.now_s();
+        let now = Instant::now();
+        if !self.stopping {
+            self.release_held(now);
+        }
+        self.close_brackets(now).await;
+        self.retry_due(now);
+        if let Some(interval) = self.watchdog
+            && now.saturating_duration_since(self.last_watchdog) >= interval / 2
+        {
+            let _ = sd_notify::notify(&[sd_notify::NotifyState::Watchdog]);
+            self.last_watchdog = now;
+        }
+        Ok(())
+    }
+
+    /// True when the folder is to be listed again at `now`: every `[watch] rescan_s`, and
+    /// every `poll` while there is no watcher (scans are all there is then).
+    fn rescan_due(&self, now: Instant) -> bool {
+        let since = now.saturating_duration_since(self.last_rescan);
+        self.config.watch.rescan.is_some_and(|every| since >= every)
+            || (self.watcher.is_none() && since >= self.config.watch.poll)
+    }
+
+    /// Closes the brackets whose gap clock ran out at `now`, unless a frame that may
+    /// belong to one is still on its way.
+    async fn close_brackets(&mut self, now: Instant) {
+        let now_s = self.since_start(now);
         // A frame still being written (or waiting on disk behind a full queue) may belong
         // to an open bracket: its gap clock starts when intake has caught up. A writer
         // stuck for over a minute no longer holds brackets open.
-        let writing = !self.held.is_empty()
-            || self
-                .candidates
-                .values()
-                .any(|c| c.first_seen.elapsed() < WRITER_PATIENCE)
-            || self
-                .unreadable
-                .values()
-                .any(|u| u.first_seen.elapsed() < WRITER_PATIENCE);
-        if writing
+        if self.files.writing(now)
             || self.queue.len() >= self.config.daemon.queue
-            || (self.grouper.due(now) && self.unnoticed_arrivals().await)
+            || (self.grouper.due(now_s) && self.unnoticed_arrivals().await)
         {
-            self.grouper.postpone(now);
+            self.grouper.postpone(now_s);
         }
-        for closed in self.grouper.expire(now) {
+        for closed in self.grouper.expire(now_s) {
             self.queue.push_back(Work::new(closed));
         }
-        let due = Instant::now();
+    }
+
+    /// Queues the brackets whose retry is due at `now`, and looks again at the files
+    /// whose back-off ran out.
+    fn retry_due(&mut self, now: Instant) {
         let (ready, later): (Vec<_>, Vec<_>) =
-            self.retries.drain(..).partition(|(at, _, _)| *at <= due);
+            self.retries.drain(..).partition(|(at, _, _)| *at <= now);
         self.retries = later;
         for (_, work, _) in ready {
             self.queue.push_back(work);
         }
-        let again: Vec<PathBuf> = self
-            .unreadable
-            .iter()
-            .filter(|(p, u)| u.next <= due && !self.candidates.contains_key(*p))
-            .map(|(p, _)| p.clone())
-            .collect();
-        for path in again {
-            self.consider(path, Arrival::Writing);
+        for path in self.files.due(now) {
+            self.consider(path, Arrival::Writing, now);
         }
-        if let Some(interval) = self.watchdog
-            && self.last_watchdog.elapsed() >= interval / 2
-        {
-            let _ = sd_notify::notify(&[sd_notify::NotifyState::Watchdog]);
-            self.last_watchdog = Instant::now();
-        }
-        Ok(())
     }
 
     /// Candidates whose size, mtime, change time and inode were unchanged for `settle`, or
     /// for [`FINISHED_QUIET`] since their writer closed them, or handed over by filmback
     /// and seen once (see the module docs).
     /// Nothing is taken while the queue is full (back-pressure).
-    pub(super) fn settle(&mut self) -> Vec<PathBuf> {
+    pub(super) fn settle(&mut self, now: Instant) -> Vec<PathBuf> {
         let room = self.config.daemon.queue.saturating_sub(self.queue.len());
         if room == 0 {
             return Vec::new();
@@ -328,16 +298,13 @@ impl State {
         let settle = self.config.watch.settle;
         let mut ready = Vec::new();
         let mut gone = Vec::new();
-        let mut paths: Vec<&PathBuf> = self.candidates.keys().collect();
-        paths.sort();
-        let paths: Vec<PathBuf> = paths.into_iter().cloned().collect();
+        let paths = self.files.settling_paths();
         let mut full = false;
         for path in paths {
             if ready.len() >= room {
                 full = true;
                 break;
             }
-            let cand = self.candidates.get_mut(&path).expect("listed above");
             let seen = match intake::observe(&path) {
                 Ok(seen) => seen,
                 Err(e) if e.kind() == std::io::ErrorKind::NotFound => {
@@ -354,56 +321,32 @@ impl State {
                 gone.push(path);
                 continue;
             }
-            // Since the close: unchanged for its quiet window (at most `settle`; none for
-            // a delivered file, taken as first seen), or changed (the fast way is off
-            // until the writer closes it again).
-            let finished = match &mut cand.finished {
-                Some((first @ None, since, quiet)) => {
-                    *first = Some(seen.clone());
-                    *since = Instant::now();
-                    quiet.is_zero()
-                }
-                // A hand-over once seen stays ready (only a write notice takes that back):
-                // the hook's unlink of the download changes the file's ctime.
-                Some((Some(_), _, quiet)) if quiet.is_zero() => true,
-                Some((Some(first), since, quiet)) if *first == seen => {
-                    since.elapsed() >= settle.min(*quiet)
-                }
-                Some(_) => {
-                    cand.finished = None;
-                    false
-                }
-                None => false,
+            let Some(cand) = self.files.candidate_mut(&path) else {
+                continue;
             };
-            if finished {
-                cand.seen = Some(seen);
-                ready.push(path);
-            } else if cand.seen.as_ref() != Some(&seen) {
-                cand.seen = Some(seen);
-                cand.stable_since = Instant::now();
-            } else if cand.stable_since.elapsed() >= settle {
+            if cand.settled(seen, now, settle) {
                 ready.push(path);
             }
         }
         for p in &gone {
-            self.candidates.remove(p);
+            self.files.end_settling(p);
             if std::fs::symlink_metadata(p).is_err() {
                 self.stems.remove(p);
             }
         }
-        // Complete frames wait while another is still settling (for at most
-        // WRITER_PATIENCE): it may be an earlier frame of the same bracket (a copy racing
+        // Complete frames wait while another is still settling (for at most the writer's
+        // patience): it may be an earlier frame of the same bracket (a copy racing
         // the start-up scan, a slow writer), and frames enter the grouper in capture-time
         // order only within one batch. When the queue limits the batch, take what is ready.
         let settling = self
-            .candidates
-            .iter()
-            .any(|(p, c)| !ready.contains(p) && c.first_seen.elapsed() < WRITER_PATIENCE);
+            .files
+            .settling()
+            .any(|(p, s)| !ready.contains(p) && s.candidate.writing(now));
         if settling && !full {
             return Vec::new();
         }
         for p in &ready {
-            self.candidates.remove(p);
+            self.files.end_settling(p);
         }
         ready
     }
@@ -444,10 +387,11 @@ impl State {
             }
         }
         let probed = self.probe_all(read).await;
+        let now = Instant::now();
         let mut frames = Vec::new();
         for (path, probe) in probed {
             if !matches!(probe, Probe::Unreadable(_)) {
-                self.unreadable.remove(&path);
+                self.files.read(&path);
             }
             match probe {
                 Probe::Frame(c, ..) if self.journal.is_settled(&c.input) => {}
@@ -472,11 +416,11 @@ impl State {
                 }
                 Probe::Rejected(input, reason) => {
                     if !self.journal.is_settled(&input) {
-                        self.reject(input, reason)?;
+                        self.reject(input, reason, now)?;
                     }
                 }
-                Probe::Unreadable(reason) => self.unreadable_for_now(path, reason),
-                Probe::Changed => self.consider(path, Arrival::Writing),
+                Probe::Unreadable(reason) => self.unreadable_for_now(path, reason, now),
+                Probe::Changed => self.consider(path, Arrival::Writing, now),
                 Probe::Gone => {}
             }
         }
@@ -487,15 +431,14 @@ impl State {
             let budget = self.budget_bytes();
             if need > budget {
                 let reason = format!(
-                    "{}×{} pixels need {} MB to develop, more than the memory budget ([daemon] memory_mb = {})",
+                    "{}×{} pixels need {}",
                     footprint.width,
                     footprint.height,
-                    need.div_ceil(1_000_000),
-                    self.config.daemon.memory_mb
+                    super::budget::over_budget(need, self.config.daemon.memory_mb)
                 );
-                self.reject(c.input, reason)?;
+                self.reject(c.input, reason, now)?;
             } else {
-                self.taken.insert(c.input.path.clone(), taken);
+                self.files.take(c.input.path.clone(), taken);
                 admitted.push(c);
             }
         }
@@ -520,31 +463,34 @@ impl State {
                 frames.extend(new);
             }
         }
-        // A batch (start-up scan, burst) enters in capture-time order.
+        // A batch (start-up scan, burst) enters in capture-time order, as it is now (the
+        // re-shot frames' probing took time).
         frames.sort_by(super::bracket::capture_order);
-        let now = self.now_s();
+        let now = Instant::now();
+        let now_s = self.since_start(now);
         for c in frames {
             let path = c.input.path.clone();
             if let Some(jpeg) = self.stems.companion_of(&path) {
                 // A raw with a JPEG beside it: its body shoots RAW+JPEG, and a JPEG of
                 // this capture that went ahead of its raw gives way.
                 self.pairing_bodies.insert(c.camera.clone());
-                if self.held.contains_key(&jpeg) || self.grouper.withdraw(&jpeg).is_some() {
+                let held = matches!(self.files.state(&jpeg), Some(FileState::Held(..)));
+                if held || self.grouper.withdraw(&jpeg).is_some() {
                     self.set_aside(jpeg, path.clone());
                 }
             } else if !intake::is_raw(&path) && self.pairing_bodies.contains(&c.camera) {
                 tracing::debug!(file = %path.display(), "a JPEG of a RAW+JPEG body: waiting for its raw");
-                self.held.insert(
-                    c.input.path.clone(),
+                self.files.hold(
+                    &path,
                     Held {
                         capture: c,
-                        since: Instant::now(),
+                        since: now,
                     },
                 );
                 continue;
             }
             tracing::debug!(file = %path.display(), time_s = c.time_s, "frame taken");
-            for closed in self.grouper.push(c, now) {
+            for closed in self.grouper.push(c, now_s) {
                 self.queue.push_back(Work::new(closed));
             }
         }
@@ -578,7 +524,7 @@ impl State {
                 "no unchanged frame of the earlier bracket left".to_string(),
             ));
         }
-        if others.iter().any(|p| self.taken.contains_key(p)) {
+        if others.iter().any(|p| self.files.taken(p).is_some()) {
             return Err((new, "its other frames are being developed".to_string()));
         }
         let journaled: Vec<Input> = old.inputs().into_iter().cloned().collect();
@@ -621,7 +567,7 @@ impl State {
             return Err((frames, "frames of another camera".to_string()));
         }
         for (c, taken) in found {
-            self.taken.insert(c.input.path.clone(), taken);
+            self.files.take(c.input.path.clone(), taken);
             frames.push(c);
         }
         frames.sort_by(|a, b| a.time_s.total_cmp(&b.time_s));
@@ -648,21 +594,13 @@ impl State {
 
     /// Requests of `filmback redo STEM`: files in `state/redo/`, each named by the output
     /// stem of a finished bracket or single, checked every half second.
-    pub(super) async fn redo_requests(&mut self) -> Result<(), DaemonError> {
-        if self.last_redo.elapsed() < Duration::from_millis(500) {
+    pub(super) async fn redo_requests(&mut self, now: Instant) -> Result<(), DaemonError> {
+        if now.saturating_duration_since(self.last_redo) < Duration::from_millis(500) {
             return Ok(());
         }
-        self.last_redo = Instant::now();
+        self.last_redo = now;
         let dir = self.config.folders.state.join(REDO_FOLDER);
-        let Ok(entries) = std::fs::read_dir(&dir) else {
-            return Ok(());
-        };
-        let requests: Vec<PathBuf> = entries
-            .filter_map(Result::ok)
-            .map(|e| e.path())
-            .filter(|p| !atomic::is_temporary(p))
-            .collect();
-        for request in requests {
+        for request in redo_listing(dir).await {
             let stem = request
                 .file_name()
                 .map(|n| n.to_string_lossy().into_owned())
@@ -682,41 +620,39 @@ impl State {
         Ok(())
     }
 
-    /// A file that cannot be read now: look again after `retry · 2^attempts` (at most
-    /// [`super::MAX_RETRY`]); meanwhile open brackets wait for it (up to [`WRITER_PATIENCE`]),
+    /// A file that cannot be read at `now`: look again after `retry · 2^attempts` (at most
+    /// [`super::backoff::MAX_RETRY`]); meanwhile open brackets wait for it (up to
+    /// [`super::candidate::WRITER_PATIENCE`]),
     /// and `status` shows it with the reason. Nothing is journaled.
-    pub(super) fn unreadable_for_now(&mut self, path: PathBuf, reason: String) {
-        let now = Instant::now();
-        let entry = self.unreadable.entry(path.clone()).or_insert(Unreadable {
-            first_seen: now,
-            attempts: 0,
-            next: now,
-            reason: String::new(),
-        });
-        let delay = super::backoff(self.config.daemon.retry, entry.attempts);
-        entry.attempts += 1;
-        entry.next = now + delay;
-        entry.reason.clone_from(&reason);
+    pub(super) fn unreadable_for_now(&mut self, path: PathBuf, reason: String, now: Instant) {
+        let (delay, attempts) =
+            self.files
+                .unreadable(&path, now, self.config.daemon.retry, reason.clone());
         if let Some(viewer) = &self.viewer {
             viewer.retry(super::Retry {
                 what: path.display().to_string(),
                 reason: reason.clone(),
-                attempts: entry.attempts,
+                attempts,
                 next: super::journal::unix_now() + delay.as_secs(),
             });
         }
         warn!(
             file = %path.display(),
             reason = %reason,
-            attempt = entry.attempts,
+            attempt = attempts,
             retry_in_s = delay.as_secs_f64(),
             "cannot read; will retry"
         );
     }
 
-    pub(super) fn reject(&mut self, input: Input, reason: String) -> Result<(), DaemonError> {
+    pub(super) fn reject(
+        &mut self,
+        input: Input,
+        reason: String,
+        now: Instant,
+    ) -> Result<(), DaemonError> {
         warn!(file = %input.path.display(), reason = %reason, "rejected");
-        self.taken.remove(&input.path);
+        self.files.release(&input.path);
         self.summary.rejected += 1;
         if let Some(viewer) = &self.viewer {
             viewer.rejected(&input.path, &reason);
@@ -727,7 +663,27 @@ impl State {
             reason,
             at: journal::unix_now(),
         })?;
-        self.unpair(&path);
+        self.unpair(&path, now);
         Ok(())
     }
+}
+
+/// The requests in the redo folder `dir` (none when it is missing), listed on a blocking
+/// thread, off the loop.
+async fn redo_listing(dir: PathBuf) -> Vec<PathBuf> {
+    tokio::task::spawn_blocking(move || {
+        let Ok(entries) = std::fs::read_dir(&dir) else {
+            return Vec::new();
+        };
+        entries
+            .filter_map(Result::ok)
+            .map(|e| e.path())
+            .filter(|p| !atomic::is_temporary(p))
+            .collect()
+    })
+    .await
+    .unwrap_or_else(|e| {
+        warn!(error = %e, "listing the redo requests did not finish");
+        Vec::new()
+    })
 }

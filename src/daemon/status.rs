@@ -111,7 +111,9 @@ pub fn state_writable(state: &Path) -> bool {
 }
 
 impl State {
-    pub(super) fn snapshot(&self, running: bool) -> Snapshot {
+    /// The snapshot at `now`.
+    pub(super) fn snapshot(&self, running: bool, now: Instant) -> Snapshot {
+        let files = self.files.counts();
         Snapshot {
             pid: std::process::id(),
             running,
@@ -119,15 +121,15 @@ impl State {
             ingest: self.config.folders.ingest.clone(),
             out: self.config.folders.out.clone(),
             watching: running && self.watcher.is_some(),
-            settling: self.candidates.len(),
-            grouping: self.grouper.waiting() + self.held.len(),
+            settling: files.settling,
+            grouping: self.grouper.waiting() + files.held,
             queued: self.queue.len(),
             in_flight: self.in_flight.len(),
-            retrying: self.retries.len() + self.unreadable.len(),
-            retries: self.retry_list(),
+            retrying: self.retries.len() + files.retrying,
+            retries: self.retry_list(now),
             finished: self.summary.finished,
             rejected: self.summary.rejected,
-            memory_in_use: self.in_use,
+            memory_in_use: self.in_use.bytes(),
             memory_budget: self.budget_bytes(),
             viewer: self
                 .viewer
@@ -137,9 +139,9 @@ impl State {
         }
     }
 
-    /// Output retries and unreadable files, soonest first.
-    fn retry_list(&self) -> Vec<Retry> {
-        let now = Instant::now();
+    /// Output retries and unreadable files, soonest first, with their next attempt in
+    /// Unix seconds as seen at `now`.
+    fn retry_list(&self, now: Instant) -> Vec<Retry> {
         let unix = journal::unix_now();
         let at =
             |when: Instant| unix + when.saturating_duration_since(now).as_secs_f64().ceil() as u64;
@@ -152,11 +154,11 @@ impl State {
                 attempts: work.attempts,
                 next: at(*when),
             })
-            .chain(self.unreadable.iter().map(|(path, u)| Retry {
+            .chain(self.files.retrying().map(|(path, u)| Retry {
                 what: path.display().to_string(),
-                reason: u.reason.clone(),
-                attempts: u.attempts,
-                next: at(u.next),
+                reason: u.reason().to_string(),
+                attempts: u.attempts(),
+                next: at(u.next()),
             }))
             .collect();
         list.sort_by(|a, b| a.next.cmp(&b.next).then_with(|| a.what.cmp(&b.what)));
@@ -165,11 +167,11 @@ impl State {
 
     /// Publishes the status snapshot and the systemd STATUS line when a count changed
     /// (at most every 200 ms), or unconditionally when `last`.
-    pub(super) fn report(&mut self, last: bool) {
-        if !last && self.last_report.elapsed() < Duration::from_millis(200) {
+    pub(super) fn report(&mut self, last: bool, now: Instant) {
+        if !last && now.saturating_duration_since(self.last_report) < Duration::from_millis(200) {
             return;
         }
-        let snap = self.snapshot(!last);
+        let snap = self.snapshot(!last, now);
         let same = self.last_snapshot.as_ref().is_some_and(|s| {
             Snapshot {
                 updated: snap.updated,
@@ -179,7 +181,7 @@ impl State {
         if same && !last {
             return;
         }
-        self.last_report = Instant::now();
+        self.last_report = now;
         let status = format!(
             "{} finished, {} rejected, {} developing, {} queued, {} waiting, {} retrying",
             snap.finished,
@@ -196,7 +198,7 @@ impl State {
             warn!(error = %e, "cannot write status snapshot");
         }
         if let Some(viewer) = &self.viewer {
-            viewer.status(&snap, self.in_use, self.budget_bytes());
+            viewer.status(&snap, self.in_use.bytes(), self.budget_bytes());
         }
         self.last_snapshot = Some(snap);
     }
