@@ -93,7 +93,7 @@ pub struct Processed {
 }
 
 /// What a development measured beyond its outputs, for the viewer and its events.
-#[derive(Debug, Clone, Default, PartialEq, serde::Serialize)]
+#[derive(Debug, Clone, Default, PartialEq, serde::Serialize, serde::Deserialize)]
 pub struct Facts {
     /// Share of samples clipped high or low in every frame (no frame exposed them
     /// well; the merge could only bound them), `0..=1`.
@@ -108,7 +108,7 @@ pub struct Facts {
 }
 
 /// The alignment of a bracket in brief.
-#[derive(Debug, Clone, PartialEq, serde::Serialize)]
+#[derive(Debug, Clone, PartialEq, serde::Serialize, serde::Deserialize)]
 pub struct Aligned {
     /// The mode asked for (`auto`, `translation`, `rigid`, `homography`, `off`).
     pub mode: String,

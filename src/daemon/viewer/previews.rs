@@ -1,16 +1,17 @@
 //! Previews, made once when a bracket is published: per rendering a JPEG of long edge
 //! [`PREVIEW_EDGE`] px and a thumbnail of [`THUMB_EDGE`] px, per frame a thumbnail, in
-//! `state/previews/<stem>/`, each published atomically. The browser never pulls a full
-//! rendering to show a screen.
+//! `state/previews/<stem>/`, each published atomically, beside the bracket's record
+//! ([`RECORD_FILE`]). The browser never pulls a full rendering to show a screen.
 
+use std::collections::VecDeque;
 use std::path::{Path, PathBuf};
 use std::sync::Arc;
 
 use image::{DynamicImage, ImageReader};
-use tokio::sync::mpsc;
+use tokio::sync::mpsc::{self, error::TryRecvError};
 use tracing::warn;
 
-use super::{Event, PREVIEW_FOLDER, Published, Record, Shared, file_name};
+use super::{Event, PREVIEW_FOLDER, Published, Record, Shared};
 use crate::atomic::{self, Overwrite, PublishError};
 
 /// Long edge of a rendering's preview, pixels.
@@ -55,12 +56,44 @@ pub(crate) enum PreviewError {
     Publish(#[from] PublishError),
 }
 
-/// Takes published developments in turn: makes their previews on a blocking thread,
-/// then files the record and announces it. Ends when the daemon's handle is dropped.
-pub(crate) async fn worker(shared: Arc<Shared>, mut rx: mpsc::UnboundedReceiver<Published>) {
-    while let Some(published) = rx.recv().await {
+/// File in a bracket's preview folder holding its record as JSON, so that a restart
+/// can show it again ([`super::restore`]).
+pub(crate) const RECORD_FILE: &str = "record.json";
+
+/// Whether previews already on disk are made again.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum Make {
+    /// Every preview (a development just published: a redo replaces the old ones).
+    All,
+    /// Only those missing (a record restored after a restart).
+    Missing,
+}
+
+/// Takes published developments in turn, and between them the restored records whose
+/// previews are missing: makes their previews on a blocking thread, then files the
+/// record (a development is announced; a restored record replaces its earlier self).
+/// A published development always goes first. Ends when the daemon's handle is dropped.
+pub(crate) async fn worker(
+    shared: Arc<Shared>,
+    mut rx: mpsc::UnboundedReceiver<Published>,
+    mut restored: VecDeque<Published>,
+) {
+    loop {
+        let next = match rx.try_recv() {
+            Ok(published) => Some((published, Make::All)),
+            Err(TryRecvError::Empty) => restored.pop_front().map(|p| (p, Make::Missing)),
+            Err(TryRecvError::Disconnected) => return,
+        };
+        let (published, make) = match next {
+            Some(next) => next,
+            None => match rx.recv().await {
+                Some(published) => (published, Make::All),
+                None => return,
+            },
+        };
         let dir = shared.state.join(PREVIEW_FOLDER);
-        let made = tokio::task::spawn_blocking(move || develop_previews(&dir, published)).await;
+        let made =
+            tokio::task::spawn_blocking(move || develop_previews(&dir, published, make)).await;
         let record = match made {
             Ok(record) => Arc::new(record),
             Err(e) => {
@@ -68,63 +101,119 @@ pub(crate) async fn worker(shared: Arc<Shared>, mut rx: mpsc::UnboundedReceiver<
                 continue;
             }
         };
-        {
-            let mut g = shared.gallery();
-            g.records.push_front(Arc::clone(&record));
-            g.records.truncate(super::GALLERY);
+        match make {
+            Make::All => {
+                shared.gallery().file(Arc::clone(&record));
+                shared.broadcast(Event::Developed(record));
+            }
+            Make::Missing => shared.gallery().replace(record),
         }
-        shared.broadcast(Event::Developed(record));
     }
 }
 
-/// Makes the previews of one development and fills in its record's URLs.
-fn develop_previews(dir: &Path, published: Published) -> Record {
+/// Makes the previews of one development (all, or only those missing), fills in its
+/// record's URLs and keeps the record beside them as [`RECORD_FILE`].
+fn develop_previews(dir: &Path, published: Published, make: Make) -> Record {
     let Published {
         mut record,
         frame_paths,
     } = published;
     let folder = dir.join(&record.stem);
+    let wanted = |target: &Path| make == Make::All || !target.is_file();
+    for (output, path) in record.outputs.iter().zip(&record.files.outputs) {
+        let (preview, thumb) = rendering_preview_paths(&folder, &output.name);
+        if output.look.is_some() && (wanted(&preview) || wanted(&thumb)) {
+            let _ = rendering_previews(path, &preview, &thumb)
+                .inspect_err(|e| warn!(error = %e, "no preview"));
+        }
+    }
+    for (k, path) in frame_paths.iter().enumerate() {
+        let target = frame_thumb_path(&folder, k);
+        // Camera raws have no quick picture to show: their frames are listed by name.
+        if wanted(&target) && !crate::daemon::intake::is_raw(path) {
+            let _ =
+                thumbnail(path, &target).inspect_err(|e| warn!(error = %e, "no frame thumbnail"));
+        }
+    }
+    link(&mut record, &folder);
+    keep_record(&record, &folder);
+    record
+}
+
+/// `<folder>/<name>.preview.jpg` and `<folder>/<name>.thumb.jpg`: the preview and the
+/// thumbnail of the rendering named `name`.
+fn rendering_preview_paths(folder: &Path, name: &str) -> (PathBuf, PathBuf) {
+    (
+        folder.join(format!("{name}.preview.jpg")),
+        folder.join(format!("{name}.thumb.jpg")),
+    )
+}
+
+/// `<folder>/frame-<k>.jpg`: the thumbnail of frame `k`.
+fn frame_thumb_path(folder: &Path, k: usize) -> PathBuf {
+    folder.join(format!("frame-{k}.jpg"))
+}
+
+/// Fills in `record`'s URLs and files from the previews in `folder` (those missing stay
+/// without a URL); its outputs are listed whether or not they are still there.
+pub(crate) fn link(record: &mut Record, folder: &Path) {
     let id = record.id;
     let mut previews = Vec::with_capacity(record.outputs.len());
-    for (k, (output, path)) in record
-        .outputs
-        .iter_mut()
-        .zip(&record.files.outputs)
-        .enumerate()
-    {
+    for (k, output) in record.outputs.iter_mut().enumerate() {
         output.file = format!("/file/{id}/{k}");
-        let made = if output.look.is_some() {
-            rendering_previews(path, &folder)
-                .inspect_err(|e| warn!(error = %e, "no preview"))
-                .ok()
-        } else {
-            None
-        };
-        if made.is_some() {
-            output.preview = Some(format!("/preview/{id}/{k}"));
-            output.thumb = Some(format!("/thumb/{id}/{k}"));
-        }
+        let (preview, thumb) = rendering_preview_paths(folder, &output.name);
+        let made = (output.look.is_some() && preview.is_file() && thumb.is_file())
+            .then_some((preview, thumb));
+        output.preview = made.as_ref().map(|_| format!("/preview/{id}/{k}"));
+        output.thumb = made.as_ref().map(|_| format!("/thumb/{id}/{k}"));
         previews.push(made);
     }
     record.files.previews = previews;
-    let mut thumbs = Vec::with_capacity(frame_paths.len());
-    for (k, (frame, path)) in record.frames.iter_mut().zip(&frame_paths).enumerate() {
-        let target = folder.join(format!("frame-{k}.jpg"));
-        // Camera raws have no quick picture to show: their frames are listed by name.
-        let made = (!crate::daemon::intake::is_raw(path))
-            .then(|| {
-                thumbnail(path, &target)
-                    .inspect_err(|e| warn!(error = %e, "no frame thumbnail"))
-                    .ok()
-            })
-            .flatten();
-        if made.is_some() {
-            frame.thumb = Some(format!("/frame/{id}/{k}"));
-        }
+    let mut thumbs = Vec::with_capacity(record.frames.len());
+    for (k, frame) in record.frames.iter_mut().enumerate() {
+        let made = Some(frame_thumb_path(folder, k)).filter(|t| t.is_file());
+        frame.thumb = made.as_ref().map(|_| format!("/frame/{id}/{k}"));
         thumbs.push(made);
     }
     record.files.frames = thumbs;
-    record
+}
+
+/// True when every preview `record` can have is linked: a preview and thumbnail per
+/// rendering, a thumbnail per frame whose file is still there and not a camera raw.
+pub(crate) fn complete(record: &Record, frame_paths: &[PathBuf]) -> bool {
+    let renderings = record
+        .outputs
+        .iter()
+        .all(|o| o.look.is_none() || o.preview.is_some());
+    let frames = record.frames.iter().zip(frame_paths).all(|(f, path)| {
+        f.thumb.is_some() || crate::daemon::intake::is_raw(path) || !path.is_file()
+    });
+    renderings && frames
+}
+
+/// Writes `record` as [`RECORD_FILE`] in `folder` (logged when it cannot be: the record
+/// is then rebuilt from the journal alone after a restart).
+fn keep_record(record: &Record, folder: &Path) {
+    let kept = serde_json::to_vec(record)
+        .map_err(|e| PublishError::Content {
+            path: folder.join(RECORD_FILE),
+            reason: e.to_string(),
+        })
+        .and_then(|bytes| {
+            create_folder(folder)?;
+            atomic::publish(&folder.join(RECORD_FILE), &bytes, Overwrite::Replace)
+        });
+    if let Err(e) = kept {
+        warn!(error = %e, "the bracket's record is not kept for a restart");
+    }
+}
+
+/// Creates `folder` and its parents.
+fn create_folder(folder: &Path) -> Result<(), PublishError> {
+    std::fs::create_dir_all(folder).map_err(|source| PublishError::Io {
+        path: folder.to_path_buf(),
+        source,
+    })
 }
 
 /// Decodes the image at `path` (JPEG, PNG or TIFF), refusing oversized files.
@@ -148,23 +237,17 @@ fn decode(path: &Path) -> Result<DynamicImage, PreviewError> {
         .map_err(decode_error)
 }
 
-/// A rendering's preview and thumbnail, `<name>.preview.jpg` and `<name>.thumb.jpg` in
-/// `folder`.
-fn rendering_previews(path: &Path, folder: &Path) -> Result<(PathBuf, PathBuf), PreviewError> {
-    let picture = decode(path)?;
-    let name = file_name(path);
-    let preview = folder.join(format!("{name}.preview.jpg"));
-    let thumb = folder.join(format!("{name}.thumb.jpg"));
-    let large = within(picture, PREVIEW_EDGE);
-    write_jpeg(&large, &preview)?;
-    write_jpeg(&within(large, THUMB_EDGE), &thumb)?;
-    Ok((preview, thumb))
+/// A rendering's preview (long edge [`PREVIEW_EDGE`]) at `preview` and its thumbnail
+/// (long edge [`THUMB_EDGE`]) at `thumb`.
+fn rendering_previews(path: &Path, preview: &Path, thumb: &Path) -> Result<(), PreviewError> {
+    let large = within(decode(path)?, PREVIEW_EDGE);
+    write_jpeg(&large, preview)?;
+    write_jpeg(&within(large, THUMB_EDGE), thumb)
 }
 
 /// A frame's thumbnail at `target`.
-fn thumbnail(path: &Path, target: &Path) -> Result<PathBuf, PreviewError> {
-    write_jpeg(&within(decode(path)?, THUMB_EDGE), target)?;
-    Ok(target.to_path_buf())
+fn thumbnail(path: &Path, target: &Path) -> Result<(), PreviewError> {
+    write_jpeg(&within(decode(path)?, THUMB_EDGE), target)
 }
 
 /// `picture` scaled down to a long edge of `edge` pixels (aspect kept), or as it is when
@@ -188,10 +271,7 @@ fn write_jpeg(picture: &DynamicImage, path: &Path) -> Result<(), PreviewError> {
             source,
         })?;
     if let Some(parent) = path.parent() {
-        std::fs::create_dir_all(parent).map_err(|source| PublishError::Io {
-            path: parent.to_path_buf(),
-            source,
-        })?;
+        create_folder(parent)?;
     }
     atomic::publish(path, &bytes, Overwrite::Replace)?;
     Ok(())
