@@ -370,6 +370,7 @@ fn counting_lab(calls: Arc<AtomicUsize>) -> impl Fn(&Job) -> Result<Processed, J
             notes: Vec::new(),
             measured: None,
             facts: Default::default(),
+            pictures: None,
         })
     }
 }

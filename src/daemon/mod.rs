@@ -40,7 +40,7 @@ use tokio::sync::mpsc;
 use tokio::task::JoinSet;
 use tracing::{info, warn};
 
-pub use lab::{Aligned, DarkroomLab, Facts, Job, JobError, Lab, Processed};
+pub use lab::{Aligned, DarkroomLab, Facts, Job, JobError, Lab, Pictured, Pictures, Processed};
 pub use status::{Retry, STATUS_FILE, Snapshot, lock_held, read_snapshot, state_writable};
 pub use viewer::{PREVIEW_FOLDER, ViewerError};
 

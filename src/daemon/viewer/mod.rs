@@ -39,6 +39,7 @@ use super::Snapshot;
 use super::config::{Token, Viewer};
 pub(crate) use events::Event;
 use metrics::Metrics;
+pub(crate) use previews::{PREVIEW_EDGE, THUMB_EDGE};
 
 /// Folder in the state folder holding the previews, one sub-folder per output stem.
 pub const PREVIEW_FOLDER: &str = "previews";
@@ -182,6 +183,9 @@ pub(crate) struct Published {
     pub record: Record,
     /// The frames' files where they are now (archived or in ingest).
     pub frame_paths: Vec<PathBuf>,
+    /// The lab's small copies of the renderings and frames, when it made them (the
+    /// previews are otherwise made from the files).
+    pub pictures: Option<Arc<super::Pictures>>,
 }
 
 /// A rejected file as the Service view lists it.

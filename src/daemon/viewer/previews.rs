@@ -13,6 +13,7 @@ use tracing::warn;
 
 use super::{Event, PREVIEW_FOLDER, Published, Record, Shared};
 use crate::atomic::{self, Overwrite, PublishError};
+use crate::rendering::Preview;
 
 /// Long edge of a rendering's preview, pixels.
 pub const PREVIEW_EDGE: u32 = 1600;
@@ -37,8 +38,9 @@ pub(crate) enum PreviewError {
         /// What the decoder said.
         source: image::ImageError,
     },
-    /// The source is larger than [`MAX_SOURCE_BYTES`] or not a regular file.
-    #[error("{path}: not a regular file of at most {MAX_SOURCE_BYTES} bytes")]
+    /// The source is larger than [`MAX_SOURCE_BYTES`] or not a regular file, or the
+    /// lab's copy of it is not a whole picture.
+    #[error("{path}: not a regular file of at most {MAX_SOURCE_BYTES} bytes, nor a whole copy")]
     Unsuitable {
         /// The source file.
         path: PathBuf,
@@ -117,22 +119,33 @@ fn develop_previews(dir: &Path, published: Published, make: Make) -> Record {
     let Published {
         mut record,
         frame_paths,
+        pictures,
     } = published;
+    let pictures = pictures.unwrap_or_default();
     let folder = dir.join(&record.stem);
     let wanted = |target: &Path| make == Make::All || !target.is_file();
     for (output, path) in record.outputs.iter().zip(&record.files.outputs) {
         let (preview, thumb) = rendering_preview_paths(&folder, &output.name);
         if output.look.is_some() && (wanted(&preview) || wanted(&thumb)) {
-            let _ = rendering_previews(path, &preview, &thumb)
-                .inspect_err(|e| warn!(error = %e, "no preview"));
+            let copy = pictures.renderings.iter().find(|r| r.name == output.name);
+            let _ = match copy {
+                Some(copy) => picture(&copy.preview, path)
+                    .and_then(|large| write_previews(large, &preview, &thumb)),
+                None => rendering_previews(path, &preview, &thumb),
+            }
+            .inspect_err(|e| warn!(error = %e, "no preview"));
         }
     }
     for (k, path) in frame_paths.iter().enumerate() {
         let target = frame_thumb_path(&folder, k);
         // Camera raws have no quick picture to show: their frames are listed by name.
         if wanted(&target) && !crate::daemon::intake::is_raw(path) {
-            let _ =
-                thumbnail(path, &target).inspect_err(|e| warn!(error = %e, "no frame thumbnail"));
+            let _ = match pictures.frames.get(k).and_then(Option::as_ref) {
+                Some(copy) => picture(copy, path)
+                    .and_then(|small| write_jpeg(&within(small, THUMB_EDGE), &target)),
+                None => thumbnail(path, &target),
+            }
+            .inspect_err(|e| warn!(error = %e, "no frame thumbnail"));
         }
     }
     link(&mut record, &folder);
@@ -238,11 +251,25 @@ fn decode(path: &Path) -> Result<DynamicImage, PreviewError> {
 }
 
 /// A rendering's preview (long edge [`PREVIEW_EDGE`]) at `preview` and its thumbnail
-/// (long edge [`THUMB_EDGE`]) at `thumb`.
+/// (long edge [`THUMB_EDGE`]) at `thumb`, decoded from its file.
 fn rendering_previews(path: &Path, preview: &Path, thumb: &Path) -> Result<(), PreviewError> {
-    let large = within(decode(path)?, PREVIEW_EDGE);
+    write_previews(decode(path)?, preview, thumb)
+}
+
+/// `picture` within [`PREVIEW_EDGE`] at `preview` and within [`THUMB_EDGE`] at `thumb`.
+fn write_previews(picture: DynamicImage, preview: &Path, thumb: &Path) -> Result<(), PreviewError> {
+    let large = within(picture, PREVIEW_EDGE);
     write_jpeg(&large, preview)?;
     write_jpeg(&within(large, THUMB_EDGE), thumb)
+}
+
+/// The lab's copy of the picture in the file at `path` as an image.
+fn picture(copy: &Preview, path: &Path) -> Result<DynamicImage, PreviewError> {
+    image::RgbImage::from_raw(copy.width, copy.height, copy.rgb.clone())
+        .map(DynamicImage::ImageRgb8)
+        .ok_or_else(|| PreviewError::Unsuitable {
+            path: path.to_path_buf(),
+        })
 }
 
 /// A frame's thumbnail at `target`.

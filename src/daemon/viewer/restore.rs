@@ -157,6 +157,7 @@ fn restore(entry: &Entry, dir: &Path) -> Option<Published> {
             ..record
         },
         frame_paths: inputs.iter().map(|i| i.path.clone()).collect(),
+        pictures: None,
     })
 }
 
