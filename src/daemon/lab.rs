@@ -432,27 +432,37 @@ fn frame_copy(loaded: &LoadedFrame, edge: u32) -> Option<Preview> {
     Some(frame_picture(&loaded.frame, edge))
 }
 
+/// Samples averaged per block side in a frame's copy (a thumbnail needs no more).
+const FRAME_SAMPLES: u32 = 4;
+
 /// `frame`'s copy of long edge at most `edge`, its codes reduced to their top 8 bits
-/// (grey repeated in R, G and B).
+/// (grey repeated in R, G and B): every `s`-th pixel of every `s`-th row, `s =
+/// max(1, ⌊f / FRAME_SAMPLES⌋)` for the copy's block size `f`, averaged by [`Shrink`].
 fn frame_picture(frame: &crate::frame::Frame, edge: u32) -> Preview {
     let (w, h) = (frame.width(), frame.height());
-    let shrink = Shrink::new(w, h, edge);
-    match frame.samples() {
-        Samples::Eight(codes) if frame.channels() == 3 => shrink.add_rows(0, codes),
-        _ => {
-            let shift = frame.bit_depth().bits().saturating_sub(8);
-            let last = frame.channels().saturating_sub(1);
-            let mut row = vec![0u8; w as usize * 3];
-            for y in 0..h {
-                for (x, px) in (0..w).zip(row.chunks_exact_mut(3)) {
+    let step = (w.max(h).div_ceil(edge.max(1)) / FRAME_SAMPLES).max(1);
+    let shrink = Shrink::new(w.div_ceil(step), h.div_ceil(step), edge);
+    let shift = frame.bit_depth().bits().saturating_sub(8);
+    let last = frame.channels().saturating_sub(1);
+    let mut row = vec![0u8; w.div_ceil(step) as usize * 3];
+    for (k, y) in (0..h).step_by(step as usize).enumerate() {
+        match frame.samples() {
+            Samples::Eight(codes) if last == 2 => {
+                let line = &codes[y as usize * w as usize * 3..][..w as usize * 3];
+                for (px, src) in row.chunks_exact_mut(3).zip(line.chunks(3 * step as usize)) {
+                    px.copy_from_slice(&src[..3]);
+                }
+            }
+            _ => {
+                for (x, px) in (0..w).step_by(step as usize).zip(row.chunks_exact_mut(3)) {
                     for (c, v) in px.iter_mut().enumerate() {
                         *v =
                             u8::try_from(frame.code(x, y, c.min(last)) >> shift).unwrap_or(u8::MAX);
                     }
                 }
-                shrink.add_rows(y as usize, &row);
             }
         }
+        shrink.add_rows(k, &row);
     }
     shrink.finish()
 }
@@ -802,6 +812,21 @@ fn measure_companions(
 mod tests {
     use super::*;
     use crate::frame::Frame;
+
+    #[test]
+    fn large_frames_are_sampled_sparsely() {
+        // 64 × 8 to an edge of 2: f = 32, every 8th pixel of every 8th row.
+        let codes: Vec<u8> = (0..64 * 8)
+            .flat_map(|i| {
+                let v = if i % 8 == 0 { 200 } else { 0 };
+                [v, v, v]
+            })
+            .collect();
+        let frame = Frame::new(64, 8, 3, Samples::Eight(codes)).unwrap();
+        let copy = frame_picture(&frame, 2);
+        assert_eq!((copy.width, copy.height), (2, 1));
+        assert_eq!(copy.rgb, vec![200; 6]);
+    }
 
     #[test]
     fn frames_are_copied_by_their_top_eight_bits() {
