@@ -7,12 +7,13 @@ use std::collections::VecDeque;
 use std::path::{Path, PathBuf};
 use std::sync::Arc;
 
-use image::{DynamicImage, ImageReader};
+use image::{DynamicImage, ImageDecoder, ImageReader};
 use tokio::sync::mpsc::{self, error::TryRecvError};
 use tracing::warn;
 
 use super::{Event, PREVIEW_FOLDER, Published, Record, Shared};
 use crate::atomic::{self, Overwrite, PublishError};
+use crate::display::ColourSpace;
 use crate::rendering::Preview;
 
 /// Long edge of a rendering's preview, pixels.
@@ -229,8 +230,10 @@ fn create_folder(folder: &Path) -> Result<(), PublishError> {
     })
 }
 
-/// Decodes the image at `path` (JPEG, PNG or TIFF), refusing oversized files.
-fn decode(path: &Path) -> Result<DynamicImage, PreviewError> {
+/// Decodes the image at `path` (JPEG, PNG or TIFF), refusing oversized files, and scales
+/// it within `edge` pixels; one encoded for Display P3 or Rec. 2020 (its ICC profile is
+/// the one filmback embeds for that space) is re-encoded for sRGB ([`to_srgb`]).
+fn decode(path: &Path, edge: u32) -> Result<DynamicImage, PreviewError> {
     let unsuitable = || PreviewError::Unsuitable {
         path: path.to_path_buf(),
     };
@@ -242,18 +245,51 @@ fn decode(path: &Path) -> Result<DynamicImage, PreviewError> {
         path: path.to_path_buf(),
         source,
     };
-    ImageReader::open(path)
+    let mut decoder = ImageReader::open(path)
         .map_err(|e| decode_error(image::ImageError::IoError(e)))?
         .with_guessed_format()
         .map_err(|e| decode_error(image::ImageError::IoError(e)))?
-        .decode()
-        .map_err(decode_error)
+        .into_decoder()
+        .map_err(decode_error)?;
+    let icc = decoder.icc_profile().ok().flatten();
+    let picture = within(
+        DynamicImage::from_decoder(decoder).map_err(decode_error)?,
+        edge,
+    );
+    let wide = [ColourSpace::DisplayP3, ColourSpace::Rec2020]
+        .into_iter()
+        .find(|s| icc.as_deref() == Some(s.icc_profile()));
+    Ok(match wide {
+        Some(space) => DynamicImage::ImageRgb8(to_srgb(picture.to_rgb8(), space)),
+        None => picture,
+    })
+}
+
+/// `picture`, 8-bit codes for `space`, re-encoded for sRGB: each decoded to linear light
+/// by the space's transfer function, taken to Rec. 709 primaries
+/// ([`crate::radiance::Gamut::matrix_to`]), clamped to `[0, 1]` and sRGB-encoded.
+fn to_srgb(mut picture: image::RgbImage, space: ColourSpace) -> image::RgbImage {
+    let m = space
+        .gamut()
+        .matrix_to(crate::radiance::Gamut::REC709)
+        .map(|row| row.map(|v| v as f32));
+    let linear: Vec<f32> = (0..=255u8)
+        .map(|v| space.decode(f32::from(v) / 255.0))
+        .collect();
+    for px in picture.pixels_mut() {
+        let l = px.0.map(|v| linear[usize::from(v)]);
+        px.0 = m.map(|row| {
+            let v = row[0] * l[0] + row[1] * l[1] + row[2] * l[2];
+            (ColourSpace::Srgb.encode(v) * 255.0).round() as u8
+        });
+    }
+    picture
 }
 
 /// A rendering's preview (long edge [`PREVIEW_EDGE`]) at `preview` and its thumbnail
 /// (long edge [`THUMB_EDGE`]) at `thumb`, decoded from its file.
 fn rendering_previews(path: &Path, preview: &Path, thumb: &Path) -> Result<(), PreviewError> {
-    write_previews(decode(path)?, preview, thumb)
+    write_previews(decode(path, PREVIEW_EDGE)?, preview, thumb)
 }
 
 /// `picture` within [`PREVIEW_EDGE`] at `preview` and within [`THUMB_EDGE`] at `thumb`.
@@ -274,7 +310,7 @@ fn picture(copy: &Preview, path: &Path) -> Result<DynamicImage, PreviewError> {
 
 /// A frame's thumbnail at `target`.
 fn thumbnail(path: &Path, target: &Path) -> Result<(), PreviewError> {
-    write_jpeg(&within(decode(path)?, THUMB_EDGE), target)
+    write_jpeg(&decode(path, THUMB_EDGE)?, target)
 }
 
 /// `picture` scaled down to a long edge of `edge` pixels (aspect kept), or as it is when
@@ -302,4 +338,53 @@ fn write_jpeg(picture: &DynamicImage, path: &Path) -> Result<(), PreviewError> {
     }
     atomic::publish(path, &bytes, Overwrite::Replace)?;
     Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::display::DisplayImage;
+    use crate::rendering::{Format, SourceExif};
+
+    /// A JPEG of saturated red, orange and grey encoded for `space` with its profile, as
+    /// a rendering for it is written.
+    fn written_for(space: ColourSpace, dir: &Path) -> PathBuf {
+        let srgb: Vec<u8> = [[255, 0, 0], [230, 140, 20], [128, 128, 128]]
+            .iter()
+            .flat_map(|px| std::iter::repeat_n(*px, 64 * 16).flatten())
+            .collect();
+        let image = DisplayImage::new_8bit(64, 48, srgb).in_space(space);
+        let mut bytes = Vec::new();
+        let format = Format::Jpeg { quality: 98 };
+        crate::rendering::encode(&image, format, &SourceExif::default(), &mut bytes).unwrap();
+        let path = dir.join(format!("{}.jpg", space.name()));
+        std::fs::write(&path, bytes).unwrap();
+        path
+    }
+
+    #[test]
+    fn wide_gamut_renderings_are_previewed_in_srgb() {
+        let dir = tempfile::tempdir().unwrap();
+        for space in ColourSpace::ALL {
+            let path = written_for(space, dir.path());
+            let preview = decode(&path, PREVIEW_EDGE).unwrap().to_rgb8();
+            let raw = image::open(&path).unwrap().to_rgb8();
+            for (y, want) in [
+                (8, [255, 0, 0]),
+                (24, [230, 140, 20]),
+                (40, [128, 128, 128]),
+            ] {
+                let got = preview.get_pixel(32, y).0;
+                let off = got.iter().zip(want).map(|(a, b)| a.abs_diff(b)).max();
+                assert!(off <= Some(4), "{space:?} row {y}: {got:?} for {want:?}");
+            }
+            // The file's own codes are not sRGB's, but for sRGB itself.
+            let red = raw.get_pixel(32, 8).0;
+            assert_eq!(
+                space == ColourSpace::Srgb,
+                red[1] < 10,
+                "{space:?}: {red:?}"
+            );
+        }
+    }
 }
