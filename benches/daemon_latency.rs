@@ -148,6 +148,7 @@ fn main() {
         out: direct_out,
         stem: "direct".into(),
         stocks: None,
+        previews: false,
     };
     let mut direct = Vec::new();
     for _ in 0..3 {

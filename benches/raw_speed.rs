@@ -159,6 +159,7 @@ fn main() {
         exif: &exif,
         overwrite: Overwrite::Replace,
         luminance_calibration: 1.0,
+        preview_edge: None,
     };
     let mut full = Duration::MAX;
     let mut stages = Vec::new();

@@ -255,6 +255,14 @@ impl ColourSpace {
         }
     }
 
+    /// The linear display light of code value `v ∈ [0, 1]` (the inverse of [`Self::encode`]).
+    pub fn decode(self, v: f32) -> f32 {
+        match self {
+            ColourSpace::Srgb | ColourSpace::DisplayP3 => srgb_decode(v),
+            ColourSpace::Rec2020 => rec2020_decode(v),
+        }
+    }
+
     /// The ITU-T H.273 code points of a PNG `cICP` chunk: colour primaries (1 BT.709,
     /// 12 P3 D65, 9 BT.2020), transfer (13 sRGB, 1 BT.709), matrix 0 (RGB), full range 1.
     pub fn cicp(self) -> [u8; 4] {
@@ -309,6 +317,18 @@ pub fn rec2020_encode(l: f32) -> f32 {
         4.5 * l
     } else {
         ALPHA * l.powf(0.45) - (ALPHA - 1.0)
+    }
+}
+
+/// Linear light of a BT.2020 code value `v ∈ [0, 1]` (the inverse of
+/// [`rec2020_encode`]): `v / 4.5` below `4.5·β`, `((v + α − 1) / α)^(1/0.45)` above.
+pub fn rec2020_decode(v: f32) -> f32 {
+    const ALPHA: f32 = 1.099_296_8;
+    const BETA: f32 = 0.018_053_97;
+    if v < 4.5 * BETA {
+        v / 4.5
+    } else {
+        ((v + (ALPHA - 1.0)) / ALPHA).powf(1.0 / 0.45)
     }
 }
 

@@ -1305,6 +1305,7 @@ fn the_memory_budget_rejects_what_cannot_fit_and_runs_the_rest_in_turn() {
             notes: Vec::new(),
             measured: None,
             facts: Default::default(),
+            pictures: None,
         })
     };
     // Each bracket (`daemon::job_bytes`): 1400 × 1000 px × (3 frames × 3 B + 3 B + 26 B)

@@ -112,6 +112,7 @@ fn mixed_job(dir: &Path, companions: bool) -> Job {
         out: dir.join("out"),
         stem: "r-1".to_string(),
         stocks: None,
+        previews: false,
     }
 }
 

@@ -238,6 +238,68 @@ fn a_bracket_reaches_the_event_stream_previews_and_metrics() {
     rig.stop();
 }
 
+/// The recent brackets of `/api/brackets` (the Session view).
+fn session(address: SocketAddr) -> Vec<serde_json::Value> {
+    let reply = get(address, "/api/brackets");
+    assert_eq!(reply.status, 200);
+    let overview: serde_json::Value = serde_json::from_slice(&reply.body).unwrap();
+    overview["brackets"].as_array().unwrap().clone()
+}
+
+/// A daemon restarted on the same folders shows the brackets it developed before: the
+/// kept record (its timings), previews still there at once, a preview that went missing
+/// made again without a new development.
+#[test]
+fn the_session_is_shown_again_after_a_restart() {
+    let (mut rig, dir, address) = start(Arc::new(DarkroomLab), "");
+    let events = subscribe(address, "");
+    rig::put(&rig.ingest(), &rig::aeb("Viewer Cam", 40, "RS"));
+    let (record, _) = next_event(&events, "developed");
+    rig.stop();
+    let linear = record["outputs"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .find(|o| o["look"] == "linear")
+        .unwrap()["name"]
+        .as_str()
+        .unwrap()
+        .to_string();
+    let previews = rig.state().join(daemon::PREVIEW_FOLDER).join("RS-1");
+    std::fs::remove_file(previews.join(format!("{linear}.preview.jpg"))).unwrap();
+    let mut rig = Rig::start_with_text(dir.path(), &config(dir.path(), ""), Arc::new(DarkroomLab));
+    let address = viewer_address(&rig.state());
+    let brackets = session(address);
+    assert_eq!(brackets.len(), 1, "{brackets:?}");
+    assert_eq!(brackets[0]["stem"], "RS-1");
+    assert_eq!(brackets[0]["total_ms"], record["total_ms"]);
+    let thumb = brackets[0]["frames"][0]["thumb"].as_str().unwrap();
+    assert_eq!(get(address, thumb).status, 200);
+    let start = Instant::now();
+    let preview = loop {
+        let brackets = session(address);
+        let output = brackets[0]["outputs"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .find(|o| o["name"] == linear.as_str())
+            .cloned()
+            .unwrap();
+        if let Some(url) = output["preview"].as_str() {
+            break url.to_string();
+        }
+        assert!(
+            start.elapsed() < PATIENCE,
+            "the missing preview was not made"
+        );
+        std::thread::sleep(Duration::from_millis(50));
+    };
+    let reply = get(address, &preview);
+    assert_eq!(reply.status, 200);
+    assert!(image::load_from_memory(&reply.body).is_ok());
+    rig.stop();
+}
+
 /// `[viewer]` is checked as the other sections are: beyond loopback only with a token,
 /// tokens long enough, one source of it; a token file's first line is the token, and the
 /// configuration's debug form never shows it.
@@ -308,6 +370,7 @@ fn counting_lab(calls: Arc<AtomicUsize>) -> impl Fn(&Job) -> Result<Processed, J
             notes: Vec::new(),
             measured: None,
             facts: Default::default(),
+            pictures: None,
         })
     }
 }

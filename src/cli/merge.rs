@@ -179,6 +179,7 @@ pub fn run(args: Args) -> anyhow::Result<ExitCode> {
             },
         }),
         luminance_calibration: args.luminance_calibration,
+        preview_edge: None,
         radiance_hdr: args.radiance_hdr,
         looks: &looks,
         format,

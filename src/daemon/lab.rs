@@ -20,6 +20,7 @@
 //! radiance, scaled to each frame's exposure, against that frame's JPEG.
 
 use std::path::{Path, PathBuf};
+use std::sync::Arc;
 use std::time::Duration;
 
 use rayon::prelude::*;
@@ -28,15 +29,16 @@ use crate::atomic::{self, Overwrite, PublishError};
 use crate::daemon::bracket::{CameraId, Capture};
 use crate::daemon::cache::CachedResponse;
 use crate::daemon::config::{Preset, Recalibrate};
+use crate::daemon::viewer::{PREVIEW_EDGE, THUMB_EDGE};
 use crate::darkroom::{
     self, BodyPool, DarkroomError, GivenResponse, Pooling, Prints, ResponsePolicy, Source,
 };
 use crate::film::{Catalogue, ColourMode, Key};
-use crate::frame::{self, Limits, LoadedFrame};
+use crate::frame::{self, Limits, LoadedFrame, Samples};
 use crate::hdr_output::ExrOptions;
 use crate::merge::MergeOptions;
 use crate::radiance::RadianceMap;
-use crate::rendering::{self, Format, Look, SourceExif};
+use crate::rendering::{self, Format, Look, Preview, Shrink, SourceExif};
 use crate::response::pool::{self, Evidence};
 use crate::response::{Degree, InverseResponse, JpegMeter, MeasuredResponse, RatioSource};
 
@@ -59,6 +61,9 @@ pub struct Job {
     pub stem: String,
     /// Folder of extra film stocks beside the built-in ones, if configured.
     pub stocks: Option<PathBuf>,
+    /// Keep small copies of the renderings and frames for the viewer
+    /// ([`Processed::pictures`]).
+    pub previews: bool,
 }
 
 impl Job {
@@ -90,10 +95,32 @@ pub struct Processed {
     pub measured: Option<MeasuredResponse>,
     /// What the development measured beyond its outputs (shown by the viewer).
     pub facts: Facts,
+    /// Small copies of the renderings and frames, when the job asked for them.
+    pub pictures: Option<Arc<Pictures>>,
+}
+
+/// Small sRGB copies of a development's renderings and frames, made from what the lab
+/// held in memory, from which the viewer makes its previews without decoding a file.
+#[derive(Debug, Clone, Default)]
+pub struct Pictures {
+    /// Per rendering, its copy of long edge at most [`PREVIEW_EDGE`].
+    pub renderings: Vec<Pictured>,
+    /// Per frame of the job, in its order, its copy of long edge at most [`THUMB_EDGE`]
+    /// (`None` for a camera raw); empty when the frames developed are not the job's.
+    pub frames: Vec<Option<Preview>>,
+}
+
+/// A rendering's small copy.
+#[derive(Debug, Clone)]
+pub struct Pictured {
+    /// The rendering's file name.
+    pub name: String,
+    /// Its copy.
+    pub preview: Preview,
 }
 
 /// What a development measured beyond its outputs, for the viewer and its events.
-#[derive(Debug, Clone, Default, PartialEq, serde::Serialize)]
+#[derive(Debug, Clone, Default, PartialEq, serde::Serialize, serde::Deserialize)]
 pub struct Facts {
     /// Share of samples clipped high or low in every frame (no frame exposed them
     /// well; the merge could only bound them), `0..=1`.
@@ -108,7 +135,7 @@ pub struct Facts {
 }
 
 /// The alignment of a bracket in brief.
-#[derive(Debug, Clone, PartialEq, serde::Serialize)]
+#[derive(Debug, Clone, PartialEq, serde::Serialize, serde::Deserialize)]
 pub struct Aligned {
     /// The mode asked for (`auto`, `translation`, `rigid`, `homography`, `off`).
     pub mode: String,
@@ -267,6 +294,7 @@ impl Lab for DarkroomLab {
             })
             .collect::<Result<_, _>>()?;
         let unmixed = unmix(job, frames)?;
+        let same_frames = unmixed.job.is_none();
         let job = unmixed.job.as_ref().unwrap_or(job);
         let frames = unmixed.frames;
         let decode = start.elapsed();
@@ -297,7 +325,7 @@ impl Lab for DarkroomLab {
             },
             Err(_) => (None, Vec::new()),
         };
-        let developed = match developed {
+        let mut developed = match developed {
             Ok(d) => d,
             Err(e) => {
                 return Err(match e {
@@ -319,6 +347,9 @@ impl Lab for DarkroomLab {
             },
             reason: e.to_string(),
         })?;
+        let pictures = job
+            .previews
+            .then(|| Arc::new(pictures(&mut developed, &frames, same_frames)));
         let first = &frames[0].frame;
         let samples =
             u64::from(first.width()) * u64::from(first.height()) * first.channels() as u64;
@@ -355,8 +386,85 @@ impl Lab for DarkroomLab {
             notes,
             measured,
             facts,
+            pictures,
         })
     }
+}
+
+/// The small copies of `developed`'s renderings (taken from it) and, when `same_frames`
+/// (the frames are the job's), of `frames`.
+fn pictures(
+    developed: &mut darkroom::Developed,
+    frames: &[LoadedFrame],
+    same_frames: bool,
+) -> Pictures {
+    let copies = std::mem::take(&mut developed.previews);
+    // The renderings are the last outputs, in the order of the looks.
+    let first = developed.outputs.len().saturating_sub(copies.len());
+    let renderings = developed.outputs[first..]
+        .iter()
+        .zip(copies)
+        .filter_map(|(path, preview)| {
+            Some(Pictured {
+                name: path.file_name()?.to_string_lossy().into_owned(),
+                preview,
+            })
+        })
+        .collect();
+    let frames = if same_frames {
+        frames
+            .par_iter()
+            .map(|f| frame_copy(f, THUMB_EDGE))
+            .collect()
+    } else {
+        Vec::new()
+    };
+    Pictures { renderings, frames }
+}
+
+/// A frame's copy of long edge at most `edge`, for any frame but a camera raw (its
+/// mosaic is no picture).
+fn frame_copy(loaded: &LoadedFrame, edge: u32) -> Option<Preview> {
+    #[cfg(feature = "raw")]
+    if loaded.raw.is_some() {
+        return None;
+    }
+    Some(frame_picture(&loaded.frame, edge))
+}
+
+/// Samples averaged per block side in a frame's copy (a thumbnail needs no more).
+const FRAME_SAMPLES: u32 = 4;
+
+/// `frame`'s copy of long edge at most `edge`, its codes reduced to their top 8 bits
+/// (grey repeated in R, G and B): every `s`-th pixel of every `s`-th row, `s =
+/// max(1, ⌊f / FRAME_SAMPLES⌋)` for the copy's block size `f`, averaged by [`Shrink`].
+fn frame_picture(frame: &crate::frame::Frame, edge: u32) -> Preview {
+    let (w, h) = (frame.width(), frame.height());
+    let step = (w.max(h).div_ceil(edge.max(1)) / FRAME_SAMPLES).max(1);
+    let shrink = Shrink::new(w.div_ceil(step), h.div_ceil(step), edge);
+    let shift = frame.bit_depth().bits().saturating_sub(8);
+    let last = frame.channels().saturating_sub(1);
+    let mut row = vec![0u8; w.div_ceil(step) as usize * 3];
+    for (k, y) in (0..h).step_by(step as usize).enumerate() {
+        match frame.samples() {
+            Samples::Eight(codes) if last == 2 => {
+                let line = &codes[y as usize * w as usize * 3..][..w as usize * 3];
+                for (px, src) in row.chunks_exact_mut(3).zip(line.chunks(3 * step as usize)) {
+                    px.copy_from_slice(&src[..3]);
+                }
+            }
+            _ => {
+                for (x, px) in (0..w).step_by(step as usize).zip(row.chunks_exact_mut(3)) {
+                    for (c, v) in px.iter_mut().enumerate() {
+                        *v =
+                            u8::try_from(frame.code(x, y, c.min(last)) >> shift).unwrap_or(u8::MAX);
+                    }
+                }
+            }
+        }
+        shrink.add_rows(k, &row);
+    }
+    shrink.finish()
 }
 
 impl DarkroomLab {
@@ -480,6 +588,7 @@ pub(crate) fn prints<'a>(
         // attempt at this same job (names are unique per bracket): replace it.
         overwrite: Overwrite::Replace,
         luminance_calibration: preset.luminance_calibration,
+        preview_edge: job.previews.then_some(PREVIEW_EDGE),
     }
 }
 
@@ -696,5 +805,39 @@ fn measure_companions(
             ));
             (None, notes)
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::frame::Frame;
+
+    #[test]
+    fn large_frames_are_sampled_sparsely() {
+        // 64 × 8 to an edge of 2: f = 32, every 8th pixel of every 8th row.
+        let codes: Vec<u8> = (0..64 * 8)
+            .flat_map(|i| {
+                let v = if i % 8 == 0 { 200 } else { 0 };
+                [v, v, v]
+            })
+            .collect();
+        let frame = Frame::new(64, 8, 3, Samples::Eight(codes)).unwrap();
+        let copy = frame_picture(&frame, 2);
+        assert_eq!((copy.width, copy.height), (2, 1));
+        assert_eq!(copy.rgb, vec![200; 6]);
+    }
+
+    #[test]
+    fn frames_are_copied_by_their_top_eight_bits() {
+        // 4 × 2 grey at 16 bits, shrunk by 2: each block averages 0x1200 and 0x3400.
+        let codes = vec![0x1200, 0x3400, 0xff00, 0xff00, 0x1200, 0x3400, 0, 0];
+        let grey = Frame::new(4, 2, 1, Samples::Sixteen(codes)).unwrap();
+        let copy = frame_picture(&grey, 2);
+        assert_eq!((copy.width, copy.height), (2, 1));
+        assert_eq!(copy.rgb, vec![0x23, 0x23, 0x23, 0x80, 0x80, 0x80]);
+        let rgb: Vec<u8> = (0..2 * 2 * 3).map(|v| v * 10).collect();
+        let colour = Frame::new(2, 2, 3, Samples::Eight(rgb.clone())).unwrap();
+        assert_eq!(frame_picture(&colour, 8).rgb, rgb);
     }
 }

@@ -50,7 +50,7 @@ use tokio::task::JoinSet;
 use tracing::{info, warn};
 
 pub use budget::{Footprint, job_bytes};
-pub use lab::{Aligned, DarkroomLab, Facts, Job, JobError, Lab, Processed};
+pub use lab::{Aligned, DarkroomLab, Facts, Job, JobError, Lab, Pictured, Pictures, Processed};
 pub use status::{Retry, STATUS_FILE, Snapshot, lock_held, read_snapshot, state_writable};
 pub use viewer::{PREVIEW_FOLDER, ViewerError};
 
@@ -310,7 +310,7 @@ pub async fn run(
     }
     let mut journal = Journal::open(&folders.state)?;
     journal.resolve_inputs(|p| root.identity(p));
-    let viewer = open_viewer(&config).await;
+    let viewer = open_viewer(&config, journal.entries()).await;
     let (notices, mut rx) = mpsc::unbounded_channel();
     let now = Instant::now();
     let mut st = State {
@@ -420,12 +420,13 @@ pub async fn run(
 }
 
 /// The viewer's server, when `[viewer] enabled`; one that cannot be served is logged and
-/// the daemon runs without it (the darkroom never depends on it).
-async fn open_viewer(config: &Config) -> Option<viewer::Station> {
+/// the daemon runs without it (the darkroom never depends on it). The recent
+/// developments of `journal` are shown again.
+async fn open_viewer(config: &Config, journal: &[journal::Entry]) -> Option<viewer::Station> {
     if !config.viewer.enabled {
         return None;
     }
-    match viewer::Station::open(&config.viewer, &config.folders.state).await {
+    match viewer::Station::open(&config.viewer, &config.folders.state, journal).await {
         Ok(station) => Some(station),
         Err(e) => {
             warn!(error = %e, "the viewer is not served; the daemon goes on without it");

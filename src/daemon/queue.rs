@@ -111,6 +111,7 @@ impl State {
                     .as_ref()
                     .map_or_else(|| self.output_stem(&work.closed), |s| s.stem.clone()),
                 stocks: self.config.folders.stocks.clone(),
+                previews: self.viewer.is_some(),
             };
             let lab = Arc::clone(&self.lab);
             self.in_use.reserve(need);
@@ -382,6 +383,7 @@ impl State {
             viewer.developed(super::viewer::Published {
                 record: super::viewer::record_of(closed, dev, &stem, took),
                 frame_paths,
+                pictures: dev.pictures.clone(),
             });
         }
         if let Some(command) = self.config.hooks.on_developed.clone() {

@@ -139,6 +139,9 @@ pub struct Prints<'a> {
     pub overwrite: Overwrite,
     /// The luminance calibration factor `c` of [`merge::exposure_scale`] (1: nominal).
     pub luminance_calibration: f64,
+    /// Long edge, pixels, of a small sRGB copy of each rendering kept in memory
+    /// ([`Developed::previews`]); `None` for none.
+    pub preview_edge: Option<u32>,
 }
 
 impl Prints<'_> {
@@ -203,6 +206,9 @@ pub struct Developed {
     pub raw_radiance: Option<RadianceMap>,
     /// What deghosting did, when it was asked for (see [`crate::deghost`]).
     pub deghost: Option<Deghosted>,
+    /// Per look of [`Prints::looks`], in order, its small sRGB copy when
+    /// [`Prints::preview_edge`] asked for them (empty otherwise).
+    pub previews: Vec<rendering::Preview>,
 }
 
 /// What deghosting did to a bracket.
@@ -433,7 +439,7 @@ pub fn develop(
         let looks = (!prints.looks.is_empty()).then(|| {
             scope.spawn(move || {
                 let mut stages = Stages::new();
-                print_looks(source, prints, &mut stages).map(|written| (written, stages))
+                print_looks(source, prints, &mut stages).map(|rendered| (rendered, stages))
             })
         });
         let radiance = write_radiance_files(source, confidence, &provenance, prints);
@@ -451,9 +457,11 @@ pub fn develop(
     };
     warnings.extend(exr_warnings);
     stages.extend(radiance_stages);
+    let mut previews = Vec::new();
     if let Some(looks) = looks {
-        let (written, look_stages) = looks?;
-        outputs.extend(written);
+        let (rendered, look_stages) = looks?;
+        outputs.extend(rendered.paths);
+        previews = rendered.previews;
         stages.extend(look_stages);
     }
     Ok(Developed {
@@ -470,6 +478,7 @@ pub fn develop(
         alignment: Some(alignment),
         raw_radiance,
         deghost: deghosted,
+        previews,
     })
 }
 
@@ -604,17 +613,18 @@ fn write_radiance(
     Ok(written)
 }
 
-/// Renders `map` in every look of `prints` (stage `render`).
+/// Renders `map` in every look of `prints` (stage `render`), with their small copies
+/// when `prints` asks for them.
 fn print_looks(
     map: &dyn RadianceSource,
     prints: &Prints<'_>,
     stages: &mut Stages,
-) -> Result<Vec<PathBuf>, DarkroomError> {
+) -> Result<rendering::Rendered, DarkroomError> {
     if prints.looks.is_empty() {
-        return Ok(Vec::new());
+        return Ok(rendering::Rendered::default());
     }
     let t = Instant::now();
-    let written = rendering::render_all(
+    let rendered = rendering::render_previewed(
         map,
         prints.looks,
         &Outputs {
@@ -625,9 +635,10 @@ fn print_looks(
             overwrite: prints.overwrite,
             exif: prints.exif,
         },
+        prints.preview_edge,
     )?;
     stages.push(("render", t.elapsed()));
-    Ok(written)
+    Ok(rendered)
 }
 
 /// An upper bound on the memory one bracket's development holds at its peak, in bytes,
@@ -756,10 +767,10 @@ pub fn develop_single(
             (map, use_given(response, Vec::new(), None))
         }
     };
-    let outputs = print_looks(&map, prints, &mut stages)?;
+    let rendered = print_looks(&map, prints, &mut stages)?;
     let raw_radiance = is_raw.then_some(map);
     Ok(Developed {
-        outputs,
+        outputs: rendered.paths,
         response,
         order: vec![0],
         ratio: 1.0,
@@ -779,6 +790,7 @@ pub fn develop_single(
         alignment: None,
         raw_radiance,
         deghost: None,
+        previews: rendered.previews,
     })
 }
 

@@ -39,6 +39,7 @@ fn prints<'a>(
         exif,
         overwrite: Overwrite::Refuse,
         luminance_calibration: 1.0,
+        preview_edge: None,
     }
 }
 

@@ -389,6 +389,7 @@ pub(super) fn job_of(closed: &Closed, config: &Config, out: &Path, stem: String)
         out: out.to_path_buf(),
         stem,
         stocks: config.folders.stocks.clone(),
+        previews: false,
     }
 }
 

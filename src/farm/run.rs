@@ -304,6 +304,7 @@ fn job_of(
         out: out.to_path_buf(),
         stem: task.stem,
         stocks: config.folders.stocks.clone(),
+        previews: false,
     })
 }
 

@@ -7,7 +7,7 @@ use std::path::{Path, PathBuf};
 use std::str::FromStr;
 
 use super::source_exif::Storage;
-use super::{Look, RenderingError, SourceExif, jpeg};
+use super::{Look, RenderingError, Shrink, SourceExif, jpeg};
 use crate::atomic::{self, Overwrite, PublishError};
 use crate::display::{ColourSpace, Depth, DisplayImage};
 use crate::film;
@@ -196,18 +196,13 @@ pub fn encode_film_jpeg(
     out: &mut impl std::io::Write,
 ) -> Result<(), String> {
     let (w, h) = (exposure.width(), exposure.height());
-    stream_jpeg(
-        w,
-        h,
-        |first, rgb| emulsion.render_rows_8bit(exposure, first, rgb),
-        quality,
-        exif,
-        out,
-    )
+    let develop = |first: usize, rgb: &mut [u8]| emulsion.render_rows_8bit(exposure, first, rgb);
+    stream_jpeg(w, h, develop, quality, exif, out, None)
 }
 
 /// Encodes a JPEG of `w × h` whose 8-bit RGB rows `develop(first, rows)` fills, bands
-/// of rows developed and encoded on every core (`rendering::jpeg`).
+/// of rows developed and encoded on every core (`rendering::jpeg`); each band is also
+/// added to `shrink`.
 fn stream_jpeg(
     w: u32,
     h: u32,
@@ -215,9 +210,16 @@ fn stream_jpeg(
     quality: u8,
     exif: &SourceExif,
     out: &mut impl std::io::Write,
+    shrink: Option<&Shrink>,
 ) -> Result<(), String> {
     let block = exif.tiff_block(w, h, Storage::Jpeg)?;
     let decorate = decorate(&block, ColourSpace::Srgb);
+    let develop = |first: usize, rgb: &mut [u8]| {
+        develop(first, rgb);
+        if let Some(shrink) = shrink {
+            shrink.add_rows(first, rgb);
+        }
+    };
     jpeg::encode_bands(w, h, quality, decorate, develop, out)
 }
 
@@ -250,33 +252,58 @@ pub fn encode_look(
     exif: &SourceExif,
     out: &mut impl std::io::Write,
 ) -> Result<(), RenderingError> {
+    encode_look_previewed(map, look, format, space, exif, out, None)
+}
+
+/// [`encode_look`], adding the rendering's 8-bit sRGB rows to `shrink` as they are made
+/// (for another space, the rows before they are re-encoded for it).
+pub fn encode_look_previewed(
+    map: &dyn RadianceSource,
+    look: &Look,
+    format: Format,
+    space: ColourSpace,
+    exif: &SourceExif,
+    out: &mut impl std::io::Write,
+    shrink: Option<&Shrink>,
+) -> Result<(), RenderingError> {
     let encode_error = |reason: String| RenderingError::Encode {
         path: PathBuf::new(),
         format: format!("{format:?}"),
         reason,
     };
+    let (w, h) = (map.width(), map.height());
     match (look, format) {
         _ if space != ColourSpace::Srgb => {
-            let image = look.render(map, Depth::Sixteen)?.in_space(space);
+            let srgb = look.render(map, Depth::Sixteen)?;
+            add_image(shrink, &srgb);
+            let image = srgb.in_space(space);
             return encode(&image.at_depth(format.depth()), format, exif, out)
                 .map_err(encode_error);
         }
         (Look::Film { .. }, Format::Jpeg { quality }) => {
             let emulsion = look.emulsion(map)?;
             let exposure = emulsion.expose(map);
-            return encode_film_jpeg(&exposure, &emulsion, quality, exif, out)
-                .map_err(encode_error);
+            let develop =
+                |first: usize, rgb: &mut [u8]| emulsion.render_rows_8bit(&exposure, first, rgb);
+            return stream_jpeg(w, h, develop, quality, exif, out, shrink).map_err(encode_error);
         }
         (Look::Tonemap(op), Format::Jpeg { quality }) => {
             let tone = op.prepare(map);
             let develop = |first: usize, rgb: &mut [u8]| tone.render_rows_8bit(map, first, rgb);
-            return stream_jpeg(map.width(), map.height(), develop, quality, exif, out)
-                .map_err(encode_error);
+            return stream_jpeg(w, h, develop, quality, exif, out, shrink).map_err(encode_error);
         }
         _ => {}
     }
     let image = look.render(map, format.depth())?;
+    add_image(shrink, &image);
     encode(&image, format, exif, out).map_err(encode_error)
+}
+
+/// Adds a whole rendered image to `shrink`, when there is one.
+fn add_image(shrink: Option<&Shrink>, image: &DisplayImage) {
+    if let Some(shrink) = shrink {
+        shrink.add_rows(0, &image.to_u8());
+    }
 }
 
 /// Encodes and publishes `image` at `path` atomically.

@@ -21,9 +21,11 @@ use crate::tonemap;
 mod encode;
 mod jpeg;
 pub mod lut;
+mod shrink;
 mod source_exif;
 
-pub use encode::{Format, encode, encode_film_jpeg, encode_look, write};
+pub use encode::{Format, encode, encode_film_jpeg, encode_look, encode_look_previewed, write};
+pub use shrink::{Preview, Shrink};
 pub use source_exif::SourceExif;
 
 /// Why a rendering could not be made or written.
@@ -231,31 +233,74 @@ pub fn render_all(
     looks: &[Look],
     outputs: &Outputs<'_>,
 ) -> Result<Vec<PathBuf>, RenderingError> {
-    let mut written = Vec::with_capacity(looks.len());
+    Ok(render_previewed(map, looks, outputs, None)?.paths)
+}
+
+/// What [`render_previewed`] made.
+#[derive(Debug, Clone, Default)]
+pub struct Rendered {
+    /// The files written, in the order of the looks.
+    pub paths: Vec<PathBuf>,
+    /// Per look, in the same order, its small sRGB copy (none when none was asked for).
+    pub previews: Vec<Preview>,
+}
+
+/// [`render_all`], and with `preview_edge` a small sRGB copy of each rendering of long
+/// edge at most that many pixels, made from the rows as they are encoded ([`Shrink`]).
+pub fn render_previewed(
+    map: &dyn RadianceSource,
+    looks: &[Look],
+    outputs: &Outputs<'_>,
+    preview_edge: Option<u32>,
+) -> Result<Rendered, RenderingError> {
+    let mut rendered = Rendered::default();
     for look in looks {
         let path = look_path(outputs.dir, outputs.stem, look, outputs.format);
-        let mut failure = None;
-        let published = atomic::publish_with(&path, outputs.overwrite, |w| {
-            encode_look(map, look, outputs.format, outputs.space, outputs.exif, w).map_err(|e| {
-                let reason = e.to_string();
-                failure = Some(e);
-                reason
-            })
-        });
-        match (published, failure) {
-            (Ok(()), _) => written.push(path),
-            (Err(_), Some(RenderingError::Encode { format, reason, .. })) => {
-                return Err(RenderingError::Encode {
-                    path,
-                    format,
-                    reason,
-                });
-            }
-            (Err(_), Some(other)) => return Err(other),
-            (Err(e), None) => return Err(e.into()),
-        }
+        let shrink = preview_edge.map(|edge| Shrink::new(map.width(), map.height(), edge));
+        publish_look(map, look, outputs, &path, shrink.as_ref())?;
+        rendered.paths.push(path);
+        rendered.previews.extend(shrink.map(Shrink::finish));
     }
-    Ok(written)
+    Ok(rendered)
+}
+
+/// Encodes `look` of `map` and publishes it at `path` (adding its rows to `shrink`).
+fn publish_look(
+    map: &dyn RadianceSource,
+    look: &Look,
+    outputs: &Outputs<'_>,
+    path: &Path,
+    shrink: Option<&Shrink>,
+) -> Result<(), RenderingError> {
+    let mut failure = None;
+    let published = atomic::publish_with(path, outputs.overwrite, |w| {
+        encode_look_previewed(
+            map,
+            look,
+            outputs.format,
+            outputs.space,
+            outputs.exif,
+            w,
+            shrink,
+        )
+        .map_err(|e| {
+            let reason = e.to_string();
+            failure = Some(e);
+            reason
+        })
+    });
+    match (published, failure) {
+        (Ok(()), _) => Ok(()),
+        (Err(_), Some(RenderingError::Encode { format, reason, .. })) => {
+            Err(RenderingError::Encode {
+                path: path.to_path_buf(),
+                format,
+                reason,
+            })
+        }
+        (Err(_), Some(other)) => Err(other),
+        (Err(e), None) => Err(e.into()),
+    }
 }
 
 #[cfg(test)]

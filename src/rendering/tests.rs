@@ -180,3 +180,55 @@ fn formats_parse() {
     assert!("jpeg:0".parse::<Format>().is_err());
     assert!("gif".parse::<Format>().is_err());
 }
+
+#[test]
+fn previews_are_the_srgb_rendering_shrunk_whatever_the_output() {
+    let catalogue = film::Catalogue::builtin().unwrap();
+    let map = crate::synthetic::scene(200, 150, 3);
+    let velvia = Look::film(
+        &catalogue,
+        "velvia50",
+        ColourMode::PerLayer,
+        Key::LogAverage,
+    )
+    .unwrap();
+    let linear = Look::Tonemap(crate::tonemap::Operator::parse("linear").unwrap());
+    for look in [velvia, linear] {
+        let reference = Shrink::new(200, 150, 64);
+        reference.add_rows(0, &look.render(&map, Depth::Eight).unwrap().to_u8());
+        let reference = reference.finish();
+        for (format, space) in [
+            (Format::Jpeg { quality: 90 }, ColourSpace::Srgb),
+            (Format::Png8, ColourSpace::Srgb),
+            (Format::Jpeg { quality: 90 }, ColourSpace::DisplayP3),
+            (Format::Tiff16, ColourSpace::Rec2020),
+        ] {
+            let shrink = Shrink::new(200, 150, 64);
+            encode_look_previewed(
+                &map,
+                &look,
+                format,
+                space,
+                &exif(),
+                &mut Vec::new(),
+                Some(&shrink),
+            )
+            .unwrap();
+            let preview = shrink.finish();
+            // ⌈200/64⌉ = 4: 50 × 38 blocks.
+            assert_eq!((preview.width, preview.height), (50, 38));
+            let worst = preview
+                .rgb
+                .iter()
+                .zip(&reference.rgb)
+                .map(|(a, b)| a.abs_diff(*b))
+                .max()
+                .unwrap();
+            assert!(
+                worst <= 1,
+                "{} {format:?} {space:?}: off by {worst}",
+                look.name()
+            );
+        }
+    }
+}

@@ -128,7 +128,7 @@ impl Metrics {
     pub(crate) fn developed(&self, record: &Record) {
         let label = |k: &str, v: &str| vec![(k.to_string(), v.to_string())];
         self.developed
-            .get_or_create(&label("kind", record.kind))
+            .get_or_create(&label("kind", record.kind.name()))
             .inc();
         self.responses
             .get_or_create(&label("source", &record.response))

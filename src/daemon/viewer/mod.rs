@@ -23,6 +23,7 @@ mod events;
 mod listener;
 mod metrics;
 mod previews;
+mod restore;
 mod routes;
 
 use std::collections::VecDeque;
@@ -30,7 +31,7 @@ use std::net::SocketAddr;
 use std::path::{Path, PathBuf};
 use std::sync::{Arc, Mutex, MutexGuard};
 
-use serde::Serialize;
+use serde::{Deserialize, Serialize};
 use tokio::sync::{broadcast, mpsc};
 use tracing::{info, warn};
 
@@ -38,6 +39,7 @@ use super::Snapshot;
 use super::config::{Token, Viewer};
 pub(crate) use events::Event;
 use metrics::Metrics;
+pub(crate) use previews::{PREVIEW_EDGE, THUMB_EDGE};
 
 /// Folder in the state folder holding the previews, one sub-folder per output stem.
 pub const PREVIEW_FOLDER: &str = "previews";
@@ -79,7 +81,7 @@ pub enum ViewerError {
 }
 
 /// One frame of a developed bracket as the page shows it.
-#[derive(Debug, Clone, Serialize)]
+#[derive(Debug, Clone, Serialize, Deserialize)]
 pub(crate) struct FrameRecord {
     /// File name in the ingest folder.
     pub name: String,
@@ -90,7 +92,7 @@ pub(crate) struct FrameRecord {
 }
 
 /// One published output as the page shows it.
-#[derive(Debug, Clone, Serialize)]
+#[derive(Debug, Clone, Serialize, Deserialize)]
 pub(crate) struct OutputRecord {
     /// File name in the output folder.
     pub name: String,
@@ -108,7 +110,7 @@ pub(crate) struct OutputRecord {
 
 /// A developed bracket or single frame: the `developed` event and an entry of the
 /// Session view.
-#[derive(Debug, Clone, Serialize)]
+#[derive(Debug, Clone, Serialize, Deserialize)]
 pub(crate) struct Record {
     /// The station's number for it (increasing; files are served by it).
     pub id: u64,
@@ -116,8 +118,8 @@ pub(crate) struct Record {
     pub stem: String,
     /// The body.
     pub camera: String,
-    /// `bracket` or `single`.
-    pub kind: &'static str,
+    /// A bracket or a single frame.
+    pub kind: Kind,
     /// Unix seconds when it was published.
     pub at: u64,
     /// Its frames in capture order.
@@ -143,6 +145,26 @@ pub(crate) struct Record {
     pub(crate) files: Files,
 }
 
+/// What a record developed: `bracket` or `single` in JSON and in the metrics' labels.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub(crate) enum Kind {
+    /// Two or more frames merged.
+    Bracket,
+    /// One frame rendered alone.
+    Single,
+}
+
+impl Kind {
+    /// The name the JSON and the metrics use.
+    pub(crate) fn name(self) -> &'static str {
+        match self {
+            Kind::Bracket => "bracket",
+            Kind::Single => "single",
+        }
+    }
+}
+
 /// The files of a record, by the numbers its URLs carry.
 #[derive(Debug, Clone, Default)]
 pub(crate) struct Files {
@@ -161,6 +183,9 @@ pub(crate) struct Published {
     pub record: Record,
     /// The frames' files where they are now (archived or in ingest).
     pub frame_paths: Vec<PathBuf>,
+    /// The lab's small copies of the renderings and frames, when it made them (the
+    /// previews are otherwise made from the files).
+    pub pictures: Option<Arc<super::Pictures>>,
 }
 
 /// A rejected file as the Service view lists it.
@@ -181,6 +206,21 @@ struct Gallery {
     rejected: VecDeque<Rejection>,
     status: Option<Snapshot>,
     next_id: u64,
+}
+
+impl Gallery {
+    /// Files a new record first, forgetting the oldest beyond [`GALLERY`].
+    fn file(&mut self, record: Arc<Record>) {
+        self.records.push_front(record);
+        self.records.truncate(GALLERY);
+    }
+
+    /// Puts `record` in place of the one of its number, if that is still remembered.
+    fn replace(&mut self, record: Arc<Record>) {
+        if let Some(slot) = self.records.iter_mut().find(|r| r.id == record.id) {
+            *slot = record;
+        }
+    }
 }
 
 /// What the server's handlers and the daemon's handle share.
@@ -228,8 +268,14 @@ pub(crate) struct Station {
 
 impl Station {
     /// Listens as `config` says (or on the socket systemd passed), starts the server and
-    /// the previews worker on the current runtime. `state` is the daemon's state folder.
-    pub(crate) async fn open(config: &Viewer, state: &Path) -> Result<Station, ViewerError> {
+    /// the previews worker on the current runtime. `state` is the daemon's state folder;
+    /// the recent developments of `journal` are shown again (previews still missing are
+    /// made by the worker when it has nothing newer to do).
+    pub(crate) async fn open(
+        config: &Viewer,
+        state: &Path,
+        journal: &[super::journal::Entry],
+    ) -> Result<Station, ViewerError> {
         let listener = listener::listen(config).await?;
         let address = listener.local_addr().map_err(|source| ViewerError::Bind {
             address: config.address,
@@ -239,15 +285,16 @@ impl Station {
             return Err(ViewerError::Exposed { address });
         }
         let (events, _) = broadcast::channel(EVENT_BUFFER);
+        let (gallery, unfinished) = restore::gallery(journal, &state.join(PREVIEW_FOLDER)).await;
         let shared = Arc::new(Shared {
-            gallery: Mutex::new(Gallery::default()),
+            gallery: Mutex::new(gallery),
             events,
             metrics: Metrics::new(),
             token: config.token.clone(),
             state: state.to_path_buf(),
         });
         let (developed, rx) = mpsc::unbounded_channel();
-        tokio::spawn(previews::worker(Arc::clone(&shared), rx));
+        tokio::spawn(previews::worker(Arc::clone(&shared), rx, unfinished));
         tokio::spawn(listener::serve(
             listener,
             routes::router(Arc::clone(&shared)),
@@ -328,8 +375,8 @@ pub(crate) fn record_of(
         stem: stem.to_string(),
         camera: closed.camera().to_string(),
         kind: match closed {
-            super::bracket::Closed::Bracket(_) => "bracket",
-            super::bracket::Closed::Single(..) => "single",
+            super::bracket::Closed::Bracket(_) => Kind::Bracket,
+            super::bracket::Closed::Single(..) => Kind::Single,
         },
         at: super::journal::unix_now(),
         frames: frame_records(closed),

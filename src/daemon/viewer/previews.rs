@@ -1,17 +1,20 @@
 //! Previews, made once when a bracket is published: per rendering a JPEG of long edge
 //! [`PREVIEW_EDGE`] px and a thumbnail of [`THUMB_EDGE`] px, per frame a thumbnail, in
-//! `state/previews/<stem>/`, each published atomically. The browser never pulls a full
-//! rendering to show a screen.
+//! `state/previews/<stem>/`, each published atomically, beside the bracket's record
+//! ([`RECORD_FILE`]). The browser never pulls a full rendering to show a screen.
 
+use std::collections::VecDeque;
 use std::path::{Path, PathBuf};
 use std::sync::Arc;
 
-use image::{DynamicImage, ImageReader};
-use tokio::sync::mpsc;
+use image::{DynamicImage, ImageDecoder, ImageReader};
+use tokio::sync::mpsc::{self, error::TryRecvError};
 use tracing::warn;
 
-use super::{Event, PREVIEW_FOLDER, Published, Record, Shared, file_name};
+use super::{Event, PREVIEW_FOLDER, Published, Record, Shared};
 use crate::atomic::{self, Overwrite, PublishError};
+use crate::display::ColourSpace;
+use crate::rendering::Preview;
 
 /// Long edge of a rendering's preview, pixels.
 pub const PREVIEW_EDGE: u32 = 1600;
@@ -36,8 +39,9 @@ pub(crate) enum PreviewError {
         /// What the decoder said.
         source: image::ImageError,
     },
-    /// The source is larger than [`MAX_SOURCE_BYTES`] or not a regular file.
-    #[error("{path}: not a regular file of at most {MAX_SOURCE_BYTES} bytes")]
+    /// The source is larger than [`MAX_SOURCE_BYTES`] or not a regular file, or the
+    /// lab's copy of it is not a whole picture.
+    #[error("{path}: not a regular file of at most {MAX_SOURCE_BYTES} bytes, nor a whole copy")]
     Unsuitable {
         /// The source file.
         path: PathBuf,
@@ -55,12 +59,44 @@ pub(crate) enum PreviewError {
     Publish(#[from] PublishError),
 }
 
-/// Takes published developments in turn: makes their previews on a blocking thread,
-/// then files the record and announces it. Ends when the daemon's handle is dropped.
-pub(crate) async fn worker(shared: Arc<Shared>, mut rx: mpsc::UnboundedReceiver<Published>) {
-    while let Some(published) = rx.recv().await {
+/// File in a bracket's preview folder holding its record as JSON, so that a restart
+/// can show it again ([`super::restore`]).
+pub(crate) const RECORD_FILE: &str = "record.json";
+
+/// Whether previews already on disk are made again.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum Make {
+    /// Every preview (a development just published: a redo replaces the old ones).
+    All,
+    /// Only those missing (a record restored after a restart).
+    Missing,
+}
+
+/// Takes published developments in turn, and between them the restored records whose
+/// previews are missing: makes their previews on a blocking thread, then files the
+/// record (a development is announced; a restored record replaces its earlier self).
+/// A published development always goes first. Ends when the daemon's handle is dropped.
+pub(crate) async fn worker(
+    shared: Arc<Shared>,
+    mut rx: mpsc::UnboundedReceiver<Published>,
+    mut restored: VecDeque<Published>,
+) {
+    loop {
+        let next = match rx.try_recv() {
+            Ok(published) => Some((published, Make::All)),
+            Err(TryRecvError::Empty) => restored.pop_front().map(|p| (p, Make::Missing)),
+            Err(TryRecvError::Disconnected) => return,
+        };
+        let (published, make) = match next {
+            Some(next) => next,
+            None => match rx.recv().await {
+                Some(published) => (published, Make::All),
+                None => return,
+            },
+        };
         let dir = shared.state.join(PREVIEW_FOLDER);
-        let made = tokio::task::spawn_blocking(move || develop_previews(&dir, published)).await;
+        let made =
+            tokio::task::spawn_blocking(move || develop_previews(&dir, published, make)).await;
         let record = match made {
             Ok(record) => Arc::new(record),
             Err(e) => {
@@ -68,67 +104,136 @@ pub(crate) async fn worker(shared: Arc<Shared>, mut rx: mpsc::UnboundedReceiver<
                 continue;
             }
         };
-        {
-            let mut g = shared.gallery();
-            g.records.push_front(Arc::clone(&record));
-            g.records.truncate(super::GALLERY);
+        match make {
+            Make::All => {
+                shared.gallery().file(Arc::clone(&record));
+                shared.broadcast(Event::Developed(record));
+            }
+            Make::Missing => shared.gallery().replace(record),
         }
-        shared.broadcast(Event::Developed(record));
     }
 }
 
-/// Makes the previews of one development and fills in its record's URLs.
-fn develop_previews(dir: &Path, published: Published) -> Record {
+/// Makes the previews of one development (all, or only those missing), fills in its
+/// record's URLs and keeps the record beside them as [`RECORD_FILE`].
+fn develop_previews(dir: &Path, published: Published, make: Make) -> Record {
     let Published {
         mut record,
         frame_paths,
+        pictures,
     } = published;
+    let pictures = pictures.unwrap_or_default();
     let folder = dir.join(&record.stem);
-    let id = record.id;
-    let mut previews = Vec::with_capacity(record.outputs.len());
-    for (k, (output, path)) in record
-        .outputs
-        .iter_mut()
-        .zip(&record.files.outputs)
-        .enumerate()
-    {
-        output.file = format!("/file/{id}/{k}");
-        let made = if output.look.is_some() {
-            rendering_previews(path, &folder)
-                .inspect_err(|e| warn!(error = %e, "no preview"))
-                .ok()
-        } else {
-            None
-        };
-        if made.is_some() {
-            output.preview = Some(format!("/preview/{id}/{k}"));
-            output.thumb = Some(format!("/thumb/{id}/{k}"));
+    let wanted = |target: &Path| make == Make::All || !target.is_file();
+    for (output, path) in record.outputs.iter().zip(&record.files.outputs) {
+        let (preview, thumb) = rendering_preview_paths(&folder, &output.name);
+        if output.look.is_some() && (wanted(&preview) || wanted(&thumb)) {
+            let copy = pictures.renderings.iter().find(|r| r.name == output.name);
+            let _ = match copy {
+                Some(copy) => picture(&copy.preview, path)
+                    .and_then(|large| write_previews(large, &preview, &thumb)),
+                None => rendering_previews(path, &preview, &thumb),
+            }
+            .inspect_err(|e| warn!(error = %e, "no preview"));
         }
-        previews.push(made);
     }
-    record.files.previews = previews;
-    let mut thumbs = Vec::with_capacity(frame_paths.len());
-    for (k, (frame, path)) in record.frames.iter_mut().zip(&frame_paths).enumerate() {
-        let target = folder.join(format!("frame-{k}.jpg"));
+    for (k, path) in frame_paths.iter().enumerate() {
+        let target = frame_thumb_path(&folder, k);
         // Camera raws have no quick picture to show: their frames are listed by name.
-        let made = (!crate::daemon::intake::is_raw(path))
-            .then(|| {
-                thumbnail(path, &target)
-                    .inspect_err(|e| warn!(error = %e, "no frame thumbnail"))
-                    .ok()
-            })
-            .flatten();
-        if made.is_some() {
-            frame.thumb = Some(format!("/frame/{id}/{k}"));
+        if wanted(&target) && !crate::daemon::intake::is_raw(path) {
+            let _ = match pictures.frames.get(k).and_then(Option::as_ref) {
+                Some(copy) => picture(copy, path)
+                    .and_then(|small| write_jpeg(&within(small, THUMB_EDGE), &target)),
+                None => thumbnail(path, &target),
+            }
+            .inspect_err(|e| warn!(error = %e, "no frame thumbnail"));
         }
-        thumbs.push(made);
     }
-    record.files.frames = thumbs;
+    link(&mut record, &folder);
+    keep_record(&record, &folder);
     record
 }
 
-/// Decodes the image at `path` (JPEG, PNG or TIFF), refusing oversized files.
-fn decode(path: &Path) -> Result<DynamicImage, PreviewError> {
+/// `<folder>/<name>.preview.jpg` and `<folder>/<name>.thumb.jpg`: the preview and the
+/// thumbnail of the rendering named `name`.
+fn rendering_preview_paths(folder: &Path, name: &str) -> (PathBuf, PathBuf) {
+    (
+        folder.join(format!("{name}.preview.jpg")),
+        folder.join(format!("{name}.thumb.jpg")),
+    )
+}
+
+/// `<folder>/frame-<k>.jpg`: the thumbnail of frame `k`.
+fn frame_thumb_path(folder: &Path, k: usize) -> PathBuf {
+    folder.join(format!("frame-{k}.jpg"))
+}
+
+/// Fills in `record`'s URLs and files from the previews in `folder` (those missing stay
+/// without a URL); its outputs are listed whether or not they are still there.
+pub(crate) fn link(record: &mut Record, folder: &Path) {
+    let id = record.id;
+    let mut previews = Vec::with_capacity(record.outputs.len());
+    for (k, output) in record.outputs.iter_mut().enumerate() {
+        output.file = format!("/file/{id}/{k}");
+        let (preview, thumb) = rendering_preview_paths(folder, &output.name);
+        let made = (output.look.is_some() && preview.is_file() && thumb.is_file())
+            .then_some((preview, thumb));
+        output.preview = made.as_ref().map(|_| format!("/preview/{id}/{k}"));
+        output.thumb = made.as_ref().map(|_| format!("/thumb/{id}/{k}"));
+        previews.push(made);
+    }
+    record.files.previews = previews;
+    let mut thumbs = Vec::with_capacity(record.frames.len());
+    for (k, frame) in record.frames.iter_mut().enumerate() {
+        let made = Some(frame_thumb_path(folder, k)).filter(|t| t.is_file());
+        frame.thumb = made.as_ref().map(|_| format!("/frame/{id}/{k}"));
+        thumbs.push(made);
+    }
+    record.files.frames = thumbs;
+}
+
+/// True when every preview `record` can have is linked: a preview and thumbnail per
+/// rendering, a thumbnail per frame whose file is still there and not a camera raw.
+pub(crate) fn complete(record: &Record, frame_paths: &[PathBuf]) -> bool {
+    let renderings = record
+        .outputs
+        .iter()
+        .all(|o| o.look.is_none() || o.preview.is_some());
+    let frames = record.frames.iter().zip(frame_paths).all(|(f, path)| {
+        f.thumb.is_some() || crate::daemon::intake::is_raw(path) || !path.is_file()
+    });
+    renderings && frames
+}
+
+/// Writes `record` as [`RECORD_FILE`] in `folder` (logged when it cannot be: the record
+/// is then rebuilt from the journal alone after a restart).
+fn keep_record(record: &Record, folder: &Path) {
+    let kept = serde_json::to_vec(record)
+        .map_err(|e| PublishError::Content {
+            path: folder.join(RECORD_FILE),
+            reason: e.to_string(),
+        })
+        .and_then(|bytes| {
+            create_folder(folder)?;
+            atomic::publish(&folder.join(RECORD_FILE), &bytes, Overwrite::Replace)
+        });
+    if let Err(e) = kept {
+        warn!(error = %e, "the bracket's record is not kept for a restart");
+    }
+}
+
+/// Creates `folder` and its parents.
+fn create_folder(folder: &Path) -> Result<(), PublishError> {
+    std::fs::create_dir_all(folder).map_err(|source| PublishError::Io {
+        path: folder.to_path_buf(),
+        source,
+    })
+}
+
+/// Decodes the image at `path` (JPEG, PNG or TIFF), refusing oversized files, and scales
+/// it within `edge` pixels; one encoded for Display P3 or Rec. 2020 (its ICC profile is
+/// the one filmback embeds for that space) is re-encoded for sRGB ([`to_srgb`]).
+fn decode(path: &Path, edge: u32) -> Result<DynamicImage, PreviewError> {
     let unsuitable = || PreviewError::Unsuitable {
         path: path.to_path_buf(),
     };
@@ -140,31 +245,72 @@ fn decode(path: &Path) -> Result<DynamicImage, PreviewError> {
         path: path.to_path_buf(),
         source,
     };
-    ImageReader::open(path)
+    let mut decoder = ImageReader::open(path)
         .map_err(|e| decode_error(image::ImageError::IoError(e)))?
         .with_guessed_format()
         .map_err(|e| decode_error(image::ImageError::IoError(e)))?
-        .decode()
-        .map_err(decode_error)
+        .into_decoder()
+        .map_err(decode_error)?;
+    let icc = decoder.icc_profile().ok().flatten();
+    let picture = within(
+        DynamicImage::from_decoder(decoder).map_err(decode_error)?,
+        edge,
+    );
+    let wide = [ColourSpace::DisplayP3, ColourSpace::Rec2020]
+        .into_iter()
+        .find(|s| icc.as_deref() == Some(s.icc_profile()));
+    Ok(match wide {
+        Some(space) => DynamicImage::ImageRgb8(to_srgb(picture.to_rgb8(), space)),
+        None => picture,
+    })
 }
 
-/// A rendering's preview and thumbnail, `<name>.preview.jpg` and `<name>.thumb.jpg` in
-/// `folder`.
-fn rendering_previews(path: &Path, folder: &Path) -> Result<(PathBuf, PathBuf), PreviewError> {
-    let picture = decode(path)?;
-    let name = file_name(path);
-    let preview = folder.join(format!("{name}.preview.jpg"));
-    let thumb = folder.join(format!("{name}.thumb.jpg"));
+/// `picture`, 8-bit codes for `space`, re-encoded for sRGB: each decoded to linear light
+/// by the space's transfer function, taken to Rec. 709 primaries
+/// ([`crate::radiance::Gamut::matrix_to`]), clamped to `[0, 1]` and sRGB-encoded.
+fn to_srgb(mut picture: image::RgbImage, space: ColourSpace) -> image::RgbImage {
+    let m = space
+        .gamut()
+        .matrix_to(crate::radiance::Gamut::REC709)
+        .map(|row| row.map(|v| v as f32));
+    let linear: Vec<f32> = (0..=255u8)
+        .map(|v| space.decode(f32::from(v) / 255.0))
+        .collect();
+    for px in picture.pixels_mut() {
+        let l = px.0.map(|v| linear[usize::from(v)]);
+        px.0 = m.map(|row| {
+            let v = row[0] * l[0] + row[1] * l[1] + row[2] * l[2];
+            (ColourSpace::Srgb.encode(v) * 255.0).round() as u8
+        });
+    }
+    picture
+}
+
+/// A rendering's preview (long edge [`PREVIEW_EDGE`]) at `preview` and its thumbnail
+/// (long edge [`THUMB_EDGE`]) at `thumb`, decoded from its file.
+fn rendering_previews(path: &Path, preview: &Path, thumb: &Path) -> Result<(), PreviewError> {
+    write_previews(decode(path, PREVIEW_EDGE)?, preview, thumb)
+}
+
+/// `picture` within [`PREVIEW_EDGE`] at `preview` and within [`THUMB_EDGE`] at `thumb`.
+fn write_previews(picture: DynamicImage, preview: &Path, thumb: &Path) -> Result<(), PreviewError> {
     let large = within(picture, PREVIEW_EDGE);
-    write_jpeg(&large, &preview)?;
-    write_jpeg(&within(large, THUMB_EDGE), &thumb)?;
-    Ok((preview, thumb))
+    write_jpeg(&large, preview)?;
+    write_jpeg(&within(large, THUMB_EDGE), thumb)
+}
+
+/// The lab's copy of the picture in the file at `path` as an image.
+fn picture(copy: &Preview, path: &Path) -> Result<DynamicImage, PreviewError> {
+    image::RgbImage::from_raw(copy.width, copy.height, copy.rgb.clone())
+        .map(DynamicImage::ImageRgb8)
+        .ok_or_else(|| PreviewError::Unsuitable {
+            path: path.to_path_buf(),
+        })
 }
 
 /// A frame's thumbnail at `target`.
-fn thumbnail(path: &Path, target: &Path) -> Result<PathBuf, PreviewError> {
-    write_jpeg(&within(decode(path)?, THUMB_EDGE), target)?;
-    Ok(target.to_path_buf())
+fn thumbnail(path: &Path, target: &Path) -> Result<(), PreviewError> {
+    write_jpeg(&decode(path, THUMB_EDGE)?, target)
 }
 
 /// `picture` scaled down to a long edge of `edge` pixels (aspect kept), or as it is when
@@ -188,11 +334,57 @@ fn write_jpeg(picture: &DynamicImage, path: &Path) -> Result<(), PreviewError> {
             source,
         })?;
     if let Some(parent) = path.parent() {
-        std::fs::create_dir_all(parent).map_err(|source| PublishError::Io {
-            path: parent.to_path_buf(),
-            source,
-        })?;
+        create_folder(parent)?;
     }
     atomic::publish(path, &bytes, Overwrite::Replace)?;
     Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::display::DisplayImage;
+    use crate::rendering::{Format, SourceExif};
+
+    /// A JPEG of saturated red, orange and grey encoded for `space` with its profile, as
+    /// a rendering for it is written.
+    fn written_for(space: ColourSpace, dir: &Path) -> PathBuf {
+        let srgb: Vec<u8> = [[255, 0, 0], [230, 140, 20], [128, 128, 128]]
+            .iter()
+            .flat_map(|px| std::iter::repeat_n(*px, 64 * 16).flatten())
+            .collect();
+        let image = DisplayImage::new_8bit(64, 48, srgb).in_space(space);
+        let mut bytes = Vec::new();
+        let format = Format::Jpeg { quality: 98 };
+        crate::rendering::encode(&image, format, &SourceExif::default(), &mut bytes).unwrap();
+        let path = dir.join(format!("{}.jpg", space.name()));
+        std::fs::write(&path, bytes).unwrap();
+        path
+    }
+
+    #[test]
+    fn wide_gamut_renderings_are_previewed_in_srgb() {
+        let dir = tempfile::tempdir().unwrap();
+        for space in ColourSpace::ALL {
+            let path = written_for(space, dir.path());
+            let preview = decode(&path, PREVIEW_EDGE).unwrap().to_rgb8();
+            let raw = image::open(&path).unwrap().to_rgb8();
+            for (y, want) in [
+                (8, [255, 0, 0]),
+                (24, [230, 140, 20]),
+                (40, [128, 128, 128]),
+            ] {
+                let got = preview.get_pixel(32, y).0;
+                let off = got.iter().zip(want).map(|(a, b)| a.abs_diff(b)).max();
+                assert!(off <= Some(4), "{space:?} row {y}: {got:?} for {want:?}");
+            }
+            // The file's own codes are not sRGB's, but for sRGB itself.
+            let red = raw.get_pixel(32, 8).0;
+            assert_eq!(
+                space == ColourSpace::Srgb,
+                red[1] < 10,
+                "{space:?}: {red:?}"
+            );
+        }
+    }
 }
