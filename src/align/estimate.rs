@@ -226,7 +226,7 @@ pub(super) struct Pyramid {
     blocks: Blocks,
 }
 
-/// What a block of the finest level saw, besides well-exposed pixels.
+/// What the pixels of a block of the finest level saw.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 enum Tone {
     /// Every pixel well exposed.
