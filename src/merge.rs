@@ -1403,6 +1403,124 @@ fn count_clipped_masked(codes: &Codes<'_>, tables: &Tables, masks: &[Option<&[u8
     }
 }
 
+/// Whether a pixel of a [`ClipMap`] was exposed well by some frame.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Clip {
+    /// Some frame exposed it well.
+    Measured,
+    /// Clipped high in every frame (a lower bound of its radiance).
+    High,
+    /// Clipped low in every frame, and not high (an upper bound).
+    Low,
+}
+
+/// Where no frame of a bracket exposed the scene well, at a reduced size.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct ClipMap {
+    /// Width, pixels.
+    pub width: u32,
+    /// Height, pixels.
+    pub height: u32,
+    /// Per pixel, rows top down.
+    pub clips: Vec<Clip>,
+}
+
+impl ClipMap {
+    /// True when some pixel is clipped in every frame.
+    pub fn any(&self) -> bool {
+        self.clips.iter().any(|&c| c != Clip::Measured)
+    }
+}
+
+/// Where the merge of `frames` through `response` under `weighting` had no well-exposed
+/// frame (the "clipped everywhere" rule of the module docs, without deghosting's masks),
+/// within `edge` pixels: the frame reduced by `f = ⌈long edge / edge⌉`, each map pixel
+/// covering `f × f` frame pixels of which every `⌈f/4⌉`-th of each row and column is read.
+/// A frame pixel is [`Clip::High`] when one of its samples is clipped high in every frame,
+/// else [`Clip::Low`] when one is clipped low in every frame; a map pixel takes the class
+/// of at least half of the pixels it read (high first), else [`Clip::Measured`].
+pub fn clip_map(
+    frames: &[BracketFrame<'_>],
+    response: &InverseResponse,
+    weighting: Weighting,
+    edge: u32,
+) -> Result<ClipMap, MergeError> {
+    check(frames, response)?;
+    let (order, exposures) = exposure_order(frames);
+    let first = frames[0].frame;
+    let tables = Tables::new(
+        &exposures,
+        response,
+        first.channels(),
+        first.bit_depth(),
+        weighting,
+    );
+    let (width, height) = (first.width() as usize, first.height() as usize);
+    let f = width.max(height).div_ceil(edge.max(1) as usize).max(1);
+    Ok(match Codes::of(frames, &order) {
+        Codes::Eight(c) => reduce_clips(&c, &tables, width, height, f),
+        Codes::Sixteen(c) => reduce_clips(&c, &tables, width, height, f),
+    })
+}
+
+/// [`clip_map`] on the codes, darkest frame first, reduced by `f`.
+fn reduce_clips<T: Copy + Into<usize> + Sync>(
+    frames: &[&[T]],
+    tables: &Tables,
+    width: usize,
+    height: usize,
+    f: usize,
+) -> ClipMap {
+    let channels = tables.channels;
+    let zero =
+        |k: usize, c: usize, code: T| tables.weighted[tables.index(k, c, code.into())][0] == 0.0;
+    let clip_of = |pixel: usize| {
+        let mut low = false;
+        for c in 0..channels {
+            let i = pixel * channels + c;
+            if (0..tables.frames).all(|k| zero(k, c, frames[k][i])) {
+                if frames[0][i].into() >= tables.levels / 2 {
+                    return Clip::High;
+                }
+                low = true;
+            }
+        }
+        if low { Clip::Low } else { Clip::Measured }
+    };
+    let (map_w, map_h) = (width.div_ceil(f), height.div_ceil(f));
+    let stride = f.div_ceil(4);
+    let clips = (0..map_h)
+        .into_par_iter()
+        .flat_map_iter(|my| {
+            (0..map_w).map(move |mx| {
+                let (mut high, mut low, mut read) = (0usize, 0usize, 0usize);
+                for y in (my * f..((my + 1) * f).min(height)).step_by(stride) {
+                    for x in (mx * f..((mx + 1) * f).min(width)).step_by(stride) {
+                        read += 1;
+                        match clip_of(y * width + x) {
+                            Clip::High => high += 1,
+                            Clip::Low => low += 1,
+                            Clip::Measured => {}
+                        }
+                    }
+                }
+                if high > 0 && 2 * high >= read {
+                    Clip::High
+                } else if low > 0 && 2 * low >= read {
+                    Clip::Low
+                } else {
+                    Clip::Measured
+                }
+            })
+        })
+        .collect();
+    ClipMap {
+        width: map_w as u32,
+        height: map_h as u32,
+        clips,
+    }
+}
+
 /// Samples clipped high and low in every frame (every weight zero, the rule of
 /// `estimate`): the darkest frame's code decides most samples, the brightest's most of
 /// the rest, the others are read only where both are clipped.
@@ -1505,6 +1623,39 @@ mod tests {
             (1, 1)
         );
         assert_eq!(merged.confidence.unwrap(), vec![0.0, 0.0]);
+    }
+
+    /// An 8 × 4 bracket whose left half is clipped high in both frames, top right
+    /// quarter clipped low in both and bottom right exposed well in one: reduced to 4 × 2
+    /// (each map pixel two by two frame pixels), and to 1 × 1 (more high than not).
+    #[test]
+    fn the_clip_map_shows_where_no_frame_exposed_well() {
+        let cam = Camera::default();
+        let codes = |right_bottom: u8| -> Vec<u8> {
+            (0..4)
+                .flat_map(|y| (0..8).map(move |x| (x, y)))
+                .map(|(x, y)| match (x < 4, y < 2) {
+                    (true, _) => 255,
+                    (false, true) => 0,
+                    (false, false) => right_bottom,
+                })
+                .collect()
+        };
+        let frames = [(grey(8, codes(0)), 1.0), (grey(8, codes(128)), 4.0)];
+        let b = bracket(&frames, &cam);
+        let map = clip_map(&b, &linear(), Weighting::Hat, 4).unwrap();
+        assert_eq!((map.width, map.height), (4, 2));
+        use Clip::{High, Low, Measured};
+        assert_eq!(
+            map.clips,
+            vec![High, High, Low, Low, High, High, Measured, Measured]
+        );
+        assert!(map.any());
+        let one = clip_map(&b, &linear(), Weighting::Hat, 1).unwrap();
+        assert_eq!(one.clips, vec![High]);
+        let measured = [(grey(8, vec![128; 32]), 1.0), (grey(8, vec![200; 32]), 4.0)];
+        let none = clip_map(&bracket(&measured, &cam), &linear(), Weighting::Hat, 4).unwrap();
+        assert!(!none.any());
     }
 
     #[test]

@@ -212,6 +212,20 @@ fn a_bracket_reaches_the_event_stream_previews_and_metrics() {
     );
     let thumb = record["frames"][0]["thumb"].as_str().unwrap();
     assert_eq!(get(address, thumb).status, 200);
+    // What no frame exposed well (the scene's sun) as an overlay of the preview's shape.
+    assert!(record["facts"]["clipped_everywhere"].as_f64().unwrap() > 0.0);
+    let overlay = get(address, record["clipped"].as_str().expect("an overlay"));
+    assert_eq!(overlay.status, 200);
+    assert_eq!(overlay.headers["content-type"], "image/png");
+    let overlay = image::load_from_memory(&overlay.body).unwrap().to_rgba8();
+    let (w, h) = overlay.dimensions();
+    assert!(w.max(h) <= filmback::darkroom::CLIP_MAP_EDGE, "{w}×{h}");
+    assert!((f64::from(w) / f64::from(h) - f64::from(rig::W) / f64::from(rig::H)).abs() < 0.05);
+    let marked = overlay.pixels().filter(|p| p.0[3] > 0).count();
+    assert!(
+        marked > 0 && marked < (w * h) as usize / 2,
+        "{marked} of {w}×{h} marked"
+    );
     let metrics = get(address, "/metrics");
     assert_eq!(metrics.status, 200);
     let text = String::from_utf8(metrics.body).unwrap();
@@ -694,6 +708,13 @@ fn the_page_in_chromium_shows_a_new_bracket_without_reload() {
         serde_json::json!({ "type": "keyDown", "key": "ArrowLeft", "code": "ArrowLeft", "windowsVirtualKeyCode": 37 }),
     );
     browser.wait("(() => { const i = document.getElementById('shot'); return i.alt.includes('velvia50') && i.complete && i.naturalWidth === 480; })()");
+    // C overlays what no frame exposed well, and hides it again.
+    let key_c = serde_json::json!({ "type": "keyDown", "key": "c", "code": "KeyC", "windowsVirtualKeyCode": 67 });
+    browser.wait("(() => { const m = document.getElementById('clipmap'); return m.hidden && !!m.getAttribute('src'); })()");
+    browser.call("Input.dispatchKeyEvent", key_c.clone());
+    browser.wait("(() => { const m = document.getElementById('clipmap'); return !m.hidden && m.complete && m.naturalWidth > 0 && m.getBoundingClientRect().width > 400; })()");
+    browser.call("Input.dispatchKeyEvent", key_c);
+    browser.wait("document.getElementById('clipmap').hidden");
     // The other views: the body's curve drawn from the cache, the daemon's counts.
     browser.eval("document.querySelector('nav button[data-view=cameras]').click()");
     browser.wait("document.querySelectorAll('#cameras canvas').length === 1 && document.getElementById('cameras').textContent.includes('Studio Cam')");

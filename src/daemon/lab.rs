@@ -36,7 +36,7 @@ use crate::darkroom::{
 use crate::film::{Catalogue, ColourMode, Key};
 use crate::frame::{self, Limits, LoadedFrame, Samples};
 use crate::hdr_output::ExrOptions;
-use crate::merge::MergeOptions;
+use crate::merge::{ClipMap, MergeOptions};
 use crate::radiance::RadianceMap;
 use crate::rendering::{self, Format, Look, Preview, Shrink, SourceExif};
 use crate::response::pool::{self, Evidence};
@@ -108,6 +108,9 @@ pub struct Pictures {
     /// Per frame of the job, in its order, its copy of long edge at most [`THUMB_EDGE`]
     /// (`None` for a camera raw); empty when the frames developed are not the job's.
     pub frames: Vec<Option<Preview>>,
+    /// Where no frame exposed the scene well, for a bracket of JPEG, PNG or TIFF frames
+    /// ([`darkroom::Developed::clip_map`]).
+    pub clipped: Option<ClipMap>,
 }
 
 /// A rendering's small copy.
@@ -419,7 +422,11 @@ fn pictures(
     } else {
         Vec::new()
     };
-    Pictures { renderings, frames }
+    Pictures {
+        renderings,
+        frames,
+        clipped: developed.clip_map.take(),
+    }
 }
 
 /// A frame's copy of long edge at most `edge`, for any frame but a camera raw (its

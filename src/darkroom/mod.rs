@@ -209,7 +209,15 @@ pub struct Developed {
     /// Per look of [`Prints::looks`], in order, its small sRGB copy when
     /// [`Prints::preview_edge`] asked for them (empty otherwise).
     pub previews: Vec<rendering::Preview>,
+    /// Where no frame exposed the scene well ([`merge::clip_map`], long edge
+    /// [`CLIP_MAP_EDGE`]), when [`Prints::preview_edge`] asked for previews; `None` for a
+    /// single frame and a camera raw bracket.
+    pub clip_map: Option<merge::ClipMap>,
 }
+
+/// Long edge, pixels, of [`Developed::clip_map`]: an overlay on a preview, read at about
+/// 16 frame pixels per map pixel.
+pub const CLIP_MAP_EDGE: u32 = 400;
 
 /// What deghosting did to a bracket.
 #[derive(Debug, Clone, PartialEq, serde::Serialize)]
@@ -336,6 +344,7 @@ pub fn develop(
     let mut ghosts = None;
     // The moved frames resampled onto the reference grid; they outlive the merge.
     let warped: Vec<Option<Frame>>;
+    let mut clip_map = None;
     let (chosen, merged, alignment) = match raw_merged {
         Some((chosen, m, alignment)) => {
             weighting = RAW_WEIGHTING.to_string();
@@ -354,6 +363,11 @@ pub fn develop(
             }
             let t = Instant::now();
             let merged = merge_bracket(&bracket, &chosen, options, prints, ghosts.as_ref())?;
+            if prints.preview_edge.is_some() {
+                clip_map =
+                    merge::clip_map(&bracket, &chosen.response, options.weighting, CLIP_MAP_EDGE)
+                        .ok();
+            }
             stages.push(("merge", t.elapsed()));
             (chosen, merged, alignment)
         }
@@ -479,6 +493,7 @@ pub fn develop(
         raw_radiance,
         deghost: deghosted,
         previews,
+        clip_map,
     })
 }
 
@@ -792,6 +807,7 @@ pub fn develop_single(
         raw_radiance,
         deghost: None,
         previews: rendered.previews,
+        clip_map: None,
     })
 }
 

@@ -134,6 +134,10 @@ pub(crate) struct Record {
     pub confidence: Option<f64>,
     /// What the development measured (clipped share, alignment, deghosting).
     pub facts: super::Facts,
+    /// URL of the overlay (a PNG at most [`crate::darkroom::CLIP_MAP_EDGE`] px, the
+    /// preview's shape) marking what no frame exposed well, when some part was not.
+    #[serde(default)]
+    pub clipped: Option<String>,
     /// Wall time per stage, milliseconds, in order.
     pub stages: Vec<(String, f64)>,
     /// Wall time of the whole development, milliseconds.
@@ -174,6 +178,8 @@ pub(crate) struct Files {
     pub previews: Vec<Option<(PathBuf, PathBuf)>>,
     /// Per frame, its thumbnail when made.
     pub frames: Vec<Option<PathBuf>>,
+    /// The overlay of what no frame exposed well, when made.
+    pub clipped: Option<PathBuf>,
 }
 
 /// A development handed to the station, before its previews exist.
@@ -385,6 +391,7 @@ pub(crate) fn record_of(
         response: dev.source.to_string(),
         confidence: dev.fit.as_ref().map(|(_, c)| *c),
         facts: dev.facts.clone(),
+        clipped: None,
         stages: dev
             .stages
             .iter()

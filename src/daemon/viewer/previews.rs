@@ -7,13 +7,14 @@ use std::collections::VecDeque;
 use std::path::{Path, PathBuf};
 use std::sync::Arc;
 
-use image::{DynamicImage, ImageDecoder, ImageReader};
+use image::{DynamicImage, ImageDecoder, ImageEncoder, ImageReader};
 use tokio::sync::mpsc::{self, error::TryRecvError};
 use tracing::warn;
 
 use super::{Event, PREVIEW_FOLDER, Published, Record, Shared};
 use crate::atomic::{self, Overwrite, PublishError};
 use crate::display::ColourSpace;
+use crate::merge::{Clip, ClipMap};
 use crate::rendering::Preview;
 
 /// Long edge of a rendering's preview, pixels.
@@ -149,9 +150,68 @@ fn develop_previews(dir: &Path, published: Published, make: Make) -> Record {
             .inspect_err(|e| warn!(error = %e, "no frame thumbnail"));
         }
     }
+    let overlay = clip_overlay_path(&folder);
+    match pictures.clipped.as_ref().filter(|map| map.any()) {
+        Some(map) if wanted(&overlay) => {
+            let _ = write_clip_overlay(map, &overlay)
+                .inspect_err(|e| warn!(error = %e, "no overlay of what was clipped"));
+        }
+        Some(_) => {}
+        // A development again that clipped nothing must not show the last one's overlay.
+        None if make == Make::All => remove_stale(&overlay),
+        None => {}
+    }
     link(&mut record, &folder);
     keep_record(&record, &folder);
     record
+}
+
+/// `<folder>/clipped.png`: the overlay of what no frame exposed well.
+fn clip_overlay_path(folder: &Path) -> PathBuf {
+    folder.join("clipped.png")
+}
+
+/// Colours of the overlay, RGBA: clipped high in every frame (warm), low (cool).
+const CLIPPED_HIGH: [u8; 4] = [255, 40, 40, 170];
+const CLIPPED_LOW: [u8; 4] = [40, 110, 255, 170];
+
+/// Publishes `map` at `path` as an RGBA PNG, transparent where some frame exposed well.
+fn write_clip_overlay(map: &ClipMap, path: &Path) -> Result<(), PreviewError> {
+    let pixels: Vec<u8> = map
+        .clips
+        .iter()
+        .flat_map(|clip| match clip {
+            Clip::High => CLIPPED_HIGH,
+            Clip::Low => CLIPPED_LOW,
+            Clip::Measured => [0; 4],
+        })
+        .collect();
+    let mut bytes = Vec::new();
+    image::codecs::png::PngEncoder::new(&mut bytes)
+        .write_image(
+            &pixels,
+            map.width,
+            map.height,
+            image::ExtendedColorType::Rgba8,
+        )
+        .map_err(|source| PreviewError::Encode {
+            path: path.to_path_buf(),
+            source,
+        })?;
+    if let Some(parent) = path.parent() {
+        create_folder(parent)?;
+    }
+    atomic::publish(path, &bytes, Overwrite::Replace)?;
+    Ok(())
+}
+
+/// Removes a preview file left by an earlier development (logged unless it is absent).
+fn remove_stale(path: &Path) {
+    if let Err(e) = std::fs::remove_file(path)
+        && e.kind() != std::io::ErrorKind::NotFound
+    {
+        warn!(path = %path.display(), error = %e, "an earlier overlay could not be removed");
+    }
 }
 
 /// `<folder>/<name>.preview.jpg` and `<folder>/<name>.thumb.jpg`: the preview and the
@@ -190,6 +250,9 @@ pub(crate) fn link(record: &mut Record, folder: &Path) {
         thumbs.push(made);
     }
     record.files.frames = thumbs;
+    let overlay = Some(clip_overlay_path(folder)).filter(|p| p.is_file());
+    record.clipped = overlay.as_ref().map(|_| format!("/clipped/{id}"));
+    record.files.clipped = overlay;
 }
 
 /// True when every preview `record` can have is linked: a preview and thumbnail per

@@ -141,6 +141,7 @@ fn restore(entry: &Entry, dir: &Path) -> Option<Published> {
             response,
             confidence: None,
             facts: crate::daemon::Facts::default(),
+            clipped: None,
             stages: Vec::new(),
             total_ms: 0.0,
             notes: vec![FROM_JOURNAL.to_string()],

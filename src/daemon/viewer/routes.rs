@@ -52,6 +52,7 @@ pub(crate) fn router(shared: Arc<Shared>) -> Router {
         .route("/preview/{id}/{k}", get(preview))
         .route("/thumb/{id}/{k}", get(thumb))
         .route("/frame/{id}/{k}", get(frame))
+        .route("/clipped/{id}", get(clipped))
         .route("/redo/{id}", post(redo))
         .layer(
             ServiceBuilder::new()
@@ -245,6 +246,7 @@ enum Print {
     Preview,
     Thumb,
     Frame,
+    Clipped,
 }
 
 /// The file numbered `k` of the record numbered `id`, if both exist; the numbers come
@@ -259,6 +261,7 @@ fn file_of(shared: &Shared, id: &str, k: &str, print: Print) -> Option<PathBuf> 
         Print::Preview => files.previews.get(k)?.as_ref().map(|(p, _)| p.clone()),
         Print::Thumb => files.previews.get(k)?.as_ref().map(|(_, t)| t.clone()),
         Print::Frame => files.frames.get(k)?.clone(),
+        Print::Clipped => files.clipped.clone(),
     }
 }
 
@@ -278,13 +281,21 @@ async fn frame(s: State<Arc<Shared>>, p: UrlPath<(String, String)>) -> Response 
     serve(s, p, Print::Frame).await
 }
 
-/// Streams a listed file (previews are small; a full EXR is not read whole).
+async fn clipped(State(shared): State<Arc<Shared>>, UrlPath(id): UrlPath<String>) -> Response {
+    send(file_of(&shared, &id, "0", Print::Clipped), Print::Clipped).await
+}
+
 async fn serve(
     State(shared): State<Arc<Shared>>,
     UrlPath((id, k)): UrlPath<(String, String)>,
     print: Print,
 ) -> Response {
-    let Some(path) = file_of(&shared, &id, &k, print) else {
+    send(file_of(&shared, &id, &k, print), print).await
+}
+
+/// Streams a listed file (previews are small; a full EXR is not read whole).
+async fn send(path: Option<PathBuf>, print: Print) -> Response {
+    let Some(path) = path else {
         return StatusCode::NOT_FOUND.into_response();
     };
     let Ok(file) = tokio::fs::File::open(&path).await else {
