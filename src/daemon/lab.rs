@@ -103,10 +103,11 @@ pub struct Processed {
 /// held in memory, from which the viewer makes its previews without decoding a file.
 #[derive(Debug, Clone, Default)]
 pub struct Pictures {
-    /// Per rendering, its copy of long edge at most [`PREVIEW_EDGE`].
+    /// Per rendering, its copy of long edge at most the viewer's preview edge (1600 px).
     pub renderings: Vec<Pictured>,
-    /// Per frame of the job, in its order, its copy of long edge at most [`THUMB_EDGE`]
-    /// (`None` for a camera raw); empty when the frames developed are not the job's.
+    /// Per frame of the job, in its order, its copy of long edge at most the viewer's
+    /// thumbnail edge (256 px) (`None` for a camera raw); empty when the frames developed
+    /// are not the job's.
     pub frames: Vec<Option<Preview>>,
     /// Where no frame exposed the scene well, for a bracket of JPEG, PNG or TIFF frames
     /// ([`darkroom::Developed::clip_map`]).
