@@ -186,18 +186,26 @@ fn write_clip_overlay(map: &ClipMap, path: &Path) -> Result<(), PreviewError> {
             Clip::Measured => [0; 4],
         })
         .collect();
-    let mut bytes = Vec::new();
-    image::codecs::png::PngEncoder::new(&mut bytes)
-        .write_image(
+    publish_encoded(path, |bytes| {
+        image::codecs::png::PngEncoder::new(bytes).write_image(
             &pixels,
             map.width,
             map.height,
             image::ExtendedColorType::Rgba8,
         )
-        .map_err(|source| PreviewError::Encode {
-            path: path.to_path_buf(),
-            source,
-        })?;
+    })
+}
+
+/// Encodes a preview with `encode` and publishes it at `path`, creating its folder.
+fn publish_encoded(
+    path: &Path,
+    encode: impl FnOnce(&mut Vec<u8>) -> Result<(), image::ImageError>,
+) -> Result<(), PreviewError> {
+    let mut bytes = Vec::new();
+    encode(&mut bytes).map_err(|source| PreviewError::Encode {
+        path: path.to_path_buf(),
+        source,
+    })?;
     if let Some(parent) = path.parent() {
         create_folder(parent)?;
     }
@@ -389,18 +397,9 @@ fn within(picture: DynamicImage, edge: u32) -> DynamicImage {
 /// Encodes `picture` as an 8-bit sRGB JPEG of [`QUALITY`] and publishes it at `path`.
 fn write_jpeg(picture: &DynamicImage, path: &Path) -> Result<(), PreviewError> {
     let rgb = picture.to_rgb8();
-    let mut bytes = Vec::new();
-    image::codecs::jpeg::JpegEncoder::new_with_quality(&mut bytes, QUALITY)
-        .encode_image(&rgb)
-        .map_err(|source| PreviewError::Encode {
-            path: path.to_path_buf(),
-            source,
-        })?;
-    if let Some(parent) = path.parent() {
-        create_folder(parent)?;
-    }
-    atomic::publish(path, &bytes, Overwrite::Replace)?;
-    Ok(())
+    publish_encoded(path, |bytes| {
+        image::codecs::jpeg::JpegEncoder::new_with_quality(bytes, QUALITY).encode_image(&rgb)
+    })
 }
 
 #[cfg(test)]
