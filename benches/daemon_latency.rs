@@ -24,31 +24,7 @@ use filmback::daemon::{self, Control, DarkroomLab, Job, Lab};
 use filmback::metadata;
 use filmback::synthetic::demo;
 
-fn arg(name: &str, default: u32) -> u32 {
-    let args: Vec<String> = std::env::args().collect();
-    args.iter()
-        .position(|a| a == name)
-        .and_then(|i| args.get(i + 1))
-        .and_then(|v| v.parse().ok())
-        .unwrap_or(default)
-}
-
-/// Seconds of CPU (user + system) this process has used, from `/proc/self/stat`.
-fn cpu_seconds() -> f64 {
-    let stat = std::fs::read_to_string("/proc/self/stat").unwrap_or_default();
-    let fields: Vec<&str> = stat
-        .rsplit(')')
-        .next()
-        .unwrap_or("")
-        .split_whitespace()
-        .collect();
-    // Fields 14 and 15 of stat(5) are utime and stime; after the ')' they are 12th, 13th.
-    let ticks: f64 = fields
-        .get(11..13)
-        .map(|f| f.iter().filter_map(|v| v.parse::<f64>().ok()).sum())
-        .unwrap_or(0.0);
-    ticks / 100.0
-}
+mod common;
 
 fn peak_rss_mib() -> u64 {
     std::fs::read_to_string("/proc/self/status")
@@ -94,8 +70,8 @@ fn wait_for(paths: &[PathBuf], timeout: Duration) -> Duration {
 }
 
 fn main() {
-    let mp = arg("--mp", 24);
-    let stream = arg("--stream", 6) as usize;
+    let mp = common::arg_or("--mp", 24_u32);
+    let stream = common::arg_or("--stream", 6_u32) as usize;
     let (w, h) = if mp >= 24 {
         (6000u32, 4000u32)
     } else {
@@ -252,7 +228,7 @@ fn main() {
             (name, files)
         })
         .collect();
-    let cpu0 = cpu_seconds();
+    let cpu0 = common::cpu_seconds().unwrap_or(0.0);
     let t = Instant::now();
     for (_, files) in &staged {
         for (tmp, dest) in files {
@@ -263,7 +239,7 @@ fn main() {
         wait_for(&outputs(name), Duration::from_secs(600));
     }
     let wall = t.elapsed().as_secs_f64();
-    let cpu = cpu_seconds() - cpu0;
+    let cpu = common::cpu_seconds().unwrap_or(0.0) - cpu0;
     let cores = std::thread::available_parallelism().map_or(1, |n| n.get());
     println!(
         "stream: {stream} pairs in {wall:.1} s = {:.1} brackets/min; CPU {:.2} cores busy of {cores} ({:.0} %); jobs = {}",

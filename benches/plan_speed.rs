@@ -16,14 +16,7 @@ use filmback::daemon::config::Config;
 use filmback::farm::{PlanOptions, write_plan};
 use filmback::synthetic::demo;
 
-fn arg(name: &str, default: u32) -> u32 {
-    let args: Vec<String> = std::env::args().collect();
-    args.iter()
-        .position(|a| a == name)
-        .and_then(|i| args.get(i + 1))
-        .and_then(|v| v.parse().ok())
-        .unwrap_or(default)
-}
+mod common;
 
 /// Writes `frames` JPEGs into `dir`: three-frame brackets 11 s apart (the default gap is
 /// 10 s), bodies alternating, the remainder as singles.
@@ -46,8 +39,8 @@ fn archive(dir: &Path, frames: u32, size: u32) {
 }
 
 fn main() {
-    let frames = arg("--frames", 10_000);
-    let size = arg("--size", 32);
+    let frames = common::arg_or("--frames", 10_000_u32);
+    let size = common::arg_or("--size", 32_u32);
     let dir = tempfile::tempdir().expect("temporary folder");
     let ingest = dir.path().join("archive");
     let t = Instant::now();

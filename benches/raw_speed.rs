@@ -34,14 +34,7 @@ use filmback::response::RatioSource;
 use filmback::synthetic::{self, RawSensor, Shot, demo};
 use rayon::prelude::*;
 
-fn arg(name: &str, default: f64) -> f64 {
-    let args: Vec<String> = std::env::args().collect();
-    args.iter()
-        .position(|a| a == name)
-        .and_then(|i| args.get(i + 1))
-        .and_then(|v| v.parse().ok())
-        .unwrap_or(default)
-}
+mod common;
 
 fn peak_rss_mib() -> f64 {
     std::fs::read_to_string("/proc/self/status")
@@ -52,26 +45,9 @@ fn peak_rss_mib() -> f64 {
         .map_or(f64::NAN, |kb| kb / 1024.0)
 }
 
-/// CPU time of the process so far (user + system, all threads) in seconds, from
-/// `/proc/self/stat` (clock ticks of 1/100 s): less moved by other processes on a shared
-/// machine than wall time.
-fn cpu_seconds() -> f64 {
-    let stat = std::fs::read_to_string("/proc/self/stat").unwrap_or_default();
-    // Fields after the command name in parentheses; utime and stime are the 14th and 15th
-    // of the line, the 12th and 13th after it.
-    let fields: Vec<&str> = stat
-        .rsplit_once(')')
-        .map_or(Vec::new(), |(_, rest)| rest.split_whitespace().collect());
-    let ticks = |i: usize| fields.get(i).and_then(|v| v.parse::<f64>().ok());
-    match (ticks(11), ticks(12)) {
-        (Some(user), Some(system)) => (user + system) / 100.0,
-        _ => f64::NAN,
-    }
-}
-
 fn main() {
-    let mp = arg("--mp", 24.0);
-    let runs = arg("--runs", 3.0).max(1.0) as usize;
+    let mp = common::arg_or("--mp", 24.0_f64);
+    let runs = common::arg_or("--runs", 3.0_f64).max(1.0) as usize;
     let height = ((mp * 1e6 / 1.5).sqrt() as u32) & !1;
     let width = ((f64::from(height) * 1.5) as u32) & !1;
     let dir = tempfile::tempdir().expect("temporary folder");
@@ -136,14 +112,14 @@ fn main() {
             .collect()
     };
     let mut decode = Duration::MAX;
-    let cpu = cpu_seconds();
+    let cpu = common::cpu_seconds().unwrap_or(0.0);
     for _ in 0..runs {
         let t = Instant::now();
         let frames = load();
         decode = decode.min(t.elapsed());
         drop(frames);
     }
-    let decode_cpu = (cpu_seconds() - cpu) / runs as f64;
+    let decode_cpu = (common::cpu_seconds().unwrap_or(0.0) - cpu) / runs as f64;
 
     let out = dir.path().join("out");
     std::fs::create_dir_all(&out).expect("out folder");
@@ -163,7 +139,7 @@ fn main() {
     };
     let mut full = Duration::MAX;
     let mut stages = Vec::new();
-    let cpu = cpu_seconds();
+    let cpu = common::cpu_seconds().unwrap_or(0.0);
     for _ in 0..runs {
         let t = Instant::now();
         let frames = load();
@@ -186,7 +162,7 @@ fn main() {
             stages = developed.stages;
         }
     }
-    let full_cpu = (cpu_seconds() - cpu) / runs as f64;
+    let full_cpu = (common::cpu_seconds().unwrap_or(0.0) - cpu) / runs as f64;
     let cfa = Cfa {
         width: 2,
         height: 2,
@@ -197,16 +173,16 @@ fn main() {
     let (mut ours, mut ours_cpu) = (Duration::MAX, 0.0);
     let (mut theirs, mut theirs_cpu) = (Duration::MAX, 0.0);
     for _ in 0..runs {
-        let (t, cpu) = (Instant::now(), cpu_seconds());
+        let (t, cpu) = (Instant::now(), common::cpu_seconds().unwrap_or(0.0));
         let (rgb, _) = demosaic::demosaic(&mosaic, &cfa, gains, &matrix);
         ours = ours.min(t.elapsed());
-        ours_cpu += cpu_seconds() - cpu;
+        ours_cpu += common::cpu_seconds().unwrap_or(0.0) - cpu;
         drop(rgb);
         let m = mosaic.clone();
-        let (t, cpu) = (Instant::now(), cpu_seconds());
+        let (t, cpu) = (Instant::now(), common::cpu_seconds().unwrap_or(0.0));
         let rgb = rawler_ppg(m, &cfa, gains, &matrix);
         theirs = theirs.min(t.elapsed());
-        theirs_cpu += cpu_seconds() - cpu;
+        theirs_cpu += common::cpu_seconds().unwrap_or(0.0) - cpu;
         drop(rgb);
     }
     println!(

@@ -23,31 +23,7 @@ use filmback::daemon::journal::{self, Entry};
 use filmback::daemon::{self, Control, DarkroomLab};
 use filmback::synthetic::demo;
 
-fn arg(name: &str, default: u32) -> u32 {
-    let args: Vec<String> = std::env::args().collect();
-    args.iter()
-        .position(|a| a == name)
-        .and_then(|i| args.get(i + 1))
-        .and_then(|v| v.parse().ok())
-        .unwrap_or(default)
-}
-
-/// Seconds of CPU (user + system) this process has used, from `/proc/self/stat`.
-fn cpu_seconds() -> f64 {
-    let stat = std::fs::read_to_string("/proc/self/stat").unwrap_or_default();
-    let fields: Vec<&str> = stat
-        .rsplit(')')
-        .next()
-        .unwrap_or("")
-        .split_whitespace()
-        .collect();
-    // Fields 14 and 15 of stat(5) are utime and stime; after the ')' they are 12th, 13th.
-    let ticks: f64 = fields
-        .get(11..13)
-        .map(|f| f.iter().filter_map(|v| v.parse::<f64>().ok()).sum())
-        .unwrap_or(0.0);
-    ticks / 100.0
-}
+mod common;
 
 /// One run's measures.
 struct Measured {
@@ -161,7 +137,7 @@ fn run(frames: &[Vec<(String, Vec<u8>)>], viewer: bool, clients: usize) -> Measu
         std::thread::sleep(Duration::from_millis(300));
     }
     let t = Instant::now();
-    let cpu = cpu_seconds();
+    let cpu = common::cpu_seconds().unwrap_or(0.0);
     for bracket in frames {
         for (name, bytes) in bracket {
             demo::drop_frame(&root.join("ingest"), name, bytes).expect("drop");
@@ -180,7 +156,7 @@ fn run(frames: &[Vec<(String, Vec<u8>)>], viewer: bool, clients: usize) -> Measu
     }
     let measured = Measured {
         wall: t.elapsed().as_secs_f64(),
-        cpu: cpu_seconds() - cpu,
+        cpu: common::cpu_seconds().unwrap_or(0.0) - cpu,
     };
     let _ = control.blocking_send(Control::Stop);
     let _ = daemon.join();
@@ -194,9 +170,9 @@ fn run(frames: &[Vec<(String, Vec<u8>)>], viewer: bool, clients: usize) -> Measu
 }
 
 fn main() {
-    let mp = arg("--mp", 12);
-    let brackets = arg("--brackets", 6);
-    let clients = arg("--clients", 20) as usize;
+    let mp = common::arg_or("--mp", 12_u32);
+    let brackets = common::arg_or("--brackets", 6_u32);
+    let clients = common::arg_or("--clients", 20_u32) as usize;
     let width = ((f64::from(mp) * 1e6 * 1.5).sqrt() as u32) & !1;
     let height = (width * 2 / 3) & !1;
     println!("viewer_load: {brackets} brackets of 3 × {width}×{height} JPEGs, jobs = 2");

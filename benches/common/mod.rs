@@ -52,6 +52,11 @@ pub fn arg(flag: &str) -> Option<String> {
         .cloned()
 }
 
+/// The value after `flag` on the command line parsed as a `T`, else `default`.
+pub fn arg_or<T: std::str::FromStr>(flag: &str, default: T) -> T {
+    arg(flag).and_then(|v| v.parse().ok()).unwrap_or(default)
+}
+
 /// The value of rank `round(q·(n − 1))` of `v` (sorted in place); NaN when empty.
 pub fn quantile(v: &mut [f64], q: f64) -> f64 {
     if v.is_empty() {
