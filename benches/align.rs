@@ -25,12 +25,11 @@ use std::path::{Path, PathBuf};
 use std::process::Command;
 
 use filmback::align::{self, AlignFrame, AlignMode};
-use filmback::darkroom::{self, GivenResponse, ResponsePolicy, Stages};
 use filmback::frame::{self, BitDepth, Frame, Limits, Samples};
-use filmback::merge::{self, BracketFrame, MergeOptions};
+use filmback::merge::{self, MergeOptions};
 use filmback::metadata::Camera;
 use filmback::radiance::RadianceMap;
-use filmback::response::{InverseResponse, RatioSource};
+use filmback::response::InverseResponse;
 use filmback::synthetic::{ResponseCurve, SceneKind, Sensor, expose};
 
 mod common;
@@ -175,7 +174,7 @@ fn accuracy() {
     }
     let mut found = Vec::new();
     for (name, frames) in real_cases() {
-        let g = fitted(&frames);
+        let g = common::fitted(&frames);
         let truth = merged(&frames, &g);
         let (w, h) = (frames[0].0.width(), frames[0].0.height());
         // The frame alignment registers the others onto stays where it is.
@@ -332,42 +331,15 @@ fn write_ppm(frame: &Frame, path: &Path) -> std::io::Result<()> {
     std::fs::write(path, bytes)
 }
 
-fn bracket<'a>(frames: &'a [(Frame, f64)], camera: &'a Camera) -> Vec<BracketFrame<'a>> {
-    frames
-        .iter()
-        .map(|(frame, exposure)| BracketFrame {
-            source: Path::new("bench"),
-            frame,
-            exposure: *exposure,
-            camera,
-        })
-        .collect()
-}
-
-/// The response the darkroom fits to `frames` (the sRGB inverse when the fit is weak).
-fn fitted(frames: &[(Frame, f64)]) -> InverseResponse {
-    let camera = Camera::default();
-    let policy = ResponsePolicy::Fit {
-        fallback: Some(GivenResponse::standard(frames[0].0.channels())),
-        min_confidence: 0.5,
-        pool: None,
-    };
-    let mut stages = Stages::new();
-    darkroom::choose_response(
-        &bracket(frames, &camera),
-        RatioSource::Argument,
-        policy,
-        &mut stages,
-    )
-    .expect("a response")
-    .response
-}
-
 fn merged(frames: &[(Frame, f64)], g: &InverseResponse) -> RadianceMap {
     let camera = Camera::default();
-    merge::merge(&bracket(frames, &camera), g, MergeOptions::default())
-        .expect("a bracket")
-        .radiance
+    merge::merge(
+        &common::bracket(frames, &camera),
+        g,
+        MergeOptions::default(),
+    )
+    .expect("a bracket")
+    .radiance
 }
 
 /// `median / p95 / share > 0.1` of `|log₂(a/b)|` of the luminance, after one global
@@ -386,7 +358,7 @@ fn errors(a: &RadianceMap, b: &RadianceMap, middle: &Frame) -> String {
         .collect();
     let mut ratio: Vec<f64> = pixels
         .iter()
-        .map(|&p| (luminance(a, p) / luminance(b, p)).log2())
+        .map(|&p| (common::luminance(a, p) / common::luminance(b, p)).log2())
         .collect();
     let scale = common::quantile(&mut ratio.clone(), 0.5);
     ratio.iter_mut().for_each(|r| *r = (*r - scale).abs());
@@ -394,17 +366,6 @@ fn errors(a: &RadianceMap, b: &RadianceMap, middle: &Frame) -> String {
     let median = common::quantile(&mut ratio, 0.5);
     let p95 = common::quantile(&mut ratio, 0.95);
     format!("{median:.4} / {p95:.3} / {:.1} %", 100.0 * off)
-}
-
-fn luminance(m: &RadianceMap, p: usize) -> f64 {
-    let c = m.channels();
-    let px = &m.pixels()[p * c..p * c + c];
-    let y = if c == 3 {
-        0.2126 * f64::from(px[0]) + 0.7152 * f64::from(px[1]) + 0.0722 * f64::from(px[2])
-    } else {
-        f64::from(px[0])
-    };
-    y.max(1e-9)
 }
 
 fn speed(runs: usize) {

@@ -22,16 +22,15 @@
 //!
 //! `cargo bench --bench deghost -- [accuracy | speed] [--runs N]`
 
-use std::path::{Path, PathBuf};
+use std::path::PathBuf;
 
 use filmback::align;
-use filmback::darkroom::{self, GivenResponse, ResponsePolicy, Stages};
 use filmback::deghost::{self, GhostMasks};
 use filmback::frame::{self, BitDepth, Frame, Limits, Samples};
-use filmback::merge::{self, BracketFrame, MergeOptions};
+use filmback::merge::{self, MergeOptions};
 use filmback::metadata::Camera;
 use filmback::radiance::RadianceMap;
-use filmback::response::{InverseResponse, RatioSource};
+use filmback::response::InverseResponse;
 use filmback::synthetic::{ResponseCurve, SceneKind, Sensor, expose};
 
 mod common;
@@ -210,18 +209,6 @@ fn subject(frame: &Frame, k: usize) -> (usize, (usize, usize), (usize, usize)) {
     (side, (w * 5 / 8, h * 47 / 100), (x, h / 2))
 }
 
-fn bracket<'a>(frames: &'a [(Frame, f64)], camera: &'a Camera) -> Vec<BracketFrame<'a>> {
-    frames
-        .iter()
-        .map(|(frame, exposure)| BracketFrame {
-            source: Path::new("bench"),
-            frame,
-            exposure: *exposure,
-            camera,
-        })
-        .collect()
-}
-
 fn report(case: &Case) {
     let camera = Camera::default();
     let moved: Vec<(Frame, f64)> = case
@@ -243,8 +230,8 @@ fn report(case: &Case) {
             (paste(f, side, from, subject(f, r).2), *e)
         })
         .collect();
-    let g = fitted(&still);
-    let masks = deghost::ghost_masks(&bracket(&moved, &camera), &g);
+    let g = common::fitted(&still);
+    let masks = deghost::ghost_masks(&common::bracket(&moved, &camera), &g);
     let truth = merged(&still, &g, None);
     let first = &case.frames[0].0;
     let (side, _, start) = subject(first, 0);
@@ -252,7 +239,7 @@ fn report(case: &Case) {
     let area = (start.0..end, start.1..start.1 + side);
     let deghosted = errors(&merged(&moved, &g, Some(&masks)), &truth, &area);
     let blended = errors(&merged(&moved, &g, None), &truth, &area);
-    let still_masks = deghost::ghost_masks(&bracket(&still, &camera), &g);
+    let still_masks = deghost::ghost_masks(&common::bracket(&still, &camera), &g);
     let change = change(&merged(&still, &g, Some(&still_masks)), &truth);
     println!(
         "| {} | {}×{} | {} | {} | {:.1} % | {:.2} % / {change} |",
@@ -266,30 +253,11 @@ fn report(case: &Case) {
     );
 }
 
-/// The response the darkroom fits to `frames` (the sRGB inverse when the fit is weak).
-fn fitted(frames: &[(Frame, f64)]) -> InverseResponse {
-    let camera = Camera::default();
-    let policy = ResponsePolicy::Fit {
-        fallback: Some(GivenResponse::standard(frames[0].0.channels())),
-        min_confidence: 0.5,
-        pool: None,
-    };
-    let mut stages = Stages::new();
-    darkroom::choose_response(
-        &bracket(frames, &camera),
-        RatioSource::Argument,
-        policy,
-        &mut stages,
-    )
-    .expect("a response")
-    .response
-}
-
 fn merged(frames: &[(Frame, f64)], g: &InverseResponse, masks: Option<&GhostMasks>) -> RadianceMap {
     let camera = Camera::default();
     let weights = masks.map(GhostMasks::weights).unwrap_or_default();
     merge::merge_masked(
-        &bracket(frames, &camera),
+        &common::bracket(frames, &camera),
         g,
         MergeOptions::default(),
         &weights,
@@ -309,23 +277,16 @@ fn errors(
         .1
         .clone()
         .flat_map(|y| area.0.clone().map(move |x| y * w + x))
-        .map(|p| (luminance(a, p) / luminance(b, p)).log2().abs())
+        .map(|p| {
+            (common::luminance(a, p) / common::luminance(b, p))
+                .log2()
+                .abs()
+        })
         .collect();
     let off = e.iter().filter(|&&v| v > 0.1).count() as f64 / e.len() as f64;
     let median = common::quantile(&mut e, 0.5);
     let p95 = common::quantile(&mut e, 0.95);
     format!("{median:.4} / {p95:.3} / {:.1} %", 100.0 * off)
-}
-
-fn luminance(m: &RadianceMap, p: usize) -> f64 {
-    let c = m.channels();
-    let px = &m.pixels()[p * c..p * c + c];
-    let y = if c == 3 {
-        0.2126 * f64::from(px[0]) + 0.7152 * f64::from(px[1]) + 0.0722 * f64::from(px[2])
-    } else {
-        f64::from(px[0])
-    };
-    y.max(1e-9)
 }
 
 /// The share of samples that differ by more than 0.1 stop, and the largest difference.
@@ -371,7 +332,8 @@ fn speed(runs: usize) {
     println!("wall time, and CPU time of all threads in parentheses");
     println!("| step | still | moving subject |");
     println!("|---|---|---|");
-    let masks_of = |frames: &[(Frame, f64)]| deghost::ghost_masks(&bracket(frames, &camera), &g);
+    let masks_of =
+        |frames: &[(Frame, f64)]| deghost::ghost_masks(&common::bracket(frames, &camera), &g);
     let masks = (masks_of(&still), masks_of(&moved));
     let row = |name: &str, f: &dyn Fn(&Frames, &GhostMasks)| {
         let still_t = common::best_of(runs, &|| f(&still, &masks.0));

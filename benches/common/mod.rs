@@ -4,9 +4,12 @@
 
 use std::path::{Path, PathBuf};
 
+use filmback::darkroom::{self, GivenResponse, ResponsePolicy, Stages};
 use filmback::frame::{self, Frame, Limits};
+use filmback::merge::BracketFrame;
 use filmback::metadata::{Camera, CaptureTime, Exposure};
 use filmback::radiance::RadianceMap;
+use filmback::response::{InverseResponse, RatioSource};
 use filmback::synthetic::{self, ResponseCurve, Shot, SyntheticError};
 
 // The real brackets' listing, shared with the integration tests (not every bench uses it).
@@ -136,4 +139,49 @@ pub fn best_of(runs: usize, f: &dyn Fn()) -> (f64, f64) {
         });
     }
     (wall, cpu)
+}
+
+/// `frames` with their relative exposures as one bracket of `camera`.
+pub fn bracket<'a>(frames: &'a [(Frame, f64)], camera: &'a Camera) -> Vec<BracketFrame<'a>> {
+    frames
+        .iter()
+        .map(|(frame, exposure)| BracketFrame {
+            source: Path::new("bench"),
+            frame,
+            exposure: *exposure,
+            camera,
+        })
+        .collect()
+}
+
+/// The response the darkroom fits to `frames` (the sRGB inverse when the fit is weak).
+pub fn fitted(frames: &[(Frame, f64)]) -> InverseResponse {
+    let camera = Camera::default();
+    let policy = ResponsePolicy::Fit {
+        fallback: Some(GivenResponse::standard(frames[0].0.channels())),
+        min_confidence: 0.5,
+        pool: None,
+    };
+    let mut stages = Stages::new();
+    darkroom::choose_response(
+        &bracket(frames, &camera),
+        RatioSource::Argument,
+        policy,
+        &mut stages,
+    )
+    .expect("a response")
+    .response
+}
+
+/// The Rec. 709 luminance of pixel `p` of `m` (its one channel for a grey map), at least
+/// 1e-9.
+pub fn luminance(m: &RadianceMap, p: usize) -> f64 {
+    let c = m.channels();
+    let px = &m.pixels()[p * c..p * c + c];
+    let y = if c == 3 {
+        0.2126 * f64::from(px[0]) + 0.7152 * f64::from(px[1]) + 0.0722 * f64::from(px[2])
+    } else {
+        f64::from(px[0])
+    };
+    y.max(1e-9)
 }
