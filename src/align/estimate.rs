@@ -397,7 +397,7 @@ impl Pyramid {
             range: log_range,
         };
         Pyramid {
-            levels: levels(&blocks.log, &blocks.weight, lw, lh, step),
+            levels: levels(blocks.log.clone(), blocks.weight.clone(), lw, lh, step),
             exposure,
             blocks,
         }
@@ -412,7 +412,7 @@ impl Pyramid {
     /// share few well-exposed blocks, but a window clipped in one and exposed in the
     /// other is at the top in both: its edges register. `None` when they share less than
     /// [`LEAST_COMMON_SPAN`].
-    pub(super) fn clipped_alike(&self, other: &Pyramid) -> Option<(Pyramid, Pyramid)> {
+    pub(super) fn clipped_alike(&self, other: &Pyramid) -> Option<(Vec<Level>, Vec<Level>)> {
         let low = self.blocks.range.0.max(other.blocks.range.0);
         let high = self.blocks.range.1.min(other.blocks.range.1);
         if high - low < LEAST_COMMON_SPAN {
@@ -421,8 +421,9 @@ impl Pyramid {
         Some((self.clamped(low, high), other.clamped(low, high)))
     }
 
-    /// [`Pyramid::clipped_alike`]'s image of this frame for the range `[low, high]`.
-    fn clamped(&self, low: f32, high: f32) -> Pyramid {
+    /// The levels of [`Pyramid::clipped_alike`]'s image of this frame for the range
+    /// `[low, high]`.
+    fn clamped(&self, low: f32, high: f32) -> Vec<Level> {
         let b = &self.blocks;
         let top = log_weight(WELL_EXPOSED_HIGH as f32);
         let (log, weight): (Vec<f32>, Vec<f32>) = b
@@ -436,32 +437,14 @@ impl Pyramid {
                 Tone::Bright | Tone::Mixed => (l, 0.0),
             })
             .unzip();
-        Pyramid {
-            levels: levels(&log, &weight, b.width, b.height, b.step),
-            exposure: self.exposure,
-            blocks: Blocks {
-                width: b.width,
-                height: b.height,
-                step: b.step,
-                log: b.log.clone(),
-                weight: b.weight.clone(),
-                tone: b.tone.clone(),
-                range: (low, high),
-            },
-        }
+        levels(log, weight, b.width, b.height, b.step)
     }
 }
 
 /// The levels of a finest `width × height` level of `step`, halved while the shorter
 /// side stays at least [`COARSEST_SIDE`].
-fn levels(log: &[f32], weight: &[f32], width: usize, height: usize, step: usize) -> Vec<Level> {
-    let mut levels = vec![Level::new(
-        width,
-        height,
-        step as f64,
-        log.to_vec(),
-        weight.to_vec(),
-    )];
+fn levels(log: Vec<f32>, weight: Vec<f32>, width: usize, height: usize, step: usize) -> Vec<Level> {
+    let mut levels = vec![Level::new(width, height, step as f64, log, weight)];
     while let Some(last) = levels.last()
         && last.width.min(last.height) / 2 >= COARSEST_SIDE
     {
@@ -1063,7 +1046,7 @@ fn register(
     geometry: &Geometry,
     model: Motion,
 ) -> Result<Registration, String> {
-    let (state, note) = estimate(fixed, moving, geometry, model)?;
+    let (state, note) = estimate(&fixed.levels, &moving.levels, geometry, model)?;
     Ok(Registration {
         matrix: state.matrix(),
         motion: state.motion,
@@ -1113,12 +1096,12 @@ const CLIPPED_AGREEMENT_PX: f64 = 1.0;
 
 /// The state of [`register`], with a note when the model was simplified.
 fn estimate(
-    fixed: &Pyramid,
-    moving: &Pyramid,
+    fixed: &[Level],
+    moving: &[Level],
     geometry: &Geometry,
     model: Motion,
 ) -> Result<(State, Option<String>), String> {
-    let (fine_fixed, fine_moving) = (&fixed.levels[0], &moving.levels[0]);
+    let (fine_fixed, fine_moving) = (&fixed[0], &moving[0]);
     let shared = overlap(fine_fixed, fine_moving);
     if shared < MIN_OVERLAP {
         return Err(format!(
@@ -1145,14 +1128,14 @@ fn estimate(
 /// parameters are not determined: the state, the finest level's normal equations and a
 /// note when the model was simplified.
 fn descend(
-    reference: &Pyramid,
-    moving: &Pyramid,
+    reference: &[Level],
+    moving: &[Level],
     geometry: &Geometry,
     model: Motion,
 ) -> Result<(State, Normal, Option<String>), String> {
-    let top = reference.levels.len().min(moving.levels.len()) - 1;
-    let (dx, dy) = coarse_search(&reference.levels[top], &moving.levels[top])?;
-    let scale = reference.levels[top].step / geometry.s;
+    let top = reference.len().min(moving.len()) - 1;
+    let (dx, dy) = coarse_search(&reference[top], &moving[top])?;
+    let scale = reference[top].step / geometry.s;
     let mut state = State {
         motion: Motion::Translation,
         p: [
@@ -1179,12 +1162,7 @@ fn descend(
             state = state.as_motion(target);
         }
         let start = state;
-        let (refined, normal) = refine(
-            &reference.levels[level],
-            &moving.levels[level],
-            geometry,
-            state,
-        )?;
+        let (refined, normal) = refine(&reference[level], &moving[level], geometry, state)?;
         state = refined;
         if level == 0 {
             finest = Some((start, normal));
@@ -1194,7 +1172,7 @@ fn descend(
         return Err("no level to refine".into());
     };
     let mut note = None;
-    let (fine_ref, fine_mov) = (&reference.levels[0], &moving.levels[0]);
+    let (fine_ref, fine_mov) = (&reference[0], &moving[0]);
     loop {
         let spread = uncertainty_px(&normal, state.params(), geometry);
         if spread <= MAX_UNCERTAINTY_PX {
