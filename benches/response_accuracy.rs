@@ -913,7 +913,7 @@ fn scenes(names: &[String], width: u32, height: u32, seed: u64) -> Vec<Scene> {
             .strip_prefix("real")
             .filter(|rest| rest.is_empty() || rest.starts_with(':'));
         let Some(rest) = real else {
-            let kind: SceneKind = name.parse().unwrap_or_else(|e: String| panic!("{e}"));
+            let kind: SceneKind = name.parse().unwrap_or_else(|e| panic!("{e}"));
             out.push(Scene {
                 name: kind.name().to_string(),
                 radiance: kind.render(width, height, seed),

@@ -48,14 +48,23 @@ pub enum PublishError {
         /// What the operating system said.
         source: io::Error,
     },
-    /// The content producer failed; nothing was published.
-    #[error("{path}: {reason}")]
-    Content {
-        /// The final name.
+    /// What was to be moved is not a regular file (a folder, a link, a device).
+    #[error("{path}: not a regular file")]
+    NotAFile {
+        /// The file given.
         path: PathBuf,
-        /// What went wrong while producing the bytes.
-        reason: String,
     },
+}
+
+impl PublishError {
+    /// The file this failure concerns.
+    pub fn path(&self) -> &Path {
+        match self {
+            PublishError::Exists { path }
+            | PublishError::Io { path, .. }
+            | PublishError::NotAFile { path } => path,
+        }
+    }
 }
 
 /// The temporary name used for `path` while it is written: `.<name>.filmback-tmp-<pid>`
@@ -125,15 +134,20 @@ pub(crate) fn fnv1a(h: u64, bytes: &[u8]) -> u64 {
     })
 }
 
-/// Writes the bytes that `produce` streams into the file, then publishes it at `path`.
-pub fn publish_with<F>(path: &Path, overwrite: Overwrite, produce: F) -> Result<(), PublishError>
+/// Writes the bytes that `produce` streams into the file, then publishes it at `path` and
+/// returns what `produce` returned. A failure of `produce` is returned as it is (nothing is
+/// published); a failure to write, sync or rename as a [`PublishError`] converted into
+/// the producer's error type `E`.
+pub fn publish_with<T, E, F>(path: &Path, overwrite: Overwrite, produce: F) -> Result<T, E>
 where
-    F: FnOnce(&mut io::BufWriter<&mut File>) -> Result<(), String>,
+    F: FnOnce(&mut io::BufWriter<&mut File>) -> Result<T, E>,
+    E: From<PublishError>,
 {
     if overwrite == Overwrite::Refuse && path.exists() {
         return Err(PublishError::Exists {
             path: path.to_path_buf(),
-        });
+        }
+        .into());
     }
     let tmp = temporary_name(path);
     let io_err = |source: io::Error| PublishError::Io {
@@ -145,14 +159,12 @@ where
         // created, never opened through whatever (a link) might stand under its name.
         let _ = fs::remove_file(&tmp);
         let mut file = File::create_new(&tmp).map_err(io_err)?;
-        {
+        let produced = {
             let mut writer = io::BufWriter::with_capacity(1 << 20, &mut file);
-            produce(&mut writer).map_err(|reason| PublishError::Content {
-                path: path.to_path_buf(),
-                reason,
-            })?;
+            let produced = produce(&mut writer)?;
             writer.flush().map_err(io_err)?;
-        }
+            produced
+        };
         file.sync_all().map_err(io_err)?;
         drop(file);
         match overwrite {
@@ -173,7 +185,7 @@ where
                 let _ = d.sync_all();
             }
         }
-        Ok(())
+        Ok(produced)
     })();
     if result.is_err() {
         let _ = fs::remove_file(&tmp);
@@ -184,7 +196,10 @@ where
 /// Publishes `bytes` at `path` (see [`publish_with`]).
 pub fn publish(path: &Path, bytes: &[u8], overwrite: Overwrite) -> Result<(), PublishError> {
     publish_with(path, overwrite, |w| {
-        w.write_all(bytes).map_err(|e| e.to_string())
+        w.write_all(bytes).map_err(|source| PublishError::Io {
+            path: path.to_path_buf(),
+            source,
+        })
     })
 }
 
@@ -227,18 +242,13 @@ pub fn move_into(source: &Path, dir: &Path) -> Result<PathBuf, PublishError> {
         move |source| PublishError::Io { path, source }
     };
     let meta = fs::symlink_metadata(source).map_err(io_err(source))?;
-    if !meta.is_file() {
-        return Err(PublishError::Content {
-            path: source.to_path_buf(),
-            reason: "not a regular file".to_string(),
-        });
-    }
-    let Some(name) = source.file_name() else {
-        return Err(PublishError::Content {
-            path: source.to_path_buf(),
-            reason: "no file name".to_string(),
-        });
+    let not_a_file = || PublishError::NotAFile {
+        path: source.to_path_buf(),
     };
+    if !meta.is_file() {
+        return Err(not_a_file());
+    }
+    let name = source.file_name().ok_or_else(not_a_file)?;
     let target = dir.join(name);
     if fs::symlink_metadata(&target).is_ok() {
         return Err(PublishError::Exists { path: target });
@@ -261,12 +271,12 @@ pub fn move_into(source: &Path, dir: &Path) -> Result<PathBuf, PublishError> {
         Err(e) if cannot_link(&e) => {
             let mut from = File::open(source).map_err(io_err(source))?;
             publish_with(&target, Overwrite::Refuse, |w| {
-                io::copy(&mut from, w).map_err(|e| format!("copying {}: {e}", source.display()))?;
-                w.flush().map_err(|e| e.to_string())?;
+                io::copy(&mut from, w).map_err(io_err(source))?;
+                w.flush().map_err(io_err(&target))?;
                 if let Ok(mtime) = meta.modified() {
-                    w.get_ref().set_modified(mtime).map_err(|e| e.to_string())?;
+                    w.get_ref().set_modified(mtime).map_err(io_err(&target))?;
                 }
-                Ok(())
+                Ok::<(), PublishError>(())
             })?;
         }
         Err(e) => return Err(io_err(&target)(e)),
@@ -535,17 +545,31 @@ mod tests {
         assert!(!from.exists());
     }
 
+    /// A producer's own error type, as a caller of [`publish_with`] would have.
+    #[derive(Debug, thiserror::Error)]
+    enum ProducerError {
+        #[error(transparent)]
+        Publish(#[from] PublishError),
+        #[error(transparent)]
+        Io(#[from] io::Error),
+        #[error("encoder failed")]
+        Encoder,
+    }
+
     #[test]
     fn a_file_that_appears_while_publishing_is_not_replaced() {
         let dir = tempfile::tempdir().unwrap();
         let path = dir.path().join("a.bin");
         let err = publish_with(&path, Overwrite::Refuse, |w| {
             // Another writer takes the name after the check, before the rename.
-            fs::write(&path, b"other").map_err(|e| e.to_string())?;
-            w.write_all(b"ours").map_err(|e| e.to_string())
+            fs::write(&path, b"other")?;
+            Ok::<(), ProducerError>(w.write_all(b"ours")?)
         })
         .unwrap_err();
-        assert!(matches!(err, PublishError::Exists { .. }), "{err}");
+        assert!(
+            matches!(err, ProducerError::Publish(PublishError::Exists { .. })),
+            "{err}"
+        );
         assert_eq!(fs::read(&path).unwrap(), b"other");
         let names: Vec<_> = fs::read_dir(dir.path()).unwrap().collect();
         assert_eq!(names.len(), 1, "no temporary file left behind");
@@ -571,11 +595,11 @@ mod tests {
         let dir = tempfile::tempdir().unwrap();
         let path = dir.path().join("b.bin");
         let err = publish_with(&path, Overwrite::Replace, |w| {
-            w.write_all(b"partial").map_err(|e| e.to_string())?;
-            Err("encoder failed".to_string())
+            w.write_all(b"partial")?;
+            Err::<(), _>(ProducerError::Encoder)
         })
         .unwrap_err();
-        assert!(err.to_string().contains("encoder failed"));
+        assert!(matches!(err, ProducerError::Encoder), "{err}");
         assert_eq!(fs::read_dir(dir.path()).unwrap().count(), 0);
     }
 

@@ -288,18 +288,21 @@ impl ColourSpace {
     }
 }
 
+/// A colour space's name that is none of [`ColourSpace`]'s.
+#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
+#[error("{0:?} is not a colour space: expected srgb, p3 or rec2020")]
+pub struct UnknownColourSpace(pub String);
+
 impl std::str::FromStr for ColourSpace {
-    type Err = String;
+    type Err = UnknownColourSpace;
 
     /// `srgb`, `p3` (or `display-p3`), `rec2020` (or `bt2020`), any case.
-    fn from_str(text: &str) -> Result<ColourSpace, String> {
+    fn from_str(text: &str) -> Result<ColourSpace, UnknownColourSpace> {
         match text.trim().to_ascii_lowercase().as_str() {
             "srgb" => Ok(ColourSpace::Srgb),
             "p3" | "display-p3" | "displayp3" => Ok(ColourSpace::DisplayP3),
             "rec2020" | "bt2020" | "rec.2020" => Ok(ColourSpace::Rec2020),
-            _ => Err(format!(
-                "{text:?} is not a colour space: expected srgb, p3 or rec2020"
-            )),
+            _ => Err(UnknownColourSpace(text.to_string())),
         }
     }
 }

@@ -140,14 +140,14 @@ pub enum FrameError {
     #[error(transparent)]
     Raw(#[from] crate::raw::RawError),
     /// The decoder failed (truncated or corrupt data).
-    #[error("{path}: cannot decode {format}: {reason}")]
+    #[error("{path}: cannot decode {format}: {source}")]
     Decode {
         /// The file.
         path: PathBuf,
         /// The detected container format.
-        format: String,
-        /// The decoder's message.
-        reason: String,
+        format: &'static str,
+        /// Why.
+        source: DecodeFailure,
     },
     /// The decoded pixel layout is not one filmback handles (e.g. floating point).
     #[error("{path}: unsupported pixel layout {layout}: filmback takes 8- or 16-bit grey or RGB")]
@@ -401,10 +401,10 @@ pub fn decode(path: &Path, bytes: &[u8], limits: Limits) -> Result<LoadedFrame, 
         metadata.warnings.push(warning);
     }
 
-    let decode_error = |reason: String| FrameError::Decode {
+    let decode_error = |source: DecodeFailure| FrameError::Decode {
         path: path.to_path_buf(),
-        format: format_name(format).to_string(),
-        reason,
+        format: format_name(format),
+        source,
     };
     let mut reader = ImageReader::with_format(Cursor::new(bytes), format);
     let mut image_limits = image::Limits::default();
@@ -415,9 +415,9 @@ pub fn decode(path: &Path, bytes: &[u8], limits: Limits) -> Result<LoadedFrame, 
     reader.limits(image_limits.clone());
     let (width, height) = reader
         .into_dimensions()
-        .map_err(|e| decode_error(e.to_string()))?;
+        .map_err(|e| decode_error(e.into()))?;
     if width == 0 || height == 0 {
-        return Err(decode_error(format!("no pixels ({width}×{height})")));
+        return Err(decode_error(DecodeFailure::NoPixels { width, height }));
     }
     if u64::from(width) * u64::from(height) > limits.max_pixels {
         return Err(FrameError::TooLarge {
@@ -434,7 +434,7 @@ pub fn decode(path: &Path, bytes: &[u8], limits: Limits) -> Result<LoadedFrame, 
     }
     let mut reader = ImageReader::with_format(Cursor::new(bytes), format);
     reader.limits(image_limits);
-    let mut image = reader.decode().map_err(|e| decode_error(e.to_string()))?;
+    let mut image = reader.decode().map_err(|e| decode_error(e.into()))?;
     if let Some(orientation) = image::metadata::Orientation::from_exif(metadata.orientation) {
         image.apply_orientation(orientation);
     }
@@ -580,15 +580,33 @@ fn capture_time(text: &str) -> Option<metadata::CaptureTime> {
     )
 }
 
+/// Why a JPEG, PNG or TIFF frame could not be decoded.
+#[derive(Debug, thiserror::Error)]
+pub enum DecodeFailure {
+    /// The decoder refused the data.
+    #[error(transparent)]
+    Image(#[from] image::ImageError),
+    /// The header declares no pixels.
+    #[error("no pixels ({width}×{height})")]
+    NoPixels {
+        /// Declared width.
+        width: u32,
+        /// Declared height.
+        height: u32,
+    },
+    /// A JPEG's data ends before its end-of-image marker.
+    #[error("truncated: data ends at byte {at} before the end-of-image marker")]
+    Truncated {
+        /// Where the data ends, in bytes.
+        at: usize,
+    },
+}
+
 /// Walks the JPEG marker structure (segment lengths, then entropy-coded scans) and
 /// checks that the end-of-image marker `FF D9` is reached before the data ends. Stray
 /// bytes between segments are skipped, as libjpeg does; only a missing end is an error.
-fn jpeg_end_of_image(bytes: &[u8]) -> Result<(), String> {
-    let truncated = |at: usize| {
-        Err(format!(
-            "truncated: data ends at byte {at} before the end-of-image marker"
-        ))
-    };
+fn jpeg_end_of_image(bytes: &[u8]) -> Result<(), DecodeFailure> {
+    let truncated = |at: usize| Err(DecodeFailure::Truncated { at });
     let mut i = 2; // after SOI
     loop {
         // Next marker: 0xFF (any fill bytes), then a code that is neither 0x00 nor 0xFF.

@@ -31,6 +31,88 @@ const MAX_DAMPING: f64 = 1e4;
 /// The least number of samples a Gauss–Newton iteration needs.
 const MIN_SAMPLES: usize = 200;
 
+/// Why one frame could not be registered onto another (its text ends in the frame's
+/// alignment note).
+#[derive(Debug, Clone, thiserror::Error)]
+enum Refusal {
+    #[error("only {0} blocks overlap once moved")]
+    FewBlocks(usize),
+    #[error("the registration's equations are singular (too little texture)")]
+    Singular,
+    #[error("the registration diverged")]
+    Diverged,
+    #[error("the registration did not converge in {MAX_ITERATIONS} iterations")]
+    NoConvergence,
+    #[error("too little texture in common (correlation {0:.2} < {MIN_CORRELATION})")]
+    LowCorrelation(f64),
+    #[error(
+        "moved more than the search range ({:.0} % of the frame's longer side)",
+        SEARCH_RANGE * 100.0
+    )]
+    OutOfRange,
+    #[error("they measure less than {LEAST_COMMON_SPAN:.2} (ln) of radiance in common")]
+    NoCommonRange,
+    #[error(
+        "the tones both measure put the frame {apart:.1} px (±{spread:.2}) from where its \
+         clipped edges do"
+    )]
+    ClippedEdgesMoved { apart: f64, spread: f64 },
+    #[error(
+        "only {:.1} % of the frame is well exposed in both (< {:.0} %)",
+        shared * 100.0,
+        MIN_OVERLAP * 100.0
+    )]
+    LittleOverlap { shared: f64 },
+    #[error(
+        "the estimated move ({displacement:.2} px) does not reduce the residual ({moved:.4} \
+         against {still:.4} unmoved)"
+    )]
+    NoBetter {
+        displacement: f64,
+        moved: f64,
+        still: f64,
+    },
+    #[error("no level to refine")]
+    NoLevel,
+    #[error("too little texture to register the frame (±{0:.2} px)")]
+    Undetermined(f64),
+}
+
+/// One way [`register_or_chain`] tried and why it failed.
+#[derive(Debug, Clone)]
+struct Failure {
+    /// The frame registered onto.
+    onto: usize,
+    /// Whether the two were compared where both clip alike.
+    clipped: bool,
+    /// Why it failed.
+    why: Refusal,
+}
+
+/// Every way [`register_or_chain`] tried, in order, and why each failed.
+#[derive(Debug, Clone, thiserror::Error)]
+struct Failures(Vec<Failure>);
+
+impl std::fmt::Display for Failures {
+    /// `onto frame N[ clipped alike]: why`, joined by `; `.
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        for (i, failure) in self.0.iter().enumerate() {
+            let alike = if failure.clipped {
+                " clipped alike"
+            } else {
+                ""
+            };
+            let sep = if i > 0 { "; " } else { "" };
+            write!(
+                f,
+                "{sep}onto frame {}{alike}: {}",
+                failure.onto, failure.why
+            )?;
+        }
+        Ok(())
+    }
+}
+
 /// One level of a frame's log-radiance pyramid: a value per block of `step × step`
 /// full-resolution pixels.
 pub(super) struct Level {
@@ -763,16 +845,16 @@ fn refine(
     moving: &Level,
     geometry: &Geometry,
     mut state: State,
-) -> Result<(State, Normal), String> {
+) -> Result<(State, Normal), Refusal> {
     let n = state.params();
     let mut current = accumulate(reference, moving, geometry, &state, n);
     let mut damping = INITIAL_DAMPING;
     for _ in 0..MAX_ITERATIONS {
         if current.count < MIN_SAMPLES {
-            return Err(format!("only {} blocks overlap once moved", current.count));
+            return Err(Refusal::FewBlocks(current.count));
         }
         let Some(delta) = solve(&current, n + 2, damping) else {
-            return Err("the registration's equations are singular (too little texture)".into());
+            return Err(Refusal::Singular);
         };
         let mut trial = state;
         for (p, d) in trial.p.iter_mut().zip(delta.iter().take(n)) {
@@ -782,7 +864,7 @@ fn refine(
         trial.bias += delta[n + 1];
         let moved = geometry.corner_shift(&state.matrix(), &trial.matrix()) / reference.step;
         if !moved.is_finite() {
-            return Err("the registration diverged".into());
+            return Err(Refusal::Diverged);
         }
         let next = accumulate(reference, moving, geometry, &trial, n);
         let better = next.count >= MIN_SAMPLES && next.mean_square() <= current.mean_square();
@@ -799,9 +881,7 @@ fn refine(
             }
         }
     }
-    Err(format!(
-        "the registration did not converge in {MAX_ITERATIONS} iterations"
-    ))
+    Err(Refusal::NoConvergence)
 }
 
 /// The standard deviation, in full-resolution pixels, of the displacement the motion
@@ -832,7 +912,7 @@ fn uncertainty_px(normal: &Normal, motion: usize, geometry: &Geometry) -> f64 {
 
 /// The best integer shift of the coarsest level within [`SEARCH_RANGE`], by normalised
 /// cross-correlation over blocks usable in both: `(dx, dy)` in its blocks, or why none.
-fn coarse_search(reference: &Level, moving: &Level) -> Result<(i64, i64), String> {
+fn coarse_search(reference: &Level, moving: &Level) -> Result<(i64, i64), Refusal> {
     let (w, h) = (reference.width as i64, reference.height as i64);
     let range = (SEARCH_RANGE * w.max(h) as f64).ceil() as i64 + 1;
     let shifts: Vec<(i64, i64)> = (-range..=range)
@@ -848,15 +928,10 @@ fn coarse_search(reference: &Level, moving: &Level) -> Result<(i64, i64), String
             |a, b| if b.0 > a.0 { b } else { a },
         );
     if best.is_nan() || best < MIN_CORRELATION {
-        return Err(format!(
-            "too little texture in common (correlation {best:.2} < {MIN_CORRELATION})"
-        ));
+        return Err(Refusal::LowCorrelation(best));
     }
     if dx.abs() == range || dy.abs() == range {
-        return Err(format!(
-            "moved more than the search range ({:.0} % of the frame's longer side)",
-            SEARCH_RANGE * 100.0
-        ));
+        return Err(Refusal::OutOfRange);
     }
     Ok((dx, dy))
 }
@@ -965,7 +1040,7 @@ fn register_or_chain(
     k: usize,
     geometry: &Geometry,
     model: Motion,
-) -> Result<Registration, String> {
+) -> Result<Registration, Failures> {
     let mut targets = vec![(reference, None)];
     if let Some((n, through)) = via {
         targets.push((*n, Some(through)));
@@ -980,14 +1055,15 @@ fn register_or_chain(
             };
             match found {
                 Ok(step) => return Ok(compose(step, through, n, reference, clipped)),
-                Err(why) => failures.push(format!(
-                    "onto frame {n}{}: {why}",
-                    if clipped { " clipped alike" } else { "" }
-                )),
+                Err(why) => failures.push(Failure {
+                    onto: n,
+                    clipped,
+                    why,
+                }),
             }
         }
     }
-    Err(failures.join("; "))
+    Err(Failures(failures))
 }
 
 /// A registration onto frame `n` (`through` its own transform when `n` is not the
@@ -1045,7 +1121,7 @@ fn register(
     moving: &Pyramid,
     geometry: &Geometry,
     model: Motion,
-) -> Result<Registration, String> {
+) -> Result<Registration, Refusal> {
     let (state, note) = estimate(&fixed.levels, &moving.levels, geometry, model)?;
     Ok(Registration {
         matrix: state.matrix(),
@@ -1065,11 +1141,9 @@ fn register_clipped(
     moving: &Pyramid,
     geometry: &Geometry,
     model: Motion,
-) -> Result<Registration, String> {
+) -> Result<Registration, Refusal> {
     let Some((clamped_fixed, clamped_moving)) = fixed.clipped_alike(moving) else {
-        return Err(format!(
-            "they measure less than {LEAST_COMMON_SPAN:.2} (ln) of radiance in common"
-        ));
+        return Err(Refusal::NoCommonRange);
     };
     let (state, note) = estimate(&clamped_fixed, &clamped_moving, geometry, model)?;
     // Too few well-exposed blocks in common to refine: nothing contradicts the edges.
@@ -1077,10 +1151,7 @@ fn register_clipped(
         let apart = geometry.corner_shift(&state.matrix(), &refined.matrix());
         let spread = uncertainty_px(&normal, refined.params(), geometry);
         if apart > CLIPPED_AGREEMENT_PX.max(3.0 * spread) {
-            return Err(format!(
-                "the tones both measure put the frame {apart:.1} px (±{spread:.2}) from where \
-                 its clipped edges do"
-            ));
+            return Err(Refusal::ClippedEdgesMoved { apart, spread });
         }
     }
     Ok(Registration {
@@ -1100,25 +1171,21 @@ fn estimate(
     moving: &[Level],
     geometry: &Geometry,
     model: Motion,
-) -> Result<(State, Option<String>), String> {
+) -> Result<(State, Option<String>), Refusal> {
     let (fine_fixed, fine_moving) = (&fixed[0], &moving[0]);
     let shared = overlap(fine_fixed, fine_moving);
     if shared < MIN_OVERLAP {
-        return Err(format!(
-            "only {:.1} % of the frame is well exposed in both (< {:.0} %)",
-            shared * 100.0,
-            MIN_OVERLAP * 100.0
-        ));
+        return Err(Refusal::LittleOverlap { shared });
     }
     let (state, normal, note) = descend(fixed, moving, geometry, model)?;
     let displacement = geometry.corner_shift(&Matrix3::identity(), &state.matrix());
     let still = identity_rms(fine_fixed, fine_moving, geometry);
     if displacement >= IDENTITY_PX && normal.rms() >= still {
-        return Err(format!(
-            "the estimated move ({displacement:.2} px) does not reduce the residual \
-             ({:.4} against {still:.4} unmoved)",
-            normal.rms()
-        ));
+        return Err(Refusal::NoBetter {
+            displacement,
+            moved: normal.rms(),
+            still,
+        });
     }
     Ok((state, note))
 }
@@ -1132,7 +1199,7 @@ fn descend(
     moving: &[Level],
     geometry: &Geometry,
     model: Motion,
-) -> Result<(State, Normal, Option<String>), String> {
+) -> Result<(State, Normal, Option<String>), Refusal> {
     let top = reference.len().min(moving.len()) - 1;
     let (dx, dy) = coarse_search(&reference[top], &moving[top])?;
     let scale = reference[top].step / geometry.s;
@@ -1169,7 +1236,7 @@ fn descend(
         }
     }
     let Some((start, mut normal)) = finest else {
-        return Err("no level to refine".into());
+        return Err(Refusal::NoLevel);
     };
     let mut note = None;
     let (fine_ref, fine_mov) = (&reference[0], &moving[0]);
@@ -1179,9 +1246,7 @@ fn descend(
             return Ok((state, normal, note));
         }
         let Some(simpler) = state.motion.simpler() else {
-            return Err(format!(
-                "too little texture to register the frame (±{spread:.2} px)"
-            ));
+            return Err(Refusal::Undetermined(spread));
         };
         note = Some(
             format!(

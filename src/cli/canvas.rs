@@ -10,6 +10,22 @@
 use std::path::Path;
 
 use filmback::atomic::{self, Overwrite, PublishError};
+
+/// Why a canvas could not be written.
+#[derive(Debug, thiserror::Error)]
+pub enum CanvasError {
+    /// The file could not be published.
+    #[error(transparent)]
+    Publish(#[from] PublishError),
+    /// The PNG encoder refused.
+    #[error("{path}: cannot encode the PNG: {source}")]
+    Encode {
+        /// The PNG file.
+        path: std::path::PathBuf,
+        /// What the encoder said.
+        source: image::ImageError,
+    },
+}
 use image::{ImageEncoder, Rgb, RgbImage};
 
 /// An RGB raster; every drawing call clips to its bounds.
@@ -125,7 +141,7 @@ impl Canvas {
     }
 
     /// Encodes the canvas as PNG straight into the file published atomically at `path`.
-    pub fn publish_png(&self, path: &Path, overwrite: Overwrite) -> Result<(), PublishError> {
+    pub fn publish_png(&self, path: &Path, overwrite: Overwrite) -> Result<(), CanvasError> {
         atomic::publish_with(path, overwrite, |w| {
             image::codecs::png::PngEncoder::new(w)
                 .write_image(
@@ -134,7 +150,10 @@ impl Canvas {
                     self.height(),
                     image::ExtendedColorType::Rgb8,
                 )
-                .map_err(|e| e.to_string())
+                .map_err(|source| CanvasError::Encode {
+                    path: path.to_path_buf(),
+                    source,
+                })
         })
     }
 }

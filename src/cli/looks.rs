@@ -43,7 +43,7 @@ impl LookArgs {
         if let Some(dir) = &self.curves {
             catalogue = catalogue.with_folder(dir)?;
         }
-        let colour: ColourMode = self.colour.parse().map_err(anyhow::Error::msg)?;
+        let colour: ColourMode = self.colour.parse()?;
         let key = match self.grey {
             Some(g) if g.is_finite() && g > 0.0 => Key::Grey(g),
             Some(g) => bail!("--grey {g}: must be a positive radiance"),
@@ -58,6 +58,8 @@ impl LookArgs {
     pub fn colour_space(&self) -> Result<ColourSpace> {
         self.colour_space
             .parse()
-            .map_err(|e: String| anyhow::anyhow!("--colour-space: {e}"))
+            .map_err(|e: filmback::display::UnknownColourSpace| {
+                anyhow::anyhow!("--colour-space: {e}")
+            })
     }
 }

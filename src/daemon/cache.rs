@@ -283,17 +283,33 @@ fn bracket_file(b: &PooledBracket) -> BracketFile {
     }
 }
 
-fn pooled_bracket(f: BracketFile, channels: usize) -> Result<PooledBracket, String> {
+/// A pooled bracket as stored, checked: each tone pair set on a channel the curve has,
+/// with a positive log ratio and finite, non-negative pairs (else why not, for `path`).
+fn pooled_bracket(
+    f: BracketFile,
+    channels: usize,
+    path: &Path,
+) -> Result<PooledBracket, CacheError> {
+    let invalid = |reason: String| CacheError::Invalid {
+        path: path.to_path_buf(),
+        reason,
+    };
     let mut per_channel: Vec<Vec<PairSet>> = vec![Vec::new(); channels];
     for set in f.sets {
-        let slot = per_channel
-            .get_mut(set.channel)
-            .ok_or_else(|| format!("bracket {}: channel {} of {channels}", f.name, set.channel))?;
+        let slot = per_channel.get_mut(set.channel).ok_or_else(|| {
+            invalid(format!(
+                "bracket {}: channel {} of {channels}",
+                f.name, set.channel
+            ))
+        })?;
         let ok = |v: f64| v.is_finite() && v >= 0.0;
         if !(set.log_ratio.is_finite() && set.log_ratio > 0.0)
             || set.pairs.iter().flatten().any(|&v| !ok(v))
         {
-            return Err(format!("bracket {}: a tone pair is not usable", f.name));
+            return Err(invalid(format!(
+                "bracket {}: a tone pair is not usable",
+                f.name
+            )));
         }
         slot.push(PairSet {
             log_ratio: set.log_ratio,
@@ -311,7 +327,7 @@ fn pooled_bracket(f: BracketFile, channels: usize) -> Result<PooledBracket, Stri
         });
     }
     if f.frames < 2 {
-        return Err(format!("bracket {}: {} frames", f.name, f.frames));
+        return Err(invalid(format!("bracket {}: {} frames", f.name, f.frames)));
     }
     Ok(PooledBracket {
         name: f.name,
@@ -752,7 +768,7 @@ fn parse(path: &Path, text: &str) -> Result<CachedResponse, CacheError> {
     }
     let brackets = |list: Vec<BracketFile>| -> Result<Vec<PooledBracket>, CacheError> {
         list.into_iter()
-            .map(|b| pooled_bracket(b, channels).map_err(invalid))
+            .map(|b| pooled_bracket(b, channels, path))
             .collect()
     };
     let pool = brackets(file.pool)?;

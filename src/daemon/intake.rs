@@ -47,6 +47,51 @@ pub(crate) enum Arrival {
     Delivered,
 }
 
+/// Why the ingest folder cannot be watched (the daemon then goes on scanning it every
+/// `poll` and tries again); each kernel limit comes with the knob that raises it.
+#[derive(Debug, thiserror::Error)]
+pub(crate) enum WatchError {
+    /// The user's inotify watches are used up.
+    #[error(
+        "{}: too many inotify watches ({source}); raise fs.inotify.max_user_watches or set \
+         [watch] mode = \"poll\"",
+        folder.display()
+    )]
+    TooManyWatches {
+        folder: PathBuf,
+        source: notify::Error,
+    },
+    /// The process's file descriptors are used up.
+    #[error(
+        "{}: too many open files ({source}); raise the file-descriptor limit (LimitNOFILE=)",
+        folder.display()
+    )]
+    TooManyFiles {
+        folder: PathBuf,
+        source: notify::Error,
+    },
+    /// Any other failure to watch.
+    #[error("{}: cannot watch: {source}", folder.display())]
+    Other {
+        folder: PathBuf,
+        source: notify::Error,
+    },
+}
+
+impl WatchError {
+    /// `source`, met while watching `folder`, sorted by what raises the limit.
+    fn from_notify(folder: &Path, source: notify::Error) -> WatchError {
+        let folder = folder.to_path_buf();
+        match &source.kind {
+            notify::ErrorKind::MaxFilesWatch => WatchError::TooManyWatches { folder, source },
+            notify::ErrorKind::Io(io) if io.raw_os_error() == Some(libc::EMFILE) => {
+                WatchError::TooManyFiles { folder, source }
+            }
+            _ => WatchError::Other { folder, source },
+        }
+    }
+}
+
 /// A running watcher; dropping it stops watching.
 pub(crate) type ActiveWatcher = Box<dyn Watcher + Send>;
 
@@ -55,7 +100,7 @@ pub(crate) fn watch(
     cfg: &Watch,
     dir: &Path,
     tx: UnboundedSender<Notice>,
-) -> Result<ActiveWatcher, String> {
+) -> Result<ActiveWatcher, WatchError> {
     let takes = cfg.clone();
     let root = dir.to_path_buf();
     let handler = move |res: notify::Result<notify::Event>| match res {
@@ -101,20 +146,7 @@ pub(crate) fn watch(
     } else {
         RecursiveMode::NonRecursive
     };
-    let explain = |e: notify::Error| -> String {
-        let text = e.to_string();
-        match &e.kind {
-            notify::ErrorKind::MaxFilesWatch => format!(
-                "{}: too many inotify watches ({text}); raise fs.inotify.max_user_watches or set [watch] mode = \"poll\"",
-                dir.display()
-            ),
-            notify::ErrorKind::Io(io) if io.raw_os_error() == Some(24) => format!(
-                "{}: too many open files ({text}); raise the file-descriptor limit (LimitNOFILE=)",
-                dir.display()
-            ),
-            _ => format!("{}: cannot watch: {text}", dir.display()),
-        }
-    };
+    let explain = |source: notify::Error| WatchError::from_notify(dir, source);
     let mut watcher: ActiveWatcher = match cfg.mode {
         WatchMode::Notify => Box::new(
             notify::RecommendedWatcher::new(

@@ -25,7 +25,7 @@ use std::time::Duration;
 
 use rayon::prelude::*;
 
-use crate::atomic::{self, Overwrite, PublishError};
+use crate::atomic::{self, Overwrite};
 use crate::daemon::bracket::{CameraId, Capture};
 use crate::daemon::cache::CachedResponse;
 use crate::daemon::config::{Preset, Recalibrate};
@@ -344,11 +344,7 @@ impl Lab for DarkroomLab {
             }
         };
         let outputs = atomic::publish_set(&stage, &job.out).map_err(|e| JobError::Output {
-            path: match &e {
-                PublishError::Exists { path }
-                | PublishError::Io { path, .. }
-                | PublishError::Content { path, .. } => path.clone(),
-            },
+            path: e.path().to_path_buf(),
             reason: e.to_string(),
         })?;
         let pictures = job

@@ -63,18 +63,10 @@ pub enum DarkroomError {
         /// Why.
         source: CalibrationError,
     },
-    /// The OpenEXR or Radiance HDR file could not be encoded or published.
+    /// The OpenEXR or Radiance HDR file could not be encoded or published (an encoder's
+    /// refusal is not a failure to write: developing again would fail again).
     #[error(transparent)]
     Output(#[from] OutputError),
-    /// The OpenEXR or Radiance HDR encoder refused the radiance (not a failure to write:
-    /// developing again would fail again).
-    #[error("{}: {source}", path.display())]
-    Encode {
-        /// The file it was encoding.
-        path: PathBuf,
-        /// Why.
-        source: OutputError,
-    },
     /// A rendering could not be made or published.
     #[error(transparent)]
     Rendering(#[from] RenderingError),
@@ -98,11 +90,7 @@ impl DarkroomError {
             DarkroomError::Rendering(RenderingError::Encode { path, .. }) => return Some(path),
             _ => return None,
         };
-        Some(match publish {
-            PublishError::Exists { path }
-            | PublishError::Io { path, .. }
-            | PublishError::Content { path, .. } => path,
-        })
+        Some(publish.path())
     }
 }
 
@@ -581,7 +569,7 @@ fn write_radiance_files(
         let path = prints.hdr_path();
         let mut hdr = Vec::new();
         hdr_output::encode_radiance_hdr(&mut hdr, source).map_err(|source| {
-            DarkroomError::Encode {
+            OutputError::Encode {
                 path: path.clone(),
                 source,
             }
@@ -617,7 +605,7 @@ fn write_radiance(
     let mut exr = Cursor::new(Vec::with_capacity(samples * bytes + (1 << 16)));
     let path = prints.exr_path();
     let written = hdr_output::encode_exr(&mut exr, source, confidence, provenance, options)
-        .map_err(|source| DarkroomError::Encode {
+        .map_err(|source| OutputError::Encode {
             path: path.clone(),
             source,
         })?;

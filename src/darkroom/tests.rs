@@ -1,5 +1,6 @@
 use super::*;
 use crate::frame::{BitDepth, Frame};
+use crate::hdr_output::EncodeError;
 use crate::metadata::{Camera, Exposure, Metadata};
 use crate::synthetic::{ResponseCurve, Sensor, expose, scene};
 
@@ -470,10 +471,10 @@ fn a_pair_with_looks_is_developed_from_the_merge_with_the_maps_files() {
 #[test]
 fn an_encoder_refusal_is_not_retried_as_a_failed_write() {
     let path = PathBuf::from("/out/b.exr");
-    let refused = DarkroomError::Encode {
+    let refused = DarkroomError::Output(OutputError::Encode {
         path: path.clone(),
-        source: OutputError::Exr("header refused".into()),
-    };
+        source: EncodeError::Exr(exr::error::Error::Invalid("header refused".into())),
+    });
     assert_eq!(refused.output_path(), None);
     assert!(refused.to_string().contains("/out/b.exr"), "{refused}");
     let full = DarkroomError::Publish(PublishError::Io {

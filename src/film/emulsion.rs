@@ -24,17 +24,20 @@ pub enum ColourMode {
     NeutralGrey,
 }
 
-impl FromStr for ColourMode {
-    type Err = String;
+/// A colour mode's name that is none of [`ColourMode`]'s.
+#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
+#[error("colour mode {0:?}: expected per-layer, luminance or neutral")]
+pub struct UnknownColourMode(pub String);
 
-    fn from_str(s: &str) -> Result<ColourMode, String> {
+impl FromStr for ColourMode {
+    type Err = UnknownColourMode;
+
+    fn from_str(s: &str) -> Result<ColourMode, UnknownColourMode> {
         match s {
             "per-layer" | "layers" => Ok(ColourMode::PerLayer),
             "luminance" => Ok(ColourMode::Luminance),
             "neutral" | "neutral-grey" => Ok(ColourMode::NeutralGrey),
-            _ => Err(format!(
-                "colour mode {s:?}: expected per-layer, luminance or neutral"
-            )),
+            _ => Err(UnknownColourMode(s.to_string())),
         }
     }
 }

@@ -41,9 +41,10 @@ use std::str::FromStr;
 use serde::Deserialize;
 
 pub use emulsion::{
-    ColourMode, Emulsion, ExposureTable, Key, LatentImage, TABLE_MAX_ERROR_D, render, scene_key,
+    ColourMode, Emulsion, ExposureTable, Key, LatentImage, TABLE_MAX_ERROR_D, UnknownColourMode,
+    render, scene_key,
 };
-pub use print::{FilterPack, Paper, PrintSetup};
+pub use print::{FilterError, FilterPack, Paper, PrintSetup};
 pub use spectral::PrintingDensity;
 pub use stock::{Catalogue, Curve, DensityReference, Granularity, Mtf, Speed, Stock};
 
@@ -145,13 +146,89 @@ pub enum FilmError {
         reason: String,
     },
     /// A rendering request such as `velvia50@1/2` that does not parse.
-    #[error("film request {text:?}: {reason}")]
+    #[error("film request {text:?}: {source}")]
     Request {
         /// The request as typed.
         text: String,
         /// What is wrong with it.
-        reason: String,
+        source: RequestError,
     },
+}
+
+/// What is wrong with a film request's exposure or options.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+pub enum RequestError {
+    /// Nothing before `@`.
+    #[error("no stock id before '@'")]
+    NoStock,
+    /// An exposure in stops that is not a number.
+    #[error("{0:?} is not a number of stops such as -1ev")]
+    Stops(String),
+    /// An exposure fraction whose numerator or denominator is not a number.
+    #[error("{text:?}: bad {part}")]
+    Fraction {
+        /// As typed.
+        text: String,
+        /// `numerator` or `denominator`.
+        part: &'static str,
+    },
+    /// An exposure that is not a number.
+    #[error("{0:?} is not an exposure such as 0.5, 1/2 or -1ev")]
+    Exposure(String),
+    /// An exposure outside `1e-6 ..= 1e6`.
+    #[error("exposure {0:?} must be a positive factor between 1e-6 and 1e6")]
+    ExposureRange(String),
+    /// An option given twice.
+    #[error("+{0} is given twice")]
+    Twice(String),
+    /// An option given without the value it needs (the message says which).
+    #[error("{0}")]
+    Missing(&'static str),
+    /// A numeric option given without its value.
+    #[error("{0} needs a value ({0}=…)")]
+    NeedsValue(String),
+    /// A numeric option's value that is not a number.
+    #[error("{name}={value}: not a number")]
+    NotANumber {
+        /// The option.
+        name: String,
+        /// As typed.
+        value: String,
+    },
+    /// A numeric option's value outside its range.
+    #[error("{name}={value}: must be within {lo}..={hi}")]
+    Outside {
+        /// The option.
+        name: String,
+        /// As typed.
+        value: String,
+        /// Least allowed.
+        lo: f64,
+        /// Greatest allowed.
+        hi: f64,
+    },
+    /// A film format that is none of the known ones nor a width in mm.
+    #[error("format={0}: expected 35mm, 645, 6x6, 6x7, 4x5 or Nmm (1–1000)")]
+    Format(String),
+    /// A grain seed that is not an integer.
+    #[error("seed={0}: not an integer")]
+    Seed(String),
+    /// A print exposure that does not parse or exceeds ±6 stops.
+    #[error("print={value}: {problem}")]
+    Print {
+        /// As typed.
+        value: String,
+        /// What is wrong.
+        problem: &'static str,
+    },
+    /// A filter pack that does not parse.
+    #[error(transparent)]
+    Filter(#[from] FilterError),
+    /// An option filmback does not know.
+    #[error(
+        "unknown option {0:?}: expected grain, mtf, halation, format=, seed=, paper=, print=, cc="
+    )]
+    Unknown(String),
 }
 
 /// Reversal (slide, viewed by transmission) or negative (viewed through a print).
@@ -253,7 +330,7 @@ pub const DEFAULT_HALATION: f64 = 0.1;
 
 impl Options {
     /// Parses the options after the stock (each without its `+`).
-    pub fn parse<'a>(items: impl IntoIterator<Item = &'a str>) -> Result<Options, String> {
+    pub fn parse<'a>(items: impl IntoIterator<Item = &'a str>) -> Result<Options, RequestError> {
         let mut o = Options::default();
         let mut labels = Vec::new();
         let mut seen: Vec<&str> = Vec::new();
@@ -263,16 +340,25 @@ impl Options {
                 None => (item, None),
             };
             if seen.contains(&name) {
-                return Err(format!("+{name} is given twice"));
+                return Err(RequestError::Twice(name.to_string()));
             }
             seen.push(name);
-            let number = |v: Option<&str>, lo: f64, hi: f64| -> Result<f64, String> {
-                let v = v.ok_or_else(|| format!("{name} needs a value ({name}=…)"))?;
-                let x: f64 = v.parse().map_err(|_| format!("{name}={v}: not a number"))?;
+            let number = |v: Option<&str>, lo: f64, hi: f64| -> Result<f64, RequestError> {
+                let v = v.ok_or_else(|| RequestError::NeedsValue(name.to_string()))?;
+                let (name, value) = (name.to_string(), v.to_string());
+                let x: f64 = v.parse().map_err(|_| RequestError::NotANumber {
+                    name: name.clone(),
+                    value: value.clone(),
+                })?;
                 if x.is_finite() && (lo..=hi).contains(&x) {
                     Ok(x)
                 } else {
-                    Err(format!("{name}={v}: must be within {lo}..={hi}"))
+                    Err(RequestError::Outside {
+                        name,
+                        value,
+                        lo,
+                        hi,
+                    })
                 }
             };
             match name {
@@ -290,7 +376,9 @@ impl Options {
                     })
                 }
                 "format" => {
-                    let v = value.ok_or("format needs a value such as 35mm or 6x7")?;
+                    let v = value.ok_or(RequestError::Missing(
+                        "format needs a value such as 35mm or 6x7",
+                    ))?;
                     o.format_mm = match v {
                         "35mm" | "135" => 36.0,
                         "645" => 56.0,
@@ -301,42 +389,28 @@ impl Options {
                             .strip_suffix("mm")
                             .and_then(|n| n.parse::<f64>().ok())
                             .filter(|n| n.is_finite() && (1.0..=1000.0).contains(n))
-                            .ok_or_else(|| {
-                                format!(
-                                    "format={v}: expected 35mm, 645, 6x6, 6x7, 4x5 or Nmm (1–1000)"
-                                )
-                            })?,
+                            .ok_or_else(|| RequestError::Format(v.to_string()))?,
                     };
                 }
                 "seed" => {
-                    let v = value.ok_or("seed needs a value")?;
-                    o.seed = v.parse().map_err(|_| format!("seed={v}: not an integer"))?;
+                    let v = value.ok_or(RequestError::Missing("seed needs a value"))?;
+                    o.seed = v.parse().map_err(|_| RequestError::Seed(v.to_string()))?;
                 }
-                "paper" => o.paper = value.ok_or("paper needs an id")?.to_string(),
+                "paper" => {
+                    o.paper = value
+                        .ok_or(RequestError::Missing("paper needs an id"))?
+                        .to_string()
+                }
                 "print" => {
-                    let v = value.ok_or("print needs stops such as -1/3")?;
-                    let v = v.trim_end_matches("ev").trim_end_matches("EV");
-                    let stops = if let Some((n, d)) = v.split_once('/') {
-                        let n: f64 = n.parse().map_err(|_| format!("print={v}: bad numerator"))?;
-                        let d: f64 = d
-                            .parse()
-                            .map_err(|_| format!("print={v}: bad denominator"))?;
-                        n / d
-                    } else {
-                        v.parse()
-                            .map_err(|_| format!("print={v}: not a number of stops"))?
-                    };
-                    if !(stops.is_finite() && stops.abs() <= 6.0) {
-                        return Err(format!("print={v}: within ±6 stops"));
-                    }
-                    o.print_stops = stops;
+                    let v = value.ok_or(RequestError::Missing("print needs stops such as -1/3"))?;
+                    o.print_stops = print_stops(v)?;
                 }
-                "cc" => o.filter = value.ok_or("cc needs filters such as 10y")?.parse()?,
-                _ => {
-                    return Err(format!(
-                        "unknown option {item:?}: expected grain, mtf, halation, format=, seed=, paper=, print=, cc="
-                    ));
+                "cc" => {
+                    o.filter = value
+                        .ok_or(RequestError::Missing("cc needs filters such as 10y"))?
+                        .parse()?
                 }
+                _ => return Err(RequestError::Unknown(item.to_string())),
             }
             labels.push(item.to_string());
         }
@@ -355,6 +429,28 @@ impl Options {
             filter: self.filter,
         })
     }
+}
+
+/// A print exposure in stops: `-1/3`, `0.5`, `+1ev`, within ±6.
+fn print_stops(v: &str) -> Result<f64, RequestError> {
+    let value = v.trim_end_matches("ev").trim_end_matches("EV");
+    let problem = |problem| RequestError::Print {
+        value: value.to_string(),
+        problem,
+    };
+    let stops = if let Some((n, d)) = value.split_once('/') {
+        let n: f64 = n.parse().map_err(|_| problem("bad numerator"))?;
+        let d: f64 = d.parse().map_err(|_| problem("bad denominator"))?;
+        n / d
+    } else {
+        value
+            .parse()
+            .map_err(|_| problem("not a number of stops"))?
+    };
+    if !(stops.is_finite() && stops.abs() <= 6.0) {
+        return Err(problem("within ±6 stops"));
+    }
+    Ok(stops)
 }
 
 impl FromStr for Request {
@@ -379,9 +475,9 @@ impl FromStr for Request {
             items.push(&r[..end]);
             rest = &r[end..];
         }
-        let options = Options::parse(items).map_err(|reason| FilmError::Request {
+        let options = Options::parse(items).map_err(|source| FilmError::Request {
             text: text.to_string(),
-            reason,
+            source,
         })?;
         let text_all = text;
         let text = head;
@@ -389,16 +485,16 @@ impl FromStr for Request {
             None => (text, 1.0),
             Some((stock, t)) => (
                 stock,
-                parse_exposure(t).map_err(|reason| FilmError::Request {
+                parse_exposure(t).map_err(|source| FilmError::Request {
                     text: text_all.to_string(),
-                    reason,
+                    source,
                 })?,
             ),
         };
         if stock.is_empty() {
             return Err(FilmError::Request {
                 text: text_all.to_string(),
-                reason: "no stock id before '@'".into(),
+                source: RequestError::NoStock,
             });
         }
         Ok(Request {
@@ -410,35 +506,31 @@ impl FromStr for Request {
 }
 
 /// Parses a relative exposure: `0.5`, `1/2`, `8`, `-1ev`, `+2EV` (`t = 2^ev`).
-pub fn parse_exposure(text: &str) -> Result<f64, String> {
+pub fn parse_exposure(text: &str) -> Result<f64, RequestError> {
     let lower = text.trim().to_ascii_lowercase();
+    let fraction = |part| RequestError::Fraction {
+        text: text.to_string(),
+        part,
+    };
     let t = if let Some(ev) = lower.strip_suffix("ev") {
         let ev: f64 = ev
             .trim()
             .parse()
-            .map_err(|_| format!("{text:?} is not a number of stops such as -1ev"))?;
+            .map_err(|_| RequestError::Stops(text.to_string()))?;
         2f64.powf(ev)
     } else if let Some((n, d)) = lower.split_once('/') {
-        let n: f64 = n
-            .trim()
-            .parse()
-            .map_err(|_| format!("{text:?}: bad numerator"))?;
-        let d: f64 = d
-            .trim()
-            .parse()
-            .map_err(|_| format!("{text:?}: bad denominator"))?;
+        let n: f64 = n.trim().parse().map_err(|_| fraction("numerator"))?;
+        let d: f64 = d.trim().parse().map_err(|_| fraction("denominator"))?;
         n / d
     } else {
         lower
             .parse()
-            .map_err(|_| format!("{text:?} is not an exposure such as 0.5, 1/2 or -1ev"))?
+            .map_err(|_| RequestError::Exposure(text.to_string()))?
     };
     if t.is_finite() && t > 0.0 && (1e-6..=1e6).contains(&t) {
         Ok(t)
     } else {
-        Err(format!(
-            "exposure {text:?} must be a positive factor between 1e-6 and 1e6"
-        ))
+        Err(RequestError::ExposureRange(text.to_string()))
     }
 }
 

@@ -158,25 +158,56 @@ impl Paper {
 #[derive(Debug, Clone, Copy, PartialEq, Default)]
 pub struct FilterPack(pub [f64; 3]);
 
+/// What is wrong with a filter pack as typed.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+pub enum FilterError {
+    /// Nothing given.
+    #[error("empty filter pack: expected e.g. 10y or 05m10y")]
+    Empty,
+    /// A value without its filter letter.
+    #[error("{0:?}: a value needs a filter letter (c m y r g b)")]
+    NoLetter(String),
+    /// A value that is not a number.
+    #[error("{text:?}: {value:?} is not a CC value")]
+    NotCc {
+        /// The pack as typed.
+        text: String,
+        /// The value as typed.
+        value: String,
+    },
+    /// A value beyond ±200 CC.
+    #[error("{0:?}: CC values are within ±200")]
+    Range(String),
+    /// A letter that names no filter.
+    #[error("{text:?}: unknown filter {letter:?} (c m y r g b)")]
+    Letter {
+        /// The pack as typed.
+        text: String,
+        /// The letter.
+        letter: char,
+    },
+}
+
 impl FromStr for FilterPack {
-    type Err = String;
+    type Err = FilterError;
 
     /// `10y`, `05m10y`, `-5c`, `20r` (red = magenta + yellow), `10g`, `10b`.
-    fn from_str(text: &str) -> Result<FilterPack, String> {
+    fn from_str(text: &str) -> Result<FilterPack, FilterError> {
         let mut pack = [0.0; 3];
         let mut rest = text.trim();
         if rest.is_empty() {
-            return Err("empty filter pack: expected e.g. 10y or 05m10y".into());
+            return Err(FilterError::Empty);
         }
         while !rest.is_empty() {
             let end = rest
                 .find(|c: char| c.is_ascii_alphabetic())
-                .ok_or_else(|| format!("{text:?}: a value needs a filter letter (c m y r g b)"))?;
-            let value: f64 = rest[..end]
-                .parse()
-                .map_err(|_| format!("{text:?}: {:?} is not a CC value", &rest[..end]))?;
+                .ok_or_else(|| FilterError::NoLetter(text.to_string()))?;
+            let value: f64 = rest[..end].parse().map_err(|_| FilterError::NotCc {
+                text: text.to_string(),
+                value: rest[..end].to_string(),
+            })?;
             if !(value.is_finite() && value.abs() <= 200.0) {
-                return Err(format!("{text:?}: CC values are within ±200"));
+                return Err(FilterError::Range(text.to_string()));
             }
             let letter = rest[end..].chars().next().unwrap_or('?');
             let add: [f64; 3] = match letter.to_ascii_lowercase() {
@@ -186,7 +217,12 @@ impl FromStr for FilterPack {
                 'r' => [0.0, 1.0, 1.0],
                 'g' => [1.0, 0.0, 1.0],
                 'b' => [1.0, 1.0, 0.0],
-                other => return Err(format!("{text:?}: unknown filter {other:?} (c m y r g b)")),
+                letter => {
+                    return Err(FilterError::Letter {
+                        text: text.to_string(),
+                        letter,
+                    });
+                }
             };
             for (p, a) in pack.iter_mut().zip(add) {
                 *p += a * value;

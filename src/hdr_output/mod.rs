@@ -38,7 +38,7 @@
 //! folder, full disk, encoder error) leaves no partial file.
 
 use std::io::{Seek, Write};
-use std::path::Path;
+use std::path::{Path, PathBuf};
 
 use exr::block::chunk::{Chunk, CompressedBlock, CompressedScanLineBlock};
 use exr::block::writer::ChunksWriter;
@@ -229,27 +229,15 @@ pub struct Written {
     pub warnings: Vec<String>,
 }
 
-/// Why a radiance map could not be written.
+/// Why a radiance map could not be encoded (encoding it again would fail again).
 #[derive(Debug, thiserror::Error)]
-pub enum OutputError {
-    /// The file could not be published (it exists, unwritable folder, full disk, or the
-    /// encoder failed); nothing was left behind.
-    #[error(transparent)]
-    Publish(#[from] PublishError),
+pub enum EncodeError {
     /// The OpenEXR encoder failed.
     #[error("cannot encode OpenEXR: {0}")]
-    Exr(String),
+    Exr(#[source] exr::error::Error),
     /// The Radiance HDR encoder failed.
     #[error("cannot encode Radiance HDR: {0}")]
-    Hdr(String),
-    /// An OpenEXR file could not be read.
-    #[error("{path}: cannot read OpenEXR: {reason}")]
-    Read {
-        /// The EXR file.
-        path: std::path::PathBuf,
-        /// The reader's message.
-        reason: String,
-    },
+    Hdr(#[source] image::ImageError),
     /// The confidence layer does not have one value per pixel.
     #[error("confidence layer has {got} values for {expected} pixels")]
     ConfidenceShape {
@@ -257,6 +245,40 @@ pub enum OutputError {
         got: usize,
         /// Pixels in the map.
         expected: usize,
+    },
+}
+
+/// Why a radiance map could not be written or read.
+#[derive(Debug, thiserror::Error)]
+pub enum OutputError {
+    /// The file could not be published (it exists, unwritable folder, full disk);
+    /// nothing was left behind.
+    #[error(transparent)]
+    Publish(#[from] PublishError),
+    /// The encoder refused the radiance (not a failure to write: writing again would fail
+    /// again); nothing was left behind.
+    #[error("{path}: {source}")]
+    Encode {
+        /// The file it was encoding.
+        path: PathBuf,
+        /// Why.
+        source: EncodeError,
+    },
+    /// An OpenEXR file could not be read.
+    #[error("{path}: cannot read OpenEXR: {source}")]
+    Read {
+        /// The EXR file.
+        path: PathBuf,
+        /// What the reader said.
+        source: exr::error::Error,
+    },
+    /// An OpenEXR file's first RGB layer is not a whole picture.
+    #[error("{path}: {source}")]
+    Shape {
+        /// The EXR file.
+        path: PathBuf,
+        /// How the layer falls short.
+        source: crate::radiance::ShapeError,
     },
 }
 
@@ -270,13 +292,12 @@ pub fn write_exr<S: RadianceSource + ?Sized>(
     provenance: &Provenance,
     options: ExrOptions,
 ) -> Result<Written, OutputError> {
-    let mut written = None;
     atomic::publish_with(path, overwrite, |w| {
-        written =
-            Some(encode_exr(w, map, confidence, provenance, options).map_err(|e| e.to_string())?);
-        Ok(())
-    })?;
-    Ok(written.expect("set by the producer on success"))
+        encode_exr(w, map, confidence, provenance, options).map_err(|source| OutputError::Encode {
+            path: path.to_path_buf(),
+            source,
+        })
+    })
 }
 
 /// Encodes `map` as OpenEXR into `writer` (see [`write_exr`]).
@@ -286,12 +307,12 @@ pub fn encode_exr<W: Write + Seek, S: RadianceSource + ?Sized>(
     confidence: Option<&[f32]>,
     provenance: &Provenance,
     options: ExrOptions,
-) -> Result<Written, OutputError> {
+) -> Result<Written, EncodeError> {
     let (width, height) = (map.width() as usize, map.height() as usize);
     if let Some(conf) = confidence
         && conf.len() != width * height
     {
-        return Err(OutputError::ConfidenceShape {
+        return Err(EncodeError::ConfidenceShape {
             got: conf.len(),
             expected: width * height,
         });
@@ -436,10 +457,8 @@ pub fn encode_exr<W: Write + Seek, S: RadianceSource + ?Sized>(
             .on_progress(|_| {})
             .compress_all_blocks_parallel(&meta, blocks)
     })
-    .map_err(|e| OutputError::Exr(e.to_string()))?;
-    sorted
-        .finish()
-        .map_err(|e| OutputError::Exr(e.to_string()))?;
+    .map_err(EncodeError::Exr)?;
+    sorted.finish().map_err(|e| EncodeError::Exr(e.into()))?;
     Ok(Written { scale, warnings })
 }
 
@@ -542,16 +561,16 @@ pub fn read_exr(path: &Path) -> Result<RadianceMap, OutputError> {
             pixels[i..i + 3].copy_from_slice(&[r, g, b]);
         },
     )
-    .map_err(|e| OutputError::Read {
+    .map_err(|source| OutputError::Read {
         path: path.to_path_buf(),
-        reason: e.to_string(),
+        source,
     })?;
     let size = image.layer_data.size;
     let (_, pixels) = image.layer_data.channel_data.pixels;
-    RadianceMap::new(size.width() as u32, size.height() as u32, 3, pixels).map_err(|e| {
-        OutputError::Read {
+    RadianceMap::new(size.width() as u32, size.height() as u32, 3, pixels).map_err(|source| {
+        OutputError::Shape {
             path: path.to_path_buf(),
-            reason: e.to_string(),
+            source,
         }
     })
 }
@@ -564,16 +583,18 @@ pub fn write_radiance_hdr<S: RadianceSource + ?Sized>(
     map: &S,
 ) -> Result<(), OutputError> {
     atomic::publish_with(path, overwrite, |w| {
-        encode_radiance_hdr(w, map).map_err(|e| e.to_string())
-    })?;
-    Ok(())
+        encode_radiance_hdr(w, map).map_err(|source| OutputError::Encode {
+            path: path.to_path_buf(),
+            source,
+        })
+    })
 }
 
 /// Encodes `map` as Radiance RGBE into `writer` (see [`write_radiance_hdr`]).
 pub fn encode_radiance_hdr<W: Write, S: RadianceSource + ?Sized>(
     writer: W,
     map: &S,
-) -> Result<(), OutputError> {
+) -> Result<(), EncodeError> {
     let pixels = map.width() as usize * map.height() as usize;
     let grey = map.channels() == 1;
     let rgb: Vec<image::Rgb<f32>> = (0..pixels)
@@ -584,7 +605,7 @@ pub fn encode_radiance_hdr<W: Write, S: RadianceSource + ?Sized>(
         .collect();
     image::codecs::hdr::HdrEncoder::new(writer)
         .encode(&rgb, map.width() as usize, map.height() as usize)
-        .map_err(|e| OutputError::Hdr(e.to_string()))
+        .map_err(EncodeError::Hdr)
 }
 
 #[cfg(test)]

@@ -7,8 +7,8 @@ use std::path::{Path, PathBuf};
 use std::str::FromStr;
 
 use super::source_exif::Storage;
-use super::{Look, RenderingError, Shrink, SourceExif, jpeg};
-use crate::atomic::{self, Overwrite, PublishError};
+use super::{ImageEncodeError, Look, RenderingError, Shrink, SourceExif, jpeg};
+use crate::atomic::{self, Overwrite};
 use crate::display::{ColourSpace, Depth, DisplayImage};
 use crate::film;
 use crate::radiance::RadianceSource;
@@ -50,6 +50,18 @@ impl Format {
     }
 }
 
+impl std::fmt::Display for Format {
+    /// As [`Format::from_str`] reads it: `jpeg:92`, `png`, `png16`, `tiff`.
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match self {
+            Format::Jpeg { quality } => write!(f, "jpeg:{quality}"),
+            Format::Png8 => f.write_str("png"),
+            Format::Png16 => f.write_str("png16"),
+            Format::Tiff16 => f.write_str("tiff"),
+        }
+    }
+}
+
 impl FromStr for Format {
     type Err = RenderingError;
 
@@ -84,7 +96,7 @@ pub fn encode(
     format: Format,
     exif: &SourceExif,
     out: &mut impl std::io::Write,
-) -> Result<(), String> {
+) -> Result<(), ImageEncodeError> {
     let (w, h) = (image.width(), image.height());
     match format {
         Format::Jpeg { quality } => {
@@ -99,11 +111,11 @@ pub fn encode(
         }
         Format::Png8 | Format::Png16 => {
             let block = exif.tiff_block(w, h, Storage::Rgb)?;
-            png(image, format == Format::Png16, block, out).map_err(|e| e.to_string())
+            Ok(png(image, format == Format::Png16, block, out)?)
         }
         Format::Tiff16 => {
             let bytes = tiff16(image, exif)?;
-            out.write_all(&bytes).map_err(|e| e.to_string())
+            Ok(out.write_all(&bytes)?)
         }
     }
 }
@@ -143,7 +155,7 @@ fn png(
 
 /// A baseline uncompressed 16-bit RGB TIFF (little-endian) with the ICC profile (tag
 /// 34675) and the EXIF fields, one strip per 64 rows.
-fn tiff16(image: &DisplayImage, exif: &SourceExif) -> Result<Vec<u8>, String> {
+fn tiff16(image: &DisplayImage, exif: &SourceExif) -> Result<Vec<u8>, exif::Error> {
     let (w, h) = (image.width(), image.height());
     let rows_per_strip = 64u32;
     let row_bytes = w as usize * 6;
@@ -179,7 +191,7 @@ fn tiff16(image: &DisplayImage, exif: &SourceExif) -> Result<Vec<u8>, String> {
     }
     writer.set_strips(&strips, In::PRIMARY);
     let mut out = Cursor::new(Vec::with_capacity(bytes.len() + 4096));
-    writer.write(&mut out, true).map_err(|e| e.to_string())?;
+    writer.write(&mut out, true)?;
     Ok(out.into_inner())
 }
 
@@ -194,7 +206,7 @@ pub fn encode_film_jpeg(
     quality: u8,
     exif: &SourceExif,
     out: &mut impl std::io::Write,
-) -> Result<(), String> {
+) -> Result<(), ImageEncodeError> {
     let (w, h) = (exposure.width(), exposure.height());
     let develop = |first: usize, rgb: &mut [u8]| emulsion.render_rows_8bit(exposure, first, rgb);
     stream_jpeg(w, h, develop, quality, exif, out, None)
@@ -211,7 +223,7 @@ fn stream_jpeg(
     exif: &SourceExif,
     out: &mut impl std::io::Write,
     shrink: Option<&Shrink>,
-) -> Result<(), String> {
+) -> Result<(), ImageEncodeError> {
     let block = exif.tiff_block(w, h, Storage::Jpeg)?;
     let decorate = decorate(&block, ColourSpace::Srgb);
     let develop = |first: usize, rgb: &mut [u8]| {
@@ -266,10 +278,10 @@ pub fn encode_look_previewed(
     out: &mut impl std::io::Write,
     shrink: Option<&Shrink>,
 ) -> Result<(), RenderingError> {
-    let encode_error = |reason: String| RenderingError::Encode {
+    let encode_error = |source| RenderingError::Encode {
         path: PathBuf::new(),
-        format: format!("{format:?}"),
-        reason,
+        format,
+        source,
     };
     let (w, h) = (map.width(), map.height());
     match (look, format) {
@@ -314,12 +326,11 @@ pub fn write(
     exif: &SourceExif,
     overwrite: Overwrite,
 ) -> Result<(), RenderingError> {
-    atomic::publish_with(path, overwrite, |w| encode(image, format, exif, w)).map_err(|e| match e {
-        PublishError::Content { path, reason } => RenderingError::Encode {
-            path,
-            format: format!("{format:?}"),
-            reason,
-        },
-        other => RenderingError::Publish(other),
+    atomic::publish_with(path, overwrite, |w| {
+        encode(image, format, exif, w).map_err(|source| RenderingError::Encode {
+            path: path.to_path_buf(),
+            format,
+            source,
+        })
     })
 }

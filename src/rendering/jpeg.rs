@@ -16,6 +16,8 @@ use std::ops::Range;
 use rayon::prelude::*;
 use rusty_jpeg::encode::{ColorType, Encoder, EncodingError, SamplingFactor};
 
+use super::ImageEncodeError;
+
 /// Rows per band at most (a multiple of both MCU heights, 8 and 16 rows): 64 rows of a
 /// 24 MP frame are 1.1 MB of RGB, so a band in flight per core stays in cache-sized work.
 const BAND_ROWS: usize = 64;
@@ -63,15 +65,17 @@ pub(super) fn encode_bands(
     decorate: impl Fn(&mut Encoder<&mut Vec<u8>>) -> Result<(), EncodingError> + Sync,
     develop: impl Fn(usize, &mut [u8]) + Sync,
     out: &mut impl Write,
-) -> Result<(), String> {
-    let w16 = u16::try_from(width).map_err(|_| "JPEG is limited to 65535 pixels wide")?;
-    let h16 = u16::try_from(height).map_err(|_| "JPEG is limited to 65535 pixels high")?;
+) -> Result<(), ImageEncodeError> {
+    let too_large = || ImageEncodeError::JpegTooLarge { width, height };
+    let w16 = u16::try_from(width).map_err(|_| too_large())?;
+    let h16 = u16::try_from(height).map_err(|_| too_large())?;
     if w16 == 0 || h16 == 0 {
-        return Err(format!("cannot encode an empty {width}×{height} image"));
+        return Err(ImageEncodeError::Empty { width, height });
     }
     let (w, h) = (usize::from(w16), usize::from(h16));
     let (band_rows, interval) = layout(w, quality);
-    let interval16 = u16::try_from(interval).map_err(|_| "restart interval over 65535")?;
+    let interval16 = u16::try_from(interval)
+        .map_err(|_| ImageEncodeError::JpegStream("restart interval over 65535"))?;
     let bands = (0..h.div_ceil(band_rows))
         .into_par_iter()
         .map(|i| {
@@ -84,67 +88,64 @@ pub(super) fn encode_bands(
             encoder.set_sampling_factor(sampling(quality));
             encoder.set_restart_interval(interval16);
             if i == 0 {
-                decorate(&mut encoder).map_err(|e| e.to_string())?;
+                decorate(&mut encoder)?;
             }
             // `rows ≤ h ≤ 65535`.
-            encoder
-                .encode(&rgb, w16, rows as u16, ColorType::Rgb)
-                .map_err(|e| e.to_string())?;
-            let (frame, scan) = scan_of(&bytes)?;
+            encoder.encode(&rgb, w16, rows as u16, ColorType::Rgb)?;
+            let (frame, scan) = scan_of(&bytes).map_err(ImageEncodeError::JpegStream)?;
             Ok(Band { bytes, scan, frame })
         })
-        .collect::<Result<Vec<Band>, String>>()?;
-    let first = bands.first().ok_or("no bands")?;
+        .collect::<Result<Vec<Band>, ImageEncodeError>>()?;
+    let first = bands
+        .first()
+        .ok_or(ImageEncodeError::Empty { width, height })?;
     let mut header = first.bytes[..first.scan.start].to_vec();
     // SOF0: FF C0, length (2), precision (1), height (2), width (2).
     let height_at = first.frame + 5;
     header
         .get_mut(height_at..height_at + 2)
-        .ok_or("encoder wrote a short frame header")?
+        .ok_or(ImageEncodeError::JpegStream("a short frame header"))?
         .copy_from_slice(&h16.to_be_bytes());
-    let io = |e: std::io::Error| e.to_string();
-    out.write_all(&header).map_err(io)?;
+    out.write_all(&header)?;
     for (i, band) in bands.iter().enumerate() {
         if i > 0 {
-            out.write_all(&[0xFF, 0xD0 + ((i - 1) % 8) as u8])
-                .map_err(io)?;
+            out.write_all(&[0xFF, 0xD0 + ((i - 1) % 8) as u8])?;
         }
-        out.write_all(&band.bytes[band.scan.clone()]).map_err(io)?;
+        out.write_all(&band.bytes[band.scan.clone()])?;
     }
-    out.write_all(&[0xFF, 0xD9]).map_err(io)
+    Ok(out.write_all(&[0xFF, 0xD9])?)
 }
 
 /// The start of the `SOF0` segment and the entropy-coded segment of a baseline JPEG as
 /// `rusty_jpeg` writes it (marker segments up to `SOS`, one scan, `EOI` last).
-fn scan_of(bytes: &[u8]) -> Result<(usize, Range<usize>), String> {
-    let bad = |what: &str| format!("unexpected encoder output: {what}");
+fn scan_of(bytes: &[u8]) -> Result<(usize, Range<usize>), &'static str> {
     if bytes.get(..2) != Some(&[0xFF, 0xD8]) {
-        return Err(bad("no SOI"));
+        return Err("no SOI");
     }
     if bytes.len() < 4 || bytes[bytes.len() - 2..] != [0xFF, 0xD9] {
-        return Err(bad("no EOI"));
+        return Err("no EOI");
     }
     let mut pos = 2;
     let mut frame = None;
     loop {
-        let segment = bytes.get(pos..pos + 4).ok_or_else(|| bad("no SOS"))?;
+        let segment = bytes.get(pos..pos + 4).ok_or("no SOS")?;
         if segment[0] != 0xFF {
-            return Err(bad("a marker expected"));
+            return Err("a marker expected");
         }
         let length = usize::from(u16::from_be_bytes([segment[2], segment[3]]));
         match segment[1] {
             0xC0 => frame = Some(pos),
             0xC1..=0xCF if segment[1] != 0xC4 && segment[1] != 0xC8 && segment[1] != 0xCC => {
-                return Err(bad("not a baseline frame"));
+                return Err("not a baseline frame");
             }
             0xDA => {
                 let start = pos + 2 + length;
                 let end = bytes.len() - 2;
-                let frame = frame.ok_or_else(|| bad("SOS before SOF0"))?;
+                let frame = frame.ok_or("SOS before SOF0")?;
                 return if start <= end {
                     Ok((frame, start..end))
                 } else {
-                    Err(bad("SOS runs past the end"))
+                    Err("SOS runs past the end")
                 };
             }
             _ => {}

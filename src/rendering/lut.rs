@@ -28,7 +28,7 @@ use std::io::{self, Write};
 use std::path::Path;
 
 use super::{Look, RenderingError};
-use crate::atomic::{self, Overwrite};
+use crate::atomic::{self, Overwrite, PublishError};
 use crate::display::Depth;
 use crate::film::{self, Key, Kind, PrintingDensity, Stock};
 pub use crate::radiance::Gamut;
@@ -372,9 +372,13 @@ impl Lut {
     /// Writes the `.cube` file at `path`, atomically.
     pub fn publish(&self, path: &Path, overwrite: Overwrite) -> Result<(), RenderingError> {
         atomic::publish_with(path, overwrite, |w| {
-            self.write_cube(w).map_err(|e| e.to_string())
-        })?;
-        Ok(())
+            self.write_cube(w).map_err(|source| {
+                RenderingError::from(PublishError::Io {
+                    path: path.to_path_buf(),
+                    source,
+                })
+            })
+        })
     }
 
     /// The LUT at input code `v` by trilinear interpolation (the `.cube` convention;

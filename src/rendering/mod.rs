@@ -34,15 +34,16 @@ pub enum RenderingError {
     /// A stock could not be found or rendered.
     #[error(transparent)]
     Film(#[from] FilmError),
-    /// The encoder failed (reported with the file it was writing).
-    #[error("{path}: cannot encode {format}: {reason}")]
+    /// The encoder failed (reported with the file it was writing; the path is empty
+    /// when encoding to a writer that is no file).
+    #[error("{path}: cannot encode {format}: {source}")]
     Encode {
         /// The output file.
         path: PathBuf,
         /// The format.
-        format: String,
-        /// The encoder's message.
-        reason: String,
+        format: Format,
+        /// What the encoder said.
+        source: ImageEncodeError,
     },
     /// The file could not be published.
     #[error(transparent)]
@@ -55,6 +56,42 @@ pub enum RenderingError {
         /// What was expected.
         reason: String,
     },
+}
+
+/// Why a display image could not be encoded as a file.
+#[derive(Debug, thiserror::Error)]
+pub enum ImageEncodeError {
+    /// Wider or higher than a JPEG can state (65535 pixels).
+    #[error("JPEG is limited to 65535 × 65535 pixels, not {width} × {height}")]
+    JpegTooLarge {
+        /// Pixels across.
+        width: u32,
+        /// Pixels down.
+        height: u32,
+    },
+    /// An image without pixels.
+    #[error("cannot encode an empty {width} × {height} image")]
+    Empty {
+        /// Pixels across.
+        width: u32,
+        /// Pixels down.
+        height: u32,
+    },
+    /// The JPEG encoder refused.
+    #[error("JPEG encoder: {0}")]
+    Jpeg(#[from] rusty_jpeg::encode::EncodingError),
+    /// The JPEG encoder wrote a stream the bands cannot be joined from.
+    #[error("unexpected JPEG encoder output: {0}")]
+    JpegStream(&'static str),
+    /// The EXIF block (or the TIFF that carries it) could not be written.
+    #[error("EXIF: {0}")]
+    Exif(#[from] exif::Error),
+    /// The PNG encoder refused.
+    #[error("PNG encoder: {0}")]
+    Png(#[from] ::png::EncodingError),
+    /// Writing the bytes failed.
+    #[error(transparent)]
+    Io(#[from] std::io::Error),
 }
 
 /// One way to show a radiance map.
@@ -272,8 +309,7 @@ fn publish_look(
     path: &Path,
     shrink: Option<&Shrink>,
 ) -> Result<(), RenderingError> {
-    let mut failure = None;
-    let published = atomic::publish_with(path, outputs.overwrite, |w| {
+    atomic::publish_with(path, outputs.overwrite, |w| {
         encode_look_previewed(
             map,
             look,
@@ -283,23 +319,21 @@ fn publish_look(
             w,
             shrink,
         )
-        .map_err(|e| {
-            let reason = e.to_string();
-            failure = Some(e);
-            reason
-        })
-    });
-    match (published, failure) {
-        (Ok(()), _) => Ok(()),
-        (Err(_), Some(RenderingError::Encode { format, reason, .. })) => {
-            Err(RenderingError::Encode {
+        .map_err(|e| e.at(path))
+    })
+}
+
+impl RenderingError {
+    /// The error with an encoder's failure reported at `path`.
+    fn at(self, path: &Path) -> RenderingError {
+        match self {
+            RenderingError::Encode { format, source, .. } => RenderingError::Encode {
                 path: path.to_path_buf(),
                 format,
-                reason,
-            })
+                source,
+            },
+            other => other,
         }
-        (Err(_), Some(other)) => Err(other),
-        (Err(e), None) => Err(e.into()),
     }
 }
 

@@ -175,14 +175,14 @@ impl SourceExif {
         width: u32,
         height: u32,
         storage: Storage,
-    ) -> Result<Vec<u8>, String> {
+    ) -> Result<Vec<u8>, exif::Error> {
         let fields = self.rendering_fields(width, height, storage);
         let mut writer = exif::experimental::Writer::new();
         for f in &fields {
             writer.push_field(f);
         }
         let mut out = Cursor::new(Vec::new());
-        writer.write(&mut out, false).map_err(|e| e.to_string())?;
+        writer.write(&mut out, false)?;
         Ok(out.into_inner())
     }
 }

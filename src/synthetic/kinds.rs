@@ -61,18 +61,19 @@ impl SceneKind {
     }
 }
 
-impl FromStr for SceneKind {
-    type Err = String;
+/// A scene kind's name that is none of [`SceneKind::ALL`].
+#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
+#[error("unknown scene kind {0:?}: procedural, studio, studio-falloff or flat-patches")]
+pub struct UnknownScene(pub String);
 
-    fn from_str(s: &str) -> Result<SceneKind, String> {
+impl FromStr for SceneKind {
+    type Err = UnknownScene;
+
+    fn from_str(s: &str) -> Result<SceneKind, UnknownScene> {
         SceneKind::ALL
             .into_iter()
             .find(|k| k.name() == s)
-            .ok_or_else(|| {
-                format!(
-                    "unknown scene kind {s:?}: procedural, studio, studio-falloff or flat-patches"
-                )
-            })
+            .ok_or_else(|| UnknownScene(s.to_string()))
     }
 }
 

@@ -38,7 +38,7 @@ use crate::metadata::{Camera, CaptureTime, Exposure};
 
 pub use curve::{ResponseCurve, dorf_curves};
 pub use encode::{Encoding, encode, write};
-pub use kinds::{SceneKind, flat_patches, studio};
+pub use kinds::{SceneKind, UnknownScene, flat_patches, studio};
 pub use motion::moved;
 pub use place::real_place;
 #[cfg(feature = "raw")]

@@ -17,6 +17,45 @@ use super::{
     Singles, Viewer, Watch, WatchMode,
 };
 
+/// Why a value of the file is refused where it is read (reported at its line).
+#[derive(Debug, thiserror::Error)]
+pub enum ValueError {
+    /// Not a number where one is expected.
+    #[error("expected a number, found {0}")]
+    NotANumber(&'static str),
+    /// A number outside its range.
+    #[error("{value} is outside {lo}..={hi} ({unit})")]
+    Outside {
+        /// As read.
+        value: f64,
+        /// Least allowed.
+        lo: f64,
+        /// Greatest allowed.
+        hi: f64,
+        /// What it counts.
+        unit: &'static str,
+    },
+    /// A fraction where a whole number is expected.
+    #[error("{value} must be a whole number ({unit})")]
+    NotWhole {
+        /// As read.
+        value: f64,
+        /// What it counts.
+        unit: &'static str,
+    },
+    /// A look request that does not parse.
+    #[error(transparent)]
+    Look(#[from] crate::film::FilmError),
+    /// A look name that cannot be part of a file name.
+    #[error(
+        "{0:?} is not a valid name (lower-case letters, digits, '-', '_', then optionally @t and +options)"
+    )]
+    LookName(String),
+    /// An empty hook command.
+    #[error("an empty command; leave the key out to run none")]
+    EmptyCommand,
+}
+
 /// A number checked while it is read, so a bad value is reported at its line.
 macro_rules! bounded {
     ($name:ident, $t:ty, $lo:expr, $hi:expr, $what:expr) => {
@@ -26,21 +65,29 @@ macro_rules! bounded {
         pub struct $name(pub $t);
 
         impl TryFrom<toml::Value> for $name {
-            type Error = String;
-            fn try_from(v: toml::Value) -> Result<Self, String> {
+            type Error = ValueError;
+            fn try_from(v: toml::Value) -> Result<Self, ValueError> {
                 #[allow(clippy::cast_precision_loss, clippy::cast_possible_truncation)]
                 let x: f64 = match v {
                     toml::Value::Integer(i) => i as f64,
                     toml::Value::Float(f) => f,
-                    other => return Err(format!("expected a number, found {}", other.type_str())),
+                    other => return Err(ValueError::NotANumber(other.type_str())),
                 };
                 let (lo, hi) = ($lo as f64, $hi as f64);
                 if !(x >= lo && x <= hi) {
-                    return Err(format!("{x} is outside {lo}..={hi} ({})", $what));
+                    return Err(ValueError::Outside {
+                        value: x,
+                        lo,
+                        hi,
+                        unit: $what,
+                    });
                 }
                 let v = x as $t;
                 if v as f64 != x {
-                    return Err(format!("{x} must be a whole number ({})", $what));
+                    return Err(ValueError::NotWhole {
+                        value: x,
+                        unit: $what,
+                    });
                 }
                 Ok($name(v))
             }
@@ -76,22 +123,20 @@ bounded!(
 pub struct LookName(pub String);
 
 impl TryFrom<String> for LookName {
-    type Error = String;
+    type Error = ValueError;
     /// A name, optionally followed by `@t` (a film's relative exposure: `0.5`, `1/2`,
     /// `-1ev`) and a film's `+options` (`+grain`, `+print=-1/3`). Whether the stock or
     /// tone map exists is checked once the whole file is read (user stocks come from
     /// `folders.stocks`).
-    fn try_from(s: String) -> Result<Self, String> {
-        let request: crate::film::Request = s.parse().map_err(|e| format!("{e}"))?;
+    fn try_from(s: String) -> Result<Self, ValueError> {
+        let request: crate::film::Request = s.parse()?;
         let name = request.stock.as_str();
         if name.is_empty()
             || !name
                 .chars()
                 .all(|c| c.is_ascii_lowercase() || c.is_ascii_digit() || c == '-' || c == '_')
         {
-            return Err(format!(
-                "{s:?} is not a valid name (lower-case letters, digits, '-', '_', then optionally @t and +options)"
-            ));
+            return Err(ValueError::LookName(s));
         }
         Ok(LookName(s))
     }
@@ -125,10 +170,10 @@ struct RawHooks {
 struct HookCommand(String);
 
 impl TryFrom<String> for HookCommand {
-    type Error = String;
-    fn try_from(s: String) -> Result<Self, String> {
+    type Error = ValueError;
+    fn try_from(s: String) -> Result<Self, ValueError> {
         if s.trim().is_empty() {
-            return Err("an empty command; leave the key out to run none".into());
+            return Err(ValueError::EmptyCommand);
         }
         Ok(HookCommand(s))
     }

@@ -55,6 +55,14 @@ pub(crate) enum PreviewError {
         /// What the encoder said.
         source: image::ImageError,
     },
+    /// The bracket's record could not be serialised.
+    #[error("{path}: cannot write the record: {source}")]
+    Record {
+        /// The record file.
+        path: PathBuf,
+        /// What the serialiser said.
+        source: serde_json::Error,
+    },
     /// The preview could not be written.
     #[error(transparent)]
     Publish(#[from] PublishError),
@@ -279,14 +287,15 @@ pub(crate) fn complete(record: &Record, frame_paths: &[PathBuf]) -> bool {
 /// Writes `record` as [`RECORD_FILE`] in `folder` (logged when it cannot be: the record
 /// is then rebuilt from the journal alone after a restart).
 fn keep_record(record: &Record, folder: &Path) {
+    let path = folder.join(RECORD_FILE);
     let kept = serde_json::to_vec(record)
-        .map_err(|e| PublishError::Content {
-            path: folder.join(RECORD_FILE),
-            reason: e.to_string(),
+        .map_err(|source| PreviewError::Record {
+            path: path.clone(),
+            source,
         })
         .and_then(|bytes| {
             create_folder(folder)?;
-            atomic::publish(&folder.join(RECORD_FILE), &bytes, Overwrite::Replace)
+            Ok(atomic::publish(&path, &bytes, Overwrite::Replace)?)
         });
     if let Err(e) = kept {
         warn!(error = %e, "the bracket's record is not kept for a restart");
