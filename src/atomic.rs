@@ -204,7 +204,7 @@ pub fn publish(path: &Path, bytes: &[u8], overwrite: Overwrite) -> Result<(), Pu
 }
 
 /// Prefix of the hidden staging folders of [`publish_set`] (`.filmback-stage-<key>`).
-pub const STAGE_PREFIX: &str = ".filmback-stage-";
+const STAGE_PREFIX: &str = ".filmback-stage-";
 
 /// Renames `from` to `to` unless `to` exists ([`io::ErrorKind::AlreadyExists`]), in one
 /// step: `renameat2(…, RENAME_NOREPLACE)`. Where the kernel or the file system has no such
@@ -484,7 +484,7 @@ pub fn recover_sets(dir: &Path) -> Vec<Recovered> {
 /// Finishes or removes one staging folder `stage` of `dir` that an interrupted
 /// [`publish_set`] left: a sealed set ([`seal_set`]) has the rest of its files moved into
 /// place, an unsealed one is removed (nothing of it was visible).
-pub fn recover_set(stage: &Path, dir: &Path) -> Recovered {
+pub(crate) fn recover_set(stage: &Path, dir: &Path) -> Recovered {
     let done = if stage.join(COMPLETE).is_file() {
         let mut moved = Vec::new();
         for from in staged(stage).unwrap_or_default() {

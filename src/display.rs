@@ -65,7 +65,7 @@ impl DisplayImage {
     ///
     /// # Panics
     /// If the length does not match.
-    pub fn new_8bit(width: u32, height: u32, samples: Vec<u8>) -> DisplayImage {
+    pub(crate) fn new_8bit(width: u32, height: u32, samples: Vec<u8>) -> DisplayImage {
         assert_eq!(samples.len(), width as usize * height as usize * 3);
         DisplayImage {
             width,
@@ -125,7 +125,7 @@ impl DisplayImage {
     }
 
     /// The image at `depth` (a copy only when it differs).
-    pub fn at_depth(self, depth: Depth) -> DisplayImage {
+    pub(crate) fn at_depth(self, depth: Depth) -> DisplayImage {
         let samples = match (depth, &self.samples) {
             (Depth::Eight, Samples::Sixteen(_)) => Samples::Eight(self.to_u8().into_owned()),
             (Depth::Sixteen, Samples::Eight(_)) => Samples::Sixteen(self.samples().into_owned()),
@@ -185,7 +185,7 @@ pub fn srgb_encode_u16(x: f32) -> u16 {
 /// `to_8bit(srgb_encode_u16(x))` in one look-up: the same value for every `f32`, from a
 /// table of the same buckets holding the 8-bit codes.
 #[inline]
-pub fn srgb_encode_u8(x: f32) -> u8 {
+pub(crate) fn srgb_encode_u8(x: f32) -> u8 {
     const SHIFT: u32 = 12;
     static TABLE: OnceLock<(u32, Vec<u8>)> = OnceLock::new();
     let low = 2f32.powi(-12);
@@ -309,7 +309,7 @@ impl std::str::FromStr for ColourSpace {
 
 /// BT.2020's transfer function (the BT.709 OETF at 12-bit precision) of linear `l`,
 /// clamped to `[0, 1]` (NaN to 0).
-pub fn rec2020_encode(l: f32) -> f32 {
+fn rec2020_encode(l: f32) -> f32 {
     const ALPHA: f32 = 1.099_296_8;
     const BETA: f32 = 0.018_053_97;
     if l.is_nan() || l <= 0.0 {
@@ -325,7 +325,7 @@ pub fn rec2020_encode(l: f32) -> f32 {
 
 /// Linear light of a BT.2020 code value `v ∈ [0, 1]` (the inverse of
 /// [`rec2020_encode`]): `v / 4.5` below `4.5·β`, `((v + α − 1) / α)^(1/0.45)` above.
-pub fn rec2020_decode(v: f32) -> f32 {
+fn rec2020_decode(v: f32) -> f32 {
     const ALPHA: f32 = 1.099_296_8;
     const BETA: f32 = 0.018_053_97;
     if v < 4.5 * BETA {
@@ -381,7 +381,8 @@ impl DisplayImage {
 /// The sRGB ICC profile ([`ColourSpace::icc_profile`]): the IEC 61966-2.1 colorants
 /// (primaries x,y = 0.64,0.33 / 0.30,0.60 / 0.15,0.06, D65 white, adapted to the D50 PCS)
 /// and the sRGB parametric tone curve (γ 2.4, linear toe below 0.04045); about 0.5 kB.
-pub fn srgb_icc_profile() -> &'static [u8] {
+#[cfg(test)]
+fn srgb_icc_profile() -> &'static [u8] {
     ColourSpace::Srgb.icc_profile()
 }
 

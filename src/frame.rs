@@ -244,7 +244,7 @@ impl Frame {
     }
 
     /// The same frame, marked as stored with `compression`.
-    pub fn with_compression(self, compression: Compression) -> Frame {
+    pub(crate) fn with_compression(self, compression: Compression) -> Frame {
         Frame {
             compression,
             ..self
@@ -486,13 +486,13 @@ fn decode_raw(path: &Path, bytes: &[u8], limits: Limits) -> Result<LoadedFrame, 
 }
 
 /// A raw's metadata and sensor size `(width, height)`, or why it cannot be taken.
-pub type RawProbe = Result<(Metadata, (u32, u32)), FrameError>;
+type RawProbe = Result<(Metadata, (u32, u32)), FrameError>;
 
 /// For a file named as a camera raw (see [`crate::raw::RAW_EXTENSIONS`]): its metadata and
 /// sensor size, read without decoding the pixels, or why the raw cannot be taken
 /// (unsupported camera, damaged file). `None` for every other file, and always without
 /// the `raw` feature.
-pub fn probe_raw(path: &Path, bytes: &[u8]) -> Option<RawProbe> {
+pub(crate) fn probe_raw(path: &Path, bytes: &[u8]) -> Option<RawProbe> {
     #[cfg(feature = "raw")]
     if crate::raw::is_raw_extension(path) {
         return Some(

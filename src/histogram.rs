@@ -24,7 +24,7 @@ use rayon::prelude::*;
 use crate::frame::{BitDepth, Compression, Frame, Samples};
 
 /// Number of bins used for a bit depth: 256 for 8-bit, 4096 for 16-bit (see module docs).
-pub fn bins_for(depth: BitDepth) -> usize {
+fn bins_for(depth: BitDepth) -> usize {
     match depth {
         BitDepth::Eight => 256,
         BitDepth::Sixteen => 4096,
@@ -422,7 +422,7 @@ impl Cumulative {
     }
 
     /// The bin holding brightness `b` (clamped to the valid range).
-    pub fn bin_of(&self, b: f64) -> usize {
+    fn bin_of(&self, b: f64) -> usize {
         let k = self.edges.partition_point(|&e| e <= b);
         k.clamp(1, self.counts.len()) - 1
     }
@@ -500,7 +500,7 @@ impl UsableTones {
     /// A spike — an end bin (or the last bin holding pixels) with more than 0.2 % of the
     /// pixels and more than four times its neighbours' mean — marks clipping below full
     /// scale: the limit moves the same margin inside the spike's edge.
-    pub fn detect(cumulative: &Cumulative, compression: Compression) -> UsableTones {
+    pub(crate) fn detect(cumulative: &Cumulative, compression: Compression) -> UsableTones {
         const FLOOR_MARGIN: f64 = 2.5 / 255.0;
         let top_margin: f64 = match compression {
             Compression::Lossless => 0.5 / 255.0,

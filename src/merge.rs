@@ -315,10 +315,7 @@ pub struct Merged {
 pub const LENS_Q: f64 = 0.65;
 
 /// ISO 12232's saturation-based speed constant: `S = 78/H_sat` (lux·s).
-pub const SATURATION_SPEED: f64 = 78.0;
-
-/// The reflected-light meter constant `K` of ISO 2720, cd·s/m².
-pub const METER_K: f64 = 12.5;
+const SATURATION_SPEED: f64 = 78.0;
 
 /// Which scale a radiance map carries (see the module docs).
 #[derive(Debug, Clone, PartialEq)]
@@ -1009,7 +1006,7 @@ impl<'a> PairMerge<'a> {
     /// The `out.len()/channels` whole pixels from `pixel` on, channels interleaved: one
     /// table lookup per sample.
     #[inline]
-    pub fn pixels_into(&self, pixel: usize, out: &mut [f32]) {
+    pub(crate) fn pixels_into(&self, pixel: usize, out: &mut [f32]) {
         let codes = pixel * self.table.channels..pixel * self.table.channels + out.len();
         gather_pair(
             &self.dark[codes.clone()],
@@ -1020,7 +1017,7 @@ impl<'a> PairMerge<'a> {
     }
 
     /// The frames' codes and the table by code pair ([`CodePairs`]).
-    pub fn code_pairs(&self) -> CodePairs<'_> {
+    pub(crate) fn code_pairs(&self) -> CodePairs<'_> {
         CodePairs {
             dark: self.dark,
             bright: self.bright,
@@ -1031,19 +1028,20 @@ impl<'a> PairMerge<'a> {
 
     /// The largest value any sample can take (over all code pairs), an upper bound of the
     /// image's maximum: `e_max/e_min` for the sRGB-like responses (clipped high).
-    pub fn max_value(&self) -> f32 {
+    pub(crate) fn max_value(&self) -> f32 {
         self.table.value.iter().copied().fold(0.0, f32::max)
     }
 
     /// Multiplies every value by `factor` (a change of scale, see [`exposure_scale`]).
-    pub fn scale_by(&mut self, factor: f32) {
+    pub(crate) fn scale_by(&mut self, factor: f32) {
         for v in &mut self.table.value {
             *v *= factor;
         }
     }
 
     /// Evaluates every sample into a [`RadianceMap`] (rows in parallel).
-    pub fn to_map(&self) -> RadianceMap {
+    #[cfg(test)]
+    fn to_map(&self) -> RadianceMap {
         let mut pixels = vec![0.0f32; self.dark.len()];
         fill_pair(
             self.dark,
@@ -1172,6 +1170,7 @@ impl<'a> BracketMerge<'a> {
     /// Prepares the merge of `frames` (any number ≥ 2, 8- or 16-bit): checks the bracket
     /// exactly as [`merge`] does, builds the tables and counts the clipped samples (one
     /// pass over the darkest frame's codes, and the others' only where it is clipped).
+    #[cfg(test)]
     pub fn new(
         frames: &[BracketFrame<'a>],
         response: &InverseResponse,
@@ -1182,7 +1181,7 @@ impl<'a> BracketMerge<'a> {
 
     /// [`BracketMerge::new`] with a weight mask per frame, as [`merge_masked`] takes them:
     /// the values are exactly those of [`merge_masked`].
-    pub fn masked(
+    pub(crate) fn masked(
         frames: &[BracketFrame<'a>],
         response: &InverseResponse,
         weighting: Weighting,
@@ -1233,7 +1232,7 @@ impl<'a> BracketMerge<'a> {
 
     /// Multiplies every value by `factor` (a change of scale, see [`exposure_scale`]),
     /// applied to each merged value as [`merge`]'s caller applies it to the map.
-    pub fn scale_by(&mut self, factor: f32) {
+    pub(crate) fn scale_by(&mut self, factor: f32) {
         self.factor *= factor;
     }
 
@@ -1324,14 +1323,14 @@ impl<'a> BracketMerge<'a> {
     /// An upper bound of every value, from the tables alone: the largest `x_k(code)`
     /// (a weighted mean never exceeds its largest term; the clipped rules take a term),
     /// raised by 10⁻⁵ for the rounding of the `f32` sums.
-    pub fn max_bound(&self) -> f32 {
+    pub(crate) fn max_bound(&self) -> f32 {
         let largest = self.tables.value.iter().copied().fold(0.0, f32::max);
         largest * self.factor * (1.0 + 1e-5)
     }
 
     /// The largest finite value of the image: one pass over the whole merge, rows in
     /// parallel, nothing held.
-    pub fn max_value(&self) -> f32 {
+    pub(crate) fn max_value(&self) -> f32 {
         let width = self.width as usize;
         (0..self.height as usize)
             .into_par_iter()
@@ -1352,7 +1351,8 @@ impl<'a> BracketMerge<'a> {
     }
 
     /// Evaluates every sample into a [`RadianceMap`] (rows in parallel).
-    pub fn to_map(&self) -> RadianceMap {
+    #[cfg(test)]
+    fn to_map(&self) -> RadianceMap {
         let (width, channels) = (self.width as usize, self.channels());
         let mut pixels = vec![0.0f32; width * self.height as usize * channels];
         pixels

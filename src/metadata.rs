@@ -92,7 +92,7 @@ impl CaptureTime {
     /// This time advanced by `seconds` (≥ 0; negative counts as 0) on the camera's clock,
     /// to the nanosecond; the offset is kept. Sub-seconds are recorded when this time has
     /// them or the result falls between whole seconds.
-    pub fn later_by(&self, seconds: f64) -> CaptureTime {
+    pub(crate) fn later_by(&self, seconds: f64) -> CaptureTime {
         let whole = CaptureTime {
             nanos: None,
             ..*self
@@ -463,7 +463,14 @@ impl TagReader<'_> {
 /// Whether a recorded date-time is a real one: year 1..=9998 (0000 and 9999 are
 /// placeholders cameras write), a day that exists in its month, a time of day (a leap
 /// second allowed).
-pub fn is_real_date(year: u16, month: u8, day: u8, hour: u8, minute: u8, second: u8) -> bool {
+pub(crate) fn is_real_date(
+    year: u16,
+    month: u8,
+    day: u8,
+    hour: u8,
+    minute: u8,
+    second: u8,
+) -> bool {
     (1..=9998).contains(&year)
         && (1..=12).contains(&month)
         && (1..=days_in_month(year, month)).contains(&day)

@@ -76,7 +76,7 @@ thread_local! {
 
 /// Calls `f` with pixels `first .. first + count` of `source`, channels interleaved: in
 /// place for a source that holds them, else evaluated into a buffer of this thread.
-pub fn with_pixels<R>(
+pub(crate) fn with_pixels<R>(
     source: &(impl RadianceSource + ?Sized),
     first: usize,
     count: usize,
@@ -256,10 +256,12 @@ impl Gamut {
         (0.32168, 0.33767),
     ]);
     /// ARRI Wide Gamut 4, D65; ARRI "LogC4 Logarithmic Color Space" specification (2022).
-    pub const AWG4: Gamut = Gamut([(0.7347, 0.2653), (0.1424, 0.8576), (0.0991, -0.0308), D65]);
+    pub(crate) const AWG4: Gamut =
+        Gamut([(0.7347, 0.2653), (0.1424, 0.8576), (0.0991, -0.0308), D65]);
     /// Sony S-Gamut3.Cine, D65; Sony "Technical Summary for S-Gamut3.Cine/S-Log3 and
     /// S-Gamut3/S-Log3".
-    pub const SGAMUT3_CINE: Gamut = Gamut([(0.766, 0.275), (0.225, 0.800), (0.089, -0.087), D65]);
+    pub(crate) const SGAMUT3_CINE: Gamut =
+        Gamut([(0.766, 0.275), (0.225, 0.800), (0.089, -0.087), D65]);
     /// ACES AP0 (ACES2065-1), ACES white; SMPTE ST 2065-1.
     pub const AP0: Gamut = Gamut([
         (0.7347, 0.2653),
@@ -268,9 +270,10 @@ impl Gamut {
         (0.32168, 0.33767),
     ]);
     /// Display P3: the DCI-P3 primaries with a D65 white (SMPTE EG 432-1).
-    pub const DISPLAY_P3: Gamut = Gamut([(0.680, 0.320), (0.265, 0.690), (0.150, 0.060), D65]);
+    pub(crate) const DISPLAY_P3: Gamut =
+        Gamut([(0.680, 0.320), (0.265, 0.690), (0.150, 0.060), D65]);
     /// ITU-R BT.2020, D65.
-    pub const REC2020: Gamut = Gamut([(0.708, 0.292), (0.170, 0.797), (0.131, 0.046), D65]);
+    pub(crate) const REC2020: Gamut = Gamut([(0.708, 0.292), (0.170, 0.797), (0.131, 0.046), D65]);
 
     /// RGB → XYZ (`Y_white = 1`) and the white's XYZ.
     fn to_xyz(self) -> (Matrix3<f64>, Vector3<f64>) {
@@ -304,6 +307,6 @@ impl Gamut {
 }
 
 /// `m · v` for a row-major 3×3 matrix.
-pub fn apply_matrix(m: &[[f64; 3]; 3], v: [f64; 3]) -> [f64; 3] {
+pub(crate) fn apply_matrix(m: &[[f64; 3]; 3], v: [f64; 3]) -> [f64; 3] {
     m.map(|row| row[0] * v[0] + row[1] * v[1] + row[2] * v[2])
 }

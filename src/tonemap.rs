@@ -361,7 +361,7 @@ impl LuminanceHistogram {
     /// rank error from the sample is about `√(p(1−p)/n)`, under 0.03 % of the pixels;
     /// the rows not read may hold luminances beyond the sample's extremes, which the
     /// maps clamp as they clamp every luminance outside their range.
-    pub fn of_map(map: &dyn RadianceSource) -> LuminanceHistogram {
+    pub(crate) fn of_map(map: &dyn RadianceSource) -> LuminanceHistogram {
         let ch = map.channels();
         let width = map.width() as usize;
         let height = map.height() as usize;
@@ -526,7 +526,7 @@ impl HistogramAdjustment {
     /// is spread over the bins its `log10` span overlaps, in proportion, so a bin's count
     /// differs from the direct one only by the pixels of the one bucket (2.1·10⁻⁴ wide
     /// in `log10 L`) that straddles each of its edges.
-    pub fn fit_histogram(&self, histogram: &LuminanceHistogram) -> ToneCurve {
+    pub(crate) fn fit_histogram(&self, histogram: &LuminanceHistogram) -> ToneCurve {
         let n = histogram.positive as usize;
         let (least, greatest) = histogram.positive_range;
         let (b_min, b_max) = (f64::from(least).log10(), f64::from(greatest).log10());
@@ -558,7 +558,7 @@ impl HistogramAdjustment {
 
     /// [`HistogramAdjustment::fit`] the direct way, each luminance's bin from its `f64`
     /// `log10`: the reference for [`HistogramAdjustment::fit_histogram`].
-    pub fn fit_exact(&self, luminances: &[f32]) -> ToneCurve {
+    fn fit_exact(&self, luminances: &[f32]) -> ToneCurve {
         let log = |l: &f32| (l.is_finite() && *l > 0.0).then(|| f64::from(*l).log10());
         let (b_min, b_max, n) = luminances
             .par_iter()
@@ -669,7 +669,7 @@ impl HistogramAdjustment {
 impl ToneCurve {
     /// `log10 (L_d / L_d,max)` for world log10 luminance `b` (0 at the top, down to
     /// `−log10(display range)`).
-    pub fn display_log(&self, b: f64) -> f64 {
+    fn display_log(&self, b: f64) -> f64 {
         let bins = self.cumulative.len() - 1;
         let b_max = self.b_min + self.width * bins as f64;
         if self.linear {
@@ -709,7 +709,7 @@ impl ToneCurve {
     }
 
     /// The world log10 luminance range the curve spans.
-    pub fn world_range(&self) -> (f64, f64) {
+    fn world_range(&self) -> (f64, f64) {
         let bins = self.cumulative.len() - 1;
         (self.b_min, self.b_min + self.width * bins as f64)
     }

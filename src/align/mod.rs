@@ -103,8 +103,7 @@ use crate::frame::{Frame, Samples};
 use crate::response::InverseResponse;
 
 #[cfg(feature = "raw")]
-pub use warp::{MosaicFrame, align_mosaics, warp_mosaics};
-pub use warp::{warp_frame, warp_frames};
+pub use warp::{MosaicFrame, align_mosaics, warp_frame, warp_frames, warp_mosaics};
 
 /// The lower end of the well-exposed code range, as a fraction of full scale: below it a
 /// sample is in the noise floor (code 10 of 255).
@@ -292,7 +291,8 @@ impl Alignment {
     }
 
     /// True when some frame is resampled.
-    pub fn moves_any(&self) -> bool {
+    #[cfg(test)]
+    pub(crate) fn moves_any(&self) -> bool {
         self.frames.iter().any(|f| f.motion.is_some())
     }
 

@@ -141,7 +141,7 @@ impl Closed {
     }
 
     /// The frames, in capture order, to amend (e.g. with their companions).
-    pub fn frames_mut(&mut self) -> Vec<&mut Capture> {
+    pub(crate) fn frames_mut(&mut self) -> Vec<&mut Capture> {
         match self {
             Closed::Bracket(b) => b.frames.iter_mut().collect(),
             Closed::Single(c, _) => vec![c],
@@ -208,7 +208,7 @@ pub fn fingerprint<'a>(inputs: impl IntoIterator<Item = &'a Input>) -> String {
 /// The order in which the frames of one batch (a scan of a folder, a burst) enter the
 /// grouper: capture time, then path. The daemon's intake and `filmback plan` both use it,
 /// so a folder gives the same brackets to either.
-pub fn capture_order(a: &Capture, b: &Capture) -> Ordering {
+pub(crate) fn capture_order(a: &Capture, b: &Capture) -> Ordering {
     a.time_s
         .total_cmp(&b.time_s)
         .then_with(|| a.input.path.cmp(&b.input.path))
@@ -315,7 +315,7 @@ impl Grouper {
     }
 
     /// Replaces the rules (config reload); open groups keep their frames.
-    pub fn set_rules(&mut self, rules: BracketRules) {
+    pub(crate) fn set_rules(&mut self, rules: BracketRules) {
         self.rules = rules;
     }
 
@@ -401,7 +401,7 @@ impl Grouper {
     }
 
     /// True when [`Grouper::expire`] at `now` would close a group.
-    pub fn due(&self, now: f64) -> bool {
+    pub(crate) fn due(&self, now: f64) -> bool {
         self.open
             .iter()
             .any(|(camera, o)| !self.ready(camera, o, now).is_empty())
@@ -409,7 +409,7 @@ impl Grouper {
 
     /// Closes every run whose gap clock is more than `max_gap_s` old at `now`: no further
     /// frame of that bracket can still come.
-    pub fn expire(&mut self, now: f64) -> Vec<Closed> {
+    pub(crate) fn expire(&mut self, now: f64) -> Vec<Closed> {
         let cameras: Vec<CameraId> = self.open.keys().cloned().collect();
         cameras
             .iter()
@@ -419,7 +419,7 @@ impl Grouper {
 
     /// Takes the frame at `path` out of its open group (its raw arrived: the JPEG of a
     /// RAW+JPEG capture is not a frame of its own); `None` when no open group holds it.
-    pub fn withdraw(&mut self, path: &std::path::Path) -> Option<Capture> {
+    pub(crate) fn withdraw(&mut self, path: &std::path::Path) -> Option<Capture> {
         let (camera, at) = self.open.iter().find_map(|(camera, open)| {
             open.frames
                 .iter()
@@ -452,7 +452,7 @@ impl Grouper {
     /// Restarts the gap clock of every open group: called while the daemon is not taking
     /// new files (queue full, a file still being written), so a bracket is not closed
     /// early for lack of frames that are in fact waiting on disk.
-    pub fn postpone(&mut self, now: f64) {
+    pub(crate) fn postpone(&mut self, now: f64) {
         for open in self.open.values_mut() {
             open.postponed = now;
         }

@@ -8,7 +8,7 @@ use std::time::{Duration, Instant};
 use tracing::{info, warn};
 
 /// How long a hook may run before it is killed.
-pub const HOOK_TIMEOUT: Duration = Duration::from_secs(60);
+const HOOK_TIMEOUT: Duration = Duration::from_secs(60);
 
 /// One run of the `on_developed` hook.
 #[derive(Debug, Clone)]
@@ -39,7 +39,7 @@ pub(crate) enum HookError {
 
 /// A queue of hook runs, one at a time on a thread of its own.
 #[derive(Debug, Clone)]
-pub(crate) struct Hooks {
+pub struct Hooks {
     runs: std::sync::mpsc::Sender<Developed>,
 }
 

@@ -162,7 +162,7 @@ impl Entry {
     }
 
     /// The content digest recorded for the input at `path`, if this entry developed it.
-    pub fn digest_of(&self, path: &Path) -> Option<u64> {
+    pub(crate) fn digest_of(&self, path: &Path) -> Option<u64> {
         let (inputs, digests): (Vec<&Input>, &[u64]) = match self {
             Entry::Bracket {
                 inputs, digests, ..
@@ -219,7 +219,7 @@ pub fn unix_now() -> u64 {
 
 /// The open journal: everything recorded so far, and an append handle.
 #[derive(Debug)]
-pub struct Journal {
+pub(crate) struct Journal {
     path: PathBuf,
     file: File,
     entries: Vec<Entry>,
@@ -288,7 +288,7 @@ impl Journal {
     /// memory (the file is not rewritten): the daemon resolves a journal written with
     /// relative or differently spelled folders against its canonical ingest folder, so a
     /// file has one identity whatever the configuration said then.
-    pub fn resolve_inputs(&mut self, resolve: impl Fn(&Path) -> PathBuf) {
+    pub(crate) fn resolve_inputs(&mut self, resolve: impl Fn(&Path) -> PathBuf) {
         let entries = std::mem::take(&mut self.entries);
         self.settled.clear();
         self.developed.clear();
@@ -306,7 +306,7 @@ impl Journal {
     }
 
     /// The latest bracket or single published under output stem `stem`.
-    pub fn by_stem(&self, stem: &str) -> Option<&Entry> {
+    pub(crate) fn by_stem(&self, stem: &str) -> Option<&Entry> {
         self.entries
             .iter()
             .rev()
@@ -348,18 +348,13 @@ impl Journal {
     }
 
     /// True when the journal settles this exact input (same path, size and mtime).
-    pub fn is_settled(&self, input: &Input) -> bool {
+    pub(crate) fn is_settled(&self, input: &Input) -> bool {
         self.settled.contains(input)
     }
 
     /// Everything recorded, oldest first.
     pub fn entries(&self) -> &[Entry] {
         &self.entries
-    }
-
-    /// The journal file.
-    pub fn path(&self) -> &Path {
-        &self.path
     }
 }
 
@@ -381,7 +376,7 @@ pub mod any_path {
     }
 
     /// Writes `path` as a string, or as its bytes when it is not UTF-8.
-    pub fn serialize<S: Serializer>(path: &Path, s: S) -> Result<S::Ok, S::Error> {
+    pub(crate) fn serialize<S: Serializer>(path: &Path, s: S) -> Result<S::Ok, S::Error> {
         match path.to_str() {
             Some(text) => s.serialize_str(text),
             None => Stored::Raw {
@@ -392,7 +387,7 @@ pub mod any_path {
     }
 
     /// Reads what [`serialize`] wrote.
-    pub fn deserialize<'de, D: Deserializer<'de>>(d: D) -> Result<PathBuf, D::Error> {
+    pub(crate) fn deserialize<'de, D: Deserializer<'de>>(d: D) -> Result<PathBuf, D::Error> {
         Ok(match Stored::deserialize(d)? {
             Stored::Text(text) => PathBuf::from(text),
             Stored::Raw { bytes } => PathBuf::from(OsString::from_vec(bytes)),

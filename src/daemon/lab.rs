@@ -68,7 +68,7 @@ pub struct Job {
 
 impl Job {
     /// True for a single frame (renderings only, no extended range).
-    pub fn is_single(&self) -> bool {
+    fn is_single(&self) -> bool {
         self.frames.len() == 1
     }
 }

@@ -51,8 +51,8 @@ use tracing::{info, warn};
 
 pub use budget::{Footprint, job_bytes};
 pub use lab::{Aligned, DarkroomLab, Facts, Job, JobError, Lab, Pictured, Pictures, Processed};
-pub use status::{Retry, STATUS_FILE, Snapshot, lock_held, read_snapshot, state_writable};
-pub use viewer::{PREVIEW_FOLDER, ViewerError};
+pub use status::{Retry, Snapshot, lock_held, read_snapshot, state_writable};
+pub use viewer::PREVIEW_FOLDER;
 
 use crate::atomic;
 use bracket::{Closed, Grouper};

@@ -13,7 +13,7 @@ use super::journal;
 use crate::atomic::{self, Overwrite};
 
 /// File name of the status snapshot in the state folder.
-pub const STATUS_FILE: &str = "status.json";
+pub(crate) const STATUS_FILE: &str = "status.json";
 
 /// The daemon's state as `filmback status` shows it: `state/status.json`, rewritten
 /// (atomically) whenever a count changes.

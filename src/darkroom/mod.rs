@@ -42,9 +42,10 @@ mod raw;
 
 use choice::use_given;
 
+pub use choice::CALIBRATION_PIXELS;
 pub use choice::{
-    BodyPool, CALIBRATION_PIXELS, CONTRADICTION_STOPS, ChosenResponse, GivenResponse, Pooling,
-    ResponsePolicy, Source, choose_response,
+    BodyPool, CONTRADICTION_STOPS, ChosenResponse, GivenResponse, Pooling, ResponsePolicy, Source,
+    choose_response,
 };
 
 /// Why a bracket could not be developed. Each variant names the file concerned.
@@ -82,7 +83,7 @@ pub enum DarkroomError {
 impl DarkroomError {
     /// The output file a failure to write concerns, if it is one (full disk, permissions,
     /// an existing file): such failures are worth retrying; the others are not.
-    pub fn output_path(&self) -> Option<&Path> {
+    pub(crate) fn output_path(&self) -> Option<&Path> {
         let publish = match self {
             DarkroomError::Publish(p)
             | DarkroomError::Output(OutputError::Publish(p))
@@ -139,7 +140,7 @@ impl Prints<'_> {
     }
 
     /// `DIR/STEM.hdr`.
-    pub fn hdr_path(&self) -> PathBuf {
+    fn hdr_path(&self) -> PathBuf {
         self.dir.join(format!("{}.hdr", self.stem))
     }
 
@@ -712,10 +713,7 @@ pub fn working_memory_bytes(width: u32, height: u32, channels: usize, looks: usi
 /// One frame's radiance estimate, `E = g(B)` per sample: the frame's own range, no
 /// extension (scale: a sample at the top code reads 1.0, as the longest frame of a
 /// bracket does).
-pub fn linearise(
-    loaded: &LoadedFrame,
-    response: &InverseResponse,
-) -> Result<RadianceMap, MergeError> {
+fn linearise(loaded: &LoadedFrame, response: &InverseResponse) -> Result<RadianceMap, MergeError> {
     let frame = &loaded.frame;
     let channels = frame.channels();
     if response.channels() != channels {

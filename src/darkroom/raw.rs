@@ -11,7 +11,7 @@ use crate::raw::{self, RawError, RawExposure};
 use crate::response::InverseResponse;
 
 /// What the report and the EXR header say a raw bracket's response is.
-pub const LINEAR_RAW: &str = "linear (raw)";
+const LINEAR_RAW: &str = "linear (raw)";
 
 /// Merges `frames` when they are raws (`None` when none is): the response reported and
 /// the merged radiance in linear Rec. 709 times `scale` (stage `merge+demosaic`), after

@@ -36,9 +36,6 @@ pub const FORMAT: &str = "filmback-plan";
 /// Version of the plan format written; `run` refuses other versions.
 pub const VERSION: u32 = 1;
 
-/// Exit status of `filmback run` for a task that is done (developed now, or before).
-pub const EXIT_DONE: u8 = 0;
-
 /// Exit status of `filmback run` for input that will not get better by retrying: a
 /// damaged or changed frame, a bad plan line, an index out of range (`EX_DATAERR`).
 pub const EXIT_BAD_INPUT: u8 = 65;

@@ -426,7 +426,7 @@ impl Emulsion {
     }
 
     /// Whether the look needs the optics pass ([`Emulsion::expose`]) before developing.
-    pub fn has_optics(&self) -> bool {
+    pub(crate) fn has_optics(&self) -> bool {
         self.kernels.is_some() || self.halation.is_some()
     }
 
@@ -504,20 +504,10 @@ impl Emulsion {
     }
 
     /// Develops one pixel of linear radiance into sRGB-encoded 16-bit values, without
-    /// grain (see [`Emulsion::pixel_at`]).
+    /// grain.
     #[inline]
     pub fn pixel(&self, e: [f32; 3]) -> [u16; 3] {
         self.develop_pixel(e)
-    }
-
-    /// Develops the pixel at (`x`, `y`): as [`Emulsion::pixel`], with the grain of that
-    /// position if the look has grain.
-    #[inline]
-    pub fn pixel_at(&self, e: [f32; 3], x: usize, y: usize) -> [u16; 3] {
-        match &self.grained {
-            None => self.develop_pixel(e),
-            Some(g) => self.develop_grained(g, e, x, y),
-        }
     }
 
     /// One pixel without grain, at the depth of `T`.

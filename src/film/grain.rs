@@ -32,7 +32,7 @@ use std::sync::LazyLock;
 use super::Stock;
 
 /// Diameter of the granularity aperture of the data sheets, µm.
-pub const APERTURE_UM: f64 = 48.0;
+const APERTURE_UM: f64 = 48.0;
 
 /// The grain of one stock at one pixel size.
 #[derive(Debug, Clone)]
@@ -72,7 +72,7 @@ impl Grain {
 
     /// The three layers' standard normal numbers of pixel (`x`, `y`).
     #[inline]
-    pub fn normals(&self, x: usize, y: usize) -> [f32; 3] {
+    pub(crate) fn normals(&self, x: usize, y: usize) -> [f32; 3] {
         let h = splitmix64(self.seed ^ ((y as u64) << 32) ^ x as u64);
         let t = &*NORMAL_QUANTILES;
         [

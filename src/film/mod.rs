@@ -44,7 +44,8 @@ pub use emulsion::{
     ColourMode, Emulsion, ExposureTable, Key, LatentImage, TABLE_MAX_ERROR_D, UnknownColourMode,
     render, scene_key,
 };
-pub use print::{FilterError, FilterPack, Paper, PrintSetup};
+pub(crate) use print::PrintSetup;
+pub use print::{FilterError, FilterPack, Paper};
 pub use spectral::PrintingDensity;
 pub use stock::{Catalogue, Curve, DensityReference, Granularity, Mtf, Speed, Stock};
 
@@ -303,7 +304,7 @@ pub struct Options {
 impl Options {
     /// Whether the options spread light between pixels (MTF, halation): such a look is
     /// developed from the whole map at once, not pixel by pixel.
-    pub fn has_optics(&self) -> bool {
+    pub(crate) fn has_optics(&self) -> bool {
         self.mtf || self.halation.is_some()
     }
 }
@@ -422,7 +423,7 @@ impl Options {
     }
 
     /// The print setup these options ask for.
-    pub fn print_setup(&self) -> Result<PrintSetup, FilmError> {
+    pub(crate) fn print_setup(&self) -> Result<PrintSetup, FilmError> {
         Ok(PrintSetup {
             paper: Paper::get(&self.paper)?,
             exposure_stops: self.print_stops,
@@ -506,7 +507,7 @@ impl FromStr for Request {
 }
 
 /// Parses a relative exposure: `0.5`, `1/2`, `8`, `-1ev`, `+2EV` (`t = 2^ev`).
-pub fn parse_exposure(text: &str) -> Result<f64, RequestError> {
+fn parse_exposure(text: &str) -> Result<f64, RequestError> {
     let lower = text.trim().to_ascii_lowercase();
     let fraction = |part| RequestError::Fraction {
         text: text.to_string(),

@@ -35,7 +35,7 @@ use rayon::prelude::*;
 use super::stock::Mtf;
 
 /// Spreads of the Gaussians the MTF is fitted with, µm at film scale.
-pub const SPREADS_UM: [f64; 7] = [1.5, 3.0, 6.0, 12.0, 24.0, 48.0, 96.0];
+const SPREADS_UM: [f64; 7] = [1.5, 3.0, 6.0, 12.0, 24.0, 48.0, 96.0];
 
 /// Halo spread of halation at film scale, mm (a base ≈ 0.12 mm thick).
 pub const HALATION_SIGMA_MM: f64 = 0.1;
@@ -154,7 +154,7 @@ pub fn halation_terms(strength: f64, sigma_px: f64) -> Vec<(f64, f64)> {
 
 /// Two filters one after the other, as one: `G(a) ∗ G(b) = G(√(a² + b²))`, so the terms
 /// are every pair's `(√(σᵢ² + σⱼ²), wᵢ·wⱼ)`.
-pub fn compose(first: &[(f64, f64)], then: &[(f64, f64)]) -> Vec<(f64, f64)> {
+pub(crate) fn compose(first: &[(f64, f64)], then: &[(f64, f64)]) -> Vec<(f64, f64)> {
     first
         .iter()
         .flat_map(|&(a, v)| then.iter().map(move |&(b, w)| (a.hypot(b), v * w)))
@@ -171,7 +171,7 @@ pub const COARSE_MIN_SIGMA: f64 = 1.5;
 pub const LEVEL_ONE_MIN_SIGMA: f64 = 0.8;
 
 /// Rows per band of [`filter`]'s full-resolution pass.
-pub const BAND: usize = 16;
+pub(crate) const BAND: usize = 16;
 
 /// Variance (px², per axis) a term at decimation level `L` (`F = 2^L`) gains besides
 /// its own blur: the `F × F` block mean, `(F² − 1)/12`, and bilinear upsampling by 2 at
@@ -214,7 +214,7 @@ fn kernel(sigma: f64, reach: f64) -> Vec<f32> {
 /// The largest mass of a full-resolution kernel's outer taps that is dropped, both sides
 /// together: a kernel loses its outermost pairs of taps while their summed mass stays
 /// within this, and is renormalised.
-pub const TRIM: f32 = 1e-3;
+const TRIM: f32 = 1e-3;
 
 /// A sampled kernel without its outermost pairs of taps while their mass (both sides,
 /// summed from the outside in) is at most [`TRIM`], renormalised: a term of σ = 0.25 px

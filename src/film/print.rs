@@ -44,7 +44,7 @@ use super::stock::{LayerFile, validate_layer};
 use super::{Curve, FilmError, Kind, LAYERS};
 
 /// Reflection density of mid grey above paper white: `log10(1/0.18)`.
-pub const MID_GREY_DENSITY: f64 = 0.744_727_494_896_693_9;
+const MID_GREY_DENSITY: f64 = 0.744_727_494_896_693_9;
 
 /// A colour print paper: three reflection characteristic curves.
 #[derive(Debug, Clone, PartialEq)]
@@ -102,7 +102,7 @@ static BUILTIN_PAPERS: LazyLock<Vec<Paper>> = LazyLock::new(|| {
 });
 
 /// The default paper's id: Kodak Endura Premier, the general-purpose RA-4 paper.
-pub const DEFAULT_PAPER: &str = "endura-premier";
+pub(crate) const DEFAULT_PAPER: &str = "endura-premier";
 
 impl Paper {
     /// Parses and validates a paper file (density must rise with exposure, as a
@@ -236,7 +236,7 @@ impl FromStr for FilterPack {
 /// How a negative is printed: the paper, the print exposure and the filter pack change
 /// from the neutral setting.
 #[derive(Debug, Clone, PartialEq)]
-pub struct PrintSetup {
+pub(crate) struct PrintSetup {
     /// The paper.
     pub paper: Paper,
     /// Print exposure in stops from the setting that prints mid grey at mid grey.

@@ -54,7 +54,7 @@ const SUM_RANGE_NM: (u32, u32) = (380, 750);
 
 /// The ratio of printing to Status M density a channel may have; outside it the spectral
 /// data are taken to be wrong (a ratio of 1 is "the same density").
-pub const PRINTING_RATIO_RANGE: (f64, f64) = (0.5, 2.0);
+const PRINTING_RATIO_RANGE: (f64, f64) = (0.5, 2.0);
 
 impl Spectrum {
     /// Validates `(nm, value)` pairs: at least 3, wavelengths increasing within

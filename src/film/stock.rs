@@ -121,7 +121,8 @@ impl Curve {
 
     /// The steepest |dD/dlog10H| of the interpolant, sampled finely (used to bound the
     /// table error).
-    pub fn max_gradient(&self) -> f64 {
+    #[cfg(test)]
+    pub(crate) fn max_gradient(&self) -> f64 {
         let (a, b) = self.log_h_range();
         let steps = 4000;
         let dx = (b - a) / steps as f64;

@@ -145,7 +145,7 @@ impl Primaries {
     }
 
     /// The Color Interop Forum identifier of linear scene-referred data in these primaries.
-    pub fn interop_id(self) -> &'static str {
+    pub(crate) fn interop_id(self) -> &'static str {
         match self {
             Primaries::Rec709 => "lin_rec709_scene",
             Primaries::Ap0 => "lin_ap0_scene",
@@ -155,7 +155,7 @@ impl Primaries {
 
     /// The 3×3 matrix (row-major) from linear Rec. 709 to these primaries (see the type's
     /// docs); the identity for Rec. 709.
-    pub fn matrix_from_709(self) -> [[f64; 3]; 3] {
+    pub(crate) fn matrix_from_709(self) -> [[f64; 3]; 3] {
         Gamut::REC709.matrix_to(self.gamut())
     }
 }
@@ -178,7 +178,7 @@ impl ExrOptions {
     /// (SMPTE ST 2065-4: AP0 primaries with the ACES white, half floats, no compression,
     /// scan lines, R, G and B only — so no confidence channel), whose header then carries
     /// `acesImageContainerFlag = 1`.
-    pub fn is_aces_container(&self) -> bool {
+    fn is_aces_container(&self) -> bool {
         self.primaries == Primaries::Ap0
             && self.sample == SampleFormat::Half
             && self.compression == ExrCompression::None
@@ -591,7 +591,7 @@ pub fn write_radiance_hdr<S: RadianceSource + ?Sized>(
 }
 
 /// Encodes `map` as Radiance RGBE into `writer` (see [`write_radiance_hdr`]).
-pub fn encode_radiance_hdr<W: Write, S: RadianceSource + ?Sized>(
+pub(crate) fn encode_radiance_hdr<W: Write, S: RadianceSource + ?Sized>(
     writer: W,
     map: &S,
 ) -> Result<(), EncodeError> {

@@ -12,13 +12,13 @@ use rawler::rawsource::RawSource;
 use super::{Cfa, RawError, RawInfo, RawMosaic};
 
 /// File extensions (lower case) read as camera raw.
-pub const RAW_EXTENSIONS: &[&str] = &[
+pub(crate) const RAW_EXTENSIONS: &[&str] = &[
     "dng", "cr2", "cr3", "crw", "nef", "nrw", "arw", "srf", "sr2", "raf", "orf", "rw2", "pef",
     "srw", "iiq", "3fr", "erf", "kdc", "dcr", "mos", "mef", "mrw", "x3f",
 ];
 
 /// True when `path`'s extension names a camera raw format.
-pub fn is_raw_extension(path: &Path) -> bool {
+pub(crate) fn is_raw_extension(path: &Path) -> bool {
     path.extension()
         .and_then(|e| e.to_str())
         .is_some_and(|e| RAW_EXTENSIONS.contains(&e.to_ascii_lowercase().as_str()))

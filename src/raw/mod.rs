@@ -12,7 +12,7 @@
 //!
 //! # Stages
 //!
-//! [`decode`] reads a file into a [`RawMosaic`] (the visible area of the mosaic, 16-bit
+//! `decode` reads a file into a [`RawMosaic`] (the visible area of the mosaic, 16-bit
 //! codes, and a [`RawInfo`] with levels, CFA and colour); [`mosaic::Merge`] merges a
 //! bracket of mosaics in CFA space with the noise-optimal weight of a linear sensor, row
 //! by row as [`demosaic`] asks for them; [`demosaic`] interpolates the merged mosaic once
@@ -35,7 +35,8 @@ pub mod mosaic;
 mod decode;
 mod structure;
 
-pub use decode::{RAW_EXTENSIONS, RawExif, decode, is_raw_extension, probe};
+pub(crate) use decode::is_raw_extension;
+pub use decode::{RawExif, decode, probe};
 pub use structure::StructureError;
 
 use std::path::PathBuf;
@@ -136,7 +137,7 @@ pub struct RawInfo {
 
 impl RawInfo {
     /// Black level at pixel `(x, y)` of the visible area, in codes.
-    pub fn black_at(&self, x: usize, y: usize) -> f32 {
+    pub(crate) fn black_at(&self, x: usize, y: usize) -> f32 {
         self.black[(y % self.black_height) * self.black_width + x % self.black_width]
     }
 

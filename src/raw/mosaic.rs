@@ -60,7 +60,7 @@ pub trait Signal: Sync {
 }
 
 /// Raw codes with their levels.
-pub struct Codes<'a> {
+pub(crate) struct Codes<'a> {
     /// Codes, row by row.
     pub codes: &'a [u16],
     /// Width of a row.

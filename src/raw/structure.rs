@@ -29,20 +29,20 @@ use std::collections::HashSet;
 
 /// Most IFDs in the main chain: real raws have one to four (CR2 has four); 64 leaves
 /// room for anything a camera writes.
-pub const MAX_CHAINED_IFDS: usize = 64;
+const MAX_CHAINED_IFDS: usize = 64;
 
 /// Most IFDs walked in all (the chain and the IFDs it points to).
-pub const MAX_IFDS: usize = 512;
+const MAX_IFDS: usize = 512;
 
 /// Deepest nesting of IFDs below the chain (`IFD0 → EXIF → interoperability` is two).
-pub const MAX_IFD_DEPTH: usize = 4;
+const MAX_IFD_DEPTH: usize = 4;
 
 /// Most entries one IFD may declare: rawler reads no more than this many.
-pub const MAX_ENTRIES_PER_IFD: u16 = 4096;
+const MAX_ENTRIES_PER_IFD: u16 = 4096;
 
 /// All entries' values together, in bytes, may be at most this many times the file's
 /// length (values of real files are disjoint parts of it).
-pub const MAX_VALUE_BYTES_PER_FILE_BYTE: u64 = 2;
+const MAX_VALUE_BYTES_PER_FILE_BYTE: u64 = 2;
 
 /// Tags whose values are offsets of further IFDs: `SubIFDs`, `ExifIFD`, `GPSInfo`,
 /// `InteroperabilityIFD`.

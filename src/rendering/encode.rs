@@ -10,7 +10,6 @@ use super::source_exif::Storage;
 use super::{ImageEncodeError, Look, RenderingError, Shrink, SourceExif, jpeg};
 use crate::atomic::{self, Overwrite};
 use crate::display::{ColourSpace, Depth, DisplayImage};
-use crate::film;
 use crate::radiance::RadianceSource;
 use exif::{Field, In, Tag, Value};
 
@@ -197,12 +196,13 @@ fn tiff16(image: &DisplayImage, exif: &SourceExif) -> Result<Vec<u8>, exif::Erro
 
 /// Develops `map` through a stock and encodes it as JPEG at once: bands of rows are
 /// developed and encoded on every core, each band by its own encoder, joined by restart
-/// markers (`rendering::jpeg`). Decodes to the 8-bit [`film::Emulsion::render`] within
+/// markers (`rendering::jpeg`). Decodes to the 8-bit [`crate::film::Emulsion::render`] within
 /// JPEG error.
-/// `exposure` is the light inside the film ([`film::Emulsion::expose`]).
-pub fn encode_film_jpeg(
-    exposure: &film::LatentImage<'_>,
-    emulsion: &film::Emulsion,
+/// `exposure` is the light inside the film ([`crate::film::Emulsion::expose`]).
+#[cfg(test)]
+pub(crate) fn encode_film_jpeg(
+    exposure: &crate::film::LatentImage<'_>,
+    emulsion: &crate::film::Emulsion,
     quality: u8,
     exif: &SourceExif,
     out: &mut impl std::io::Write,
@@ -253,7 +253,7 @@ fn decorate(
 }
 
 /// Renders `look` for `space` and encodes it in `format`; to an sRGB JPEG, film looks and
-/// tone maps are developed band by band while the encoder runs ([`encode_film_jpeg`]).
+/// tone maps are developed band by band while the encoder runs (`stream_jpeg`).
 /// Another space is developed at 16 bits, re-encoded ([`DisplayImage::in_space`]) and
 /// then reduced to the format's depth.
 pub fn encode_look(
@@ -269,7 +269,7 @@ pub fn encode_look(
 
 /// [`encode_look`], adding the rendering's 8-bit sRGB rows to `shrink` as they are made
 /// (for another space, the rows before they are re-encoded for it).
-pub fn encode_look_previewed(
+pub(crate) fn encode_look_previewed(
     map: &dyn RadianceSource,
     look: &Look,
     format: Format,

@@ -46,9 +46,9 @@ pub const LINEAR_LOG_STOPS: (f64, f64) = (-10.0, 8.0);
 
 /// Cineon printing density: density per code value, and the film minimum's code value
 /// (of 1023).
-pub const CINEON_DENSITY_PER_CODE: f64 = 0.002;
+const CINEON_DENSITY_PER_CODE: f64 = 0.002;
 /// The film minimum's Cineon code value.
-pub const CINEON_BASE_CODE: f64 = 95.0;
+const CINEON_BASE_CODE: f64 = 95.0;
 
 /// The LUT's input: a shaper from code value to scene-linear light, and its gamut.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -491,13 +491,13 @@ pub fn film_lut(look: &Look, spec: LutSpec) -> Result<Lut, RenderingError> {
 }
 
 /// Cineon code of printing density `p` (above the film's minimum), `(95 + p/0.002)/1023`.
-pub fn cineon_code(p: f64) -> f64 {
+fn cineon_code(p: f64) -> f64 {
     ((CINEON_BASE_CODE + p / CINEON_DENSITY_PER_CODE) / 1023.0).clamp(0.0, 1.0)
 }
 
 /// Printing density above the film's minimum of Cineon code `v` (inverse of
 /// [`cineon_code`]).
-pub fn cineon_density(v: f64) -> f64 {
+fn cineon_density(v: f64) -> f64 {
     (v * 1023.0 - CINEON_BASE_CODE) * CINEON_DENSITY_PER_CODE
 }
 

@@ -6,7 +6,7 @@
 //! JPEG goes through the `rusty_jpeg` crate (a fork of `jpeg-encoder` with AVX2 kernels
 //! chosen at run time; the same bytes at 4:4:4, 1.45× faster on 24 MP, `docs/performance.md`);
 //! bands of rows are developed and encoded on every core and joined by restart markers
-//! into one baseline file (`jpeg.rs`, [`encode_film_jpeg`]).
+//! into one baseline file (`jpeg.rs`, [`encode_look`]).
 //! PNG goes through `image`'s encoder, TIFF through `kamadak-exif`'s TIFF writer so that
 //! the EXIF sub-IFD (exposure, date) sits in the same file as the pixels.
 
@@ -24,8 +24,10 @@ pub mod lut;
 mod shrink;
 mod source_exif;
 
-pub use encode::{Format, encode, encode_film_jpeg, encode_look, encode_look_previewed, write};
-pub use shrink::{Preview, Shrink};
+pub(crate) use encode::encode_look_previewed;
+pub use encode::{Format, encode, encode_look, write};
+pub use shrink::Preview;
+pub(crate) use shrink::Shrink;
 pub use source_exif::SourceExif;
 
 /// Why a rendering could not be made or written.
@@ -158,7 +160,7 @@ impl Look {
 
     /// Whether the look spreads light between pixels (a film's MTF or halation), so that
     /// it is developed from the whole map at once rather than a band of rows at a time.
-    pub fn has_optics(&self) -> bool {
+    pub(crate) fn has_optics(&self) -> bool {
         match self {
             Look::Film { options, .. } => options.has_optics(),
             Look::Tonemap(_) => false,
@@ -212,7 +214,7 @@ fn exposure_label(t: f64) -> String {
 }
 
 /// `DIR/STEM.LOOK.EXT`, the file a rendering of `look` is written to.
-pub fn look_path(dir: &Path, stem: &str, look: &Look, format: Format) -> PathBuf {
+pub(crate) fn look_path(dir: &Path, stem: &str, look: &Look, format: Format) -> PathBuf {
     dir.join(format!("{stem}.{}.{}", look.name(), format.extension()))
 }
 
@@ -275,7 +277,7 @@ pub fn render_all(
 
 /// What [`render_previewed`] made.
 #[derive(Debug, Clone, Default)]
-pub struct Rendered {
+pub(crate) struct Rendered {
     /// The files written, in the order of the looks.
     pub paths: Vec<PathBuf>,
     /// Per look, in the same order, its small sRGB copy (none when none was asked for).
@@ -284,7 +286,7 @@ pub struct Rendered {
 
 /// [`render_all`], and with `preview_edge` a small sRGB copy of each rendering of long
 /// edge at most that many pixels, made from the rows as they are encoded ([`Shrink`]).
-pub fn render_previewed(
+pub(crate) fn render_previewed(
     map: &dyn RadianceSource,
     looks: &[Look],
     outputs: &Outputs<'_>,

@@ -9,7 +9,7 @@ use std::sync::{Mutex, PoisonError};
 /// Collects the block sums of one rendering; rows may arrive in any order, from any
 /// thread, each row once.
 #[derive(Debug)]
-pub struct Shrink {
+pub(crate) struct Shrink {
     width: u32,
     height: u32,
     factor: u32,
@@ -52,7 +52,7 @@ impl Shrink {
 
     /// Adds whole rows of 8-bit RGB starting at row `first` (`rgb.len()` a multiple of
     /// `3 · width`; a partial last row and rows beyond the height are left out).
-    pub fn add_rows(&self, first: usize, rgb: &[u8]) {
+    pub(crate) fn add_rows(&self, first: usize, rgb: &[u8]) {
         let row = self.width as usize * 3;
         let rows = (rgb.len() / row.max(1)).min((self.height as usize).saturating_sub(first));
         if rows == 0 {

@@ -4,8 +4,6 @@ use std::io::Cursor;
 
 use exif::{Field, In, Tag, Value};
 
-use crate::metadata::Metadata;
-
 /// How a rendering's pixels are stored, which decides the EXIF tags it must carry.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub(super) enum Storage {
@@ -53,6 +51,7 @@ fn ascii(tag: Tag, s: &str) -> Field {
     }
 }
 
+#[cfg(test)]
 fn rational(tag: Tag, x: f64) -> Field {
     // Exposure times as 1/n when shorter than a second, otherwise to 1/1000.
     let r = if x > 0.0 && x < 1.0 && ((1.0 / x) - (1.0 / x).round()).abs() < 1e-6 {
@@ -84,7 +83,8 @@ impl SourceExif {
 
     /// Fields rebuilt from parsed metadata (camera, lens, exposure, capture time) when the
     /// source bytes are not at hand, e.g. rendering from an EXR.
-    pub fn from_metadata(metadata: &Metadata) -> SourceExif {
+    #[cfg(test)]
+    pub(crate) fn from_metadata(metadata: &crate::metadata::Metadata) -> SourceExif {
         let mut fields = Vec::new();
         let cam = &metadata.camera;
         for (tag, value) in [

@@ -4,6 +4,7 @@ use std::io::Cursor;
 
 use exif::{In, Tag};
 
+use super::encode::encode_film_jpeg;
 use super::*;
 use crate::metadata::Metadata;
 

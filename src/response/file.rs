@@ -93,7 +93,8 @@ pub struct ResponseRecord {
 
 impl ResponseRecord {
     /// A record for a response without calibration details (e.g. the sRGB default).
-    pub fn from_response(response: InverseResponse, model: &str) -> ResponseRecord {
+    #[cfg(test)]
+    fn from_response(response: InverseResponse, model: &str) -> ResponseRecord {
         let names: &[&str] = if response.channels() == 1 {
             &["Y"]
         } else {

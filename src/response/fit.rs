@@ -207,7 +207,7 @@ pub struct ChannelFit {
 
 impl ChannelFit {
     /// The spline basis of `ln g` on `[x₀, 0]`.
-    pub fn basis(&self) -> Basis {
+    pub(crate) fn basis(&self) -> Basis {
         Basis::new(self.degree, self.log_floor, 0.0, &self.knots)
     }
 
@@ -243,7 +243,7 @@ impl ChannelFit {
     }
 
     /// `ln g(b)` for `b > 0`.
-    pub fn log_g(&self, b: f64) -> f64 {
+    pub(crate) fn log_g(&self, b: f64) -> f64 {
         self.curve().log_g(b)
     }
 
@@ -253,11 +253,6 @@ impl ChannelFit {
             return 0.0;
         }
         self.log_g(b).exp().min(1.0)
-    }
-
-    /// `d ln g / d ln b` at brightness `b` (within the fit domain; clamped to it).
-    pub fn log_slope(&self, b: f64) -> f64 {
-        self.curve().log_slope(b)
     }
 
     /// The curve with its basis built once, to evaluate at many tones.
@@ -303,7 +298,7 @@ pub struct LogResponse {
 impl LogResponse {
     /// `ln g(b)` for `b > 0`: the spline of `x = ln b` on `[x₀, 0]`, and below `b₀` the
     /// power law `g(b₀)·(b/b₀)^s` with the end slope `s = max(0.5, u'(x₀))`.
-    pub fn log_g(&self, b: f64) -> f64 {
+    pub(crate) fn log_g(&self, b: f64) -> f64 {
         let x = b.min(1.0).ln();
         if x < self.log_floor {
             let s = self
@@ -316,7 +311,7 @@ impl LogResponse {
     }
 
     /// `d ln g / d ln b` at brightness `b` (within the fit domain; clamped to it).
-    pub fn log_slope(&self, b: f64) -> f64 {
+    pub(crate) fn log_slope(&self, b: f64) -> f64 {
         let x = b.clamp(self.log_floor.exp(), 1.0).ln();
         self.basis.slope(&self.coefficients, x)
     }
@@ -920,7 +915,7 @@ const EXACT: f64 = 1e-3;
 const MAD_TO_SIGMA: f64 = 1.4826;
 
 /// Degree of the pieces of the `auto` spline: cubic, so `ln g` has a continuous curvature.
-pub const SPLINE_DEGREE: usize = 3;
+const SPLINE_DEGREE: usize = 3;
 
 /// Pieces of the `auto` spline (fewer with fewer than 8 equations a piece). Measured on
 /// the DoRF curves at ratio 4 (8-bit lossless, `benches/response_accuracy.rs`): 6, 8, 10,

@@ -53,7 +53,7 @@ pub const MIN_SAMPLES: u32 = 16;
 pub const TOP_CODES: usize = 6;
 
 /// The brightest measured code must reach at least this, or `g(1)` would be a guess.
-pub const MIN_TOP_CODE: usize = 200;
+const MIN_TOP_CODE: usize = 200;
 
 /// Why a RAW+JPEG pair cannot measure a curve. Names the JPEG where one is concerned.
 #[derive(Debug, thiserror::Error)]

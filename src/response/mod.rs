@@ -141,7 +141,7 @@ pub const PRIOR_MID_GREY: f64 = 0.1379;
 /// `κ = ln PRIOR_MID_GREY / ln g(0.5)` over the same tuning pairs. A curve with exponent
 /// `κ` gives an estimate `γ̂ = γ^κ`, so for four pairs in five the true ratio lies in
 /// `γ̂^(1/κ₉₀) ..= γ̂^(1/κ₁₀)` ([`Calibration::ratio_range`]).
-pub const PRIOR_EXPONENTS: [f64; 2] = [0.800, 1.297];
+pub(crate) const PRIOR_EXPONENTS: [f64; 2] = [0.800, 1.297];
 
 /// Where the exposure ratio `γ = e_bright / e_dark` came from.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize, serde::Deserialize)]

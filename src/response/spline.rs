@@ -58,12 +58,12 @@ impl Basis {
     }
 
     /// The interior knots.
-    pub fn interior(&self) -> &[f64] {
+    pub(crate) fn interior(&self) -> &[f64] {
         &self.knots[self.degree + 1..self.knots.len() - self.degree - 1]
     }
 
     /// The distinct knots `lo, interior…, hi`: the breakpoints between polynomial pieces.
-    pub fn breakpoints(&self) -> Vec<f64> {
+    fn breakpoints(&self) -> Vec<f64> {
         let (lo, hi) = self.domain();
         let mut b = vec![lo];
         b.extend_from_slice(self.interior());
@@ -119,7 +119,7 @@ impl Basis {
     }
 
     /// `dR_j/dx = p·N_{j,p−1} / (t_{j+p} − t_j)`, `j = 1..n−1`.
-    pub fn ramp_slopes(&self, x: f64) -> Vec<f64> {
+    fn ramp_slopes(&self, x: f64) -> Vec<f64> {
         let p = self.degree;
         let orders = self.orders(x);
         let below = &orders[p - 1];
@@ -131,7 +131,7 @@ impl Basis {
 
     /// `d²R_j/dx² = p(p−1)/(t_{j+p} − t_j) · (N_{j,p−2}/(t_{j+p−1} − t_j) −
     /// N_{j+1,p−2}/(t_{j+p} − t_{j+1}))`, `j = 1..n−1` (zero for `p = 1`).
-    pub fn ramp_curvatures(&self, x: f64) -> Vec<f64> {
+    pub(crate) fn ramp_curvatures(&self, x: f64) -> Vec<f64> {
         let p = self.degree;
         if p < 2 {
             return vec![0.0; self.len() - 1];

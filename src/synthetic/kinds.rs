@@ -20,13 +20,13 @@ use crate::radiance::RadianceMap;
 /// Which synthetic scene to render (see [`SceneKind::render`]).
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
 pub enum SceneKind {
-    /// The procedural landscape of [`super::scene`]: sky, sun, ground, charts, wedge.
+    /// The procedural landscape of [`super::scene()`]: sky, sun, ground, charts, wedge.
     Procedural,
     /// A studio set on an evenly lit seamless backdrop (see [`studio`]).
     Studio,
     /// The same set with the key light falling off across the backdrop by up to 1.5 stops.
     StudioFalloff,
-    /// Four areas uniform in one channel each on a smooth background (see [`flat_patches`]).
+    /// Four areas uniform in one channel each on a smooth background (see `kinds::flat_patches`).
     FlatPatches,
 }
 

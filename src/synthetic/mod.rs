@@ -5,7 +5,7 @@
 //!
 //! Every stage downstream (histograms, response recovery, merge, film rendering, the
 //! daemon) can be tested end to end against numbers known exactly: the scene radiance
-//! ([`scene`]), the response `f` and its inverse `g` ([`ResponseCurve`]), the exposures
+//! ([`scene()`]), the response `f` and its inverse `g` ([`ResponseCurve`]), the exposures
 //! ([`Shot`]) and the sensor noise ([`Sensor`]).
 //!
 //! ```
@@ -38,12 +38,12 @@ use crate::metadata::{Camera, CaptureTime, Exposure};
 
 pub use curve::{ResponseCurve, dorf_curves};
 pub use encode::{Encoding, encode, write};
-pub use kinds::{SceneKind, UnknownScene, flat_patches, studio};
+pub use kinds::{SceneKind, UnknownScene, studio};
 pub use motion::moved;
 pub use place::real_place;
 #[cfg(feature = "raw")]
 pub use raw::{RawSensor, dng, raw_codes, raw_signal};
-pub use scene::{MID_GREY, scene};
+pub use scene::scene;
 pub use sensor::{Sensor, bracket, expose};
 
 /// How one synthetic frame was taken: what goes into its EXIF.

@@ -19,7 +19,7 @@ use crate::response::{Degree, RatioSource, calibrate_frames};
 /// every frame ([`calibrate_frames`], histograms of [`CALIBRATION_PIXELS`] a frame,
 /// degree auto) and the hat-weighted merge —, box-averaged by the whole factor `k =
 /// round(√(pixels_in / pixels))` (at least 1) that brings it nearest `pixels` pixels, and
-/// scaled so that its median Rec. 709 luminance ([`luminance`]) is [`MID_GREY`], where a
+/// scaled so that its median Rec. 709 luminance ([`luminance`]) is `MID_GREY` (0.18), where a
 /// photographer's middle exposure puts a scene's middle.
 ///
 /// What it lends an accuracy measurement is a real scene's statistics — its radiance

@@ -11,7 +11,7 @@ use std::time::Duration;
 use serde::Deserialize;
 
 /// The commented example configuration, which is also the source of every default.
-pub const DEFAULT_TOML: &str = include_str!("../../../config/filmback.toml");
+pub(crate) const DEFAULT_TOML: &str = include_str!("../../../config/filmback.toml");
 
 /// Why a configuration cannot be used. Each variant names the file.
 #[derive(Debug, thiserror::Error)]
@@ -82,7 +82,6 @@ pub enum Recalibrate {
 
 mod raw;
 
-pub use raw::LookName;
 use raw::{RawConfig, line_of, line_of_key, merge, parse};
 
 /// The folders the daemon reads and writes.
@@ -460,7 +459,7 @@ impl Config {
 }
 
 /// True when `name` matches `pattern`, where `*` matches any run of characters.
-pub fn glob_match(pattern: &str, name: &str) -> bool {
+pub(crate) fn glob_match(pattern: &str, name: &str) -> bool {
     let (p, n): (Vec<char>, Vec<char>) = (pattern.chars().collect(), name.chars().collect());
     // Classic two-pointer wildcard match with backtracking to the last `*`.
     let (mut pi, mut ni) = (0, 0);
@@ -487,7 +486,7 @@ pub fn glob_match(pattern: &str, name: &str) -> bool {
 /// descended into, whatever `[watch] ignore` says. Capture One keeps `CaptureOne/` in
 /// every image folder (settings `.cos`, previews `.cop`, thumbnails `.cot`, masks
 /// `.comask`, caches).
-pub const TOOL_FOLDERS: &[&str] = &["CaptureOne"];
+pub(crate) const TOOL_FOLDERS: &[&str] = &["CaptureOne"];
 
 impl Watch {
     /// Whether a file name is a frame to take: not hidden, not a temporary name, with an
@@ -517,7 +516,7 @@ impl Watch {
     /// Whether the file at `path`, below the ingest folder `root`, is a frame to take: its
     /// name is taken ([`Watch::takes`]) and every folder between `root` and it is
     /// descended into ([`Watch::descends`]). A path not below `root` is judged by its name.
-    pub fn takes_path(&self, root: &Path, path: &Path) -> bool {
+    pub(crate) fn takes_path(&self, root: &Path, path: &Path) -> bool {
         let name = path
             .file_name()
             .map(|n| n.to_string_lossy())

@@ -120,7 +120,7 @@ bounded!(
 /// part of an output file name.
 #[derive(Debug, Clone, PartialEq, Eq, PartialOrd, Ord, Deserialize)]
 #[serde(try_from = "String")]
-pub struct LookName(pub String);
+pub(crate) struct LookName(pub String);
 
 impl TryFrom<String> for LookName {
     type Error = ValueError;
@@ -145,7 +145,7 @@ impl TryFrom<String> for LookName {
 /// The file as written (every key optional: absent keys keep the default).
 #[derive(Debug, Default, Deserialize)]
 #[serde(deny_unknown_fields)]
-pub struct RawConfig {
+pub(crate) struct RawConfig {
     folders: Option<RawFolders>,
     watch: Option<RawWatch>,
     bracket: Option<RawBracket>,

@@ -16,11 +16,11 @@ use super::ViewerError;
 use crate::daemon::config::Viewer;
 
 /// Connections served at once; the next waits in the kernel's backlog.
-pub const MAX_CONNECTIONS: usize = 64;
+const MAX_CONNECTIONS: usize = 64;
 
 /// Time a client has to send a request's headers once it connected (or between
 /// requests on a kept-alive connection).
-pub const HEADER_TIMEOUT: Duration = Duration::from_secs(10);
+const HEADER_TIMEOUT: Duration = Duration::from_secs(10);
 
 /// The listener: the first socket systemd passed when there is one (`LISTEN_PID` is
 /// this process), else a new one bound to `config.address`.

@@ -55,7 +55,7 @@ const EVENT_BUFFER: usize = 64;
 
 /// Why the viewer cannot be served (the daemon goes on without it).
 #[derive(Debug, thiserror::Error)]
-pub enum ViewerError {
+pub(crate) enum ViewerError {
     /// The configured address cannot be listened on (in use, not this machine's).
     #[error("cannot listen on {address}: {source}")]
     Bind {
@@ -82,7 +82,7 @@ pub enum ViewerError {
 
 /// One frame of a developed bracket as the page shows it.
 #[derive(Debug, Clone, Serialize, Deserialize)]
-pub(crate) struct FrameRecord {
+pub struct FrameRecord {
     /// File name in the ingest folder.
     pub name: String,
     /// Exposure in stops relative to the darkest frame (`log2(e/e_min)`), when known.

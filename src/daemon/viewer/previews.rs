@@ -18,10 +18,10 @@ use crate::merge::{Clip, ClipMap};
 use crate::rendering::Preview;
 
 /// Long edge of a rendering's preview, pixels.
-pub const PREVIEW_EDGE: u32 = 1600;
+pub(crate) const PREVIEW_EDGE: u32 = 1600;
 
 /// Long edge of a thumbnail, pixels.
-pub const THUMB_EDGE: u32 = 256;
+pub(crate) const THUMB_EDGE: u32 = 256;
 
 /// JPEG quality of previews and thumbnails.
 const QUALITY: u8 = 85;

@@ -28,15 +28,15 @@ use crate::daemon::{REDO_FOLDER, Snapshot};
 const PAGE: &str = include_str!("page.html");
 
 /// Time to answer a request (the event stream aside, which lasts).
-pub const REQUEST_TIMEOUT: Duration = Duration::from_secs(10);
+const REQUEST_TIMEOUT: Duration = Duration::from_secs(10);
 
 /// Largest request body, bytes (no route takes one).
-pub const MAX_BODY: usize = 1024;
+const MAX_BODY: usize = 1024;
 
 /// The header a `redo` must carry (`X-Filmback: redo`): a browser sends a custom header
 /// across sites only after a preflight this server never grants, so no other site's
 /// page can make a visitor's browser redo a bracket.
-pub const REDO_HEADER: &str = "x-filmback";
+const REDO_HEADER: &str = "x-filmback";
 
 /// Points on a camera's curve in `/api/cameras`, per channel.
 const CURVE_POINTS: usize = 65;
