@@ -586,6 +586,7 @@ pub(crate) fn prints<'a>(
             ..ExrOptions::default()
         }),
         radiance_hdr: false,
+        dng: false,
         looks,
         format: Format::Jpeg {
             quality: preset.jpeg_quality,
