@@ -158,7 +158,9 @@ pub struct Prints<'a> {
     /// Also write a Radiance RGBE file `DIR/STEM.hdr`.
     pub radiance_hdr: bool,
     /// Also write the merged mosaic as a linear DNG `DIR/STEM.dng` (camera raw brackets
-    /// only; [`crate::raw::dng`]).
+    /// only; [`crate::raw::dng`]). It holds `12·P` bytes more at its peak, beyond
+    /// [`job_memory_bytes`]: the merged mosaic, its copy scaled for the file, and the
+    /// file encoded in memory, 4 bytes a pixel each.
     pub dng: bool,
     /// Renderings, one file each.
     pub looks: &'a [Look],
