@@ -294,14 +294,27 @@ fn a_jpeg_bracket_asking_for_a_dng_is_refused_naming_the_frame() {
     assert!(written.is_empty(), "{written:?}");
 }
 
-/// LibRaw (through rawpy from PyPI) reads the DNG: `tests/dng_check.py` compares its
-/// samples, levels, CFA, white balance and colour matrix with the merge, and develops
-/// the file. Skipped, with the reason printed, when rawpy is not installed.
+/// LibRaw (through rawpy from PyPI) reads the DNG of a Bayer and of an X-Trans bracket:
+/// `tests/dng_check.py` compares its samples, levels, CFA, white balance and colour
+/// matrix with the merge, and develops the file. Skipped, with the reason printed, when
+/// rawpy is not installed.
 #[test]
 fn libraw_reads_the_merged_dng() {
+    let xtrans = RawSensor {
+        cfa: "GGRGGBGGBGGRBRGRBGGGBGGRGGRGGBRBGBRG",
+        ..RawSensor::typical(73)
+    };
+    for sensor in [RawSensor::typical(71), xtrans] {
+        if !libraw_check(&sensor) {
+            return;
+        }
+    }
+}
+
+/// [`libraw_reads_the_merged_dng`] for one sensor: false when the check was skipped.
+fn libraw_check(sensor: &RawSensor) -> bool {
     let dir = tempfile::tempdir().unwrap();
-    let sensor = RawSensor::typical(71);
-    let paths = bracket(dir.path(), &sensor);
+    let paths = bracket(dir.path(), sensor);
     let out = dir.path().join("out");
     let o = merge_with_dng(&paths, &out);
     assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
@@ -322,7 +335,7 @@ fn libraw_reads_the_merged_dng() {
     std::fs::write(&expected, bytes).unwrap();
     let info: &RawInfo = frames[0].raw.as_deref().unwrap();
     let tags = serde_json::json!({
-        "width": W, "height": H, "cfa": "RGGB",
+        "width": W, "height": H, "cfa": sensor.cfa,
         "neutral": info.neutral, "colour_matrix": sensor.xyz_to_camera,
     });
     let tags_path = dir.path().join("expected.json");
@@ -336,7 +349,7 @@ fn libraw_reads_the_merged_dng() {
         .output()
     else {
         println!("dng_check: skipped (no python3 to run LibRaw)");
-        return;
+        return false;
     };
     let stdout = String::from_utf8_lossy(&o.stdout);
     print!("{stdout}{}", String::from_utf8_lossy(&o.stderr));
@@ -345,4 +358,5 @@ fn libraw_reads_the_merged_dng() {
         stdout.contains("skipped") || stdout.contains("dng_check: ok"),
         "{stdout}"
     );
+    !stdout.contains("skipped")
 }

@@ -93,9 +93,13 @@ def main(dng: str, expected_path: str, tags_path: str) -> int:
         print(f"dng_check: camera -> sRGB matrix from the colour matrix within {matrix_error:.1e}")
         if matrix_error > 2e-3:
             failures.append(f"camera -> sRGB {matrix.tolist()}, expected {want_matrix.tolist()}")
-        rgb = raw.postprocess(
-            use_camera_wb=True, no_auto_bright=True, gamma=(1, 1), output_bps=16
-        )
+        options = dict(use_camera_wb=True, no_auto_bright=True, gamma=(1, 1), output_bps=16)
+        if raw.raw_pattern.shape == (6, 6):
+            # LibRaw 0.22's default X-Trans interpolation fails with an I/O error on these
+            # small synthetic X-Trans DNGs, the integer frames rawler wrote as well as the
+            # merge: develop with its linear interpolation.
+            options["demosaic_algorithm"] = rawpy.DemosaicAlgorithm.LINEAR
+        rgb = raw.postprocess(**options)
         if rgb.shape[:2] != (height, width) or not np.isfinite(rgb).all() or rgb.max() == 0:
             failures.append(f"LibRaw developed {rgb.shape}, max {rgb.max()}")
     for f in failures:
