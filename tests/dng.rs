@@ -360,3 +360,34 @@ fn libraw_check(sensor: &RawSensor) -> bool {
     );
     !stdout.contains("skipped")
 }
+
+/// The daemon under `[render] dng = true` writes a raw bracket's DNG with its EXR and
+/// look, and develops a JPEG bracket of another body without one.
+#[test]
+fn the_daemon_writes_a_raw_brackets_dng_when_its_preset_asks() {
+    use crate::common::rig::{self, Rig};
+    use filmback::daemon::DarkroomLab;
+    let dir = tempfile::tempdir().unwrap();
+    let text = rig::config_text(dir.path(), "dng = true\n");
+    let mut rig = Rig::start_with_text(dir.path(), &text, std::sync::Arc::new(DarkroomLab));
+    rig::put(&rig.ingest(), &rig::raw_aeb("Raw Body", 10, "r"));
+    rig::put(&rig.ingest(), &rig::aeb("Jpeg Body", 30, "j"));
+    let expected = [
+        "r-1.dng",
+        "r-1.exr",
+        "r-1.linear.jpg",
+        "j-1.exr",
+        "j-1.linear.jpg",
+    ];
+    let done = |names: &[String]| expected.iter().all(|n| names.iter().any(|m| m == n));
+    rig::wait_for(&rig.out(), "both brackets' outputs", done);
+    rig.stop();
+    let names = rig::visible(&rig.out());
+    assert!(!names.iter().any(|n| n == "j-1.dng"), "{names:?}");
+    let dng = RawSource::new(&rig.out().join("r-1.dng")).unwrap();
+    let image = rawler::get_decoder(&dng)
+        .unwrap()
+        .raw_image(&dng, &Default::default(), false)
+        .unwrap();
+    assert!(matches!(image.data, RawImageData::Float(_)));
+}

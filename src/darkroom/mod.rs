@@ -158,9 +158,8 @@ pub struct Prints<'a> {
     /// Also write a Radiance RGBE file `DIR/STEM.hdr`.
     pub radiance_hdr: bool,
     /// Also write the merged mosaic as a linear DNG `DIR/STEM.dng` (camera raw brackets
-    /// only; [`crate::raw::dng`]). It holds `12·P` bytes more at its peak, beyond
-    /// [`job_memory_bytes`]: the merged mosaic, its copy scaled for the file, and the
-    /// file encoded in memory, 4 bytes a pixel each.
+    /// only; [`crate::raw::dng`]). It holds [`DNG_BYTES_PER_PIXEL`] more at its peak,
+    /// beyond [`job_memory_bytes`].
     pub dng: bool,
     /// Renderings, one file each.
     pub looks: &'a [Look],
@@ -806,6 +805,11 @@ pub fn job_memory_bytes(
         + others * (frame + pixels)
         + working_memory_bytes(width, height, channels, looks)
 }
+
+/// Bytes a pixel that writing a DNG ([`Prints::dng`]) holds beyond [`job_memory_bytes`]:
+/// the merged mosaic, its copy scaled for the file and the file encoded in memory, 4
+/// bytes a pixel each.
+pub const DNG_BYTES_PER_PIXEL: u64 = 12;
 
 /// The part of [`job_memory_bytes`] that does not grow with the frames, for a
 /// `width × height × channels` map: with looks, the radiance map, the EXR in memory, one

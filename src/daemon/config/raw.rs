@@ -195,6 +195,7 @@ struct RawDaemon {
 #[serde(deny_unknown_fields)]
 struct RawRender {
     exr: Option<bool>,
+    dng: Option<bool>,
     films: Option<Vec<LookName>>,
     tonemaps: Option<Vec<LookName>>,
     t: Option<Stops>,
@@ -213,6 +214,7 @@ struct RawPreset {
     serial: Option<String>,
     // The [render] keys, spelled out: serde's `flatten` would lose the unknown key's span.
     exr: Option<bool>,
+    dng: Option<bool>,
     films: Option<Vec<LookName>>,
     tonemaps: Option<Vec<LookName>>,
     t: Option<Stops>,
@@ -231,6 +233,7 @@ impl RawPreset {
     fn render(&self) -> RawRender {
         RawRender {
             exr: self.exr,
+            dng: self.dng,
             films: self.films.clone(),
             tonemaps: self.tonemaps.clone(),
             t: self.t,
@@ -395,6 +398,7 @@ pub(super) fn merge(d: RawConfig, u: RawConfig, source: Option<PathBuf>) -> Conf
 fn overlay(base: &RawRender, over: &RawRender) -> RawRender {
     RawRender {
         exr: over.exr.or(base.exr),
+        dng: over.dng.or(base.dng),
         films: over.films.clone().or_else(|| base.films.clone()),
         tonemaps: over.tonemaps.clone().or_else(|| base.tonemaps.clone()),
         t: over.t.or(base.t),
@@ -419,6 +423,7 @@ fn preset(r: &RawRender) -> Preset {
     Preset {
         name: None,
         exr: r.exr.expect(MISSING),
+        dng: r.dng.expect(MISSING),
         films: names(&r.films),
         tonemaps: names(&r.tonemaps),
         t: r.t.expect(MISSING).0,
