@@ -129,6 +129,7 @@ fn main() {
         stem: "bench",
         exr: Some(ExrOptions::default()),
         radiance_hdr: false,
+        dng: false,
         looks: &[],
         format: Format::Jpeg { quality: 90 },
         space: filmback::display::ColourSpace::Srgb,

@@ -16,6 +16,7 @@ mod common;
 mod daemon;
 mod deghost;
 mod demosaic;
+mod dng;
 mod farm;
 mod film;
 mod hostile;

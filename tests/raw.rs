@@ -142,6 +142,7 @@ fn exact_info(sensor: &RawSensor) -> RawInfo {
         neutral: sensor.neutral(),
         xyz_to_camera: sensor.xyz_to_camera,
         matrix_illuminant: "D65".into(),
+        colour_matrices: vec![(21, sensor.xyz_to_camera)],
         exposure_time_s: None,
         f_number: None,
         iso: Some(100.0),

@@ -87,7 +87,12 @@ pub struct Args {
     /// Also write a Radiance RGBE file DIR/<stem>.hdr.
     #[arg(long)]
     radiance_hdr: bool,
-    /// Replace existing output files (EXR, HDR and renderings).
+    /// Also write the merged mosaic as a linear DNG DIR/<stem>.dng for raw converters
+    /// (Lightroom, Camera Raw): 32-bit float CFA with the camera's colour matrices and
+    /// as-shot neutral. Camera raw brackets only.
+    #[arg(long)]
+    dng: bool,
+    /// Replace existing output files (EXR, HDR, DNG and renderings).
     #[arg(long)]
     force: bool,
     /// Print a JSON report (outputs, response, frames, timings in ms).
@@ -181,6 +186,7 @@ pub fn run(args: Args) -> anyhow::Result<ExitCode> {
         luminance_calibration: args.luminance_calibration,
         preview_edge: None,
         radiance_hdr: args.radiance_hdr,
+        dng: args.dng,
         looks: &looks,
         format,
         space: args.looks.colour_space()?,

@@ -566,7 +566,8 @@ pub(crate) fn looks_of(preset: &Preset, stocks: Option<&Path>) -> Result<Vec<Loo
 }
 
 /// What a job writes into `dir`: `STEM.exr` for a bracket when its preset asks for it,
-/// and one JPEG per look at the preset's quality ([`Prints::paths`] names them).
+/// `STEM.dng` for a bracket of camera raws when it asks for that, and one JPEG per look
+/// at the preset's quality ([`Prints::paths`] names them).
 pub(crate) fn prints<'a>(
     job: &'a Job,
     looks: &'a [Look],
@@ -582,6 +583,12 @@ pub(crate) fn prints<'a>(
             ..ExrOptions::default()
         }),
         radiance_hdr: false,
+        dng: preset.dng
+            && !job.is_single()
+            && job
+                .frames
+                .iter()
+                .all(|c| crate::daemon::intake::is_raw(&c.input.path)),
         looks,
         format: Format::Jpeg {
             quality: preset.jpeg_quality,

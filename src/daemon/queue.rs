@@ -18,7 +18,7 @@ use super::{
     job_bytes,
 };
 use crate::atomic;
-use crate::darkroom::Pooling;
+use crate::darkroom::{self, Pooling};
 
 /// How many times a bracket waits (with back-off) for a frame that is not on disk before
 /// it is developed without it: `retry_s · (1 + 2 + 4 + 8)`, 75 s at the default 5 s.
@@ -200,14 +200,36 @@ impl State {
     }
 
     /// The memory estimate of a closed group ([`job_bytes`] of its frames' footprints;
-    /// a frame without one, e.g. from a test, counts nothing).
+    /// a frame without one, e.g. from a test, counts nothing), and
+    /// [`darkroom::DNG_BYTES_PER_PIXEL`] of its largest frame when its preset writes a
+    /// raw bracket's DNG.
     pub(super) fn job_bytes(&self, closed: &Closed) -> u64 {
         let frames: Vec<_> = closed
             .frames()
             .iter()
             .filter_map(|c| self.files.taken(&c.input.path).map(|t| t.footprint))
             .collect();
+        let camera = closed.camera();
+        let dng = matches!(closed, Closed::Bracket(_))
+            && self
+                .config
+                .preset_for(camera.model.as_deref(), camera.serial.as_deref())
+                .dng
+            && closed
+                .frames()
+                .iter()
+                .all(|c| intake::is_raw(&c.input.path));
+        let largest = frames
+            .iter()
+            .map(|f| u64::from(f.width) * u64::from(f.height))
+            .max()
+            .unwrap_or(0);
         job_bytes(&frames)
+            + if dng {
+                darkroom::DNG_BYTES_PER_PIXEL * largest
+            } else {
+                0
+            }
     }
 
     /// Takes a job's outcome: journal and cache on success; on a bad frame, reject it and

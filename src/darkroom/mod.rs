@@ -78,6 +78,28 @@ pub enum DarkroomError {
     /// A file could not be published.
     #[error(transparent)]
     Publish(#[from] PublishError),
+    /// A DNG was asked for a bracket that is not camera raw: a DNG holds the sensor's
+    /// mosaic, which only raw frames have.
+    #[error(
+        "{}: a DNG is made only of a camera raw bracket ({reason}); leave out the DNG for this bracket",
+        path.display()
+    )]
+    DngNeedsRaw {
+        /// The frame that is not raw.
+        path: PathBuf,
+        /// Why it is not raw (its format, or a build without raw support).
+        reason: String,
+    },
+    /// The DNG encoder refused the merged mosaic.
+    #[cfg(feature = "raw")]
+    #[error("{}: {source}", path.display())]
+    Dng {
+        /// The file it was encoding.
+        path: PathBuf,
+        /// Why.
+        #[source]
+        source: crate::raw::dng::DngError,
+    },
 }
 
 impl DarkroomError {
@@ -98,6 +120,14 @@ impl DarkroomError {
 /// Wall time per stage, in the order they ran.
 pub type Stages = Vec<(&'static str, Duration)>;
 
+/// Without raw support, the shape of a merged raw bracket, never made.
+#[cfg(not(feature = "raw"))]
+struct NoRaw {
+    chosen: ChosenResponse,
+    merged: merge::Merged,
+    alignment: Alignment,
+}
+
 fn file_name(path: &Path) -> String {
     path.file_name().map_or_else(
         || path.display().to_string(),
@@ -116,6 +146,10 @@ pub struct Prints<'a> {
     pub exr: Option<ExrOptions>,
     /// Also write a Radiance RGBE file `DIR/STEM.hdr`.
     pub radiance_hdr: bool,
+    /// Also write the merged mosaic as a linear DNG `DIR/STEM.dng` (camera raw brackets
+    /// only; [`crate::raw::dng`]). It holds [`DNG_BYTES_PER_PIXEL`] more at its peak,
+    /// beyond [`job_memory_bytes`].
+    pub dng: bool,
     /// Renderings, one file each.
     pub looks: &'a [Look],
     /// Encoding of the renderings.
@@ -144,7 +178,12 @@ impl Prints<'_> {
         self.dir.join(format!("{}.hdr", self.stem))
     }
 
-    /// Every path this will write, in order (EXR, HDR, renderings).
+    /// `DIR/STEM.dng`.
+    pub fn dng_path(&self) -> PathBuf {
+        self.dir.join(format!("{}.dng", self.stem))
+    }
+
+    /// Every path this will write, in order (EXR, HDR, DNG, renderings).
     pub fn paths(&self) -> Vec<PathBuf> {
         let mut paths = Vec::new();
         if self.exr.is_some() {
@@ -152,6 +191,9 @@ impl Prints<'_> {
         }
         if self.radiance_hdr {
             paths.push(self.hdr_path());
+        }
+        if self.dng {
+            paths.push(self.dng_path());
         }
         for look in self.looks {
             paths.push(rendering::look_path(self.dir, self.stem, look, self.format));
@@ -320,24 +362,40 @@ pub fn develop(
     if bracket.len() < 2 {
         return Err(MergeError::TooFewFrames(bracket.len()).into());
     }
+    if prints.dng {
+        dng_needs_raw(frames)?;
+    }
     // Anchor the values to the EXIF exposure (see `merge`'s "Absolute scale"); a raw
     // bracket's demosaicking applies the factor in its one pass.
     let exif: Vec<_> = frames.iter().map(|f| f.metadata.exposure).collect();
     let (scale, factor) = merge::exposure_scale(&exif, exposures, prints.luminance_calibration);
     #[cfg(feature = "raw")]
-    let raw_merged = raw::merge(frames, exposures, factor, options.align, &mut stages)?;
+    let raw_merged = raw::merge(
+        frames,
+        exposures,
+        factor,
+        options.align,
+        prints.dng,
+        &mut stages,
+    )?;
     #[cfg(not(feature = "raw"))]
-    let raw_merged: Option<(ChosenResponse, merge::Merged, Alignment)> = None;
+    let raw_merged: Option<NoRaw> = None;
     let scaled = raw_merged.is_some();
+    #[cfg(feature = "raw")]
+    let mut dng = None;
     let mut weighting = options.weighting.name().to_string();
     let mut ghosts = None;
     // The moved frames resampled onto the reference grid; they outlive the merge.
     let warped: Vec<Option<Frame>>;
     let mut clip_map = None;
     let (chosen, merged, alignment) = match raw_merged {
-        Some((chosen, m, alignment)) => {
+        Some(raw) => {
             weighting = RAW_WEIGHTING.to_string();
-            (chosen, Radiance::Buffered(m), alignment)
+            #[cfg(feature = "raw")]
+            {
+                dng = raw.dng;
+            }
+            (raw.chosen, Radiance::Buffered(raw.merged), raw.alignment)
         }
         None => {
             let chosen = choose_response(&bracket, ratio_source, policy, &mut stages)?;
@@ -446,6 +504,15 @@ pub fn develop(
             })
         });
         let radiance = write_radiance_files(source, confidence, &provenance, prints);
+        #[cfg(feature = "raw")]
+        let radiance = radiance.and_then(|mut written| {
+            if let Some(dng) = &dng {
+                let t = Instant::now();
+                written.0.push(write_dng(dng, prints)?);
+                written.3.push(("dng", t.elapsed()));
+            }
+            Ok(written)
+        });
         let looks = looks.map(|handle| {
             handle
                 .join()
@@ -582,6 +649,44 @@ fn write_radiance_files(
     Ok((outputs, exr_scale, warnings, stages))
 }
 
+/// Refuses a DNG for `frames` unless every one is camera raw.
+fn dng_needs_raw(frames: &[LoadedFrame]) -> Result<(), DarkroomError> {
+    #[cfg(feature = "raw")]
+    let not_raw = frames.iter().find(|f| f.raw.is_none()).map(|f| {
+        let kind = f.path.extension().map_or_else(
+            || "no file extension".to_string(),
+            |e| e.to_string_lossy().to_uppercase(),
+        );
+        (f, format!("this frame is {kind}, not camera raw"))
+    });
+    #[cfg(not(feature = "raw"))]
+    let not_raw = frames.first().map(|f| {
+        (
+            f,
+            "filmback was built without camera raw support (feature `raw`)".to_string(),
+        )
+    });
+    match not_raw {
+        Some((f, reason)) => Err(DarkroomError::DngNeedsRaw {
+            path: f.path.clone(),
+            reason,
+        }),
+        None => Ok(()),
+    }
+}
+
+/// Encodes the merged mosaic as DNG and publishes it as `DIR/STEM.dng`.
+#[cfg(feature = "raw")]
+fn write_dng(dng: &raw::DngSource, prints: &Prints<'_>) -> Result<PathBuf, DarkroomError> {
+    let path = prints.dng_path();
+    let bytes = dng.encode().map_err(|source| DarkroomError::Dng {
+        path: path.clone(),
+        source,
+    })?;
+    atomic::publish(&path, &bytes, prints.overwrite)?;
+    Ok(path)
+}
+
 /// Encodes the EXR in memory (stage `encode`), then publishes it (stage `write`), so the
 /// two costs are told apart.
 fn write_radiance(
@@ -690,6 +795,11 @@ pub fn job_memory_bytes(
         + working_memory_bytes(width, height, channels, looks)
 }
 
+/// Bytes a pixel that writing a DNG ([`Prints::dng`]) holds beyond [`job_memory_bytes`]:
+/// the merged mosaic, its copy scaled for the file and the file encoded in memory, 4
+/// bytes a pixel each.
+pub const DNG_BYTES_PER_PIXEL: u64 = 12;
+
 /// The part of [`job_memory_bytes`] that does not grow with the frames, for a
 /// `width × height × channels` map: with looks, the radiance map, the EXR in memory, one
 /// look's working set and the JPEG bands, `4·S + 2·S + 8·P + 18·64·width`; without looks
@@ -757,13 +867,14 @@ pub fn develop_single(
         &[1.0],
         1.0,
         AlignMode::Off,
+        false,
         &mut stages,
     )?;
     #[cfg(not(feature = "raw"))]
-    let raw_map: Option<(ChosenResponse, merge::Merged, Alignment)> = None;
+    let raw_map: Option<NoRaw> = None;
     let is_raw = raw_map.is_some();
     let (map, response) = match raw_map {
-        Some((chosen, m, _)) => (m.radiance, chosen),
+        Some(raw) => (raw.merged.radiance, raw.chosen),
         None => {
             let t = Instant::now();
             let map = linearise(frame, &response.response)?;

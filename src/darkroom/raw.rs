@@ -7,23 +7,59 @@ use crate::align::{self, AlignMode, Alignment, MosaicFrame};
 use crate::frame::{LoadedFrame, Samples};
 use crate::merge::{BracketOrder, Merged};
 use crate::radiance::RadianceMap;
-use crate::raw::{self, RawError, RawExposure};
+use crate::raw::dng::{self, DngBracket};
+use crate::raw::mosaic::MergedMosaic;
+use crate::raw::{self, RawError, RawExposure, RawInfo};
 use crate::response::InverseResponse;
 
 /// What the report and the EXR header say a raw bracket's response is.
 const LINEAR_RAW: &str = "linear (raw)";
 
+/// A merged raw bracket.
+pub(super) struct RawMerge {
+    /// The response reported (linear).
+    pub chosen: ChosenResponse,
+    /// The radiance in linear Rec. 709.
+    pub merged: Merged,
+    /// How the mosaics were aligned.
+    pub alignment: Alignment,
+    /// The merged mosaic and what a DNG of it needs, when it was asked for.
+    pub dng: Option<DngSource>,
+}
+
+/// What [`dng::encode`] needs of a merged raw bracket, owned.
+pub(super) struct DngSource {
+    mosaic: MergedMosaic,
+    colour: RawInfo,
+    shortest: RawInfo,
+    ratio: f64,
+}
+
+impl DngSource {
+    /// The DNG's bytes.
+    pub fn encode(&self) -> Result<Vec<u8>, dng::DngError> {
+        dng::encode(&DngBracket {
+            mosaic: &self.mosaic,
+            colour: &self.colour,
+            shortest: &self.shortest,
+            ratio: self.ratio,
+        })
+    }
+}
+
 /// Merges `frames` when they are raws (`None` when none is): the response reported and
 /// the merged radiance in linear Rec. 709 times `scale` (stage `merge+demosaic`), after
 /// the mosaics are aligned under `align` (stage `align`, see [`crate::align`]'s "Camera
-/// raw"). A bracket that mixes raw and other frames is refused.
+/// raw"), and with `keep_mosaic` the merged mosaic for a DNG. A bracket that mixes raw
+/// and other frames is refused.
 pub(super) fn merge(
     frames: &[LoadedFrame],
     exposures: &[f64],
     scale: f64,
     align: AlignMode,
+    keep_mosaic: bool,
     stages: &mut Stages,
-) -> Result<Option<(ChosenResponse, Merged, Alignment)>, DarkroomError> {
+) -> Result<Option<RawMerge>, DarkroomError> {
     let Some(first_raw) = frames.iter().find(|f| f.raw.is_some()) else {
         return Ok(None);
     };
@@ -55,12 +91,24 @@ pub(super) fn merge(
             ..*input
         })
         .collect();
-    let developed = raw::develop(&inputs, scale)?;
+    let mut developed = raw::develop_keeping(&inputs, scale, keep_mosaic)?;
     stages.extend(developed.timings.iter().copied());
     let exposures: Vec<f64> = developed.order.iter().map(|&i| exposures[i]).collect();
+    let info = inputs[0].info;
+    let dng = developed.mosaic.take().map(|mosaic| {
+        let (shortest, longest) = (
+            developed.order[0],
+            developed.order[developed.order.len() - 1],
+        );
+        DngSource {
+            mosaic,
+            colour: info.clone(),
+            shortest: inputs[shortest].info.clone(),
+            ratio: inputs[longest].exposure / inputs[shortest].exposure,
+        }
+    });
     let radiance = RadianceMap::new(developed.width, developed.height, 3, developed.rgb)
         .expect("three values per pixel of the mosaic");
-    let info = inputs[0].info;
     let chosen = ChosenResponse {
         response: InverseResponse::from_samples(vec![vec![0.0, 1.0]; 3])
             .expect("a straight line is a valid response"),
@@ -81,9 +129,9 @@ pub(super) fn merge(
         contradicts_cache: false,
         pooling: None,
     };
-    Ok(Some((
+    Ok(Some(RawMerge {
         chosen,
-        Merged {
+        merged: Merged {
             radiance,
             confidence: None,
             bracket: BracketOrder {
@@ -94,7 +142,8 @@ pub(super) fn merge(
             },
         },
         alignment,
-    )))
+        dng,
+    }))
 }
 
 /// The mosaics' alignment under `mode` (stage `align`, unless `off`) and each moved

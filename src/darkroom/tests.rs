@@ -34,6 +34,7 @@ fn prints<'a>(
         stem,
         exr: Some(ExrOptions::default()),
         radiance_hdr: false,
+        dng: false,
         looks,
         format,
         space: crate::display::ColourSpace::Srgb,

@@ -317,6 +317,16 @@ fn decode_unguarded(path: &Path, bytes: &[u8], max_pixels: u64) -> Result<RawMos
         [m(1, 0), m(1, 1), m(1, 2)],
         [m(2, 0), m(2, 1), m(2, 2)],
     ];
+    let mut colour_matrices: Vec<(u16, [[f64; 3]; 3])> = image
+        .color_matrix
+        .iter()
+        .filter(|(_, m)| m.len() >= 9)
+        .map(|(i, m)| {
+            let m = |r: usize, c: usize| f64::from(m[r * 3 + c]);
+            (u16::from(*i), [0, 1, 2].map(|r| [0, 1, 2].map(|c| m(r, c))))
+        })
+        .collect();
+    colour_matrices.sort_by_key(|&(illuminant, _)| illuminant);
     let exif = exif_of(
         image.clean_make.clone(),
         image.clean_model.clone(),
@@ -347,6 +357,7 @@ fn decode_unguarded(path: &Path, bytes: &[u8], max_pixels: u64) -> Result<RawMos
             neutral,
             xyz_to_camera,
             matrix_illuminant: format!("{illuminant:?}"),
+            colour_matrices,
             exposure_time_s: exif.exposure_time_s,
             f_number: exif.f_number,
             iso: exif.iso,

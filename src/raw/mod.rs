@@ -30,6 +30,7 @@
 
 pub mod colour;
 pub mod demosaic;
+pub mod dng;
 pub mod mosaic;
 
 mod decode;
@@ -125,6 +126,10 @@ pub struct RawInfo {
     pub xyz_to_camera: [[f64; 3]; 3],
     /// The illuminant of that matrix as the file names it.
     pub matrix_illuminant: String,
+    /// Every colour matrix the file has (the one above among them): the EXIF
+    /// `LightSource` code of its calibration illuminant (21 D65, 17 A, …) and its XYZ →
+    /// camera RGB matrix, row-major; carried into a merged DNG ([`dng`]).
+    pub colour_matrices: Vec<(u16, [[f64; 3]; 3])>,
     /// Exposure time in seconds, when the file records it.
     pub exposure_time_s: Option<f64>,
     /// F-number.
@@ -260,6 +265,9 @@ pub struct DevelopedRaw {
     /// Wall time of each step: `merge+demosaic` (the CFA merge, white balance,
     /// interpolation, the camera → output matrix and the scale, one pass over bands).
     pub timings: Vec<(&'static str, std::time::Duration)>,
+    /// The merged mosaic the radiance was demosaicked from, when [`develop_keeping`] was
+    /// asked to keep it (for a DNG, [`dng`]); `None` otherwise.
+    pub mosaic: Option<mosaic::MergedMosaic>,
 }
 
 /// Merges a bracket of raw frames of one camera ([`mosaic::merge`], noise from
@@ -267,6 +275,17 @@ pub struct DevelopedRaw {
 /// converts to Rec. 709 and multiplies by `scale` ([`finish`]). One frame is developed
 /// alone (no merge to make).
 pub fn develop(frames: &[RawExposure<'_>], scale: f64) -> Result<DevelopedRaw, RawError> {
+    develop_keeping(frames, scale, false)
+}
+
+/// [`develop`], and with `keep_mosaic` the merged mosaic kept in
+/// [`DevelopedRaw::mosaic`]: the bracket is then merged into memory first
+/// (`width × height × 4` bytes more) and demosaicked from there, with the same values.
+pub fn develop_keeping(
+    frames: &[RawExposure<'_>],
+    scale: f64,
+    keep_mosaic: bool,
+) -> Result<DevelopedRaw, RawError> {
     let Some(first) = frames.first() else {
         return Err(RawError::Decode {
             path: PathBuf::new(),
@@ -339,12 +358,15 @@ pub fn develop(frames: &[RawExposure<'_>], scale: f64) -> Result<DevelopedRaw, R
     let merge = mosaic::Merge::new(&inputs, first.width as usize, first.height as usize);
     let to_709 = colour::camera_to_709(first.info, first.path)?;
     let t = std::time::Instant::now();
-    let (rgb, clipped) = demosaic::demosaic(
-        &merge,
-        &first.info.cfa,
-        colour::white_balance(first.info),
-        &scaled(&to_709, scale),
-    );
+    let (gains, to_output) = (colour::white_balance(first.info), scaled(&to_709, scale));
+    let (rgb, clipped, mosaic) = if keep_mosaic {
+        let merged = mosaic::merge(&inputs, first.width as usize, first.height as usize);
+        let (rgb, _) = demosaic::demosaic(&merged, &first.info.cfa, gains, &to_output);
+        (rgb, merged.clipped, Some(merged))
+    } else {
+        let (rgb, clipped) = demosaic::demosaic(&merge, &first.info.cfa, gains, &to_output);
+        (rgb, clipped, None)
+    };
     let timings = vec![("merge+demosaic", t.elapsed())];
     let mut order: Vec<usize> = (0..frames.len()).collect();
     order.sort_by(|&a, &b| frames[a].exposure.total_cmp(&frames[b].exposure));
@@ -356,6 +378,7 @@ pub fn develop(frames: &[RawExposure<'_>], scale: f64) -> Result<DevelopedRaw, R
         order,
         demosaic: demosaic::method(&first.info.cfa),
         timings,
+        mosaic,
     })
 }
 

@@ -152,6 +152,9 @@ pub struct Preset {
     pub name: Option<String>,
     /// Write the EXR radiance map.
     pub exr: bool,
+    /// Write a camera raw bracket's merged mosaic as linear DNG (other brackets have
+    /// none; [`crate::raw::dng`]).
+    pub dng: bool,
     /// Film stocks to render.
     pub films: Vec<String>,
     /// Tone maps to render.

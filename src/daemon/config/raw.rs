@@ -240,6 +240,7 @@ struct RawDaemon {
 #[serde(deny_unknown_fields)]
 struct RawRender {
     exr: Option<bool>,
+    dng: Option<bool>,
     films: Option<Vec<LookName>>,
     tonemaps: Option<Vec<LookName>>,
     t: Option<Stops>,
@@ -258,6 +259,7 @@ struct RawPreset {
     serial: Option<String>,
     // The [render] keys, spelled out: serde's `flatten` would lose the unknown key's span.
     exr: Option<bool>,
+    dng: Option<bool>,
     films: Option<Vec<LookName>>,
     tonemaps: Option<Vec<LookName>>,
     t: Option<Stops>,
@@ -276,6 +278,7 @@ impl RawPreset {
     fn render(&self) -> RawRender {
         RawRender {
             exr: self.exr,
+            dng: self.dng,
             films: self.films.clone(),
             tonemaps: self.tonemaps.clone(),
             t: self.t,
@@ -440,6 +443,7 @@ pub(super) fn merge(d: RawConfig, u: RawConfig, source: Option<PathBuf>) -> Conf
 fn overlay(base: &RawRender, over: &RawRender) -> RawRender {
     RawRender {
         exr: over.exr.or(base.exr),
+        dng: over.dng.or(base.dng),
         films: over.films.clone().or_else(|| base.films.clone()),
         tonemaps: over.tonemaps.clone().or_else(|| base.tonemaps.clone()),
         t: over.t.or(base.t),
@@ -464,6 +468,7 @@ fn preset(r: &RawRender) -> Preset {
     Preset {
         name: None,
         exr: r.exr.expect(MISSING),
+        dng: r.dng.expect(MISSING),
         films: names(&r.films),
         tonemaps: names(&r.tonemaps),
         t: r.t.expect(MISSING).0,
