@@ -18,6 +18,7 @@ mod deghost;
 mod demosaic;
 mod farm;
 mod film;
+mod hdr_still;
 mod hostile;
 mod layers;
 mod lut;

@@ -7,7 +7,7 @@ use std::path::{Path, PathBuf};
 use std::str::FromStr;
 
 use super::source_exif::Storage;
-use super::{Look, RenderingError, Shrink, SourceExif, jpeg};
+use super::{Look, RenderingError, Shrink, SourceExif, hdr_still, jpeg};
 use crate::atomic::{self, Overwrite, PublishError};
 use crate::display::{ColourSpace, Depth, DisplayImage};
 use crate::film;
@@ -29,13 +29,19 @@ pub enum Format {
     Png16,
     /// Uncompressed TIFF, 16 bits per sample.
     Tiff16,
+    /// The HDR still: a gain-map JPEG (Ultra HDR, ISO 21496-1) at this quality whose base
+    /// is the look's [`Format::Jpeg`] rendering ([`hdr_still`]); made from a look only.
+    UltraHdr {
+        /// Quality of the base and of the gain map.
+        quality: u8,
+    },
 }
 
 impl Format {
     /// Bits per sample the format stores.
     pub fn depth(self) -> Depth {
         match self {
-            Format::Jpeg { .. } | Format::Png8 => Depth::Eight,
+            Format::Jpeg { .. } | Format::UltraHdr { .. } | Format::Png8 => Depth::Eight,
             Format::Png16 | Format::Tiff16 => Depth::Sixteen,
         }
     }
@@ -43,7 +49,7 @@ impl Format {
     /// File extension.
     pub fn extension(self) -> &'static str {
         match self {
-            Format::Jpeg { .. } => "jpg",
+            Format::Jpeg { .. } | Format::UltraHdr { .. } => "jpg",
             Format::Png8 | Format::Png16 => "png",
             Format::Tiff16 => "tif",
         }
@@ -53,13 +59,24 @@ impl Format {
 impl FromStr for Format {
     type Err = RenderingError;
 
-    /// `jpeg`, `jpeg:95`, `png`, `png16`, `tiff`.
+    /// `jpeg`, `jpeg:95`, `png`, `png16`, `tiff`, `ultrahdr`, `ultrahdr:95`.
     fn from_str(s: &str) -> Result<Format, RenderingError> {
         let bad = || RenderingError::Parse {
             text: s.to_string(),
-            reason: "expected jpeg, jpeg:QUALITY (1-100), png, png16 or tiff".into(),
+            reason: "expected jpeg, jpeg:QUALITY (1-100), png, png16, tiff, ultrahdr or \
+                     ultrahdr:QUALITY"
+                .into(),
         };
+        if let Some(q) = s.strip_prefix("ultrahdr:") {
+            let quality = q
+                .parse::<u8>()
+                .ok()
+                .filter(|q| (1..=100).contains(q))
+                .ok_or_else(bad)?;
+            return Ok(Format::UltraHdr { quality });
+        }
         match s {
+            "ultrahdr" => Ok(Format::UltraHdr { quality: 92 }),
             "jpeg" | "jpg" => Ok(Format::Jpeg { quality: 92 }),
             "png" | "png8" => Ok(Format::Png8),
             "png16" => Ok(Format::Png16),
@@ -104,6 +121,9 @@ pub fn encode(
         Format::Tiff16 => {
             let bytes = tiff16(image, exif)?;
             out.write_all(&bytes).map_err(|e| e.to_string())
+        }
+        Format::UltraHdr { .. } => {
+            Err("an HDR still is made from a radiance map through a look, not from an image".into())
         }
     }
 }
@@ -273,6 +293,9 @@ pub fn encode_look_previewed(
     };
     let (w, h) = (map.width(), map.height());
     match (look, format) {
+        (_, Format::UltraHdr { quality }) => {
+            return hdr_still::encode(map, look, quality, space, exif, out, shrink);
+        }
         _ if space != ColourSpace::Srgb => {
             let srgb = look.render(map, Depth::Sixteen)?;
             add_image(shrink, &srgb);

@@ -7,6 +7,7 @@
 //! chosen at run time; the same bytes at 4:4:4, 1.45× faster on 24 MP, `docs/performance.md`);
 //! bands of rows are developed and encoded on every core and joined by restart markers
 //! into one baseline file (`jpeg.rs`, [`encode_film_jpeg`]).
+//! An HDR still (`ultrahdr`) is a gain-map JPEG of the look ([`hdr_still`]).
 //! PNG goes through `image`'s encoder, TIFF through `kamadak-exif`'s TIFF writer so that
 //! the EXIF sub-IFD (exposure, date) sits in the same file as the pixels.
 
@@ -19,6 +20,8 @@ use crate::radiance::RadianceSource;
 use crate::tonemap;
 
 mod encode;
+mod gain_map;
+pub mod hdr_still;
 mod jpeg;
 pub mod lut;
 mod shrink;
