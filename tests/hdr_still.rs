@@ -15,8 +15,8 @@ use filmback::rendering::{self, Format, Look, SourceExif, hdr_still};
 use crate::common;
 
 /// A scene with mid-tones, colour and highlights far above them: a horizontal ramp over
-/// 12 stops (grey, warm and cool bands) and a bright disc (a sun) of 2^10 times the
-/// ramp's middle.
+/// 12 stops (grey, warm and cool bands), a bright disc (a sun) of 2^10 times the ramp's
+/// middle and a blue light (a neon sign) whose red and green stay below white in the look.
 fn scene(w: u32, h: u32) -> RadianceMap {
     let mut pixels = Vec::with_capacity((w * h * 3) as usize);
     for y in 0..h {
@@ -34,7 +34,16 @@ fn scene(w: u32, h: u32) -> RadianceMap {
             } else {
                 0.0
             };
-            pixels.extend(tint.map(|t| t * v + sun));
+            let neon = if x > w / 20 && x < w / 5 && y > 3 * h / 4 && y < 9 * h / 10 {
+                [1.0, 2.0, 400.0]
+            } else {
+                [0.0; 3]
+            };
+            let mut rgb = tint.map(|t| t * v + sun);
+            for (c, n) in rgb.iter_mut().zip(neon) {
+                *c += n;
+            }
+            pixels.extend(rgb);
         }
     }
     RadianceMap::new(w, h, 3, pixels).unwrap()
