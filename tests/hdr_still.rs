@@ -399,6 +399,34 @@ fn render_writes_an_hdr_still() {
     );
 }
 
+/// `filmback merge --format ultrahdr` writes the HDR still beside the EXR, through the
+/// darkroom (the merge evaluated while the look is developed).
+#[test]
+fn merge_writes_an_hdr_still_beside_the_exr() {
+    let dir = tempfile::tempdir().unwrap();
+    let shots = filmback::synthetic::demo::aeb("Studio Cam", None, 70);
+    let frames = filmback::synthetic::demo::jpegs(240, 160, &shots, 7).unwrap();
+    let mut paths = Vec::new();
+    for (i, bytes) in frames.iter().enumerate() {
+        let path = dir.path().join(format!("S-{}.jpg", i + 1));
+        std::fs::write(&path, bytes).unwrap();
+        paths.push(path);
+    }
+    let out = dir.path().join("out");
+    let status = common::filmback()
+        .arg("merge")
+        .args(&paths)
+        .args(["--film", "velvia50", "--format", "ultrahdr:90", "-o"])
+        .arg(&out)
+        .status()
+        .unwrap();
+    assert!(status.success());
+    assert!(out.join("S-1.exr").is_file());
+    let read = read(&std::fs::read(out.join("S-1.velvia50-t1.jpg")).unwrap());
+    assert_eq!(read.base.dimensions(), (240, 160));
+    assert_eq!(read.gain.dimensions(), (240, 160));
+}
+
 /// Chromium, when installed: `$CHROMIUM`, else `chromium` on the `PATH`.
 fn chromium() -> Option<PathBuf> {
     if let Some(path) = std::env::var_os("CHROMIUM") {

@@ -587,8 +587,14 @@ pub(crate) fn prints<'a>(
         }),
         radiance_hdr: false,
         looks,
-        format: Format::Jpeg {
-            quality: preset.jpeg_quality,
+        format: if preset.hdr_still {
+            Format::UltraHdr {
+                quality: preset.jpeg_quality,
+            }
+        } else {
+            Format::Jpeg {
+                quality: preset.jpeg_quality,
+            }
         },
         space: preset.colour_space,
         exif,
