@@ -367,6 +367,41 @@ fn the_hdr_still_recovers_the_intended_rendition() {
     assert!(peak > 0.9 * top && peak < 1.02 * top, "peak {peak}");
 }
 
+/// The base decodes to the very pixels of the look's plain JPEG at the same quality, for
+/// a film and a tone map: an SDR viewer sees what `--format jpeg` gives.
+#[test]
+fn the_base_is_the_looks_jpeg() {
+    let map = scene(200, 120);
+    let catalogue = Catalogue::builtin().unwrap();
+    let linear = rendering::looks(
+        &catalogue,
+        &[],
+        &["linear".to_string()],
+        0.0,
+        ColourMode::PerLayer,
+        Key::LogAverage,
+    )
+    .unwrap();
+    for look in [velvia(), linear[0].clone()] {
+        let mut plain = Vec::new();
+        rendering::encode_look(
+            &map,
+            &look,
+            Format::Jpeg { quality: 95 },
+            ColourSpace::Srgb,
+            &SourceExif::default(),
+            &mut plain,
+        )
+        .unwrap();
+        let plain = image::load_from_memory(&plain).unwrap().to_rgb8();
+        assert!(
+            read(&hdr_still(&map, &look)).base == plain,
+            "{}",
+            look.name()
+        );
+    }
+}
+
 /// `filmback render MAP.exr --format ultrahdr` writes the HDR still under the look's name.
 #[test]
 fn render_writes_an_hdr_still() {

@@ -39,7 +39,7 @@ use super::gain_map;
 pub use super::gain_map::GainMapMetadata;
 use super::source_exif::Storage;
 use super::{Look, RenderingError, Shrink, SourceExif, jpeg};
-use crate::display::{ColourSpace, Depth, luminance};
+use crate::display::{ColourSpace, Depth, DisplayImage, luminance};
 use crate::radiance::RadianceSource;
 
 /// Peak of the HDR rendition over SDR white, in stops: 2, i.e. 4× SDR white (812 cd/m²
@@ -180,7 +180,17 @@ pub(super) fn encode(
     } else {
         Depth::Sixteen
     };
-    let srgb = look.render(map, depth)?;
+    // The pixels the plain JPEG of the look holds: a tone map to an sRGB JPEG is
+    // prepared from the streamed histogram, as `encode_look` does.
+    let srgb = match look {
+        Look::Tonemap(op) if space == ColourSpace::Srgb => {
+            let (w, h) = (map.width(), map.height());
+            let mut rgb = vec![0u8; w as usize * h as usize * 3];
+            op.prepare(map).render_rows_8bit(map, 0, &mut rgb);
+            DisplayImage::new_8bit(w, h, rgb)
+        }
+        _ => look.render(map, depth)?,
+    };
     if let Some(shrink) = shrink {
         shrink.add_rows(0, &srgb.to_u8());
     }
