@@ -19,6 +19,7 @@ mod demosaic;
 mod dng;
 mod farm;
 mod film;
+mod hdr_still;
 mod hostile;
 mod layers;
 mod lut;

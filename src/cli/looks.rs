@@ -18,7 +18,8 @@ pub struct LookArgs {
     /// `histogram-naive` (repeatable).
     #[arg(long, value_name = "OPERATOR")]
     pub tonemap: Vec<String>,
-    /// Encoding of the renderings: jpeg, jpeg:QUALITY, png, png16, tiff.
+    /// Encoding of the renderings: jpeg, jpeg:QUALITY, png, png16, tiff, or ultrahdr,
+    /// ultrahdr:QUALITY (the HDR still: a gain-map JPEG, docs/film.md).
     #[arg(long, default_value = "jpeg")]
     pub format: String,
     /// The display the renderings are encoded for: srgb, p3 (Display P3) or rec2020; each

@@ -590,8 +590,14 @@ pub(crate) fn prints<'a>(
                 .iter()
                 .all(|c| crate::daemon::intake::is_raw(&c.input.path)),
         looks,
-        format: Format::Jpeg {
-            quality: preset.jpeg_quality,
+        format: if preset.hdr_still {
+            Format::UltraHdr {
+                quality: preset.jpeg_quality,
+            }
+        } else {
+            Format::Jpeg {
+                quality: preset.jpeg_quality,
+            }
         },
         space: preset.colour_space,
         exif,

@@ -7,7 +7,7 @@ use std::path::{Path, PathBuf};
 use std::str::FromStr;
 
 use super::source_exif::Storage;
-use super::{ImageEncodeError, Look, RenderingError, Shrink, SourceExif, jpeg};
+use super::{ImageEncodeError, Look, RenderingError, Shrink, SourceExif, hdr_still, jpeg};
 use crate::atomic::{self, Overwrite};
 use crate::display::{ColourSpace, Depth, DisplayImage};
 use crate::radiance::RadianceSource;
@@ -28,13 +28,19 @@ pub enum Format {
     Png16,
     /// Uncompressed TIFF, 16 bits per sample.
     Tiff16,
+    /// The HDR still: a gain-map JPEG (Ultra HDR, ISO 21496-1) at this quality whose base
+    /// is the look's [`Format::Jpeg`] rendering ([`hdr_still`]); made from a look only.
+    UltraHdr {
+        /// Quality of the base and of the gain map.
+        quality: u8,
+    },
 }
 
 impl Format {
     /// Bits per sample the format stores.
     pub fn depth(self) -> Depth {
         match self {
-            Format::Jpeg { .. } | Format::Png8 => Depth::Eight,
+            Format::Jpeg { .. } | Format::UltraHdr { .. } | Format::Png8 => Depth::Eight,
             Format::Png16 | Format::Tiff16 => Depth::Sixteen,
         }
     }
@@ -42,7 +48,7 @@ impl Format {
     /// File extension.
     pub fn extension(self) -> &'static str {
         match self {
-            Format::Jpeg { .. } => "jpg",
+            Format::Jpeg { .. } | Format::UltraHdr { .. } => "jpg",
             Format::Png8 | Format::Png16 => "png",
             Format::Tiff16 => "tif",
         }
@@ -50,13 +56,14 @@ impl Format {
 }
 
 impl std::fmt::Display for Format {
-    /// As [`Format::from_str`] reads it: `jpeg:92`, `png`, `png16`, `tiff`.
+    /// As [`Format::from_str`] reads it: `jpeg:92`, `png`, `png16`, `tiff`, `ultrahdr:92`.
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
         match self {
             Format::Jpeg { quality } => write!(f, "jpeg:{quality}"),
             Format::Png8 => f.write_str("png"),
             Format::Png16 => f.write_str("png16"),
             Format::Tiff16 => f.write_str("tiff"),
+            Format::UltraHdr { quality } => write!(f, "ultrahdr:{quality}"),
         }
     }
 }
@@ -64,13 +71,24 @@ impl std::fmt::Display for Format {
 impl FromStr for Format {
     type Err = RenderingError;
 
-    /// `jpeg`, `jpeg:95`, `png`, `png16`, `tiff`.
+    /// `jpeg`, `jpeg:95`, `png`, `png16`, `tiff`, `ultrahdr`, `ultrahdr:95`.
     fn from_str(s: &str) -> Result<Format, RenderingError> {
         let bad = || RenderingError::Parse {
             text: s.to_string(),
-            reason: "expected jpeg, jpeg:QUALITY (1-100), png, png16 or tiff".into(),
+            reason: "expected jpeg, jpeg:QUALITY (1-100), png, png16, tiff, ultrahdr or \
+                     ultrahdr:QUALITY"
+                .into(),
         };
+        if let Some(q) = s.strip_prefix("ultrahdr:") {
+            let quality = q
+                .parse::<u8>()
+                .ok()
+                .filter(|q| (1..=100).contains(q))
+                .ok_or_else(bad)?;
+            return Ok(Format::UltraHdr { quality });
+        }
         match s {
+            "ultrahdr" => Ok(Format::UltraHdr { quality: 92 }),
             "jpeg" | "jpg" => Ok(Format::Jpeg { quality: 92 }),
             "png" | "png8" => Ok(Format::Png8),
             "png16" => Ok(Format::Png16),
@@ -116,6 +134,7 @@ pub fn encode(
             let bytes = tiff16(image, exif)?;
             Ok(out.write_all(&bytes)?)
         }
+        Format::UltraHdr { .. } => Err(ImageEncodeError::NeedsRadiance),
     }
 }
 
@@ -285,6 +304,9 @@ pub(crate) fn encode_look_previewed(
     };
     let (w, h) = (map.width(), map.height());
     match (look, format) {
+        (_, Format::UltraHdr { quality }) => {
+            return hdr_still::encode(map, look, quality, space, exif, out, shrink);
+        }
         _ if space != ColourSpace::Srgb => {
             let srgb = look.render(map, Depth::Sixteen)?;
             add_image(shrink, &srgb);

@@ -7,6 +7,7 @@
 //! chosen at run time; the same bytes at 4:4:4, 1.45× faster on 24 MP, `docs/performance.md`);
 //! bands of rows are developed and encoded on every core and joined by restart markers
 //! into one baseline file (`jpeg.rs`, [`encode_look`]).
+//! An HDR still (`ultrahdr`) is a gain-map JPEG of the look ([`hdr_still`]).
 //! PNG goes through `image`'s encoder, TIFF through `kamadak-exif`'s TIFF writer so that
 //! the EXIF sub-IFD (exposure, date) sits in the same file as the pixels.
 
@@ -19,6 +20,8 @@ use crate::radiance::RadianceSource;
 use crate::tonemap;
 
 mod encode;
+mod gain_map;
+pub mod hdr_still;
 mod jpeg;
 pub mod lut;
 mod shrink;
@@ -82,9 +85,17 @@ pub enum ImageEncodeError {
     /// The JPEG encoder refused.
     #[error("JPEG encoder: {0}")]
     Jpeg(#[from] rusty_jpeg::encode::EncodingError),
-    /// The JPEG encoder wrote a stream the bands cannot be joined from.
+    /// The JPEG encoder wrote a stream the bands (or an HDR still's two images) cannot be
+    /// joined from.
     #[error("unexpected JPEG encoder output: {0}")]
     JpegStream(&'static str),
+    /// A gain-map JPEG whose images would pass the 4 GiB its MPF offsets can state.
+    #[error("a gain-map JPEG is limited to 4 GiB")]
+    GainMapTooLarge,
+    /// An HDR still asked of a display image: it is made from a radiance map through a
+    /// look.
+    #[error("an HDR still is made from a radiance map through a look, not from an image")]
+    NeedsRadiance,
     /// The EXIF block (or the TIFF that carries it) could not be written.
     #[error("EXIF: {0}")]
     Exif(#[from] exif::Error),

@@ -95,7 +95,9 @@ fn every_format_carries_profile_and_exif() {
         }
         let icc_tag = b"ICC_PROFILE";
         let has_icc = match format {
-            Format::Jpeg { .. } => bytes.windows(icc_tag.len()).any(|w| w == icc_tag),
+            Format::Jpeg { .. } | Format::UltraHdr { .. } => {
+                bytes.windows(icc_tag.len()).any(|w| w == icc_tag)
+            }
             Format::Png8 | Format::Png16 => bytes.windows(4).any(|w| w == b"iCCP"),
             Format::Tiff16 => e
                 .get_field(Tag(exif::Context::Tiff, 34675), In::PRIMARY)
@@ -180,6 +182,27 @@ fn formats_parse() {
     assert_eq!("png16".parse::<Format>().unwrap(), Format::Png16);
     assert!("jpeg:0".parse::<Format>().is_err());
     assert!("gif".parse::<Format>().is_err());
+    assert_eq!(
+        "ultrahdr".parse::<Format>().unwrap(),
+        Format::UltraHdr { quality: 92 }
+    );
+    assert_eq!(
+        "ultrahdr:80".parse::<Format>().unwrap(),
+        Format::UltraHdr { quality: 80 }
+    );
+    assert_eq!(Format::UltraHdr { quality: 80 }.extension(), "jpg");
+    assert!("ultrahdr:101".parse::<Format>().is_err());
+    assert!("ultrahdr:".parse::<Format>().is_err());
+    // An HDR still needs the radiance map: an image alone is refused.
+    let image = DisplayImage::new_8bit(2, 2, vec![0; 12]);
+    let mut out = Vec::new();
+    let refused = encode(
+        &image,
+        Format::UltraHdr { quality: 90 },
+        &SourceExif::default(),
+        &mut out,
+    );
+    assert!(refused.is_err() && out.is_empty());
 }
 
 #[test]

@@ -163,6 +163,9 @@ pub struct Preset {
     pub t: f64,
     /// JPEG quality 1..=100.
     pub jpeg_quality: u8,
+    /// Write each look as an HDR still, a gain-map JPEG
+    /// ([`crate::rendering::hdr_still`]), instead of a plain JPEG.
+    pub hdr_still: bool,
     /// Where the response comes from.
     pub recalibrate: Recalibrate,
     /// Fits below this confidence are weak.

@@ -418,6 +418,20 @@ fn luminance_calibration_and_primaries_are_checked() {
     assert!(message.contains("ap0"), "{message}");
 }
 
+/// `hdr_still`: off by default, per camera over `[render]`, and the lab's renderings then
+/// are gain-map JPEGs under the same names.
+#[test]
+fn hdr_still_is_per_camera() {
+    let c = Config::from_str("", Some(Path::new("s.toml"))).unwrap();
+    assert!(!c.render.hdr_still);
+    let text = "[render]\nhdr_still = true\n[camera.\"Canon EOS R5\"]\nhdr_still = false\n";
+    let c = Config::from_str(text, Some(Path::new("s.toml"))).unwrap();
+    assert!(c.render.hdr_still);
+    assert!(!c.preset_for(Some("Canon EOS R5"), None).hdr_still);
+    let (line, _, key, _) = invalid("[render]\nhdr_still = \"gainmap\"\n");
+    assert_eq!((line, key.as_str()), (2, "hdr_still"));
+}
+
 /// `colour_space`: sRGB by default, per camera over `[render]`, a bad name refused with
 /// the names it takes.
 #[test]
