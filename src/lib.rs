@@ -53,6 +53,7 @@
 //!     stem: "bracket",
 //!     exr: Some(Default::default()),
 //!     radiance_hdr: false,
+//!     dng: false,
 //!     looks: &[],
 //!     format: Format::Jpeg { quality: 92 },
 //!     space: ColourSpace::Srgb,
