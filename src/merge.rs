@@ -104,10 +104,10 @@ use crate::align::AlignMode;
 use crate::frame::{BitDepth, Frame, Samples};
 use crate::metadata::Camera;
 use crate::radiance::{CodePairs, RadianceMap, RadianceSource};
-use crate::response::InverseResponse;
+use crate::response::{InverseResponse, same_exposure};
 
 /// How much each frame's sample is trusted (see the module docs for when to use which).
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, serde::Serialize)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, serde::Serialize, clap::ValueEnum)]
 #[serde(rename_all = "kebab-case")]
 pub enum Weighting {
     /// `w(B) = min(B, 1 − B)/0.5`, the same for all frames.
@@ -413,8 +413,8 @@ pub fn exposure_scale(
         .max_by(|&a, &b| relative[a].total_cmp(&relative[b]))
         .expect("not empty");
     let lambda = relative[longest] / absolute[longest];
-    if let Some(k) = (0..relative.len())
-        .find(|&k| (relative[k] / (lambda * absolute[k]) - 1.0).abs() > SAME_EXPOSURE)
+    if let Some(k) =
+        (0..relative.len()).find(|&k| !same_exposure(relative[k], lambda * absolute[k]))
     {
         return relative_scale(format!(
             "the exposure used for frame {} is not in proportion to its EXIF t*S/N^2",
@@ -427,9 +427,6 @@ pub fn exposure_scale(
     let factor = calibration * SATURATION_SPEED / LENS_Q / absolute[longest];
     (Scale::Luminance { calibration }, factor)
 }
-
-/// Exposures closer than this relative difference count as equal (1/3 stop is 26 %).
-const SAME_EXPOSURE: f64 = 0.01;
 
 /// Frames of equal exposure (within 1 %) are merged as duplicates: the weighted mean
 /// averages their noise. A set with only one distinct exposure is refused.
@@ -584,7 +581,7 @@ fn check(frames: &[BracketFrame<'_>], response: &InverseResponse) -> Result<(), 
     }
     let distinct = frames[1..]
         .iter()
-        .any(|f| (f.exposure / first.exposure - 1.0).abs() >= SAME_EXPOSURE);
+        .any(|f| !same_exposure(f.exposure, first.exposure));
     if !distinct {
         return Err(MergeError::SingleExposure {
             first: first.source.to_path_buf(),

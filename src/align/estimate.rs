@@ -1248,13 +1248,11 @@ fn descend(
         let Some(simpler) = state.motion.simpler() else {
             return Err(Refusal::Undetermined(spread));
         };
-        note = Some(
-            format!(
-                "the texture does not determine a {:?} model (±{spread:.2} px): {:?} used",
-                state.motion, simpler
-            )
-            .to_lowercase(),
-        );
+        note = Some(format!(
+            "the texture does not determine a {} model (±{spread:.2} px): {} used",
+            state.motion.as_str(),
+            simpler.as_str()
+        ));
         (state, normal) = refine(fine_ref, fine_mov, geometry, start.as_motion(simpler))?;
     }
 }

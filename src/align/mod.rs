@@ -211,6 +211,15 @@ pub enum Motion {
 }
 
 impl Motion {
+    /// The name records use (`translation`, `rigid`, `homography`), as serialised.
+    pub fn as_str(self) -> &'static str {
+        match self {
+            Motion::Translation => "translation",
+            Motion::Rigid => "rigid",
+            Motion::Homography => "homography",
+        }
+    }
+
     /// The next simpler model.
     fn simpler(self) -> Option<Motion> {
         match self {
@@ -318,7 +327,7 @@ impl Alignment {
         for (k, (f, name)) in self.frames.iter().zip(names).enumerate() {
             let ((dx, dy), angle) = f.shift_and_rotation(width, height);
             let model = match f.motion {
-                Some(m) => format!("{m:?}").to_lowercase(),
+                Some(m) => m.as_str().to_string(),
                 None => "identity".to_string(),
             };
             let m = &f.transform;

@@ -296,7 +296,7 @@ fn report(cal: &Calibration) -> Value {
                 "top_span_stops": number(f.top_span),
                 "coverage": number(f.coverage),
                 "confidence": f.confidence,
-                "low_confidence": f.confidence < 0.5,
+                "low_confidence": f.confidence < filmback::response::fit::LOW_CONFIDENCE,
                 "borrowed_from": ch.borrowed_from,
             })
         })

@@ -10,7 +10,6 @@ use std::process::ExitCode;
 use std::time::{Duration, Instant};
 
 use anyhow::{Context, bail};
-use clap::ValueEnum;
 use filmback::align::AlignMode;
 use filmback::atomic::Overwrite;
 use filmback::darkroom::{self, GivenResponse, Prints, ResponsePolicy, Source};
@@ -53,25 +52,25 @@ pub struct Args {
     #[arg(long, value_name = "T,T,...", value_delimiter = ',')]
     times: Vec<String>,
     /// Sample type of the OpenEXR file.
-    #[arg(long, value_enum, default_value_t = ExrSample::Half)]
-    exr: ExrSample,
+    #[arg(long, value_enum, default_value_t = SampleFormat::Half)]
+    exr: SampleFormat,
     /// OpenEXR compression (b44 is lossy; pxr24 is lossy for float).
-    #[arg(long, value_enum, default_value_t = CompressionArg::Piz)]
-    compression: CompressionArg,
+    #[arg(long, value_enum, default_value_t = ExrCompression::Piz)]
+    compression: ExrCompression,
     /// Values above half's 65504: scale the image by a power of two, or clamp.
-    #[arg(long, value_enum, default_value_t = HalfOverflow::Scale)]
-    overflow: HalfOverflow,
+    #[arg(long, value_enum, default_value_t = Overflow::Scale)]
+    overflow: Overflow,
     /// RGB primaries of the OpenEXR file (the renderings stay Rec. 709 / sRGB): rec709,
     /// ap0 (ACES2065-1) or ap1 (ACEScg).
-    #[arg(long, value_enum, default_value_t = PrimariesArg::Rec709)]
-    primaries: PrimariesArg,
+    #[arg(long, value_enum, default_value_t = Primaries::Rec709)]
+    primaries: Primaries,
     /// Calibration factor of the luminance scale: values are this times the nominal
     /// cd/m² from the EXIF exposure (grey card: its metered cd/m² over the value read).
     #[arg(long, value_name = "FACTOR", default_value_t = 1.0, value_parser = positive)]
     luminance_calibration: f64,
     /// Merge weight: hat (robust default) or noise-aware (lower noise, needs a good response).
-    #[arg(long, value_enum, default_value_t = Weight::Hat)]
-    weight: Weight,
+    #[arg(long, value_enum, default_value_t = Weighting::Hat)]
+    weight: Weighting,
     /// Leave a frame out where it disagrees with the reference frame beyond its noise (a
     /// moving subject): on, or off to blend every frame (moving subjects translucent).
     #[arg(long, value_enum, default_value_t = Deghost::On)]
@@ -100,47 +99,12 @@ pub struct Args {
     json: bool,
 }
 
-#[derive(Debug, Clone, Copy, ValueEnum)]
-enum ExrSample {
-    Half,
-    Float,
-}
-
-#[derive(Debug, Clone, Copy, ValueEnum)]
-enum CompressionArg {
-    Piz,
-    Zip,
-    Rle,
-    None,
-    Pxr24,
-    B44,
-}
-
-#[derive(Debug, Clone, Copy, ValueEnum)]
-enum PrimariesArg {
-    Rec709,
-    Ap0,
-    Ap1,
-}
-
 /// A positive finite number (the luminance calibration).
 fn positive(s: &str) -> Result<f64, String> {
     match s.parse::<f64>() {
         Ok(v) if v.is_finite() && v > 0.0 => Ok(v),
         _ => Err(format!("{s:?} is not a positive number")),
     }
-}
-
-#[derive(Debug, Clone, Copy, ValueEnum)]
-enum HalfOverflow {
-    Scale,
-    Clamp,
-}
-
-#[derive(Debug, Clone, Copy, ValueEnum)]
-enum Weight {
-    Hat,
-    NoiseAware,
 }
 
 /// Runs the command.
@@ -161,27 +125,10 @@ pub fn run(args: Args) -> anyhow::Result<ExitCode> {
         dir: &args.output,
         stem: &stem,
         exr: Some(ExrOptions {
-            sample: match args.exr {
-                ExrSample::Half => SampleFormat::Half,
-                ExrSample::Float => SampleFormat::Float,
-            },
-            compression: match args.compression {
-                CompressionArg::Piz => ExrCompression::Piz,
-                CompressionArg::Zip => ExrCompression::Zip,
-                CompressionArg::Rle => ExrCompression::Rle,
-                CompressionArg::None => ExrCompression::None,
-                CompressionArg::Pxr24 => ExrCompression::Pxr24,
-                CompressionArg::B44 => ExrCompression::B44,
-            },
-            overflow: match args.overflow {
-                HalfOverflow::Scale => Overflow::Scale,
-                HalfOverflow::Clamp => Overflow::Clamp,
-            },
-            primaries: match args.primaries {
-                PrimariesArg::Rec709 => Primaries::Rec709,
-                PrimariesArg::Ap0 => Primaries::Ap0,
-                PrimariesArg::Ap1 => Primaries::Ap1,
-            },
+            sample: args.exr,
+            compression: args.compression,
+            overflow: args.overflow,
+            primaries: args.primaries,
         }),
         luminance_calibration: args.luminance_calibration,
         preview_edge: None,
@@ -222,10 +169,7 @@ pub fn run(args: Args) -> anyhow::Result<ExitCode> {
     }
     let policy = response_policy(&args, frames[0].frame.channels())?;
     let options = MergeOptions {
-        weighting: match args.weight {
-            Weight::Hat => Weighting::Hat,
-            Weight::NoiseAware => Weighting::NoiseAware,
-        },
+        weighting: args.weight,
         confidence: args.confidence,
         deghost: args.deghost,
         align: args.align,

@@ -159,7 +159,7 @@ impl Facts {
                 (clipped as f64 / samples as f64).min(1.0)
             },
             alignment: d.alignment.as_ref().map(|a| Aligned {
-                mode: format!("{:?}", a.mode).to_lowercase(),
+                mode: a.mode.as_str().to_string(),
                 largest_shift_px: a
                     .frames
                     .iter()
@@ -579,7 +579,7 @@ pub(crate) fn prints<'a>(
         dir,
         stem: &job.stem,
         exr: (preset.exr && !job.is_single()).then(|| ExrOptions {
-            primaries: preset.primaries.into(),
+            primaries: preset.primaries,
             ..ExrOptions::default()
         }),
         radiance_hdr: false,

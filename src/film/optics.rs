@@ -30,6 +30,7 @@
 
 use std::borrow::Cow;
 
+use nalgebra::{DMatrix, DVector};
 use rayon::prelude::*;
 
 use super::stock::Mtf;
@@ -68,20 +69,22 @@ impl MtfFit {
             .map(|(&f, &m)| (basis(f), m, 1.0))
             .collect();
         rows.push((basis(0.0), 1.0, 100.0));
-        let mut a = vec![vec![0.0; n + 1]; n];
+        // Normal equations `(BᵀW²B + 10⁻⁴·I) w = BᵀW²m`, symmetric positive definite.
+        let mut normal = DMatrix::<f64>::identity(n, n) * 1e-4;
+        let mut rhs = DVector::<f64>::zeros(n);
         for (b, m, weight) in &rows {
+            let b = DVector::from_column_slice(b);
             let w2 = weight * weight;
-            for i in 0..n {
-                for j in 0..n {
-                    a[i][j] += w2 * b[i] * b[j];
-                }
-                a[i][n] += w2 * b[i] * m;
-            }
+            normal += &b * b.transpose() * w2;
+            rhs += &b * (w2 * m);
         }
-        for (i, row) in a.iter_mut().enumerate() {
-            row[i] += 1e-4;
-        }
-        let w = solve(a);
+        let w = normal
+            .clone()
+            .cholesky()
+            .map(|c| c.solve(&rhs))
+            .or_else(|| normal.lu().solve(&rhs))
+            // Only a non-finite sheet (refused when the stock is read) gets here.
+            .unwrap_or_else(|| DVector::from_element(n, f64::NAN));
         let total: f64 = w.iter().sum();
         let terms: Vec<(f64, f64)> = sigma
             .iter()
@@ -108,31 +111,6 @@ impl MtfFit {
             .map(|(s, w)| w * (-2.0 * std::f64::consts::PI.powi(2) * s * s * f * f).exp())
             .sum()
     }
-}
-
-/// Gauss–Jordan elimination with partial pivoting on an augmented `n × (n+1)` matrix.
-fn solve(mut a: Vec<Vec<f64>>) -> Vec<f64> {
-    let n = a.len();
-    for col in 0..n {
-        let pivot = (col..n)
-            .max_by(|&i, &j| a[i][col].abs().total_cmp(&a[j][col].abs()))
-            .unwrap_or(col);
-        a.swap(col, pivot);
-        let p = a[col][col];
-        for v in a[col].iter_mut() {
-            *v /= p;
-        }
-        let pivot_row = a[col].clone();
-        for (i, row) in a.iter_mut().enumerate() {
-            if i != col {
-                let factor = row[col];
-                for (v, p) in row.iter_mut().zip(&pivot_row) {
-                    *v -= factor * p;
-                }
-            }
-        }
-    }
-    a.iter().map(|row| row[n]).collect()
 }
 
 impl MtfFit {

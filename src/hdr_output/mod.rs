@@ -63,7 +63,7 @@ use header::{image_attributes, layer_attributes, text};
 pub const HALF_MAX: f32 = 65504.0;
 
 /// Sample type of the OpenEXR channels.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, clap::ValueEnum)]
 pub enum SampleFormat {
     /// 16-bit float: 10-bit mantissa, at most 65 504 (default).
     #[default]
@@ -73,7 +73,7 @@ pub enum SampleFormat {
 }
 
 /// OpenEXR compression. Lossless unless the name says otherwise.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, clap::ValueEnum)]
 pub enum ExrCompression {
     /// None: largest files, fastest to write and read.
     None,
@@ -105,7 +105,7 @@ impl ExrCompression {
 }
 
 /// What to do with values above [`HALF_MAX`] when writing half.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, clap::ValueEnum)]
 pub enum Overflow {
     /// Multiply the whole image by the largest power of two `2⁻ⁿ` that brings the maximum
     /// to at most 65 504 (default): nothing is lost, the factor is in the header.
@@ -123,7 +123,8 @@ pub enum Overflow {
 /// `rgb_P = M_P⁻¹ · CAT(D65 → W_P) · M_709 · rgb_709`
 ///
 /// so a Rec. 709 neutral stays neutral (R = G = B) in every output.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, serde::Deserialize, clap::ValueEnum)]
+#[serde(rename_all = "lowercase")]
 pub enum Primaries {
     /// ITU-R BT.709 / sRGB primaries, D65 white (default).
     #[default]

@@ -356,7 +356,7 @@ fn decode_unguarded(path: &Path, bytes: &[u8], max_pixels: u64) -> Result<RawMos
             white,
             neutral,
             xyz_to_camera,
-            matrix_illuminant: format!("{illuminant:?}"),
+            matrix_illuminant: light_source_name(u16::from(illuminant)).to_string(),
             colour_matrices,
             exposure_time_s: exif.exposure_time_s,
             f_number: exif.f_number,
@@ -364,6 +364,37 @@ fn decode_unguarded(path: &Path, bytes: &[u8], max_pixels: u64) -> Result<RawMos
             captured: exif.captured,
         },
     })
+}
+
+/// The name of an EXIF `LightSource` code (CIPA DC-008 table, as DNG's
+/// `CalibrationIlluminant` uses it): `D65` for 21, `Standard light A` for 17; the code
+/// itself for one outside the table.
+fn light_source_name(code: u16) -> std::borrow::Cow<'static, str> {
+    let name = match code {
+        0 => "unknown",
+        1 => "Daylight",
+        2 => "Fluorescent",
+        3 => "Tungsten",
+        4 => "Flash",
+        9 => "Fine weather",
+        10 => "Cloudy weather",
+        11 => "Shade",
+        12 => "Daylight fluorescent",
+        13 => "Day white fluorescent",
+        14 => "Cool white fluorescent",
+        15 => "White fluorescent",
+        16 => "Warm white fluorescent",
+        17 => "Standard light A",
+        18 => "Standard light B",
+        19 => "Standard light C",
+        20 => "D55",
+        21 => "D65",
+        22 => "D75",
+        23 => "D50",
+        24 => "ISO studio tungsten",
+        _ => return format!("light source {code}").into(),
+    };
+    name.into()
 }
 
 #[cfg(test)]

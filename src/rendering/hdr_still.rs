@@ -200,7 +200,9 @@ pub(super) fn encode(
     let k = scene_scale(map, &rgb, space);
     let gains = gain_map(map, k);
     let gain_jpeg = encode_gain_map(w, h, &gains, quality).map_err(failed)?;
-    let block = exif.tiff_block(w, h, Storage::Jpeg).map_err(|e| failed(e.into()))?;
+    let block = exif
+        .tiff_block(w, h, Storage::Jpeg)
+        .map_err(|e| failed(e.into()))?;
     let xmp = gain_map::xmp_payload(&gain_map::primary_xmp(gain_jpeg.len()));
     let decorate = |encoder: &mut Encoder<&mut Vec<u8>>| {
         encoder.add_app_segment(1, [&b"Exif\0\0"[..], &block].concat())?;

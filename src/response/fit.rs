@@ -177,7 +177,7 @@ pub struct ChannelFit {
     pub effective_parameters: f64,
     /// Condition number of the weighted design matrix (ratio of extreme singular values).
     pub condition: f64,
-    /// Predicted standard error of `log₂ g` over codes 16..239 (stops), from the fit's
+    /// Predicted standard error of `log₂ g` over [`ASSESSED_CODES`] (stops), from the fit's
     /// covariance scaled by the residual misfit: the curve's level (its anchor `g(1) = 1`
     /// extrapolated down to the codes) and its shape together.
     pub predicted_error: f64,
@@ -185,7 +185,7 @@ pub struct ChannelFit {
     /// `log₂ g(b) − mean_b log₂ g(b)` over the same codes (stops), what is left after the
     /// level that the channels' balance and the map's own scale take out.
     pub predicted_shape_error: f64,
-    /// Fraction of the tones 16/255..239/255 inside [`ChannelFit::covered`].
+    /// Fraction of the tones of [`ASSESSED_CODES`] inside [`ChannelFit::covered`].
     pub coverage: f64,
     /// Weighted misfit per degree of freedom, `χ² / (m − p_eff)` (dimensionless): about
     /// 1 when the equations scatter as the histograms' noise model says (bin width, pixel
@@ -201,9 +201,18 @@ pub struct ChannelFit {
     /// shape error ≤ 0.1 stop and scale within 0.05 stop of the map's level (the mean of
     /// the channels' scales; see [`CONFIDENCE_MODEL`]): the logistic model of
     /// [`ChannelFit::features`], capped where the predicted shape error reaches 0.2 stop
-    /// and times [`ChannelFit::coverage`]; in `[0, 1]`, below 0.5 is "low".
+    /// and times [`ChannelFit::coverage`]; in `[0, 1]`, below [`LOW_CONFIDENCE`] is "low".
     pub confidence: f64,
 }
+
+/// The 8-bit codes (of 255) over which a response's error is judged and its coverage
+/// counted: the tones a merge relies on, past the toe's noise and the shoulder's clipping.
+pub const ASSESSED_CODES: std::ops::RangeInclusive<u32> = 16..=239;
+
+/// A fit's confidence below this is low: the odds are against its being good (the
+/// confidence is a probability), so it is reported and a response of the body's own is
+/// preferred to it.
+pub const LOW_CONFIDENCE: f64 = 0.5;
 
 impl ChannelFit {
     /// The spline basis of `ln g` on `[x₀, 0]`.
@@ -877,7 +886,7 @@ pub fn fit_joint(
         // The data cannot choose between the two curves: their difference is part of
         // the error to expect.
         let (fitted, other) = (fit.curve(), problem.curve(smoothing.best, log_floor));
-        let differences: Vec<f64> = (16..=239)
+        let differences: Vec<f64> = ASSESSED_CODES
             .map(|k| {
                 let b = f64::from(k) / 255.0;
                 (fitted.log_g(b) - other.log_g(b)) / std::f64::consts::LN_2
@@ -971,7 +980,7 @@ fn finish(problem: &Problem, lambda: f64, log_floor: f64, covered: (f64, f64)) -
         let vt = svd.v_t.unwrap_or_else(|| DMatrix::identity(p, p));
         // Per code, `Σ⁻¹Vᵀφ(b)`: its squared norm is the variance of `ln g(b)` (over s²),
         // and that of its deviation from the codes' mean the variance of the shape.
-        let codes = 16..=239;
+        let codes = ASSESSED_CODES;
         let count = codes.clone().count() as f64;
         let whitened: Vec<DVector<f64>> = codes
             .map(|k| {
@@ -1006,8 +1015,12 @@ fn finish(problem: &Problem, lambda: f64, log_floor: f64, covered: (f64, f64)) -
         )
     };
     let (lo, hi) = (covered.0, covered.1.min(1.0));
-    let coverage =
-        ((hi.min(239.0 / 255.0) - lo.max(16.0 / 255.0)) / (223.0 / 255.0)).clamp(0.0, 1.0);
+    let (first, last) = (
+        f64::from(*ASSESSED_CODES.start()) / 255.0,
+        f64::from(*ASSESSED_CODES.end()) / 255.0,
+    );
+    let span = f64::from(ASSESSED_CODES.end() - ASSESSED_CODES.start()) / 255.0;
+    let coverage = ((hi.min(last) - lo.max(first)) / span).clamp(0.0, 1.0);
     let dof = (m as f64 - effective_parameters).max(1.0);
     let mut fit = ChannelFit {
         degree: problem.basis.degree(),

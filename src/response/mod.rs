@@ -544,8 +544,16 @@ fn finish(
     })
 }
 
-/// Exposures closer than this factor are one exposure: their pair tells the fit nothing.
-const SAME_EXPOSURE: f64 = 1.01;
+/// Exposures within this factor of each other are one exposure (EXIF's rounded shutter
+/// times differ from the true ones by about 1 %; a third of a stop is 26 %): their pair
+/// tells the fit nothing, and a bracket of them has one exposure.
+pub const SAME_EXPOSURE: f64 = 1.01;
+
+/// Whether exposures `a` and `b` are one exposure: `max(a, b) ≤` [`SAME_EXPOSURE`]` ·
+/// min(a, b)`.
+pub fn same_exposure(a: f64, b: f64) -> bool {
+    a.max(b) <= SAME_EXPOSURE * a.min(b)
+}
 
 /// The largest ratio between exposures neighbouring in value when it is beyond the ratios
 /// the confidence was fitted on ([`fit::CALIBRATED_RATIOS`], with the 1 % that EXIF's

@@ -5,9 +5,11 @@ use super::ResponseCurve;
 use crate::frame::{Frame, Samples};
 use crate::radiance::RadianceMap;
 use crate::response::InverseResponse;
+use crate::response::fit::ASSESSED_CODES;
 
-/// Codes (of 255) over which curve errors are taken: the tones a merge relies on.
-pub const ERROR_CODES: std::ops::RangeInclusive<u32> = 16..=239;
+/// Codes (of 255) over which curve errors are taken: the response's own
+/// [`ASSESSED_CODES`].
+pub const ERROR_CODES: std::ops::RangeInclusive<u32> = ASSESSED_CODES;
 
 /// One channel's error in stops against the truth, over [`ERROR_CODES`], from the
 /// differences `d(k) = log₂ g(k/255) − log₂ g_true(k/255)`.

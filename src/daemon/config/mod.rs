@@ -174,7 +174,7 @@ pub struct Preset {
     /// EXIF exposure; see `merge`'s "Absolute scale").
     pub luminance_calibration: f64,
     /// RGB primaries of the EXR.
-    pub primaries: OutputPrimaries,
+    pub primaries: crate::hdr_output::Primaries,
     /// The display the renderings are encoded for.
     pub colour_space: crate::display::ColourSpace,
     /// How the frames are aligned before the merge (`[merge] align`, or the camera's).
@@ -182,28 +182,6 @@ pub struct Preset {
     /// Whether frames that disagree with the reference are left out (`[merge] deghost`,
     /// or the camera's).
     pub deghost: crate::merge::Deghost,
-}
-
-/// The EXR's RGB primaries as the configuration names them (`primaries = "ap1"`).
-#[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Deserialize)]
-#[serde(rename_all = "lowercase")]
-pub enum OutputPrimaries {
-    /// Rec. 709 / sRGB, D65 (default).
-    Rec709,
-    /// ACES2065-1.
-    Ap0,
-    /// ACEScg.
-    Ap1,
-}
-
-impl From<OutputPrimaries> for crate::hdr_output::Primaries {
-    fn from(p: OutputPrimaries) -> Self {
-        match p {
-            OutputPrimaries::Rec709 => crate::hdr_output::Primaries::Rec709,
-            OutputPrimaries::Ap0 => crate::hdr_output::Primaries::Ap0,
-            OutputPrimaries::Ap1 => crate::hdr_output::Primaries::Ap1,
-        }
-    }
 }
 
 /// A per-camera preset and what it matches.

@@ -249,7 +249,7 @@ struct RawRender {
     recalibrate: Option<Recalibrate>,
     min_confidence: Option<Fraction>,
     luminance_calibration: Option<Calibration>,
-    primaries: Option<super::OutputPrimaries>,
+    primaries: Option<crate::hdr_output::Primaries>,
     colour_space: Option<ColourSpace>,
 }
 
@@ -269,7 +269,7 @@ struct RawPreset {
     recalibrate: Option<Recalibrate>,
     min_confidence: Option<Fraction>,
     luminance_calibration: Option<Calibration>,
-    primaries: Option<super::OutputPrimaries>,
+    primaries: Option<crate::hdr_output::Primaries>,
     colour_space: Option<ColourSpace>,
     // The [merge] keys a camera may override.
     align: Option<AlignMode>,

@@ -33,7 +33,7 @@ fn embedded_defaults_set_every_key() {
     assert_eq!(c.render.tonemaps, vec!["linear".to_string()]);
     assert_eq!(c.render.recalibrate, Recalibrate::Auto);
     assert_eq!(c.render.luminance_calibration, 1.0);
-    assert_eq!(c.render.primaries, OutputPrimaries::Rec709);
+    assert_eq!(c.render.primaries, crate::hdr_output::Primaries::Rec709);
     assert!(c.cameras.is_empty());
     // An empty file is the defaults.
     let empty = Config::from_str("", Some(Path::new("e.toml"))).unwrap();
@@ -405,11 +405,11 @@ fn luminance_calibration_and_primaries_are_checked() {
     let text =
         "[render]\nprimaries = \"ap1\"\n[camera.\"Canon EOS R5\"]\nluminance_calibration = 1.25\n";
     let c = Config::from_str(text, Some(Path::new("s.toml"))).unwrap();
-    assert_eq!(c.render.primaries, OutputPrimaries::Ap1);
+    assert_eq!(c.render.primaries, crate::hdr_output::Primaries::Ap1);
     assert_eq!(c.render.luminance_calibration, 1.0);
     let r5 = c.preset_for(Some("Canon EOS R5"), None);
     assert_eq!(r5.luminance_calibration, 1.25);
-    assert_eq!(r5.primaries, OutputPrimaries::Ap1);
+    assert_eq!(r5.primaries, crate::hdr_output::Primaries::Ap1);
     let (line, _, key, message) = invalid("[render]\nluminance_calibration = 0\n");
     assert_eq!((line, key.as_str()), (2, "luminance_calibration"));
     assert!(message.contains("outside"), "{message}");
