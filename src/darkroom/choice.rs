@@ -33,8 +33,9 @@ use rayon::prelude::*;
 use super::{DarkroomError, Stages, file_name};
 use crate::histogram::FrameCounts;
 use crate::merge::BracketFrame;
+use crate::response::fit::LOW_CONFIDENCE;
 use crate::response::pool::{self, Evidence};
-use crate::response::{self, Degree, InverseResponse, RatioSource};
+use crate::response::{self, Calibration, CalibrationError, Degree, InverseResponse, RatioSource};
 
 /// Pixels per frame the calibration histograms look at (a speed knob measured in
 /// `benches/calibrate_speed.rs`: beyond a few million pixels the histograms of a
@@ -161,7 +162,11 @@ pub struct Pooling {
 }
 
 /// Chooses the response for `bracket` under `policy`; `ratio_source` says where the
-/// exposures came from. Histogram and fit times are appended to `stages`.
+/// exposures came from. Histogram and fit times are appended to `stages`. The steps: fit
+/// (`fit_bracket`); on failure the fallback; a fit the cached curve contradicts keeps
+/// its own curve (`contradicts_cached`); a weak fit yields to a fallback that the
+/// bracket does not contradict (`weak_fit_fallback`); a good fit yields to a trusted
+/// body pool; else the fit (`use_fitted`).
 pub fn choose_response(
     bracket: &[BracketFrame<'_>],
     ratio_source: RatioSource,
@@ -176,6 +181,98 @@ pub fn choose_response(
             pool,
         } => (fallback, min_confidence, pool),
     };
+    let Fitting {
+        chosen,
+        dark,
+        bright,
+        pair,
+        fitted,
+    } = fit_bracket(bracket, ratio_source, stages);
+    let (calibration, mut fallback) = match (fitted, fallback) {
+        (Ok(c), fallback) => (c, fallback),
+        (Err(source), None) => {
+            return Err(DarkroomError::Calibrate {
+                dark: dark.to_path_buf(),
+                bright: bright.to_path_buf(),
+                source,
+            });
+        }
+        (Err(e), Some(given)) => {
+            let note = format!(
+                "no response could be fitted from {} ({e}); used the {}",
+                pair, given.label
+            );
+            return Ok(use_given(given, vec![note], None));
+        }
+    };
+    let fitted = Fitted::of(calibration, &chosen, ratio_source);
+    let mut notes = Vec::new();
+    let contradicts_cache = fitted.confidence >= min_confidence
+        && contradicts_cached(&fitted, fallback.as_ref(), &mut notes);
+    if fitted.confidence < min_confidence
+        && let Some(given) = fallback.take()
+    {
+        match weak_fit_fallback(&fitted, given, min_confidence, &pair) {
+            Ok(chosen) => return Ok(chosen),
+            Err(note) => notes.push(note),
+        }
+    }
+    let exposures: Vec<f64> = chosen.iter().map(|f| f.exposure).collect();
+    if let Some(widest) = response::beyond_calibrated_ratios(&exposures) {
+        notes.push(format!(
+            "frames {:.1} stops apart in {}: the fit's confidence is calibrated on frames \
+             up to four stops apart",
+            widest.log2(),
+            pair
+        ));
+    }
+    let pooling = (fitted.confidence >= min_confidence)
+        .then(|| pooling_of(&fitted.calibration, chosen.len()));
+    // The pool is steadier from scene to scene than one bracket's fit (docs/accuracy.md,
+    // "A body's pool"): used when it is trusted itself, or at least as sure as this fit.
+    let trusted = min_confidence.max(LOW_CONFIDENCE);
+    if !contradicts_cache
+        && let Some(body) =
+            body_pool.filter(|b| b.confidence >= trusted || b.confidence >= fitted.confidence)
+        && let Some(cached) = fallback.take().filter(|g| g.source == Source::Cached)
+        && pooling.is_some()
+    {
+        let fit = Some(fitted.own_fit());
+        return Ok(use_pooled(cached, body, fit, fitted.report, notes, pooling));
+    }
+    Ok(use_fitted(
+        fitted,
+        &pair,
+        ratio_source,
+        notes,
+        contradicts_cache,
+        pooling,
+    ))
+}
+
+/// The frames a bracket's response is fitted from, and the fit.
+struct Fitting<'b, 'f> {
+    /// The frames fitted, darkest first: every frame when more than two exposures are
+    /// distinct, else the adjacent pair nearest the middle whose exposures differ.
+    chosen: Vec<&'b BracketFrame<'f>>,
+    /// The darker and brighter frame of that pair (the ends of the bracket otherwise).
+    dark: &'f Path,
+    /// See `dark`.
+    bright: &'f Path,
+    /// How notes name the frames: `all N frames` or `A and B`.
+    pair: String,
+    /// The calibration, or why there is none.
+    fitted: Result<Calibration, CalibrationError>,
+}
+
+/// Fits the response of `bracket` ([`Fitting`]): histograms of about
+/// [`CALIBRATION_PIXELS`] pixels a frame (stage `histogram`), then
+/// [`response::calibrate_frames`] (stage `fit`).
+fn fit_bracket<'b, 'f>(
+    bracket: &'b [BracketFrame<'f>],
+    ratio_source: RatioSource,
+    stages: &mut Stages,
+) -> Fitting<'b, 'f> {
     let mut order: Vec<usize> = (0..bracket.len()).collect();
     order.sort_by(|&a, &b| bracket[a].exposure.total_cmp(&bracket[b].exposure));
     // The adjacent pair nearest the middle whose exposures differ (duplicates, as in
@@ -184,7 +281,7 @@ pub fn choose_response(
     let mid = (order.len() / 2).max(1);
     let distinct = |k: &usize| {
         let (a, b) = (&bracket[order[k - 1]], &bracket[order[*k]]);
-        b.exposure > a.exposure * 1.01
+        !response::same_exposure(a.exposure, b.exposure)
     };
     let k = (1..order.len())
         .filter(distinct)
@@ -197,8 +294,7 @@ pub fn choose_response(
         .floor() as usize)
         .max(1);
     // More than two distinct exposures: every frame, every pair, one curve per channel.
-    let distinct = (1..order.len()).filter(distinct).count() + 1;
-    let joint = distinct > 2;
+    let joint = (1..order.len()).filter(distinct).count() + 1 > 2;
     let chosen: Vec<&BracketFrame<'_>> = if joint {
         order.iter().map(|&i| &bracket[i]).collect()
     } else {
@@ -217,8 +313,6 @@ pub fn choose_response(
         .collect();
     let fitted = response::calibrate_frames(&frames, ratio_source, Degree::Auto);
     stages.push(("fit", t.elapsed()));
-    let ratio = chosen[chosen.len() - 1].exposure / chosen[0].exposure;
-    let sources: Vec<&Path> = chosen.iter().map(|f| f.source).collect();
     let pair = if joint {
         format!("all {} frames", bracket.len())
     } else {
@@ -228,119 +322,158 @@ pub fn choose_response(
             file_name(bright.source)
         )
     };
-    let (calibration, mut fallback) = match (fitted, fallback) {
-        (Ok(c), fallback) => (c, fallback),
-        (Err(source), None) => {
-            return Err(DarkroomError::Calibrate {
-                dark: dark.source.to_path_buf(),
-                bright: bright.source.to_path_buf(),
-                source,
-            });
-        }
-        (Err(e), Some(given)) => {
-            let note = format!(
-                "no response could be fitted from {pair} ({e}); used the {}",
-                given.label
-            );
-            return Ok(use_given(given, vec![note], None));
-        }
-    };
-    let confidence = calibration
-        .channels
-        .iter()
-        .map(|c| c.fit.confidence)
-        .fold(f64::INFINITY, f64::min)
-        .clamp(0.0, 1.0);
-    let fit = Some((calibration.response.clone(), confidence));
-    let report = serde_json::json!({
-        "source": "fitted",
-        "frames": sources.iter().map(|p| p.display().to_string()).collect::<Vec<_>>(),
-        "ratio": ratio,
-        "ratio_source": ratio_source.as_str(),
-        "confidence": confidence,
-        "channels": calibration.channels.iter().map(|c| serde_json::json!({
-            "name": c.name,
-            "model": c.fit.model(),
-            "degree": c.fit.degree,
-            "effective_parameters": c.fit.effective_parameters,
-            "covered": [c.fit.covered.0, c.fit.covered.1],
-            "residual_rms_stops": c.fit.residual_rms,
-            "confidence": c.fit.confidence,
-            "borrowed_from": c.borrowed_from,
-        })).collect::<Vec<_>>(),
-    });
-    let mut notes = Vec::new();
-    let mut contradicts_cache = false;
-    if confidence >= min_confidence
-        && let Some(cached) = fallback.as_ref().filter(|g| g.source == Source::Cached)
-    {
-        let fit_misfit = pool::misfit(&calibration, &calibration.response);
-        let cached_misfit = pool::misfit(&calibration, &cached.response);
-        if cached_misfit > fit_misfit + CONTRADICTION_STOPS {
-            contradicts_cache = true;
-            notes.push(format!(
-                "this bracket contradicts the {} ({cached_misfit:.3} stops RMS against its own \
-                 fit's {fit_misfit:.3}: has a picture style or setting changed?); used its own \
-                 fit and left the cache as it was",
-                cached.label
-            ));
+    Fitting {
+        chosen,
+        dark: dark.source,
+        bright: bright.source,
+        pair,
+        fitted,
+    }
+}
+
+/// A bracket's own calibration, its confidence and its `--json` report.
+struct Fitted {
+    /// The calibration.
+    calibration: Calibration,
+    /// The smallest of its channels' confidences, in `[0, 1]`.
+    confidence: f64,
+    /// What `--json` reports of it.
+    report: serde_json::Value,
+    /// The exposure ratio between the ends of the frames fitted.
+    ratio: f64,
+}
+
+impl Fitted {
+    /// `calibration` of the frames `chosen` (darkest first), with its confidence and report.
+    fn of(
+        calibration: Calibration,
+        chosen: &[&BracketFrame<'_>],
+        ratio_source: RatioSource,
+    ) -> Self {
+        let confidence = calibration
+            .channels
+            .iter()
+            .map(|c| c.fit.confidence)
+            .fold(f64::INFINITY, f64::min)
+            .clamp(0.0, 1.0);
+        let ratio = chosen[chosen.len() - 1].exposure / chosen[0].exposure;
+        let report = serde_json::json!({
+            "source": "fitted",
+            "frames": chosen.iter().map(|f| f.source.display().to_string()).collect::<Vec<_>>(),
+            "ratio": ratio,
+            "ratio_source": ratio_source.as_str(),
+            "confidence": confidence,
+            "channels": calibration.channels.iter().map(|c| serde_json::json!({
+                "name": c.name,
+                "model": c.fit.model(),
+                "degree": c.fit.degree,
+                "effective_parameters": c.fit.effective_parameters,
+                "covered": [c.fit.covered.0, c.fit.covered.1],
+                "residual_rms_stops": c.fit.residual_rms,
+                "confidence": c.fit.confidence,
+                "borrowed_from": c.borrowed_from,
+            })).collect::<Vec<_>>(),
+        });
+        Fitted {
+            calibration,
+            confidence,
+            report,
+            ratio,
         }
     }
-    if confidence < min_confidence
-        && let Some(given) = fallback.take()
-    {
-        // A fallback is only better than a weak fit if the bracket does not contradict it.
-        let fit_misfit = pool::misfit(&calibration, &calibration.response);
-        let given_misfit = pool::misfit(&calibration, &given.response);
-        if given_misfit <= fit_misfit + CONTRADICTION_STOPS {
-            let note = format!(
-                "the fit from {pair} has confidence {confidence:.2} < {min_confidence:.2}; used the {}",
-                given.label
-            );
-            let mut chosen = use_given(given, vec![note], fit);
-            chosen.report["rejected_fit"] = report;
-            return Ok(chosen);
-        }
-        notes.push(format!(
+
+    /// The fitted curve and its confidence, as [`ChosenResponse::fit`] records it.
+    fn own_fit(&self) -> (InverseResponse, f64) {
+        (self.calibration.response.clone(), self.confidence)
+    }
+}
+
+/// True (with a note) when the fallback is the camera's cached curve and it explains the
+/// bracket's tone pairs worse than its own fit by more than [`CONTRADICTION_STOPS`]: a
+/// picture style or setting has changed, and the bracket keeps its own fit.
+fn contradicts_cached(
+    fitted: &Fitted,
+    fallback: Option<&GivenResponse>,
+    notes: &mut Vec<String>,
+) -> bool {
+    let Some(cached) = fallback.filter(|g| g.source == Source::Cached) else {
+        return false;
+    };
+    let calibration = &fitted.calibration;
+    let fit_misfit = pool::misfit(calibration, &calibration.response);
+    let cached_misfit = pool::misfit(calibration, &cached.response);
+    if cached_misfit <= fit_misfit + CONTRADICTION_STOPS {
+        return false;
+    }
+    notes.push(format!(
+        "this bracket contradicts the {} ({cached_misfit:.3} stops RMS against its own \
+         fit's {fit_misfit:.3}: has a picture style or setting changed?); used its own \
+         fit and left the cache as it was",
+        cached.label
+    ));
+    true
+}
+
+/// A fit of confidence below `min_confidence`: the fallback `given` unless the bracket
+/// contradicts it (explains its tone pairs worse than the weak fit by more than
+/// [`CONTRADICTION_STOPS`]), in which case the note saying the fit is kept.
+fn weak_fit_fallback(
+    fitted: &Fitted,
+    given: GivenResponse,
+    min_confidence: f64,
+    pair: &str,
+) -> Result<ChosenResponse, String> {
+    let (calibration, confidence) = (&fitted.calibration, fitted.confidence);
+    let fit_misfit = pool::misfit(calibration, &calibration.response);
+    let given_misfit = pool::misfit(calibration, &given.response);
+    if given_misfit > fit_misfit + CONTRADICTION_STOPS {
+        return Err(format!(
             "the fit from {pair} has confidence {confidence:.2} < {min_confidence:.2}, but the {} \
              contradicts this bracket ({given_misfit:.3} stops RMS against the fit's \
              {fit_misfit:.3}); used the fit",
             given.label
         ));
     }
-    let exposures: Vec<f64> = chosen.iter().map(|f| f.exposure).collect();
-    if let Some(widest) = response::beyond_calibrated_ratios(&exposures) {
-        notes.push(format!(
-            "frames {:.1} stops apart in {pair}: the fit's confidence is calibrated on frames \
-             up to four stops apart",
-            widest.log2()
-        ));
+    let note = format!(
+        "the fit from {pair} has confidence {confidence:.2} < {min_confidence:.2}; used the {}",
+        given.label
+    );
+    let mut chosen = use_given(given, vec![note], Some(fitted.own_fit()));
+    chosen.report["rejected_fit"] = fitted.report.clone();
+    Ok(chosen)
+}
+
+/// A good fit's evidence for the body's pool, from `frames` frames.
+fn pooling_of(calibration: &Calibration, frames: usize) -> Pooling {
+    let evidence = Evidence::of(calibration, frames);
+    let own_misfit = pool::agreement(&evidence, &calibration.response);
+    Pooling {
+        evidence,
+        own_misfit,
+        own_confidence: calibration
+            .channels
+            .iter()
+            .map(|c| c.fit.confidence)
+            .collect(),
+        pooled: None,
     }
-    let pooling = (confidence >= min_confidence).then(|| {
-        let evidence = Evidence::of(&calibration, sources.len());
-        let own_misfit = pool::agreement(&evidence, &calibration.response);
-        Pooling {
-            evidence,
-            own_misfit,
-            own_confidence: calibration
-                .channels
-                .iter()
-                .map(|c| c.fit.confidence)
-                .collect(),
-            pooled: None,
-        }
-    });
-    // The pool is steadier from scene to scene than one bracket's fit (docs/accuracy.md,
-    // "A body's pool"): used when it is trusted itself, or at least as sure as this fit.
-    let trusted = min_confidence.max(0.5);
-    if !contradicts_cache
-        && let Some(body) =
-            body_pool.filter(|b| b.confidence >= trusted || b.confidence >= confidence)
-        && let Some(cached) = fallback.take().filter(|g| g.source == Source::Cached)
-        && pooling.is_some()
-    {
-        return Ok(use_pooled(cached, body, fit, report, notes, pooling));
-    }
+}
+
+/// The bracket merged with its own fit, summarised for the log.
+fn use_fitted(
+    fitted: Fitted,
+    pair: &str,
+    ratio_source: RatioSource,
+    mut notes: Vec<String>,
+    contradicts_cache: bool,
+    pooling: Option<Pooling>,
+) -> ChosenResponse {
+    let Fitted {
+        calibration,
+        confidence,
+        report,
+        ratio,
+    } = fitted;
     let sizes: Vec<String> = calibration
         .channels
         .iter()
@@ -351,12 +484,13 @@ pub fn choose_response(
         .iter()
         .find(|c| c.borrowed_from.is_none())
         .map_or_else(String::new, |c| c.fit.family());
-    if confidence < 0.5 {
+    if confidence < LOW_CONFIDENCE {
         notes.push(format!(
             "low-confidence response fit ({confidence:.2}) from {pair}: check the result or give a response file"
         ));
     }
-    Ok(ChosenResponse {
+    let fit = Some((calibration.response.clone(), confidence));
+    ChosenResponse {
         response: calibration.response,
         source: Source::Fitted,
         summary: format!(
@@ -369,7 +503,7 @@ pub fn choose_response(
         notes,
         contradicts_cache,
         pooling,
-    })
+    }
 }
 
 /// The bracket merged with the body's pooled curve `cached`, which it agrees with.
