@@ -30,10 +30,10 @@ use crate::display::ColourSpace;
 use crate::frame::{Frame, LoadedFrame, Samples};
 use crate::hdr_output::{self, ExrOptions, FrameRecord, OutputError, Provenance, Written};
 use crate::merge::{
-    self, BracketFrame, BracketMerge, Deghost, MergeError, MergeOptions, PairMerge,
+    self, BracketFrame, BracketMerge, BracketOrder, Deghost, MergeError, MergeOptions, PairMerge,
 };
 use crate::radiance::{RadianceMap, RadianceSource};
-use crate::rendering::{self, Format, Look, Outputs, RenderingError, SourceExif};
+use crate::rendering::{self, Format, Look, Outputs, Preview, RenderingError, SourceExif};
 use crate::response::{CalibrationError, InverseResponse, RatioSource};
 
 mod choice;
@@ -119,6 +119,12 @@ impl DarkroomError {
 
 /// Wall time per stage, in the order they ran.
 pub type Stages = Vec<(&'static str, Duration)>;
+
+/// A merged raw bracket's DNG (never made without raw support).
+#[cfg(feature = "raw")]
+type DngOf = raw::DngSource;
+#[cfg(not(feature = "raw"))]
+type DngOf = NoRaw;
 
 /// Without raw support, the shape of a merged raw bracket, never made.
 #[cfg(not(feature = "raw"))]
@@ -297,6 +303,42 @@ enum Radiance<'a> {
     Buffered(merge::Merged),
 }
 
+impl Radiance<'_> {
+    /// Multiplies every value by `factor` (the absolute scale): the lazy merges fold it
+    /// into their tables; a held map is multiplied unless it already is (`scaled`, a raw
+    /// bracket's demosaicking applied it).
+    fn scale_by(&mut self, factor: f64, scaled: bool) {
+        match self {
+            Radiance::Pair(p) => p.scale_by(factor as f32),
+            Radiance::Banded(b) => b.scale_by(factor as f32),
+            Radiance::Buffered(m) if factor != 1.0 && !scaled => {
+                use rayon::prelude::*;
+                let f = factor as f32;
+                m.radiance.pixels_mut().par_iter_mut().for_each(|v| *v *= f);
+            }
+            Radiance::Buffered(_) => {}
+        }
+    }
+
+    /// The frames' order and what was clipped in all of them.
+    fn bracket(&self) -> &BracketOrder {
+        match self {
+            Radiance::Pair(p) => &p.bracket,
+            Radiance::Banded(b) => &b.bracket,
+            Radiance::Buffered(m) => &m.bracket,
+        }
+    }
+
+    /// The map to encode, and its per-pixel confidence when it has one.
+    fn source(&self) -> (&dyn RadianceSource, Option<&[f32]>) {
+        match self {
+            Radiance::Pair(pair) => (pair, None),
+            Radiance::Banded(banded) => (banded, None),
+            Radiance::Buffered(m) => (&m.radiance, m.confidence.as_deref()),
+        }
+    }
+}
+
 /// The merge's view of decoded `frames` with relative `exposures` (same order).
 pub fn bracket<'a>(frames: &'a [LoadedFrame], exposures: &[f64]) -> Vec<BracketFrame<'a>> {
     frames
@@ -356,6 +398,9 @@ pub fn develop(
     options: MergeOptions,
     prints: &Prints<'_>,
 ) -> Result<Developed, DarkroomError> {
+    // Longer than a step should be: the lazy merges borrow the aligned frames and the
+    // ghost masks, which must live in this frame until the outputs are written, so the
+    // merge and what follows it stay here (each step below it is a function of its own).
     let mut stages = Stages::new();
     let bracket = bracket(frames, exposures);
     // One frame is not a bracket (sizes, depths and cameras are checked by the merge).
@@ -420,29 +465,14 @@ pub fn develop(
         }
     };
     let mut merged = merged;
-    match &mut merged {
-        Radiance::Pair(p) => p.scale_by(factor as f32),
-        Radiance::Banded(b) => b.scale_by(factor as f32),
-        Radiance::Buffered(m) if factor != 1.0 && !scaled => {
-            use rayon::prelude::*;
-            let f = factor as f32;
-            m.radiance.pixels_mut().par_iter_mut().for_each(|v| *v *= f);
-        }
-        Radiance::Buffered(_) => {}
-    }
+    merged.scale_by(factor, scaled);
     let deghosted = ghosts.as_ref().map(Deghosted::of);
-    let sorted = match &merged {
-        Radiance::Pair(p) => &p.bracket,
-        Radiance::Banded(b) => &b.bracket,
-        Radiance::Buffered(m) => &m.bracket,
-    };
+    let sorted = merged.bracket();
     let (order, ratio, clipped) = (
         sorted.order.clone(),
         sorted.ratio(),
         (sorted.clipped_high, sorted.clipped_low),
     );
-    let names: Vec<String> = frames.iter().map(|f| file_name(&f.path)).collect();
-    let first = &frames[0].frame;
     let provenance = Provenance {
         camera: frames[0].metadata.camera.clone(),
         captured_at: frames[order[0]].metadata.captured_at,
@@ -462,8 +492,64 @@ pub fn develop(
             .as_ref()
             .filter(|g| g.share > 0.0)
             .map(|g| describe_ghosts(g, frames)),
-        alignment: Some(alignment.describe(&names, first.width(), first.height())),
+        alignment: Some(alignment.describe(
+            &frame_names(frames),
+            frames[0].frame.width(),
+            frames[0].frame.height(),
+        )),
     };
+    let mut warnings = bracket_warnings(frames, &chosen, &alignment, &scale);
+    let (source, confidence) = merged.source();
+    let fused = !matches!(merged, Radiance::Buffered(_));
+    // Outputs are written concurrently below; a name already taken that may not be
+    // replaced stops the bracket before any file is written, as it did in sequence.
+    if prints.overwrite == Overwrite::Refuse
+        && let Some(path) = prints.paths().into_iter().find(|p| p.exists())
+    {
+        return Err(PublishError::Exists { path }.into());
+    }
+    #[cfg(not(feature = "raw"))]
+    let dng: Option<NoRaw> = None;
+    let printed = print_all(source, confidence, &provenance, dng.as_ref(), prints)?;
+    let raw_radiance = match merged {
+        Radiance::Buffered(m) if chosen.source == Source::Raw => Some(m.radiance),
+        _ => None,
+    };
+    warnings.extend(printed.warnings);
+    stages.extend(printed.stages);
+    Ok(Developed {
+        outputs: printed.outputs,
+        response: chosen,
+        order,
+        ratio,
+        clipped,
+        exr_scale: printed.exr_scale,
+        scale,
+        fused,
+        warnings,
+        stages,
+        alignment: Some(alignment),
+        raw_radiance,
+        deghost: deghosted,
+        previews: printed.previews,
+        clip_map,
+    })
+}
+
+/// Each frame's file name.
+fn frame_names(frames: &[LoadedFrame]) -> Vec<String> {
+    frames.iter().map(|f| file_name(&f.path)).collect()
+}
+
+/// What the developing of `frames` warns of: each frame's EXIF warnings (naming the
+/// file), the response's and the alignment's notes, and a relative `scale`.
+fn bracket_warnings(
+    frames: &[LoadedFrame],
+    chosen: &ChosenResponse,
+    alignment: &Alignment,
+    scale: &merge::Scale,
+) -> Vec<String> {
+    let names = frame_names(frames);
     let mut warnings: Vec<String> = frames
         .iter()
         .flat_map(|f| {
@@ -473,29 +559,42 @@ pub fn develop(
                 .map(move |w| format!("{}: {w}", f.path.display()))
         })
         .chain(chosen.notes.iter().cloned())
-        .chain(alignment_notes(&alignment, &names, first))
+        .chain(alignment_notes(alignment, &names, &frames[0].frame))
         .collect();
-    if let merge::Scale::Relative { reason } = &scale {
+    if let merge::Scale::Relative { reason } = scale {
         warnings.push(format!(
             "radiance on the relative scale (1.0 = B=1 in the longest frame), not luminance: {reason}"
         ));
     }
-    let (source, confidence): (&dyn RadianceSource, Option<&[f32]>) = match &merged {
-        Radiance::Pair(pair) => (pair, None),
-        Radiance::Banded(banded) => (banded, None),
-        Radiance::Buffered(m) => (&m.radiance, m.confidence.as_deref()),
-    };
-    let fused = !matches!(merged, Radiance::Buffered(_));
-    // Outputs are written concurrently below; a name already taken that may not be
-    // replaced stops the bracket before any file is written, as it did in sequence.
-    if prints.overwrite == Overwrite::Refuse
-        && let Some(path) = prints.paths().into_iter().find(|p| p.exists())
-    {
-        return Err(PublishError::Exists { path }.into());
-    }
-    // The renderings run on a thread of their own beside the EXR: the PIZ encoder and
-    // each JPEG encoder are partly single-threaded, so together they keep both cores
-    // busy. Their stage times overlap.
+    warnings
+}
+
+/// The files [`print_all`] published, in the order of [`Prints::paths`], and what it
+/// measured.
+struct Printed {
+    /// Files published.
+    outputs: Vec<PathBuf>,
+    /// The EXR's overflow factor (1 unless half overflow was scaled).
+    exr_scale: f32,
+    /// The EXR writer's warnings.
+    warnings: Vec<String>,
+    /// Per look, its small sRGB copy (when `prints.preview_edge` asks for them).
+    previews: Vec<Preview>,
+    /// Wall time per output stage.
+    stages: Stages,
+}
+
+/// Writes the radiance files (EXR, `.hdr`, and the DNG when there is one) and, on a
+/// thread of their own beside them, the renderings: the PIZ encoder and each JPEG
+/// encoder are partly single-threaded, so together they keep both cores busy. Their
+/// stage times overlap.
+fn print_all(
+    source: &dyn RadianceSource,
+    confidence: Option<&[f32]>,
+    provenance: &Provenance,
+    dng: Option<&DngOf>,
+    prints: &Prints<'_>,
+) -> Result<Printed, DarkroomError> {
     let (radiance, looks) = std::thread::scope(|scope| {
         let looks = (!prints.looks.is_empty()).then(|| {
             scope.spawn(move || {
@@ -503,16 +602,18 @@ pub fn develop(
                 print_looks(source, prints, &mut stages).map(|rendered| (rendered, stages))
             })
         });
-        let radiance = write_radiance_files(source, confidence, &provenance, prints);
+        let radiance = write_radiance_files(source, confidence, provenance, prints);
         #[cfg(feature = "raw")]
         let radiance = radiance.and_then(|mut written| {
-            if let Some(dng) = &dng {
+            if let Some(dng) = dng {
                 let t = Instant::now();
-                written.0.push(write_dng(dng, prints)?);
-                written.3.push(("dng", t.elapsed()));
+                written.outputs.push(write_dng(dng, prints)?);
+                written.stages.push(("dng", t.elapsed()));
             }
             Ok(written)
         });
+        #[cfg(not(feature = "raw"))]
+        let _ = dng;
         let looks = looks.map(|handle| {
             handle
                 .join()
@@ -520,37 +621,14 @@ pub fn develop(
         });
         (radiance, looks)
     });
-    let (mut outputs, exr_scale, exr_warnings, radiance_stages) = radiance?;
-    let raw_radiance = match merged {
-        Radiance::Buffered(m) if chosen.source == Source::Raw => Some(m.radiance),
-        _ => None,
-    };
-    warnings.extend(exr_warnings);
-    stages.extend(radiance_stages);
-    let mut previews = Vec::new();
+    let mut printed = radiance?;
     if let Some(looks) = looks {
         let (rendered, look_stages) = looks?;
-        outputs.extend(rendered.paths);
-        previews = rendered.previews;
-        stages.extend(look_stages);
+        printed.outputs.extend(rendered.paths);
+        printed.previews = rendered.previews;
+        printed.stages.extend(look_stages);
     }
-    Ok(Developed {
-        outputs,
-        response: chosen,
-        order,
-        ratio,
-        clipped,
-        exr_scale,
-        scale,
-        fused,
-        warnings,
-        stages,
-        alignment: Some(alignment),
-        raw_radiance,
-        deghost: deghosted,
-        previews,
-        clip_map,
-    })
+    Ok(printed)
 }
 
 /// Aligns the bracket's frames onto its reference frame (stage `align`): the alignment
@@ -621,7 +699,7 @@ fn write_radiance_files(
     confidence: Option<&[f32]>,
     provenance: &Provenance,
     prints: &Prints<'_>,
-) -> Result<(Vec<PathBuf>, f32, Vec<String>, Stages), DarkroomError> {
+) -> Result<Printed, DarkroomError> {
     let mut stages = Stages::new();
     let mut outputs = Vec::new();
     let mut exr_scale = 1.0;
@@ -646,7 +724,13 @@ fn write_radiance_files(
         outputs.push(path);
         stages.push(("hdr", t.elapsed()));
     }
-    Ok((outputs, exr_scale, warnings, stages))
+    Ok(Printed {
+        outputs,
+        exr_scale,
+        warnings,
+        previews: Vec::new(),
+        stages,
+    })
 }
 
 /// Refuses a DNG for `frames` unless every one is camera raw.
