@@ -213,8 +213,8 @@ pub fn choose_response(
         && let Some(given) = fallback.take()
     {
         match weak_fit_fallback(&fitted, given, min_confidence, &pair) {
-            Ok(chosen) => return Ok(chosen),
-            Err(note) => notes.push(note),
+            WeakFit::Yields(chosen) => return Ok(*chosen),
+            WeakFit::Kept(note) => notes.push(note),
         }
     }
     let exposures: Vec<f64> = chosen.iter().map(|f| f.exposure).collect();
@@ -414,20 +414,28 @@ fn contradicts_cached(
     true
 }
 
+/// What becomes of a fit below the policy's confidence.
+enum WeakFit {
+    /// It yields to the fallback (boxed: a choice is large beside a note).
+    Yields(Box<ChosenResponse>),
+    /// It is kept, because the bracket contradicts the fallback; the note says so.
+    Kept(String),
+}
+
 /// A fit of confidence below `min_confidence`: the fallback `given` unless the bracket
 /// contradicts it (explains its tone pairs worse than the weak fit by more than
-/// [`CONTRADICTION_STOPS`]), in which case the note saying the fit is kept.
+/// [`CONTRADICTION_STOPS`]), in which case the fit is kept.
 fn weak_fit_fallback(
     fitted: &Fitted,
     given: GivenResponse,
     min_confidence: f64,
     pair: &str,
-) -> Result<ChosenResponse, String> {
+) -> WeakFit {
     let (calibration, confidence) = (&fitted.calibration, fitted.confidence);
     let fit_misfit = pool::misfit(calibration, &calibration.response);
     let given_misfit = pool::misfit(calibration, &given.response);
     if given_misfit > fit_misfit + CONTRADICTION_STOPS {
-        return Err(format!(
+        return WeakFit::Kept(format!(
             "the fit from {pair} has confidence {confidence:.2} < {min_confidence:.2}, but the {} \
              contradicts this bracket ({given_misfit:.3} stops RMS against the fit's \
              {fit_misfit:.3}); used the fit",
@@ -440,7 +448,7 @@ fn weak_fit_fallback(
     );
     let mut chosen = use_given(given, vec![note], Some(fitted.own_fit()));
     chosen.report["rejected_fit"] = fitted.report.clone();
-    Ok(chosen)
+    WeakFit::Yields(Box::new(chosen))
 }
 
 /// A good fit's evidence for the body's pool, from `frames` frames.
