@@ -142,22 +142,57 @@ fn decode_with_rawler(path: &Path) -> Decoded {
 /// levels (0, 1), CFA, as-shot neutral, D65 colour matrix and camera; and the EXR
 /// written beside it, taken back through its colour matrix, gives the same samples at
 /// every pixel's own CFA colour within float rounding.
-#[test]
-fn a_merged_dng_reads_back_in_rawler_as_the_merge_and_the_exr() {
-    let dir = tempfile::tempdir().unwrap();
-    let sensor = RawSensor::typical(61);
-    let paths = bracket(dir.path(), &sensor);
-    let out = dir.path().join("out");
+/// A bracket merged twice: by `filmback merge --dng` (which must succeed) and in memory.
+struct MergedDng {
+    /// The frames' files.
+    paths: Vec<PathBuf>,
+    /// The output folder.
+    out: PathBuf,
+    /// What the command printed.
+    stdout: String,
+    /// The frames, decoded.
+    frames: Vec<LoadedFrame>,
+    /// Their merge in memory ([`in_memory`]).
+    developed: raw::DevelopedRaw,
+    /// The bracket's exposure ratio `R`.
+    ratio: f64,
+}
+
+/// A synthetic bracket of `sensor` in `dir`, merged into `dir/out` with its DNG and in
+/// memory.
+fn merged_with_dng(dir: &Path, sensor: &RawSensor) -> MergedDng {
+    let paths = bracket(dir, sensor);
+    let out = dir.join("out");
     let o = merge_with_dng(&paths, &out);
     assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
-    let stdout = String::from_utf8_lossy(&o.stdout);
-    assert!(stdout.contains("b-1.dng"), "{stdout}");
-
     let frames: Vec<LoadedFrame> = paths
         .iter()
         .map(|p| frame::load(p, Limits::default()).unwrap())
         .collect();
     let (developed, ratio) = in_memory(&frames);
+    MergedDng {
+        paths,
+        out,
+        stdout: String::from_utf8_lossy(&o.stdout).into_owned(),
+        frames,
+        developed,
+        ratio,
+    }
+}
+
+#[test]
+fn a_merged_dng_reads_back_in_rawler_as_the_merge_and_the_exr() {
+    let dir = tempfile::tempdir().unwrap();
+    let sensor = RawSensor::typical(61);
+    let MergedDng {
+        paths,
+        out,
+        stdout,
+        frames,
+        developed,
+        ratio,
+    } = merged_with_dng(dir.path(), &sensor);
+    assert!(stdout.contains("b-1.dng"), "{stdout}");
     let merged = developed.mosaic.as_ref().unwrap();
     let dng = decode_with_rawler(&out.join("b-1.dng"));
 
@@ -237,15 +272,12 @@ fn an_xtrans_dng_keeps_its_six_by_six_cfa() {
         cfa: "GGRGGBGGBGGRBRGRBGGGBGGRGGRGGBRBGBRG",
         ..RawSensor::typical(67)
     };
-    let paths = bracket(dir.path(), &sensor);
-    let out = dir.path().join("out");
-    let o = merge_with_dng(&paths, &out);
-    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
-    let frames: Vec<LoadedFrame> = paths
-        .iter()
-        .map(|p| frame::load(p, Limits::default()).unwrap())
-        .collect();
-    let (developed, ratio) = in_memory(&frames);
+    let MergedDng {
+        out,
+        developed,
+        ratio,
+        ..
+    } = merged_with_dng(dir.path(), &sensor);
     let merged = developed.mosaic.unwrap();
     let dng = decode_with_rawler(&out.join("b-1.dng"));
     assert_eq!(dng.cfa, sensor.cfa);
@@ -314,15 +346,13 @@ fn libraw_reads_the_merged_dng() {
 /// [`libraw_reads_the_merged_dng`] for one sensor: false when the check was skipped.
 fn libraw_check(sensor: &RawSensor) -> bool {
     let dir = tempfile::tempdir().unwrap();
-    let paths = bracket(dir.path(), sensor);
-    let out = dir.path().join("out");
-    let o = merge_with_dng(&paths, &out);
-    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
-    let frames: Vec<LoadedFrame> = paths
-        .iter()
-        .map(|p| frame::load(p, Limits::default()).unwrap())
-        .collect();
-    let (developed, ratio) = in_memory(&frames);
+    let MergedDng {
+        out,
+        frames,
+        developed,
+        ratio,
+        ..
+    } = merged_with_dng(dir.path(), sensor);
     let merged = developed.mosaic.unwrap();
     // The expected samples, `x/R` as little-endian f32, and what the tags should say.
     let expected = dir.path().join("expected.f32");

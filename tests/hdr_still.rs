@@ -3,7 +3,7 @@
 //! from base × gain map against the one intended, the file written by `filmback
 //! render`, and the file in Chromium.
 
-use std::path::{Path, PathBuf};
+use std::path::Path;
 use std::process::Command;
 
 use filmback::display::{ColourSpace, Depth, luminance, srgb_decode};
@@ -462,17 +462,6 @@ fn merge_writes_an_hdr_still_beside_the_exr() {
     assert_eq!(read.gain.dimensions(), (240, 160));
 }
 
-/// Chromium, when installed: `$CHROMIUM`, else `chromium` on the `PATH`.
-fn chromium() -> Option<PathBuf> {
-    if let Some(path) = std::env::var_os("CHROMIUM") {
-        return Some(PathBuf::from(path));
-    }
-    let path = std::env::var_os("PATH")?;
-    std::env::split_paths(&path)
-        .map(|dir| dir.join("chromium"))
-        .find(|p| p.is_file())
-}
-
 /// Runs headless Chromium on `page` and returns the DOM it ends with (`--dump-dom`,
 /// after the page's scripts ran within a virtual 10 s).
 fn dump_dom(binary: &Path, page: &Path, flags: &[&str]) -> String {
@@ -506,7 +495,7 @@ fn dump_dom(binary: &Path, page: &Path, flags: &[&str]) -> String {
 /// canvas, shows the base (the film look) — what any SDR display shows.
 #[test]
 fn chromium_decodes_the_hdr_still() {
-    let Some(binary) = chromium() else {
+    let Some(binary) = common::chromium() else {
         eprintln!("skipped: no chromium on the PATH (apt-get install chromium, or set CHROMIUM)");
         return;
     };

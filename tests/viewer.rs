@@ -5,7 +5,7 @@
 use std::collections::HashMap;
 use std::io::{BufRead, BufReader, Read, Write};
 use std::net::{SocketAddr, TcpStream};
-use std::path::{Path, PathBuf};
+use std::path::Path;
 use std::process::{Child, Command, Stdio};
 use std::sync::Arc;
 use std::sync::atomic::{AtomicUsize, Ordering};
@@ -472,17 +472,6 @@ fn the_on_developed_hook_gets_the_outputs() {
     assert_eq!(text, format!("HK-1\n{}\n", out.display()));
 }
 
-/// Chromium, when installed: `$CHROMIUM`, else `chromium` on the `PATH`.
-fn chromium() -> Option<PathBuf> {
-    if let Some(path) = std::env::var_os("CHROMIUM") {
-        return Some(PathBuf::from(path));
-    }
-    let path = std::env::var_os("PATH")?;
-    std::env::split_paths(&path)
-        .map(|dir| dir.join("chromium"))
-        .find(|p| p.is_file())
-}
-
 /// A headless Chromium on a page, driven over the DevTools protocol; killed when
 /// dropped.
 struct Browser {
@@ -658,7 +647,7 @@ fn base64(text: &str) -> Vec<u8> {
 /// reload. `FILMBACK_VIEWER_SCREENSHOT=FILE` keeps the screenshot.
 #[test]
 fn the_page_in_chromium_shows_a_new_bracket_without_reload() {
-    let Some(binary) = chromium() else {
+    let Some(binary) = crate::common::chromium() else {
         eprintln!("skipped: no chromium on the PATH (apt-get install chromium, or set CHROMIUM)");
         return;
     };

@@ -1,6 +1,6 @@
 //! What the integration tests share (`crate::common` in each module of `tests/all.rs`).
 
-use std::path::Path;
+use std::path::{Path, PathBuf};
 use std::process::Command;
 
 use filmback::frame::Frame;
@@ -60,4 +60,15 @@ pub fn through_jpeg(frame: &Frame, exposure: f64) -> Frame {
     filmback::frame::decode(Path::new("frame.jpg"), &bytes, limits)
         .unwrap()
         .frame
+}
+
+/// Chromium, when installed: `$CHROMIUM`, else `chromium` on the `PATH`.
+pub fn chromium() -> Option<PathBuf> {
+    if let Some(path) = std::env::var_os("CHROMIUM") {
+        return Some(PathBuf::from(path));
+    }
+    let path = std::env::var_os("PATH")?;
+    std::env::split_paths(&path)
+        .map(|dir| dir.join("chromium"))
+        .find(|p| p.is_file())
 }
