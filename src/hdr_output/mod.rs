@@ -301,7 +301,10 @@ pub fn write_exr<S: RadianceSource + ?Sized>(
     })
 }
 
-/// Encodes `map` as OpenEXR into `writer` (see [`write_exr`]).
+/// Encodes `map` as OpenEXR into `writer` (see [`write_exr`]): the header
+/// (`exr_layout`), then the scan-line blocks, PIZ on half samples by filmback's own
+/// encoder (`piz_chunk`), every other compression by `exr`'s, the samples pulled from
+/// `map` on rayon's threads (`SampleSource`).
 pub fn encode_exr<W: Write + Seek, S: RadianceSource + ?Sized>(
     writer: W,
     map: &S,
@@ -319,12 +322,94 @@ pub fn encode_exr<W: Write + Seek, S: RadianceSource + ?Sized>(
         });
     }
     let (scale, limit, warnings) = overflow(map, options);
+    let layout = exr_layout(map, confidence, provenance, options, scale);
+    let samples = SampleSource {
+        map,
+        matrix: (layout.primaries != Primaries::Rec709).then(|| {
+            layout
+                .primaries
+                .matrix_from_709()
+                .map(|row| row.map(|v| v as f32))
+        }),
+        scale,
+        limit,
+    };
+    let (planes, sample) = (&layout.planes, layout.sample);
+    let piz_half = options.compression == ExrCompression::Piz && sample == SampleType::F16;
+    // The header's attributes sorted by name, so that the same input gives the same bytes.
+    let mut sorted = attribute_order::SortedHeader::new(writer);
+    exr::block::write(
+        &mut sorted,
+        smallvec_of(layout.header),
+        true,
+        |meta, chunks| {
+            let indices: Vec<(usize, BlockIndex)> =
+                meta.enumerate_ordered_header_block_indices().collect();
+            if piz_half {
+                // Blocks compressed a batch at a time on rayon's threads, written in order.
+                let batch = 4 * rayon::current_num_threads();
+                for batch in indices.chunks(batch) {
+                    let compressed: Vec<(usize, Chunk)> = batch
+                        .par_iter()
+                        .map(|&(i, index)| (i, piz_chunk(index, width, planes, &samples)))
+                        .collect();
+                    for (i, chunk) in compressed {
+                        chunks.write_chunk(i, chunk)?;
+                    }
+                }
+                return Ok(());
+            }
+            // exr compresses on its own threads but asks for blocks on this one: fill them a
+            // few at a time on rayon's threads so that the samples, not just the
+            // compression, are computed in parallel.
+            let batch = 2 * rayon::current_num_threads();
+            let blocks = indices.chunks(batch).flat_map(|batch| {
+                batch
+                    .par_iter()
+                    .map(|&(i, index)| {
+                        let data = block_bytes(index, width, planes, sample, &samples);
+                        (i, UncompressedBlock { index, data })
+                    })
+                    .collect::<Vec<_>>()
+            });
+            chunks
+                .on_progress(|_| {})
+                .compress_all_blocks_parallel(&meta, blocks)
+        },
+    )
+    .map_err(EncodeError::Exr)?;
+    sorted.finish().map_err(|e| EncodeError::Exr(e.into()))?;
+    Ok(Written { scale, warnings })
+}
+
+/// An EXR file's header and the channels it stores.
+struct ExrLayout<'c> {
+    /// The header (attributes unsorted: [`attribute_order`] sorts them on the way out).
+    header: Header,
+    /// The file's channels in its (alphabetical) order, each with where its values come
+    /// from.
+    planes: Vec<(&'static str, Plane<'c>)>,
+    /// Half or float.
+    sample: SampleType,
+    /// The primaries the colour channels are in (Rec. 709 for a grey map).
+    primaries: Primaries,
+}
+
+/// The header of `map`'s EXR file: its channels (`B G R` or `Y`, and `confidence.Y` with
+/// a confidence layer), the compression, the provenance and primaries attributes, and
+/// `acesImageContainerFlag` when the file is an ACES container.
+fn exr_layout<'c, S: RadianceSource + ?Sized>(
+    map: &S,
+    confidence: Option<&'c [f32]>,
+    provenance: &Provenance,
+    options: ExrOptions,
+    scale: f32,
+) -> ExrLayout<'c> {
     let sample = match options.sample {
         SampleFormat::Half => SampleType::F16,
         SampleFormat::Float => SampleType::F32,
     };
-    // Channels in the file's (alphabetical) order and where each one's values come from.
-    let mut planes: Vec<(&str, Plane)> = match map.channels() {
+    let mut planes: Vec<(&'static str, Plane<'c>)> = match map.channels() {
         3 => vec![
             ("B", Plane::Colour(2)),
             ("G", Plane::Colour(1)),
@@ -332,16 +417,16 @@ pub fn encode_exr<W: Write + Seek, S: RadianceSource + ?Sized>(
         ],
         _ => vec![("Y", Plane::Colour(0))],
     };
-    if confidence.is_some() {
-        planes.push(("confidence.Y", Plane::Confidence));
+    if let Some(conf) = confidence {
+        planes.push(("confidence.Y", Plane::Confidence(conf)));
     }
     let descriptions = planes
         .iter()
         .map(|(name, plane)| {
-            ChannelDescription::new(*name, sample, matches!(plane, Plane::Confidence))
+            ChannelDescription::new(*name, sample, matches!(plane, Plane::Confidence(_)))
         })
         .collect();
-    let size = Vec2(width, height);
+    let size = Vec2(map.width() as usize, map.height() as usize);
     let mut header = Header::new(text("radiance"), size, SmallVec::from_vec(descriptions))
         .with_encoding(
             options.compression.exr(),
@@ -361,134 +446,118 @@ pub fn encode_exr<W: Write + Seek, S: RadianceSource + ?Sized>(
             .other
             .insert(text("acesImageContainerFlag"), x::AttributeValue::I32(1));
     }
-    let matrix = (primaries != Primaries::Rec709)
-        .then(|| primaries.matrix_from_709().map(|row| row.map(|v| v as f32)));
-
-    // One line of one plane, scaled and clamped. The samples are pulled from the source
-    // here, so a lazy merge is evaluated on the worker threads.
-    let fill_line = |plane: &Plane, start: usize, line: &mut [f32]| match plane {
-        Plane::Colour(c) => {
-            match &matrix {
-                None => map.line(start, *c, line),
-                Some(m) => {
-                    // One row of the matrix over the three Rec. 709 channels.
-                    let mut other = vec![0f32; line.len()];
-                    map.line(start, 0, line);
-                    for v in line.iter_mut() {
-                        *v *= m[*c][0];
-                    }
-                    for (k, &weight) in m[*c].iter().enumerate().skip(1) {
-                        map.line(start, k, &mut other);
-                        for (v, o) in line.iter_mut().zip(&other) {
-                            *v += weight * o;
-                        }
-                    }
-                }
-            }
-            for v in line.iter_mut() {
-                *v = (*v * scale).min(limit);
-            }
-        }
-        Plane::Confidence => {
-            let conf = confidence.expect("a confidence plane only with confidence");
-            line.copy_from_slice(&conf[start..start + line.len()]);
-        }
-    };
-    let piz_half = options.compression == ExrCompression::Piz && sample == SampleType::F16;
-    // The header's attributes sorted by name, so that the same input gives the same bytes.
-    let mut sorted = attribute_order::SortedHeader::new(writer);
-    exr::block::write(&mut sorted, smallvec_of(header), true, |meta, chunks| {
-        let indices: Vec<(usize, BlockIndex)> =
-            meta.enumerate_ordered_header_block_indices().collect();
-        if piz_half {
-            // filmback's PIZ encoder (see `piz`): blocks compressed a batch at a time on
-            // rayon's threads, written in order.
-            let batch = 4 * rayon::current_num_threads();
-            for batch in indices.chunks(batch) {
-                let compressed: Vec<(usize, Chunk)> = batch
-                    .par_iter()
-                    .map(|&(i, index)| (i, piz_chunk(index, width, &planes, &fill_line)))
-                    .collect();
-                for (i, chunk) in compressed {
-                    chunks.write_chunk(i, chunk)?;
-                }
-            }
-            return Ok(());
-        }
-        // The uncompressed bytes of one block: per line, per channel, the samples in
-        // native-endian order.
-        let block_bytes = |index: BlockIndex| -> Vec<u8> {
-            let (x0, y0) = (index.pixel_position.0, index.pixel_position.1);
-            let (w, h) = (index.pixel_size.0, index.pixel_size.1);
-            let bytes = if sample == SampleType::F16 { 2 } else { 4 };
-            let mut data = Vec::with_capacity(w * h * planes.len() * bytes);
-            let mut line = vec![0f32; w];
-            let mut halves = vec![f16::ZERO; w];
-            for y in y0..y0 + h {
-                for (_, plane) in &planes {
-                    fill_line(plane, y * width + x0, &mut line);
-                    if sample == SampleType::F16 {
-                        halves.convert_from_f32_slice(&line);
-                        for v in &halves {
-                            data.extend_from_slice(&v.to_ne_bytes());
-                        }
-                    } else {
-                        for v in &line {
-                            data.extend_from_slice(&v.to_ne_bytes());
-                        }
-                    }
-                }
-            }
-            data
-        };
-        // exr compresses on its own threads but asks for blocks on this one: fill them a
-        // few at a time on rayon's threads so that the samples, not just the
-        // compression, are computed in parallel.
-        let batch = 2 * rayon::current_num_threads();
-        let blocks = indices.chunks(batch).flat_map(|batch| {
-            batch
-                .par_iter()
-                .map(|&(i, index)| {
-                    let data = block_bytes(index);
-                    (i, UncompressedBlock { index, data })
-                })
-                .collect::<Vec<_>>()
-        });
-        chunks
-            .on_progress(|_| {})
-            .compress_all_blocks_parallel(&meta, blocks)
-    })
-    .map_err(EncodeError::Exr)?;
-    sorted.finish().map_err(|e| EncodeError::Exr(e.into()))?;
-    Ok(Written { scale, warnings })
+    ExrLayout {
+        header,
+        planes,
+        sample,
+        primaries,
+    }
 }
 
 /// Where a file channel's values come from.
-enum Plane {
+enum Plane<'c> {
     /// Channel `c` of the radiance.
     Colour(usize),
-    /// The confidence layer.
-    Confidence,
+    /// The confidence layer, one value per pixel.
+    Confidence(&'c [f32]),
+}
+
+/// The samples an EXR stores, pulled from the radiance map a line at a time (so a lazy
+/// merge is evaluated on the worker threads): `min(scale · M·v, limit)`, `M` the Rec. 709
+/// → file primaries matrix (none for Rec. 709) and `v` the map's RGB.
+struct SampleSource<'m, S: ?Sized> {
+    /// The radiance.
+    map: &'m S,
+    /// Rec. 709 → the file's primaries, when they differ.
+    matrix: Option<[[f32; 3]; 3]>,
+    /// The overflow factor ([`Written::scale`]).
+    scale: f32,
+    /// The largest value stored.
+    limit: f32,
+}
+
+impl<S: RadianceSource + ?Sized> SampleSource<'_, S> {
+    /// Fills `line` with the values of `plane` from pixel `start` on.
+    fn fill(&self, plane: &Plane<'_>, start: usize, line: &mut [f32]) {
+        match plane {
+            Plane::Colour(c) => {
+                match &self.matrix {
+                    None => self.map.line(start, *c, line),
+                    Some(m) => {
+                        // One row of the matrix over the three Rec. 709 channels.
+                        let mut other = vec![0f32; line.len()];
+                        self.map.line(start, 0, line);
+                        for v in line.iter_mut() {
+                            *v *= m[*c][0];
+                        }
+                        for (k, &weight) in m[*c].iter().enumerate().skip(1) {
+                            self.map.line(start, k, &mut other);
+                            for (v, o) in line.iter_mut().zip(&other) {
+                                *v += weight * o;
+                            }
+                        }
+                    }
+                }
+                for v in line.iter_mut() {
+                    *v = (*v * self.scale).min(self.limit);
+                }
+            }
+            Plane::Confidence(conf) => line.copy_from_slice(&conf[start..start + line.len()]),
+        }
+    }
+}
+
+/// The uncompressed bytes of one scan-line block for `exr`'s compressors: per line, per
+/// channel, the samples as `sample` in native-endian order.
+fn block_bytes<S: RadianceSource + ?Sized>(
+    index: BlockIndex,
+    width: usize,
+    planes: &[(&str, Plane<'_>)],
+    sample: SampleType,
+    samples: &SampleSource<'_, S>,
+) -> Vec<u8> {
+    let (x0, y0) = (index.pixel_position.0, index.pixel_position.1);
+    let (w, h) = (index.pixel_size.0, index.pixel_size.1);
+    let bytes = if sample == SampleType::F16 { 2 } else { 4 };
+    let mut data = Vec::with_capacity(w * h * planes.len() * bytes);
+    let mut line = vec![0f32; w];
+    let mut halves = vec![f16::ZERO; w];
+    for y in y0..y0 + h {
+        for (_, plane) in planes {
+            samples.fill(plane, y * width + x0, &mut line);
+            if sample == SampleType::F16 {
+                halves.convert_from_f32_slice(&line);
+                for v in &halves {
+                    data.extend_from_slice(&v.to_ne_bytes());
+                }
+            } else {
+                for v in &line {
+                    data.extend_from_slice(&v.to_ne_bytes());
+                }
+            }
+        }
+    }
+    data
 }
 
 /// One scan-line block compressed by [`piz::compress`]: the block's samples as half, plane
 /// by plane in the file's channel order, each plane's lines contiguous. A block that PIZ
 /// does not shrink is stored raw (per line, per channel, little-endian), as the format
 /// requires.
-fn piz_chunk(
+fn piz_chunk<S: RadianceSource + ?Sized>(
     index: BlockIndex,
     width: usize,
-    planes: &[(&str, Plane)],
-    fill_line: &impl Fn(&Plane, usize, &mut [f32]),
+    planes: &[(&str, Plane<'_>)],
+    samples: &SampleSource<'_, S>,
 ) -> Chunk {
     let (x0, y0) = (index.pixel_position.0, index.pixel_position.1);
     let (w, h) = (index.pixel_size.0, index.pixel_size.1);
     let mut line = vec![0f32; w];
     let mut fill = |words: &mut [u16]| {
         let halves: &mut [f16] = words.reinterpret_cast_mut();
-        for ((_, plane), samples) in planes.iter().zip(halves.chunks_exact_mut(w * h)) {
-            for (y, out) in (y0..y0 + h).zip(samples.chunks_exact_mut(w)) {
-                fill_line(plane, y * width + x0, &mut line);
+        for ((_, plane), plane_halves) in planes.iter().zip(halves.chunks_exact_mut(w * h)) {
+            for (y, out) in (y0..y0 + h).zip(plane_halves.chunks_exact_mut(w)) {
+                samples.fill(plane, y * width + x0, &mut line);
                 out.convert_from_f32_slice(&line);
             }
         }
