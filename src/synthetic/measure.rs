@@ -7,11 +7,7 @@ use crate::radiance::RadianceMap;
 use crate::response::InverseResponse;
 use crate::response::fit::ASSESSED_CODES;
 
-/// Codes (of 255) over which curve errors are taken: the response's own
-/// [`ASSESSED_CODES`].
-pub const ERROR_CODES: std::ops::RangeInclusive<u32> = ASSESSED_CODES;
-
-/// One channel's error in stops against the truth, over [`ERROR_CODES`], from the
+/// One channel's error in stops against the truth, over the response's [`ASSESSED_CODES`], from the
 /// differences `d(k) = log₂ g(k/255) − log₂ g_true(k/255)`.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct CurveError {
@@ -35,7 +31,7 @@ pub fn curve_errors(
 ) -> Vec<CurveError> {
     (0..channels)
         .map(|c| {
-            let d: Vec<f64> = ERROR_CODES
+            let d: Vec<f64> = ASSESSED_CODES
                 .map(|k| {
                     let b = f64::from(k) / 255.0;
                     g(c, b).max(1e-300).log2() - truth.inverse(b).log2()
