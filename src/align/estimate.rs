@@ -50,6 +50,11 @@ enum Refusal {
         SEARCH_RANGE * 100.0
     )]
     OutOfRange,
+    #[error(
+        "the registration moves a corner by {displacement:.0} px, beyond the {farthest:.0} px \
+         that a shift within the search range and a small turn can"
+    )]
+    TooFar { displacement: f64, farthest: f64 },
     #[error("they measure less than {LEAST_COMMON_SPAN:.2} (ln) of radiance in common")]
     NoCommonRange,
     #[error(
@@ -78,13 +83,24 @@ enum Refusal {
     Undetermined(f64),
 }
 
+/// How [`register_or_chain`] compares two frames.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum Way {
+    /// On the blocks both measure well, every pyramid level.
+    Measured,
+    /// The same, passing over coarse levels that share too few blocks.
+    FinerLevels,
+    /// As [`Pyramid::clipped_alike`].
+    ClippedAlike,
+}
+
 /// One way [`register_or_chain`] tried and why it failed.
 #[derive(Debug, Clone)]
 struct Failure {
     /// The frame registered onto.
     onto: usize,
-    /// Whether the two were compared where both clip alike.
-    clipped: bool,
+    /// How the two were compared.
+    way: Way,
     /// Why it failed.
     why: Refusal,
 }
@@ -94,20 +110,16 @@ struct Failure {
 struct Failures(Vec<Failure>);
 
 impl std::fmt::Display for Failures {
-    /// `onto frame N[ clipped alike]: why`, joined by `; `.
+    /// `onto frame N[ on its finer levels| clipped alike]: why`, joined by `; `.
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
         for (i, failure) in self.0.iter().enumerate() {
-            let alike = if failure.clipped {
-                " clipped alike"
-            } else {
-                ""
+            let way = match failure.way {
+                Way::Measured => "",
+                Way::FinerLevels => " on its finer levels",
+                Way::ClippedAlike => " clipped alike",
             };
             let sep = if i > 0 { "; " } else { "" };
-            write!(
-                f,
-                "{sep}onto frame {}{alike}: {}",
-                failure.onto, failure.why
-            )?;
+            write!(f, "{sep}onto frame {}{way}: {}", failure.onto, failure.why)?;
         }
         Ok(())
     }
@@ -1031,7 +1043,8 @@ pub(super) fn register_all(
 
 /// Frame `k` registered, the first that works of: onto the reference; onto `via` (a
 /// registered frame nearer the reference in exposure, with its transform), composed with
-/// its transform; the same two compared as [`Pyramid::clipped_alike`]. The registration,
+/// its transform; the same two on their finer levels only, where a coarse level shared
+/// too few blocks; the same two compared as [`Pyramid::clipped_alike`]. The registration,
 /// or why none worked.
 fn register_or_chain(
     pyramids: &[Pyramid],
@@ -1045,21 +1058,23 @@ fn register_or_chain(
     if let Some((n, through)) = via {
         targets.push((*n, Some(through)));
     }
-    let mut failures = Vec::new();
-    for clipped in [false, true] {
+    let mut failures: Vec<Failure> = Vec::new();
+    for way in [Way::Measured, Way::FinerLevels, Way::ClippedAlike] {
         for &(n, through) in &targets {
-            let found = if clipped {
-                register_clipped(&pyramids[n], &pyramids[k], geometry, model)
-            } else {
-                register(&pyramids[n], &pyramids[k], geometry, model)
+            let sparse = |f: &Failure| f.onto == n && matches!(f.why, Refusal::FewBlocks(_));
+            if way == Way::FinerLevels && !failures.iter().any(sparse) {
+                // Only a coarse level that shared too few blocks makes this way differ.
+                continue;
+            }
+            let (fixed, moving) = (&pyramids[n], &pyramids[k]);
+            let found = match way {
+                Way::Measured => register(fixed, moving, geometry, model, false),
+                Way::FinerLevels => register(fixed, moving, geometry, model, true),
+                Way::ClippedAlike => register_clipped(fixed, moving, geometry, model),
             };
             match found {
-                Ok(step) => return Ok(compose(step, through, n, reference, clipped)),
-                Err(why) => failures.push(Failure {
-                    onto: n,
-                    clipped,
-                    why,
-                }),
+                Ok(step) => return Ok(compose(step, through, n, reference, way)),
+                Err(why) => failures.push(Failure { onto: n, way, why }),
             }
         }
     }
@@ -1073,14 +1088,16 @@ fn compose(
     through: Option<&Registration>,
     n: usize,
     reference: usize,
-    clipped: bool,
+    way: Way,
 ) -> Registration {
     let mut how = Vec::new();
     if n != reference {
         how.push(format!("registered through frame {n}"));
     }
-    if clipped {
-        how.push("compared where both clip alike".to_string());
+    match way {
+        Way::Measured => {}
+        Way::FinerLevels => how.push("registered on the finer levels only".to_string()),
+        Way::ClippedAlike => how.push("compared where both clip alike".to_string()),
     }
     how.extend(step.note);
     let (matrix, motion) = match through {
@@ -1115,14 +1132,16 @@ fn settle(registration: &Registration, geometry: &Geometry) -> FrameAlignment {
 }
 
 /// Frame `moving` registered onto frame `fixed` (see the parent module's docs for the
-/// steps and the fallbacks), or why it cannot be.
+/// steps and the fallbacks), or why it cannot be; with `skip_sparse`, a level above the
+/// finest whose shared blocks are too few to refine on is passed over.
 fn register(
     fixed: &Pyramid,
     moving: &Pyramid,
     geometry: &Geometry,
     model: Motion,
+    skip_sparse: bool,
 ) -> Result<Registration, Refusal> {
-    let (state, note) = estimate(&fixed.levels, &moving.levels, geometry, model)?;
+    let (state, note) = estimate(&fixed.levels, &moving.levels, geometry, model, skip_sparse)?;
     Ok(Registration {
         matrix: state.matrix(),
         motion: state.motion,
@@ -1145,7 +1164,7 @@ fn register_clipped(
     let Some((clamped_fixed, clamped_moving)) = fixed.clipped_alike(moving) else {
         return Err(Refusal::NoCommonRange);
     };
-    let (state, note) = estimate(&clamped_fixed, &clamped_moving, geometry, model)?;
+    let (state, note) = estimate(&clamped_fixed, &clamped_moving, geometry, model, false)?;
     // Too few well-exposed blocks in common to refine: nothing contradicts the edges.
     if let Ok((refined, normal)) = refine(&fixed.levels[0], &moving.levels[0], geometry, state) {
         let apart = geometry.corner_shift(&state.matrix(), &refined.matrix());
@@ -1171,14 +1190,22 @@ fn estimate(
     moving: &[Level],
     geometry: &Geometry,
     model: Motion,
+    skip_sparse: bool,
 ) -> Result<(State, Option<String>), Refusal> {
     let (fine_fixed, fine_moving) = (&fixed[0], &moving[0]);
     let shared = overlap(fine_fixed, fine_moving);
     if shared < MIN_OVERLAP {
         return Err(Refusal::LittleOverlap { shared });
     }
-    let (state, normal, note) = descend(fixed, moving, geometry, model)?;
+    let (state, normal, note) = descend(fixed, moving, geometry, model, skip_sparse)?;
     let displacement = geometry.corner_shift(&Matrix3::identity(), &state.matrix());
+    let farthest = 2.0 * SEARCH_RANGE * geometry.width.max(geometry.height);
+    if displacement > farthest {
+        return Err(Refusal::TooFar {
+            displacement,
+            farthest,
+        });
+    }
     let still = identity_rms(fine_fixed, fine_moving, geometry);
     if displacement >= IDENTITY_PX && normal.rms() >= still {
         return Err(Refusal::NoBetter {
@@ -1199,6 +1226,7 @@ fn descend(
     moving: &[Level],
     geometry: &Geometry,
     model: Motion,
+    skip_sparse: bool,
 ) -> Result<(State, Normal, Option<String>), Refusal> {
     let top = reference.len().min(moving.len()) - 1;
     let (dx, dy) = coarse_search(&reference[top], &moving[top])?;
@@ -1229,10 +1257,17 @@ fn descend(
             state = state.as_motion(target);
         }
         let start = state;
-        let (refined, normal) = refine(&reference[level], &moving[level], geometry, state)?;
-        state = refined;
-        if level == 0 {
-            finest = Some((start, normal));
+        match refine(&reference[level], &moving[level], geometry, state) {
+            Ok((refined, normal)) => {
+                state = refined;
+                if level == 0 {
+                    finest = Some((start, normal));
+                }
+            }
+            // A coarse level can hold too few shared blocks where the finer ones do not:
+            // the finer level starts from where this one would have.
+            Err(Refusal::FewBlocks(_)) if skip_sparse && level > 0 => {}
+            Err(why) => return Err(why),
         }
     }
     let Some((start, mut normal)) = finest else {

@@ -32,8 +32,8 @@
 //!    so no FFT crate is needed);
 //! 2. fine: Gauss–Newton on the masked log residual `r = a·L_k(T·x) + b − L_ref(x)` (the
 //!    gain `a` and offset `b` estimated with the motion, which makes it invariant to both,
-//!    as ECC is) from the coarsest level to the finest, translation on the coarsest, rigid
-//!    (rotation and translation) on the next, then the mode's model ([`Motion`]). The
+//!    as ECC is) from the coarsest level to the finest, translation on the coarsest, the
+//!    mode's model ([`Motion`]) on every finer one. The
 //!    motion parameters live in coordinates normalised by the full frame
 //!    (`ũ = (u − c)/s`, `c` the centre, `s` half the longer side), the same on every level.
 //!
@@ -42,7 +42,9 @@
 //! Frames are registered outward from the reference in exposure order. One that cannot be
 //! registered onto the reference (most often because, several stops apart, they share too
 //! few well-exposed blocks) is registered onto the nearest frame between them that was,
-//! and the transforms composed (`T_k = T_{k←n}·T_n`). Where neither works, each pair is
+//! and the transforms composed (`T_k = T_{k←n}·T_n`). Where a coarse pyramid level of
+//! such a pair shares too few blocks to refine on, the pair is tried again on its finer
+//! levels alone, the coarse search's shift carried down to them. Where neither works, each pair is
 //! compared again as the log radiance both frames could have measured: every block
 //! clamped to the range of log radiance both measure, so a window or a sky clipped in one
 //! frame and exposed beyond that range in the other lies at the range's top in both and
@@ -58,7 +60,8 @@
 //! each: fewer than [`MIN_OVERLAP`] of the blocks are well exposed in both frames; the
 //! best correlation of the coarse search is below [`MIN_CORRELATION`] (too little
 //! texture: a flat backdrop, fog); the best shift lies on the edge of the search range (a
-//! motion larger than it); the Gauss–Newton system is singular or does not converge; or
+//! motion larger than it), or the refined transform moves a corner by more than twice
+//! that range (a descent that ran away on too few blocks); the Gauss–Newton system is singular or does not converge; or
 //! the aligned residual is not smaller than the residual without alignment (so the merge
 //! is never worse than without it). A model whose parameters the texture does not
 //! determine (the standard deviation of the displacement they imply, `σ/√λ_min` with
