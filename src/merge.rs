@@ -1588,12 +1588,16 @@ fn count_clipped_everywhere<T: Copy + Into<usize> + Sync>(
     frames[0]
         .par_chunks(chunk)
         .enumerate()
-        .map(|(n, dark)| {
+        .map(|(n, darkest)| {
             let mut clipped = ClipCount::default();
-            for (p, pixel) in dark.chunks_exact(channels).enumerate() {
-                for (c, &code) in pixel.iter().enumerate() {
-                    let i = n * chunk + p * channels + c;
-                    let code = |k: usize| if k == 0 { code } else { frames[k][i] }.into();
+            for (p, pixel) in darkest.chunks_exact(channels).enumerate() {
+                for (c, &dark) in pixel.iter().enumerate() {
+                    // The darkest frame's code is at hand; `clip` reads the others' only
+                    // where it is clipped.
+                    let code = |k: usize| match k {
+                        0 => dark.into(),
+                        _ => frames[k][n * chunk + p * channels + c].into(),
+                    };
                     clipped.add(tables.clip(c, code));
                 }
             }
