@@ -739,7 +739,7 @@ pub fn fit_joint(
         pairs,
         log_ratios,
         set_of,
-    } = equations(sets);
+    } = usable_equations(sets);
     let ripple_log_ratio = log_ratios.iter().copied().fold(f64::INFINITY, f64::min);
     let dependence = sets.len() as f64 / frames.saturating_sub(1).max(1) as f64;
     let m = pairs.len();
@@ -827,7 +827,7 @@ struct Equations {
 /// The equations of the usable tone pairs of all `sets` (`0 < b < τ`, `τ` finite), in
 /// order of their dark tone `b` when there are several sets (cross-validation blocks are
 /// contiguous in tone; one set is already in tone order).
-fn equations(sets: &[(&[TonePair], f64)]) -> Equations {
+fn usable_equations(sets: &[(&[TonePair], f64)]) -> Equations {
     let mut equations: Vec<Equation> = sets
         .iter()
         .enumerate()
