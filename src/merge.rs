@@ -688,23 +688,6 @@ impl Tables {
     fn clipped_high(&self, dark_code: usize) -> bool {
         dark_code >= self.levels / 2
     }
-
-    /// Whether channel `c` of a sample with code `code(k)` in sorted frame `k` is clipped
-    /// in every frame, and how ([`Tables::clipped_high`]), without masks. The darkest and
-    /// the brightest frame are read first and the others only where both are clipped, so
-    /// most samples cost one or two lookups.
-    #[inline(always)]
-    fn clip(&self, c: usize, code: impl Fn(usize) -> usize) -> Clip {
-        let last = self.frames - 1;
-        let weighs = |k: usize| !self.clipped(k, c, code(k));
-        if weighs(0) || weighs(last) || (1..last).any(weighs) {
-            Clip::Measured
-        } else if self.clipped_high(code(0)) {
-            Clip::High
-        } else {
-            Clip::Low
-        }
-    }
 }
 
 /// Samples clipped high and low in every frame (the clipped-everywhere rule's two
@@ -1535,10 +1518,11 @@ fn reduce_clips<T: Copy + Into<usize> + Sync>(
         let mut low = false;
         for c in 0..channels {
             let i = pixel * channels + c;
-            match tables.clip(c, |k| frames[k][i].into()) {
-                Clip::High => return Clip::High,
-                Clip::Low => low = true,
-                Clip::Measured => {}
+            if (0..tables.frames).all(|k| tables.clipped(k, c, frames[k][i].into())) {
+                if tables.clipped_high(frames[0][i].into()) {
+                    return Clip::High;
+                }
+                low = true;
             }
         }
         if low { Clip::Low } else { Clip::Measured }
@@ -1577,28 +1561,36 @@ fn reduce_clips<T: Copy + Into<usize> + Sync>(
     }
 }
 
-/// Samples clipped high and low in every frame ([`Tables::clip`]), chunks of the darkest
-/// frame in parallel.
+/// Samples clipped high and low in every frame ([`Tables::clipped`],
+/// [`Tables::clipped_high`]): the darkest frame's code decides most samples, the
+/// brightest's most of the rest, the others are read only where both are clipped.
 fn count_clipped_everywhere<T: Copy + Into<usize> + Sync>(
     frames: &[&[T]],
     tables: &Tables,
 ) -> ClipCount {
-    let channels = tables.channels;
+    let (channels, last) = (tables.channels, tables.frames - 1);
     let chunk = channels << 14;
     frames[0]
         .par_chunks(chunk)
         .enumerate()
-        .map(|(n, darkest)| {
+        .map(|(n, dark)| {
             let mut clipped = ClipCount::default();
-            for (p, pixel) in darkest.chunks_exact(channels).enumerate() {
-                for (c, &dark) in pixel.iter().enumerate() {
-                    // The darkest frame's code is at hand; `clip` reads the others' only
-                    // where it is clipped.
-                    let code = |k: usize| match k {
-                        0 => dark.into(),
-                        _ => frames[k][n * chunk + p * channels + c].into(),
-                    };
-                    clipped.add(tables.clip(c, code));
+            for (p, pixel) in dark.chunks_exact(channels).enumerate() {
+                for (c, &code) in pixel.iter().enumerate() {
+                    if !tables.clipped(0, c, code.into()) {
+                        continue;
+                    }
+                    let i = n * chunk + p * channels + c;
+                    if !tables.clipped(last, c, frames[last][i].into())
+                        || (1..last).any(|k| !tables.clipped(k, c, frames[k][i].into()))
+                    {
+                        continue;
+                    }
+                    if tables.clipped_high(code.into()) {
+                        clipped.high += 1;
+                    } else {
+                        clipped.low += 1;
+                    }
                 }
             }
             clipped
