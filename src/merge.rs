@@ -465,7 +465,7 @@ pub fn merge_masked(
     let mut confidence = options
         .confidence
         .then(|| vec![0.0f32; first.pixel_count()]);
-    let (clipped_high, clipped_low) = match Codes::of(frames, &order) {
+    let clipped = match Codes::of(frames, &order) {
         Codes::Eight(codes) => {
             match confidence.as_deref_mut() {
                 // The common case, an 8-bit pair, takes one lookup per sample.
@@ -494,8 +494,8 @@ pub fn merge_masked(
         bracket: BracketOrder {
             order,
             exposures,
-            clipped_high,
-            clipped_low,
+            clipped_high: clipped.high,
+            clipped_low: clipped.low,
         },
     })
 }
@@ -673,6 +673,49 @@ impl Tables {
     fn index(&self, frame: usize, channel: usize, code: usize) -> usize {
         (frame * self.channels + channel) * self.levels + code
     }
+
+    /// True when sorted frame `frame` gives `code` of `channel` no weight: the code is
+    /// clipped in that frame.
+    #[inline(always)]
+    fn clipped(&self, frame: usize, channel: usize, code: usize) -> bool {
+        self.weighted[self.index(frame, channel, code)][0] == 0.0
+    }
+
+    /// The clipped-everywhere rule: a sample no frame weighs is clipped high when the
+    /// darkest frame's code `dark_code` is in the upper half of the codes (its value then
+    /// a lower bound of the radiance), else clipped low (an upper bound).
+    #[inline(always)]
+    fn clipped_high(&self, dark_code: usize) -> bool {
+        dark_code >= self.levels / 2
+    }
+}
+
+/// Samples clipped high and low in every frame (the clipped-everywhere rule's two
+/// outcomes), counted.
+#[derive(Debug, Clone, Copy, Default)]
+struct ClipCount {
+    high: u64,
+    low: u64,
+}
+
+impl ClipCount {
+    /// Counts one sample's [`Clip`].
+    #[inline(always)]
+    fn add(&mut self, clip: Clip) {
+        match clip {
+            Clip::High => self.high += 1,
+            Clip::Low => self.low += 1,
+            Clip::Measured => {}
+        }
+    }
+
+    /// The counts of two parts together.
+    fn plus(self, other: ClipCount) -> ClipCount {
+        ClipCount {
+            high: self.high + other.high,
+            low: self.low + other.low,
+        }
+    }
 }
 
 /// Debevec & Malik's hat, peaking at 1: `min(B, 1 − B)/0.5`.
@@ -699,7 +742,7 @@ fn slope(response: &InverseResponse, c: usize, levels: usize) -> Vec<f64> {
         .collect()
 }
 
-/// Merges sorted frames' codes into `out`; returns the clipped-high and clipped-low counts.
+/// Merges sorted frames' codes into `out`; returns the samples clipped in every frame.
 fn merge_codes<T: Copy + Into<usize> + Sync>(
     frames: &[&[T]],
     tables: &Tables,
@@ -707,9 +750,8 @@ fn merge_codes<T: Copy + Into<usize> + Sync>(
     width: usize,
     out: &mut [f32],
     confidence: Option<&mut [f32]>,
-) -> (u64, u64) {
+) -> ClipCount {
     let row_len = width * tables.channels;
-    let sum = |a: (u64, u64), b: (u64, u64)| (a.0 + b.0, a.1 + b.1);
     let row = |y: usize, row: &mut [f32], conf: Option<&mut [f32]>| {
         if masks.iter().all(Option::is_none) {
             merge_row(frames, tables, y * row_len, row, conf, |_, _| 1.0)
@@ -724,12 +766,12 @@ fn merge_codes<T: Copy + Into<usize> + Sync>(
             .zip(conf.par_chunks_mut(width))
             .enumerate()
             .map(|(y, (r, conf))| row(y, r, Some(conf)))
-            .reduce(|| (0, 0), sum),
+            .reduce(ClipCount::default, ClipCount::plus),
         None => out
             .par_chunks_mut(row_len)
             .enumerate()
             .map(|(y, r)| row(y, r, None))
-            .reduce(|| (0, 0), sum),
+            .reduce(ClipCount::default, ClipCount::plus),
     }
 }
 
@@ -741,6 +783,18 @@ enum Estimate {
     High(f32),
     /// Clipped low in every frame: the brightest frame's value (an upper bound).
     Low(f32),
+}
+
+impl Estimate {
+    /// Whether the sample was clipped in every (kept) frame, and how.
+    #[inline(always)]
+    fn clip(&self) -> Clip {
+        match self {
+            Estimate::Weighted(..) => Clip::Measured,
+            Estimate::High(_) => Clip::High,
+            Estimate::Low(_) => Clip::Low,
+        }
+    }
 }
 
 /// The estimate of channel `c` from the sorted frames' codes (`code(k)`), frame `k`'s
@@ -767,7 +821,7 @@ fn estimate(
     }
     let (darkest, brightest) = kept_ends(tables.frames, kept);
     let dark_code = code(darkest);
-    if dark_code >= tables.levels / 2 {
+    if tables.clipped_high(dark_code) {
         Estimate::High(tables.value[tables.index(darkest, c, dark_code)])
     } else if lost_den > 0.0 {
         // Black in every kept frame but seen by a masked one: its value, not 0.
@@ -795,13 +849,13 @@ fn merge_row<T: Copy + Into<usize>>(
     row: &mut [f32],
     mut confidence: Option<&mut [f32]>,
     kept: impl Fn(usize, usize) -> f32,
-) -> (u64, u64) {
+) -> ClipCount {
     let channels = tables.channels;
     let rows: Vec<&[T]> = frames
         .iter()
         .map(|f| &f[start..start + row.len()])
         .collect();
-    let (mut high, mut low) = (0u64, 0u64);
+    let mut clipped = ClipCount::default();
     for (p, pixel) in row.chunks_exact_mut(channels).enumerate() {
         let mut least = f32::INFINITY;
         for (c, out) in pixel.iter_mut().enumerate() {
@@ -809,11 +863,11 @@ fn merge_row<T: Copy + Into<usize>>(
             let (value, den) = match estimate(tables, c, |k| rows[k][i].into(), |k| kept(k, p)) {
                 Estimate::Weighted(v, den) => (v, den),
                 Estimate::High(v) => {
-                    high += 1;
+                    clipped.high += 1;
                     (v, 0.0)
                 }
                 Estimate::Low(v) => {
-                    low += 1;
+                    clipped.low += 1;
                     (v, 0.0)
                 }
             };
@@ -824,16 +878,16 @@ fn merge_row<T: Copy + Into<usize>>(
             conf[p] = least;
         }
     }
-    (high, low)
+    clipped
 }
 
 /// For a pair of 8-bit frames, every outcome tabulated per channel by
 /// `(dark code << 8) | bright code`: 65 536 values per channel (256 KB), so a sample
-/// costs one lookup; `clipped` marks the clipped-everywhere entries (+1 high, −1 low).
+/// costs one lookup; `clipped` marks the clipped-everywhere entries.
 struct PairTable {
     channels: usize,
     value: Vec<f32>,
-    clipped: Vec<i8>,
+    clipped: Vec<Clip>,
 }
 
 impl PairTable {
@@ -849,13 +903,11 @@ impl PairTable {
         for c in 0..tables.channels {
             for pair in 0..1usize << 16 {
                 let codes = [pair >> 8, pair & 0xff];
-                let (v, flag) = match estimate(tables, c, |k| codes[k], |_| 1.0) {
-                    Estimate::Weighted(v, _) => (v, 0),
-                    Estimate::High(v) => (v, 1),
-                    Estimate::Low(v) => (v, -1),
-                };
-                value.push(v);
-                clipped.push(flag);
+                let estimate = estimate(tables, c, |k| codes[k], |_| 1.0);
+                clipped.push(estimate.clip());
+                value.push(match estimate {
+                    Estimate::Weighted(v, _) | Estimate::High(v) | Estimate::Low(v) => v,
+                });
             }
         }
         PairTable {
@@ -900,26 +952,23 @@ fn gather_pair(dark: &[u8], bright: &[u8], table: &PairTable, out: &mut [f32]) {
     }
 }
 
-/// Samples clipped high and low in both frames. Weights vanish only at codes 0 and 255,
-/// so only samples whose dark code is one of those are looked up.
-fn count_clipped(dark: &[u8], bright: &[u8], table: &PairTable) -> (u64, u64) {
+/// Samples clipped high and low in both frames, from the [`PairTable`]'s clipped marks.
+/// Weights vanish only at codes 0 and 255, so only samples whose dark code is one of
+/// those are looked up.
+fn count_clipped(dark: &[u8], bright: &[u8], table: &PairTable) -> ClipCount {
     let chunk = table.channels << 14;
     dark.par_chunks(chunk)
         .zip(bright.par_chunks(chunk))
         .map(|(d, b)| {
-            let (mut high, mut low) = (0u64, 0u64);
+            let mut clipped = ClipCount::default();
             for (i, (&dc, &bc)) in d.iter().zip(b).enumerate() {
                 if matches!(dc, 0 | 255) {
-                    match table.clipped[table.index(i % table.channels, dc, bc)] {
-                        1 => high += 1,
-                        -1 => low += 1,
-                        _ => {}
-                    }
+                    clipped.add(table.clipped[table.index(i % table.channels, dc, bc)]);
                 }
             }
-            (high, low)
+            clipped
         })
-        .reduce(|| (0, 0), |a, b| (a.0 + b.0, a.1 + b.1))
+        .reduce(ClipCount::default, ClipCount::plus)
 }
 
 /// A merge of two 8-bit frames evaluated sample by sample on demand, never held as a
@@ -962,7 +1011,7 @@ impl<'a> PairMerge<'a> {
             weighting,
         );
         let table = PairTable::new(&tables);
-        let (clipped_high, clipped_low) = count_clipped(d, b, &table);
+        let clipped = count_clipped(d, b, &table);
         Ok(Some(PairMerge {
             dark: d,
             bright: b,
@@ -972,8 +1021,8 @@ impl<'a> PairMerge<'a> {
             bracket: BracketOrder {
                 order,
                 exposures,
-                clipped_high,
-                clipped_low,
+                clipped_high: clipped.high,
+                clipped_low: clipped.low,
             },
         }))
     }
@@ -1191,7 +1240,7 @@ impl<'a> BracketMerge<'a> {
         let depth = first.bit_depth();
         let tables = Tables::new(&exposures, response, first.channels(), depth, weighting);
         let codes = Codes::of(frames, &order);
-        let (clipped_high, clipped_low) = match &codes {
+        let clipped = match &codes {
             _ if masks.iter().any(Option::is_some) => count_clipped_masked(&codes, &tables, &masks),
             Codes::Eight(c) => count_clipped_everywhere(c, &tables),
             Codes::Sixteen(c) => count_clipped_everywhere(c, &tables),
@@ -1206,8 +1255,8 @@ impl<'a> BracketMerge<'a> {
             bracket: BracketOrder {
                 order,
                 exposures,
-                clipped_high,
-                clipped_low,
+                clipped_high: clipped.high,
+                clipped_low: clipped.low,
             },
         })
     }
@@ -1303,7 +1352,7 @@ impl<'a> BracketMerge<'a> {
                     let i = start + j * channels;
                     let (dark, bright) = kept_ends(t.frames, |k| kept(&self.masks, k, first + j));
                     let dark_code: usize = frames[dark][i].into();
-                    if dark_code >= t.levels / 2 {
+                    if t.clipped_high(dark_code) {
                         t.value[t.index(dark, channel, dark_code)]
                     } else if lost_den[j] > 0.0 {
                         // Black in every kept frame but seen by a masked one (`estimate`).
@@ -1371,28 +1420,24 @@ impl<'a> BracketMerge<'a> {
 
 /// Samples clipped high and low in every kept frame under weight `masks` (sorted): every
 /// sample's estimate, rows in parallel.
-fn count_clipped_masked(codes: &Codes<'_>, tables: &Tables, masks: &[Option<&[u8]>]) -> (u64, u64) {
+fn count_clipped_masked(codes: &Codes<'_>, tables: &Tables, masks: &[Option<&[u8]>]) -> ClipCount {
     fn count<T: Copy + Into<usize> + Sync>(
         frames: &[&[T]],
         tables: &Tables,
         masks: &[Option<&[u8]>],
-    ) -> (u64, u64) {
+    ) -> ClipCount {
         let channels = tables.channels;
         (0..frames[0].len() / channels)
             .into_par_iter()
             .map(|p| {
-                let (mut high, mut low) = (0, 0);
+                let mut clipped = ClipCount::default();
                 for c in 0..channels {
                     let code = |k: usize| frames[k][p * channels + c].into();
-                    match estimate(tables, c, code, |k| kept(masks, k, p)) {
-                        Estimate::High(_) => high += 1,
-                        Estimate::Low(_) => low += 1,
-                        Estimate::Weighted(..) => {}
-                    }
+                    clipped.add(estimate(tables, c, code, |k| kept(masks, k, p)).clip());
                 }
-                (high, low)
+                clipped
             })
-            .reduce(|| (0, 0), |a, b| (a.0 + b.0, a.1 + b.1))
+            .reduce(ClipCount::default, ClipCount::plus)
     }
     match codes {
         Codes::Eight(c) => count(c, tables, masks),
@@ -1469,14 +1514,12 @@ fn reduce_clips<T: Copy + Into<usize> + Sync>(
     f: usize,
 ) -> ClipMap {
     let channels = tables.channels;
-    let zero =
-        |k: usize, c: usize, code: T| tables.weighted[tables.index(k, c, code.into())][0] == 0.0;
     let clip_of = |pixel: usize| {
         let mut low = false;
         for c in 0..channels {
             let i = pixel * channels + c;
-            if (0..tables.frames).all(|k| zero(k, c, frames[k][i])) {
-                if frames[0][i].into() >= tables.levels / 2 {
+            if (0..tables.frames).all(|k| tables.clipped(k, c, frames[k][i].into())) {
+                if tables.clipped_high(frames[0][i].into()) {
                     return Clip::High;
                 }
                 low = true;
@@ -1518,43 +1561,41 @@ fn reduce_clips<T: Copy + Into<usize> + Sync>(
     }
 }
 
-/// Samples clipped high and low in every frame (every weight zero, the rule of
-/// `estimate`): the darkest frame's code decides most samples, the brightest's most of
-/// the rest, the others are read only where both are clipped.
+/// Samples clipped high and low in every frame ([`Tables::clipped`],
+/// [`Tables::clipped_high`]): the darkest frame's code decides most samples, the
+/// brightest's most of the rest, the others are read only where both are clipped.
 fn count_clipped_everywhere<T: Copy + Into<usize> + Sync>(
     frames: &[&[T]],
     tables: &Tables,
-) -> (u64, u64) {
+) -> ClipCount {
     let (channels, last) = (tables.channels, tables.frames - 1);
-    let zero =
-        |k: usize, c: usize, code: T| tables.weighted[tables.index(k, c, code.into())][0] == 0.0;
     let chunk = channels << 14;
     frames[0]
         .par_chunks(chunk)
         .enumerate()
         .map(|(n, dark)| {
-            let (mut high, mut low) = (0u64, 0u64);
+            let mut clipped = ClipCount::default();
             for (p, pixel) in dark.chunks_exact(channels).enumerate() {
                 for (c, &code) in pixel.iter().enumerate() {
-                    if !zero(0, c, code) {
+                    if !tables.clipped(0, c, code.into()) {
                         continue;
                     }
                     let i = n * chunk + p * channels + c;
-                    if !zero(last, c, frames[last][i])
-                        || (1..last).any(|k| !zero(k, c, frames[k][i]))
+                    if !tables.clipped(last, c, frames[last][i].into())
+                        || (1..last).any(|k| !tables.clipped(k, c, frames[k][i].into()))
                     {
                         continue;
                     }
-                    if code.into() >= tables.levels / 2 {
-                        high += 1;
+                    if tables.clipped_high(code.into()) {
+                        clipped.high += 1;
                     } else {
-                        low += 1;
+                        clipped.low += 1;
                     }
                 }
             }
-            (high, low)
+            clipped
         })
-        .reduce(|| (0, 0), |a, b| (a.0 + b.0, a.1 + b.1))
+        .reduce(ClipCount::default, ClipCount::plus)
 }
 
 #[cfg(test)]

@@ -3,11 +3,11 @@
 use std::panic::{AssertUnwindSafe, catch_unwind};
 use std::path::Path;
 
-use rawler::RawlerError;
 use rawler::decoders::RawDecodeParams;
 use rawler::imgop::xyz::Illuminant;
 use rawler::rawimage::{RawImageData, RawPhotometricInterpretation};
 use rawler::rawsource::RawSource;
+use rawler::{CFA, RawlerError};
 
 use super::{Cfa, RawError, RawInfo, RawMosaic};
 
@@ -170,7 +170,63 @@ fn crop_in_place(
     data.truncate(width * height);
 }
 
+/// [`decode`] without its guard against the decoder's panics: the image decoded within
+/// `max_pixels`, its mosaic checked, then its visible area, levels and colour read.
 fn decode_unguarded(path: &Path, bytes: &[u8], max_pixels: u64) -> Result<RawMosaic, RawError> {
+    let Decoded { mut image, exif } = decode_image(path, bytes, max_pixels)?;
+    let refuse = Refusal {
+        path,
+        camera: camera_name(&image.clean_make, &image.clean_model),
+    };
+    let cfa = bayer_or_xtrans(&image, &refuse)?;
+    let RawImageData::Integer(data) = &image.data else {
+        return Err(refuse.unsupported(FLOAT_DATA));
+    };
+    let area = visible_area(path, &image, data.len())?;
+    let cfa = visible_cfa(&cfa, area);
+    let levels = levels(path, &image, area)?;
+    let neutral = as_shot_neutral(&image);
+    let colour = colour_matrices(&image, &refuse)?;
+    let codes = visible_codes(&mut image, area, &refuse)?;
+    Ok(RawMosaic {
+        width: u32::try_from(area.width).map_err(|_| refuse.unsupported("too wide"))?,
+        height: u32::try_from(area.height).map_err(|_| refuse.unsupported("too tall"))?,
+        codes,
+        info: RawInfo {
+            make: image.clean_make.clone(),
+            model: image.clean_model.clone(),
+            bits: image.bps as u32,
+            cfa,
+            black: levels.black,
+            black_width: levels.black_width,
+            black_height: levels.black_height,
+            white: levels.white,
+            neutral,
+            xyz_to_camera: colour.xyz_to_camera,
+            matrix_illuminant: light_source_name(colour.illuminant).to_string(),
+            colour_matrices: colour.all,
+            exposure_time_s: exif.exposure_time_s,
+            f_number: exif.f_number,
+            iso: exif.iso,
+            captured: exif.captured,
+        },
+    })
+}
+
+/// The reason a raw of floating-point samples is refused.
+const FLOAT_DATA: &str = "floating-point raw data: only integer mosaics are merged";
+
+/// A decoded raw image and its capture metadata (defaults when the file has none).
+struct Decoded {
+    image: rawler::RawImage,
+    exif: RawExif,
+}
+
+/// Decodes the image in `bytes`, refusing one of more than `max_pixels` pixels twice: by
+/// the size its header declares, before the pixels are decoded, and by the size decoded,
+/// so that a file whose header understates its size is refused before anything larger
+/// (the demosaicked map) is made of it.
+fn decode_image(path: &Path, bytes: &[u8], max_pixels: u64) -> Result<Decoded, RawError> {
     let failed = |error: RawlerError| failed(path, error);
     let source = RawSource::new_from_slice(bytes);
     let params = RawDecodeParams::default();
@@ -189,104 +245,189 @@ fn decode_unguarded(path: &Path, bytes: &[u8], max_pixels: u64) -> Result<RawMos
     let header = decoder.raw_image(&source, &params, true).map_err(failed)?;
     within_limit(header.width, header.height)?;
     drop(header);
-    let mut image = decoder.raw_image(&source, &params, false).map_err(failed)?;
-    // The decoded image again: a file whose header understates its size is refused before
-    // anything larger (the demosaicked map) is made of it.
+    let image = decoder.raw_image(&source, &params, false).map_err(failed)?;
     within_limit(image.width, image.height)?;
     let exif = decoder.raw_metadata(&source, &params).map(|m| m.exif).ok();
-    let camera = camera_name(&image.clean_make, &image.clean_model);
-    let unsupported = |reason: String| RawError::Unsupported {
+    let exif = exif_of(
+        image.clean_make.clone(),
+        image.clean_model.clone(),
+        &exif.unwrap_or_default(),
+    );
+    Ok(Decoded { image, exif })
+}
+
+/// The file and camera an unsupported raw's error names.
+struct Refusal<'a> {
+    path: &'a Path,
+    camera: String,
+}
+
+impl Refusal<'_> {
+    /// [`RawError::Unsupported`] for this file and camera, with `reason`.
+    fn unsupported(&self, reason: impl Into<String>) -> RawError {
+        RawError::Unsupported {
+            path: self.path.to_path_buf(),
+            camera: self.camera.clone(),
+            reason: reason.into(),
+        }
+    }
+}
+
+/// [`RawError::Decode`] for `path`, with `reason`.
+fn malformed(path: &Path, reason: impl Into<String>) -> RawError {
+    RawError::Decode {
         path: path.to_path_buf(),
-        camera: camera.clone(),
-        reason,
-    };
+        reason: reason.into(),
+    }
+}
+
+/// The sensor's colour filter array when it is an RGB mosaic of one sample a pixel that
+/// the demosaicking reads: Bayer (2×2, its two greens on a diagonal, the demosaicking's
+/// premise) or X-Trans (6×6). Refused otherwise, and for linear raws and monochrome
+/// sensors.
+fn bayer_or_xtrans(image: &rawler::RawImage, refuse: &Refusal) -> Result<CFA, RawError> {
     let cfa = match &image.photometric {
         RawPhotometricInterpretation::Cfa(config) if image.cpp == 1 && config.cfa.is_rgb() => {
             config.cfa.clone()
         }
         RawPhotometricInterpretation::Cfa(config) => {
-            return Err(unsupported(format!(
-                "colour filter array {} is not RGB",
-                config.cfa
-            )));
+            return Err(
+                refuse.unsupported(format!("colour filter array {} is not RGB", config.cfa))
+            );
         }
         RawPhotometricInterpretation::LinearRaw => {
-            return Err(unsupported(
-                "already demosaicked (linear raw): only mosaic raws are merged".to_string(),
-            ));
+            return Err(
+                refuse.unsupported("already demosaicked (linear raw): only mosaic raws are merged")
+            );
         }
         RawPhotometricInterpretation::BlackIsZero => {
-            return Err(unsupported("monochrome sensor".to_string()));
+            return Err(refuse.unsupported("monochrome sensor"));
         }
     };
     let is_bayer = cfa.width == 2 && cfa.height == 2;
     let is_xtrans = cfa.width == 6 && cfa.height == 6;
     if !(is_bayer || is_xtrans) {
-        return Err(unsupported(format!(
+        return Err(refuse.unsupported(format!(
             "colour filter array {cfa} is neither Bayer (2×2) nor X-Trans (6×6)"
         )));
     }
-    // Bayer: one red, one blue, and the two greens on a diagonal (the demosaicking's
-    // premise).
     let diagonal_greens = (cfa.color_at(0, 0) == 1 && cfa.color_at(1, 1) == 1)
         || (cfa.color_at(0, 1) == 1 && cfa.color_at(1, 0) == 1);
     if is_bayer && !diagonal_greens {
-        return Err(unsupported(format!(
+        return Err(refuse.unsupported(format!(
             "colour filter array {cfa} is 2×2 without its greens on a diagonal"
         )));
     }
-    let RawImageData::Integer(data) = &image.data else {
-        return Err(unsupported(
-            "floating-point raw data: only integer mosaics are merged".to_string(),
-        ));
+    Ok(cfa)
+}
+
+/// A rectangle of the sensor, in pixels.
+#[derive(Debug, Clone, Copy)]
+struct Area {
+    /// Left column.
+    x: usize,
+    /// Top row.
+    y: usize,
+    /// Width.
+    width: usize,
+    /// Height.
+    height: usize,
+}
+
+/// The visible area of the sensor: the crop the file recommends, else its active area,
+/// else the whole sensor. Refused when it is empty or leaves the sensor, or when the
+/// image's `samples` do not cover the sensor.
+fn visible_area(path: &Path, image: &rawler::RawImage, samples: usize) -> Result<Area, RawError> {
+    let (full_width, full_height) = (image.width, image.height);
+    let area = match image.crop_area.or(image.active_area) {
+        Some(r) => Area {
+            x: r.x(),
+            y: r.y(),
+            width: r.width(),
+            height: r.height(),
+        },
+        None => Area {
+            x: 0,
+            y: 0,
+            width: full_width,
+            height: full_height,
+        },
     };
-    let full = (image.width, image.height);
-    let area = image.crop_area.or(image.active_area);
-    let (x0, y0, width, height) = match area {
-        Some(r) => (r.x(), r.y(), r.width(), r.height()),
-        None => (0, 0, full.0, full.1),
-    };
-    if width == 0 || height == 0 || x0 + width > full.0 || y0 + height > full.1 {
-        return Err(RawError::Decode {
-            path: path.to_path_buf(),
-            reason: format!(
-                "visible area {width}×{height} at ({x0}, {y0}) outside the {}×{} sensor",
-                full.0, full.1
+    let Area {
+        x,
+        y,
+        width,
+        height,
+    } = area;
+    if width == 0 || height == 0 || x + width > full_width || y + height > full_height {
+        return Err(malformed(
+            path,
+            format!(
+                "visible area {width}×{height} at ({x}, {y}) outside the \
+                 {full_width}×{full_height} sensor"
             ),
-        });
+        ));
     }
-    if data.len() < full.0 * full.1 {
-        return Err(RawError::Decode {
-            path: path.to_path_buf(),
-            reason: "fewer samples than the sensor's size".to_string(),
-        });
+    if samples < full_width * full_height {
+        return Err(malformed(path, "fewer samples than the sensor's size"));
     }
-    let tile = cfa.shift(x0, y0);
-    let cfa = Cfa {
+    Ok(area)
+}
+
+/// The colour filter array `cfa` of the sensor as the visible `area` starts it, colour
+/// indices (0 red, 1 green, 2 blue) row by row.
+fn visible_cfa(cfa: &CFA, area: Area) -> Cfa {
+    let tile = cfa.shift(area.x, area.y);
+    Cfa {
         width: tile.width,
         height: tile.height,
         colours: (0..tile.height)
             .flat_map(|y| (0..tile.width).map(move |x| (y, x)))
             .map(|(y, x)| tile.color_at(y, x) as u8)
             .collect(),
-    };
-    let black = image.blacklevel.shift(x0, y0);
+    }
+}
+
+/// The black-level tile aligned on the visible area and the white level, in codes.
+struct Levels {
+    /// Black level per position of the tile, row by row.
+    black: Vec<f32>,
+    /// Width of the tile.
+    black_width: usize,
+    /// Height of the tile.
+    black_height: usize,
+    /// White level (the clipping code).
+    white: f32,
+}
+
+/// The image's black and white levels over the visible `area`: refused when the black
+/// tile is malformed or a black level is not in `[0, white)`.
+fn levels(path: &Path, image: &rawler::RawImage, area: Area) -> Result<Levels, RawError> {
+    let black = image.blacklevel.shift(area.x, area.y);
     let black_values: Vec<f32> = black.levels.iter().map(|r| r.as_f32()).collect();
     if black.width == 0 || black.height == 0 || black_values.len() < black.width * black.height {
-        return Err(RawError::Decode {
-            path: path.to_path_buf(),
-            reason: "malformed black level".to_string(),
-        });
+        return Err(malformed(path, "malformed black level"));
     }
     let white = image.whitelevel.0.first().copied().unwrap_or(0) as f32;
     if black_values.iter().any(|&b| !(b >= 0.0 && b < white)) {
-        return Err(RawError::Decode {
-            path: path.to_path_buf(),
-            reason: format!("black level {black_values:?} not below the white level {white}"),
-        });
+        return Err(malformed(
+            path,
+            format!("black level {black_values:?} not below the white level {white}"),
+        ));
     }
-    // rawler's white-balance coefficients are camera multipliers, the reciprocal of the
-    // as-shot neutral; NaN when the file has none (then a D65 neutral from the matrix).
+    Ok(Levels {
+        black: black_values,
+        black_width: black.width,
+        black_height: black.height,
+        white,
+    })
+}
+
+/// The as-shot neutral, camera RGB of a white surface normalised to green = 1:
+/// `[wb_G/wb_R, 1, wb_G/wb_B]` from rawler's white-balance coefficients, which are camera
+/// multipliers (the reciprocal of the neutral); from a D65 neutral of the colour matrix
+/// when the file has none (rawler's coefficients are then NaN).
+fn as_shot_neutral(image: &rawler::RawImage) -> [f64; 3] {
     let wb = if image.wb_coeffs[..3]
         .iter()
         .all(|c| c.is_finite() && *c > 0.0)
@@ -295,7 +436,22 @@ fn decode_unguarded(path: &Path, bytes: &[u8], max_pixels: u64) -> Result<RawMos
     } else {
         image.neutralwb()
     };
-    let neutral = [f64::from(wb[1] / wb[0]), 1.0, f64::from(wb[1] / wb[2])];
+    [f64::from(wb[1] / wb[0]), 1.0, f64::from(wb[1] / wb[2])]
+}
+
+/// The file's colour matrices, XYZ → camera RGB, row-major.
+struct ColourMatrices {
+    /// The matrix the conversion uses: D65's, else D50's, else the first the file has.
+    xyz_to_camera: [[f64; 3]; 3],
+    /// The EXIF `LightSource` code of that matrix's calibration illuminant.
+    illuminant: u16,
+    /// Every matrix of at least 9 entries with its illuminant's code, by code.
+    all: Vec<(u16, [[f64; 3]; 3])>,
+}
+
+/// The image's colour matrices; refused when it has none or the chosen one has fewer
+/// than 9 entries.
+fn colour_matrices(image: &rawler::RawImage, refuse: &Refusal) -> Result<ColourMatrices, RawError> {
     let (illuminant, matrix) = image
         .color_matrix_find_first([Illuminant::D65, Illuminant::D50])
         .or_else(|| {
@@ -305,11 +461,9 @@ fn decode_unguarded(path: &Path, bytes: &[u8], max_pixels: u64) -> Result<RawMos
                 .next()
                 .map(|(i, m)| (*i, m.clone()))
         })
-        .ok_or_else(|| unsupported("no colour matrix for this camera".to_string()))?;
+        .ok_or_else(|| refuse.unsupported("no colour matrix for this camera"))?;
     if matrix.len() < 9 {
-        return Err(unsupported(
-            "colour matrix has fewer than 9 entries".to_string(),
-        ));
+        return Err(refuse.unsupported("colour matrix has fewer than 9 entries"));
     }
     let m = |r: usize, c: usize| f64::from(matrix[r * 3 + c]);
     let xyz_to_camera = [
@@ -317,7 +471,7 @@ fn decode_unguarded(path: &Path, bytes: &[u8], max_pixels: u64) -> Result<RawMos
         [m(1, 0), m(1, 1), m(1, 2)],
         [m(2, 0), m(2, 1), m(2, 2)],
     ];
-    let mut colour_matrices: Vec<(u16, [[f64; 3]; 3])> = image
+    let mut all: Vec<(u16, [[f64; 3]; 3])> = image
         .color_matrix
         .iter()
         .filter(|(_, m)| m.len() >= 9)
@@ -326,44 +480,33 @@ fn decode_unguarded(path: &Path, bytes: &[u8], max_pixels: u64) -> Result<RawMos
             (u16::from(*i), [0, 1, 2].map(|r| [0, 1, 2].map(|c| m(r, c))))
         })
         .collect();
-    colour_matrices.sort_by_key(|&(illuminant, _)| illuminant);
-    let exif = exif_of(
-        image.clean_make.clone(),
-        image.clean_model.clone(),
-        &exif.unwrap_or_default(),
-    );
-    // The visible area, moved out of the decoded image and cropped in place.
+    all.sort_by_key(|&(illuminant, _)| illuminant);
+    Ok(ColourMatrices {
+        xyz_to_camera,
+        illuminant: u16::from(illuminant),
+        all,
+    })
+}
+
+/// The codes of the visible `area`, row by row: moved out of the decoded image and cropped
+/// in place.
+fn visible_codes(
+    image: &mut rawler::RawImage,
+    area: Area,
+    refuse: &Refusal,
+) -> Result<Vec<u16>, RawError> {
     let RawImageData::Integer(mut codes) =
         std::mem::replace(&mut image.data, RawImageData::Integer(Vec::new()))
     else {
-        return Err(unsupported(
-            "floating-point raw data: only integer mosaics are merged".to_string(),
-        ));
+        return Err(refuse.unsupported(FLOAT_DATA));
     };
-    crop_in_place(&mut codes, full.0, (x0, y0, width, height));
-    Ok(RawMosaic {
-        width: u32::try_from(width).map_err(|_| unsupported("too wide".to_string()))?,
-        height: u32::try_from(height).map_err(|_| unsupported("too tall".to_string()))?,
-        codes,
-        info: RawInfo {
-            make: image.clean_make.clone(),
-            model: image.clean_model.clone(),
-            bits: image.bps as u32,
-            cfa,
-            black: black_values,
-            black_width: black.width,
-            black_height: black.height,
-            white,
-            neutral,
-            xyz_to_camera,
-            matrix_illuminant: light_source_name(u16::from(illuminant)).to_string(),
-            colour_matrices,
-            exposure_time_s: exif.exposure_time_s,
-            f_number: exif.f_number,
-            iso: exif.iso,
-            captured: exif.captured,
-        },
-    })
+    let stride = image.width;
+    crop_in_place(
+        &mut codes,
+        stride,
+        (area.x, area.y, area.width, area.height),
+    );
+    Ok(codes)
 }
 
 /// The name of an EXIF `LightSource` code (CIPA DC-008 table, as DNG's

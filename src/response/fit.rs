@@ -734,6 +734,62 @@ pub fn fit_joint(
     frames: usize,
     degree: Degree,
 ) -> Result<ChannelFit, FitError> {
+    check_request(sets, degree)?;
+    let Equations {
+        pairs,
+        log_ratios,
+        set_of,
+    } = usable_equations(sets);
+    let ripple_log_ratio = log_ratios.iter().copied().fold(f64::INFINITY, f64::min);
+    let dependence = sets.len() as f64 / frames.saturating_sub(1).max(1) as f64;
+    let m = pairs.len();
+    if m < 2 {
+        return Err(FitError::TooFewTones(m));
+    }
+    let darkest = pairs.iter().map(|p| p.dark).fold(f64::INFINITY, f64::min);
+    let brightest = pairs.iter().map(|p| p.bright).fold(0.0, f64::max);
+    let log_floor = darkest.ln().min(-1e-3);
+    let basis = basis_for(degree, log_floor, (darkest, brightest), m);
+    let mut problem = Problem {
+        design: design(&basis, &pairs),
+        penalty: curvature(&basis, None),
+        basis,
+        sqrt_w: noise_weights(&pairs, &|_| 1.0),
+        log_ratios,
+        ripple_log_ratio,
+        dependence: dependence.max(1.0),
+    };
+    let mut smoothing = follow_the_slope(&mut problem, &pairs, log_floor);
+    let fitted = problem.curve(smoothing.chosen, log_floor);
+    let robust = match robust_factors(&mut problem, &pairs, &fitted) {
+        Some(factors) => {
+            smoothing = problem.choose_smoothing();
+            factors
+        }
+        None => vec![1.0; pairs.len()],
+    };
+    if sets.len() > 1 {
+        let joint = problem.curve(smoothing.chosen, log_floor);
+        scale_by_set_scatter(&mut problem, &pairs, &set_of, sets.len(), &joint);
+        smoothing = problem.choose_smoothing();
+    }
+    let mut fit = finish(&problem, smoothing.chosen, log_floor, (darkest, brightest));
+    // The misfit the confidence reads is against the noise model, as the model was fitted:
+    // without the robust factors.
+    let chi2 = noise_chi2(&problem, &pairs, &robust, &fit.curve());
+    fit.misfit = chi2 / (pairs.len() as f64 - fit.effective_parameters).max(1.0);
+    fit.confidence = confidence(&fit);
+    if smoothing.best != smoothing.chosen {
+        let other = problem.curve(smoothing.best, log_floor);
+        add_the_ambiguity(&mut fit, &other);
+    }
+    check_degenerate(&fit)?;
+    Ok(fit)
+}
+
+/// Refuses a fixed degree outside `1..=MAX_DEGREE`, and sets whose tones run backwards
+/// (the bright tone below the dark one) in more than half of all pairs.
+fn check_request(sets: &[(&[TonePair], f64)], degree: Degree) -> Result<(), FitError> {
     if let Degree::Fixed(n) = degree
         && !(1..=MAX_DEGREE).contains(&n)
     {
@@ -747,39 +803,61 @@ pub fn fit_joint(
     if backwards * 2 > total {
         return Err(FitError::Swapped);
     }
-    let mut equations: Vec<(TonePair, f64, usize)> = sets
+    Ok(())
+}
+
+/// One equation `u(ln τ) − u(ln b) = ln γ` of [`fit_joint`].
+struct Equation {
+    /// Its tones `b` (dark) and `τ` (bright).
+    pair: TonePair,
+    /// `ln γ` of its set.
+    log_ratio: f64,
+    /// The index of its set.
+    set: usize,
+}
+
+/// [`fit_joint`]'s equations in tone order, one field per part, equation `i` at index `i`
+/// of each.
+struct Equations {
+    pairs: Vec<TonePair>,
+    log_ratios: Vec<f64>,
+    set_of: Vec<usize>,
+}
+
+/// The equations of the usable tone pairs of all `sets` (`0 < b < τ`, `τ` finite), in
+/// order of their dark tone `b` when there are several sets (cross-validation blocks are
+/// contiguous in tone; one set is already in tone order).
+fn usable_equations(sets: &[(&[TonePair], f64)]) -> Equations {
+    let mut equations: Vec<Equation> = sets
         .iter()
         .enumerate()
         .flat_map(|(set, (pairs, log_ratio))| {
             pairs
                 .iter()
                 .filter(|p| p.dark > 0.0 && p.bright > p.dark && p.bright.is_finite())
-                .map(move |p| (*p, *log_ratio, set))
+                .map(move |p| Equation {
+                    pair: *p,
+                    log_ratio: *log_ratio,
+                    set,
+                })
         })
         .collect();
     if sets.len() > 1 {
-        // Cross-validation blocks are contiguous in tone: order all sets' equations by
-        // their dark tone (one set is already in tone order).
-        equations.sort_by(|a, b| a.0.dark.total_cmp(&b.0.dark));
+        equations.sort_by(|a, b| a.pair.dark.total_cmp(&b.pair.dark));
     }
-    let pairs: Vec<TonePair> = equations.iter().map(|e| e.0).collect();
-    let log_ratios: Vec<f64> = equations.iter().map(|e| e.1).collect();
-    let set_of: Vec<usize> = equations.iter().map(|e| e.2).collect();
-    let ripple_log_ratio = log_ratios.iter().copied().fold(f64::INFINITY, f64::min);
-    let dependence = sets.len() as f64 / frames.saturating_sub(1).max(1) as f64;
-    let m = pairs.len();
-    if m < 2 {
-        return Err(FitError::TooFewTones(m));
+    Equations {
+        pairs: equations.iter().map(|e| e.pair).collect(),
+        log_ratios: equations.iter().map(|e| e.log_ratio).collect(),
+        set_of: equations.iter().map(|e| e.set).collect(),
     }
-    let darkest = pairs.iter().map(|p| p.dark).fold(f64::INFINITY, f64::min);
-    let brightest = pairs.iter().map(|p| p.bright).fold(0.0, f64::max);
-    let log_floor = darkest.ln().min(-1e-3);
-    let sigma2 = |p: &TonePair, s_b: f64, s_t: f64| {
-        let v_b = p.sigma_dark.powi(2) + NOISE * NOISE;
-        let v_t = p.sigma_bright.powi(2) + NOISE * NOISE;
-        s_b * s_b * v_b / (p.dark * p.dark) + s_t * s_t * v_t / (p.bright * p.bright)
-    };
-    let basis = match degree {
+}
+
+/// The basis of `ln g` on `[log_floor, 0]` for `degree`: one polynomial of a fixed
+/// degree, or for `auto` a cubic spline of [`auto_pieces`]`(m)` pieces of equal width in
+/// brightness over the `covered` tones `(darkest, brightest)` of `m` equations.
+fn basis_for(degree: Degree, log_floor: f64, covered: (f64, f64), m: usize) -> Basis {
+    let (darkest, brightest) = covered;
+    match degree {
         Degree::Fixed(n) => Basis::new(n, log_floor, 0.0, &[]),
         Degree::Auto => Basis::new(
             SPLINE_DEGREE,
@@ -787,134 +865,158 @@ pub fn fit_joint(
             0.0,
             &even_knots(darkest, brightest, auto_pieces(m)),
         ),
-    };
-    let weights = |slope: &dyn Fn(f64) -> f64| -> Vec<f64> {
-        pairs
-            .iter()
-            .map(|p| {
-                let s_b = slope(p.dark).max(0.3);
-                let s_t = slope(p.bright).max(0.3);
-                1.0 / sigma2(p, s_b, s_t).sqrt()
-            })
-            .collect()
-    };
-    let mut problem = Problem {
-        design: design(&basis, &pairs),
-        penalty: curvature(&basis, None),
-        basis,
-        sqrt_w: weights(&|_| 1.0),
-        log_ratios,
-        ripple_log_ratio,
-        dependence: dependence.max(1.0),
-    };
+    }
+}
+
+/// Variance of one equation's `ln τ − ln b` under the noise model, with the curve's
+/// slopes `s_b`, `s_t` (`d ln g / d ln b`) at its two tones:
+/// `s_b²·(σ_b² + N²)/b² + s_t²·(σ_τ² + N²)/τ²`, `N` the nominal [`NOISE`].
+fn log_variance(p: &TonePair, s_b: f64, s_t: f64) -> f64 {
+    let v_b = p.sigma_dark.powi(2) + NOISE * NOISE;
+    let v_t = p.sigma_bright.powi(2) + NOISE * NOISE;
+    s_b * s_b * v_b / (p.dark * p.dark) + s_t * s_t * v_t / (p.bright * p.bright)
+}
+
+/// `1/σ` of each equation ([`log_variance`]) with the slopes `slope(b)` of a curve, each
+/// at least 0.3.
+fn noise_weights(pairs: &[TonePair], slope: &dyn Fn(f64) -> f64) -> Vec<f64> {
+    pairs
+        .iter()
+        .map(|p| {
+            let s_b = slope(p.dark).max(0.3);
+            let s_t = slope(p.bright).max(0.3);
+            1.0 / log_variance(p, s_b, s_t).sqrt()
+        })
+        .collect()
+}
+
+/// Chooses the smoothness, then twice takes the slopes of the curve it gives into the
+/// weights ([`noise_weights`]) and the curvature penalty and chooses again.
+fn follow_the_slope(problem: &mut Problem, pairs: &[TonePair], log_floor: f64) -> Smoothing {
     let mut smoothing = problem.choose_smoothing();
     for _ in 0..2 {
         let previous = problem.curve(smoothing.chosen, log_floor);
-        problem.sqrt_w = weights(&|b| previous.log_slope(b));
+        problem.sqrt_w = noise_weights(pairs, &|b| previous.log_slope(b));
         problem.penalty = curvature(&problem.basis, Some(&|x| previous.log_slope(x.exp())));
         smoothing = problem.choose_smoothing();
     }
+    smoothing
+}
+
+/// Equation `i`'s weighted residual against `curve`:
+/// `√w_i·(ln g(τ) − ln g(b) − ln γ_i)`, `w` the weight `sqrt_w` takes.
+fn residual(sqrt_w: f64, curve: &LogResponse, p: &TonePair, log_ratio: f64) -> f64 {
+    sqrt_w * (curve.log_g(p.bright) - curve.log_g(p.dark) - log_ratio)
+}
+
+/// Robust weights, one Huber step: an equation whose weighted residual against `fitted`
+/// exceeds [`HUBER`] robust standard deviations counts as that much noisier, so that a few
+/// equations no smooth curve explains (a codec's ringing next to white, a sparse bin)
+/// cannot choose the smoothness of the whole curve. Multiplies the weights by the factors
+/// `√min(1, limit/|r|)` and returns them; `None` (weights untouched) when no residual
+/// exceeds the limit.
+fn robust_factors(
+    problem: &mut Problem,
+    pairs: &[TonePair],
+    fitted: &LogResponse,
+) -> Option<Vec<f64>> {
+    let residuals: Vec<f64> = pairs
+        .iter()
+        .enumerate()
+        .map(|(i, p)| residual(problem.sqrt_w[i], fitted, p, problem.log_ratios[i]))
+        .collect();
+    let mut sizes: Vec<f64> = residuals.iter().map(|r| r.abs()).collect();
+    sizes.sort_by(f64::total_cmp);
+    // Equations a curve meets exactly (noise-free data) leave only rounding, which is
+    // not an outlier: the spread is at least EXACT (in units of the noise model's σ).
+    let spread = (MAD_TO_SIGMA * sizes[sizes.len() / 2]).max(EXACT);
+    let limit = HUBER * spread;
+    if !residuals.iter().any(|r| r.abs() > limit) {
+        return None;
+    }
     let mut robust = vec![1.0; pairs.len()];
-    {
-        // Robust weights, one Huber step: an equation whose weighted residual exceeds
-        // HUBER robust standard deviations counts as that much noisier, so that a few
-        // equations no smooth curve explains (a codec's ringing next to white, a sparse
-        // bin) cannot choose the smoothness of the whole curve.
-        let fitted = problem.curve(smoothing.chosen, log_floor);
-        let residuals: Vec<f64> = pairs
-            .iter()
-            .enumerate()
-            .map(|(i, p)| {
-                problem.sqrt_w[i]
-                    * (fitted.log_g(p.bright) - fitted.log_g(p.dark) - problem.log_ratios[i])
-            })
-            .collect();
-        let mut sizes: Vec<f64> = residuals.iter().map(|r| r.abs()).collect();
-        sizes.sort_by(f64::total_cmp);
-        // Equations a curve meets exactly (noise-free data) leave only rounding, which is
-        // not an outlier: the spread is at least EXACT (in units of the noise model's σ).
-        let spread = (MAD_TO_SIGMA * sizes[sizes.len() / 2]).max(EXACT);
-        let limit = HUBER * spread;
-        if residuals.iter().any(|r| r.abs() > limit) {
-            for ((w, r), f) in problem.sqrt_w.iter_mut().zip(&residuals).zip(&mut robust) {
-                *f = (limit / r.abs()).min(1.0).sqrt();
-                *w *= *f;
-            }
-            smoothing = problem.choose_smoothing();
-        }
+    for ((w, r), f) in problem.sqrt_w.iter_mut().zip(&residuals).zip(&mut robust) {
+        *f = (limit / r.abs()).min(1.0).sqrt();
+        *w *= *f;
     }
-    if sets.len() > 1 {
-        // Each frame pair's own scatter: a pair whose equations misfit the joint curve
-        // more than the best-fitting pair's (a codec's ringing in one frame, a frame that
-        // does not follow its listed time) has its variance scaled by the ratio of the two
-        // mean squared weighted residuals, so it cannot pull the curve of the others.
-        let joint = problem.curve(smoothing.chosen, log_floor);
-        let mut scatter = vec![(0.0, 0usize); sets.len()];
-        for (i, p) in pairs.iter().enumerate() {
-            let r = problem.sqrt_w[i]
-                * (joint.log_g(p.bright) - joint.log_g(p.dark) - problem.log_ratios[i]);
-            scatter[set_of[i]].0 += r * r;
-            scatter[set_of[i]].1 += 1;
-        }
-        let mean = |s: &(f64, usize)| s.0 / s.1.max(1) as f64;
-        let best = scatter
-            .iter()
-            .filter(|s| s.1 > 0)
-            .map(mean)
-            .fold(f64::INFINITY, f64::min)
-            .max(f64::MIN_POSITIVE);
-        for (w, &set) in problem.sqrt_w.iter_mut().zip(&set_of) {
-            *w /= (mean(&scatter[set]) / best).max(1.0).sqrt();
-        }
-        smoothing = problem.choose_smoothing();
+    Some(robust)
+}
+
+/// Each frame pair's own scatter: a set whose equations misfit the `joint` curve more than
+/// the best-fitting set's (a codec's ringing in one frame, a frame that does not follow
+/// its listed time) has its weights divided by `√max(1, χ̄²_set / χ̄²_best)` (its variance
+/// scaled by the ratio of the two mean squared weighted residuals), so it cannot pull the
+/// curve of the others. `set_of[i]` is equation `i`'s set of `sets`.
+fn scale_by_set_scatter(
+    problem: &mut Problem,
+    pairs: &[TonePair],
+    set_of: &[usize],
+    sets: usize,
+    joint: &LogResponse,
+) {
+    let mut scatter = vec![(0.0, 0usize); sets];
+    for (i, p) in pairs.iter().enumerate() {
+        let r = residual(problem.sqrt_w[i], joint, p, problem.log_ratios[i]);
+        scatter[set_of[i]].0 += r * r;
+        scatter[set_of[i]].1 += 1;
     }
-    let mut fit = finish(&problem, smoothing.chosen, log_floor, (darkest, brightest));
-    // The misfit the confidence reads is against the noise model, as the model was fitted:
-    // without the robust factors.
-    let curve = fit.curve();
-    let chi2: f64 = pairs
+    let mean = |s: &(f64, usize)| s.0 / s.1.max(1) as f64;
+    let best = scatter
+        .iter()
+        .filter(|s| s.1 > 0)
+        .map(mean)
+        .fold(f64::INFINITY, f64::min)
+        .max(f64::MIN_POSITIVE);
+    for (w, &set) in problem.sqrt_w.iter_mut().zip(set_of) {
+        *w /= (mean(&scatter[set]) / best).max(1.0).sqrt();
+    }
+}
+
+/// Sum of the squared weighted residuals against `curve` under the noise model: each
+/// weight without its `robust` factor.
+fn noise_chi2(problem: &Problem, pairs: &[TonePair], robust: &[f64], curve: &LogResponse) -> f64 {
+    pairs
         .iter()
         .enumerate()
         .map(|(i, p)| {
             let w = problem.sqrt_w[i] / robust[i];
-            (w * (curve.log_g(p.bright) - curve.log_g(p.dark) - problem.log_ratios[i])).powi(2)
+            residual(w, curve, p, problem.log_ratios[i]).powi(2)
         })
-        .sum();
-    fit.misfit = chi2 / (pairs.len() as f64 - fit.effective_parameters).max(1.0);
-    fit.confidence = confidence(&fit);
-    if smoothing.best != smoothing.chosen {
-        // The data cannot choose between the two curves: their difference is part of
-        // the error to expect.
-        let (fitted, other) = (fit.curve(), problem.curve(smoothing.best, log_floor));
-        let differences: Vec<f64> = ASSESSED_CODES
-            .map(|k| {
-                let b = f64::from(k) / 255.0;
-                (fitted.log_g(b) - other.log_g(b)) / std::f64::consts::LN_2
-            })
-            .collect();
-        let count = differences.len() as f64;
-        let mean = differences.iter().sum::<f64>() / count;
-        let rms = |offset: f64| {
-            (differences
-                .iter()
-                .map(|d| (d - offset).powi(2))
-                .sum::<f64>()
-                / count)
-                .sqrt()
-        };
-        fit.predicted_error = fit.predicted_error.hypot(rms(0.0));
-        fit.predicted_shape_error = fit.predicted_shape_error.hypot(rms(mean));
-        fit.confidence = confidence(&fit);
-    }
-    check_degenerate(&fit)?;
-    Ok(fit)
+        .sum()
 }
 
-/// Huber's threshold for [`fit_joint`]'s robust weights, in robust standard deviations of
+/// When the data cannot choose between `fit`'s curve and the `other` the best
+/// cross-validation score gave, their difference is part of the error to expect: its RMS
+/// over [`ASSESSED_CODES`] in stops is added in quadrature to the predicted error, and
+/// its RMS about its mean to the predicted shape error; the confidence follows.
+fn add_the_ambiguity(fit: &mut ChannelFit, other: &LogResponse) {
+    let fitted = fit.curve();
+    let differences: Vec<f64> = ASSESSED_CODES
+        .map(|k| {
+            let b = f64::from(k) / 255.0;
+            (fitted.log_g(b) - other.log_g(b)) / std::f64::consts::LN_2
+        })
+        .collect();
+    let count = differences.len() as f64;
+    let mean = differences.iter().sum::<f64>() / count;
+    let rms = |offset: f64| {
+        (differences
+            .iter()
+            .map(|d| (d - offset).powi(2))
+            .sum::<f64>()
+            / count)
+            .sqrt()
+    };
+    fit.predicted_error = fit.predicted_error.hypot(rms(0.0));
+    fit.predicted_shape_error = fit.predicted_shape_error.hypot(rms(mean));
+    fit.confidence = confidence(fit);
+}
+
+/// Huber's threshold for [`robust_factors`], in robust standard deviations of
 /// the weighted residuals: the conventional value, not tuned.
 const HUBER: f64 = 3.0;
 
-/// Least robust spread of the weighted residuals for [`fit_joint`]'s robust weights, in
+/// Least robust spread of the weighted residuals for [`robust_factors`], in
 /// units of the noise model's standard deviation: below it the equations are met exactly
 /// but for rounding.
 const EXACT: f64 = 1e-3;
