@@ -491,6 +491,16 @@ fn dump_dom(binary: &Path, page: &Path, flags: &[&str]) -> String {
     String::from_utf8(output.stdout).unwrap()
 }
 
+/// The text of `#result` in the DOM Chromium ends `page` with ([`dump_dom`]).
+fn page_result(binary: &Path, page: &Path, flags: &[&str]) -> String {
+    let dom = dump_dom(binary, page, flags);
+    dom.split("<pre id=\"result\">")
+        .nth(1)
+        .and_then(|r| r.split("</pre>").next())
+        .unwrap_or_else(|| panic!("no result in {dom}"))
+        .to_string()
+}
+
 /// Chromium decodes the HDR still: an `<img>` of it loads at its size and, drawn on a
 /// canvas, shows the base (the film look) — what any SDR display shows.
 #[test]
@@ -510,12 +520,7 @@ fn chromium_decodes_the_hdr_still() {
     }
     let page = dir.path().join("page.html");
     std::fs::write(&page, PAGE).unwrap();
-    let dom = dump_dom(&binary, &page, &[]);
-    let result = dom
-        .split("<pre id=\"result\">")
-        .nth(1)
-        .and_then(|r| r.split("</pre>").next())
-        .unwrap_or_else(|| panic!("no result in {dom}"));
+    let result = page_result(&binary, &page, &[]);
     println!("chromium: {result}");
     let fields: Vec<&str> = result.split_whitespace().collect();
     assert_eq!(fields.first(), Some(&"decoded"), "{result}");
@@ -554,12 +559,7 @@ fn chromium_applies_the_gain_map_given_hdr_headroom() {
     let page = dir.path().join("page.html");
     std::fs::write(&page, HEADROOM_PAGE).unwrap();
     let flags = ["--enable-experimental-web-platform-features"];
-    let dom = dump_dom(&binary, &page, &flags);
-    let result = dom
-        .split("<pre id=\"result\">")
-        .nth(1)
-        .and_then(|r| r.split("</pre>").next())
-        .unwrap_or_else(|| panic!("no result in {dom}"));
+    let result = page_result(&binary, &page, &flags);
     if result.starts_with("unsupported") {
         eprintln!("skipped: this Chromium has no canvas HDR headroom ({result})");
         return;
