@@ -41,33 +41,33 @@
 //!
 //! Frames are registered outward from the reference in exposure order. One that cannot be
 //! registered onto the reference (most often because, several stops apart, they share too
-//! few well-exposed blocks) is registered onto the nearest frame between them that was,
-//! and the transforms composed (`T_k = T_{k←n}·T_n`). Where a coarse pyramid level of
-//! such a pair shares too few blocks to refine on, the pair is tried again on its finer
-//! levels alone, the coarse search's shift carried down to them. Where neither works, each pair is
-//! compared again as the log radiance both frames could have measured: every block
-//! clamped to the range of log radiance both measure, so a window or a sky clipped in one
-//! frame and exposed beyond that range in the other lies at the range's top in both and
-//! its edges register (a median threshold bitmap's idea, with the response's ranges for
-//! the median). Such a registration is kept only if refining it on the blocks both frames
-//! measure well moves it by at most a pixel (or three standard deviations of the
-//! refinement): flare and a camera's local tone mapping move clipped edges too. The note
-//! says which way a frame was reached.
+//! few well-exposed blocks) is registered onto the nearest frame between them that was, and
+//! the transforms composed (`T_k = T_{k←n}·T_n`). Where a coarse pyramid level of such a
+//! pair shares too few blocks to refine on, the pair is tried again on its finer levels
+//! alone, the coarse search's shift carried down to them. Where neither works, each pair is
+//! compared again as the log radiance both frames could have measured: every block clamped
+//! to the range of log radiance both measure, so a window or a sky clipped in one frame and
+//! exposed beyond that range in the other lies at the range's top in both and its edges
+//! register (a median threshold bitmap's idea, with the response's ranges for the median).
+//! Such a registration is kept only if refining it on the blocks both frames measure well
+//! moves it by at most a pixel (or three standard deviations of the refinement): flare and
+//! a camera's local tone mapping move clipped edges too. The note says which way a frame
+//! was reached.
 //!
 //! # Knowing when it failed
 //!
 //! A frame keeps the identity, with a note saying why (for every way tried), when, for
-//! each: fewer than [`MIN_OVERLAP`] of the blocks are well exposed in both frames; the
-//! best correlation of the coarse search is below [`MIN_CORRELATION`] (too little
-//! texture: a flat backdrop, fog); the best shift lies on the edge of the search range (a
-//! motion larger than it), or the refined transform moves a corner by more than twice
-//! that range (a descent that ran away on too few blocks); the Gauss–Newton system is singular or does not converge; or
-//! the aligned residual is not smaller than the residual without alignment (so the merge
-//! is never worse than without it). A model whose parameters the texture does not
-//! determine (the standard deviation of the displacement they imply, `σ/√λ_min` with
-//! `λ_min` the smallest eigenvalue of the motion block of the Gauss–Newton matrix in
-//! pixel units, above [`MAX_UNCERTAINTY_PX`]) falls back to the next simpler one
-//! (homography → rigid → translation), with a note.
+//! each: fewer than [`MIN_OVERLAP`] of the blocks are well exposed in both frames; the best
+//! correlation of the coarse search is below [`MIN_CORRELATION`] (too little texture: a
+//! flat backdrop, fog); the best shift lies on the edge of the search range (a motion
+//! larger than it), or the refined transform moves a corner by more than twice that range
+//! (a descent that ran away); the Gauss–Newton system is singular or does not converge; or
+//! the aligned residual is not smaller than the residual without alignment (so the merge is
+//! never worse than without it). A model whose parameters the texture does not determine
+//! (the standard deviation of the displacement they imply, `σ/√λ_min` with `λ_min` the
+//! smallest eigenvalue of the motion block of the Gauss–Newton matrix in pixel units, above
+//! [`MAX_UNCERTAINTY_PX`]) falls back to the next simpler one (homography → rigid →
+//! translation), with a note.
 //!
 //! A transform that moves no pixel of the frame by more than [`IDENTITY_PX`] counts as the
 //! identity: the frame is not resampled, so an aligned tripod bracket merges bit for bit
