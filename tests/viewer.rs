@@ -648,7 +648,6 @@ fn base64(text: &str) -> Vec<u8> {
 #[test]
 fn the_page_in_chromium_shows_a_new_bracket_without_reload() {
     let Some(binary) = crate::common::chromium() else {
-        eprintln!("skipped: no chromium on the PATH (apt-get install chromium, or set CHROMIUM)");
         return;
     };
     let dir = tempfile::tempdir().unwrap();
