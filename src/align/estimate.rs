@@ -351,6 +351,31 @@ struct Blocks {
 /// measure for [`Pyramid::clipped_alike`] to compare them.
 const LEAST_COMMON_SPAN: f32 = std::f32::consts::LN_2;
 
+/// Codes to what [`Pyramid::from_rows`] takes: per code and channel `g(B)`, per code its
+/// [`log_weight`].
+struct Convert<'a> {
+    tables: &'a [Vec<f32>],
+    weight_of: &'a [f32],
+}
+
+impl Convert<'_> {
+    /// A row of pixels (`codes`, channels interleaved): each pixel's mean `g(B)` over its
+    /// channels and its worst channel's weight.
+    fn row<T: Copy + Into<usize>>(&self, codes: &[T], values: &mut [f32], weights: &mut [f32]) {
+        let c = self.tables.len();
+        for ((pixel, value), weight) in codes.chunks_exact(c).zip(values).zip(weights) {
+            let (mut sum, mut worst) = (0.0f32, f32::INFINITY);
+            for (&k, table) in pixel.iter().zip(self.tables) {
+                let k: usize = k.into();
+                sum += table[k];
+                worst = worst.min(self.weight_of[k]);
+            }
+            *value = sum / c as f32;
+            *weight = worst;
+        }
+    }
+}
+
 /// The block size of the finest level for a `width × height` frame: the smallest
 /// multiple of `tile` with at most [`ESTIMATION_PIXELS`] blocks.
 pub(super) fn step_for(width: usize, height: usize, tile: usize) -> usize {
@@ -377,22 +402,16 @@ impl Pyramid {
         let (low, high) = super::well_exposed_codes(frame.bit_depth().max_code());
         let mean_at = |k: u32| tables.iter().map(|t| t[k as usize]).sum::<f32>() / c as f32;
         let range = (mean_at(low), mean_at(high));
+        let weight_of: Vec<f32> = (0..levels).map(|k| log_weight(k as f32 / max)).collect();
+        let convert = Convert {
+            tables: &tables,
+            weight_of: &weight_of,
+        };
         let row = |y: usize, values: &mut [f32], weights: &mut [f32]| {
-            let mut fill = |code: &dyn Fn(usize) -> usize| {
-                for x in 0..w {
-                    let (mut sum, mut worst) = (0.0f32, f32::INFINITY);
-                    for (ch, table) in tables.iter().enumerate() {
-                        let k = code((y * w + x) * c + ch);
-                        sum += table[k];
-                        worst = worst.min(log_weight(k as f32 / max));
-                    }
-                    values[x] = sum / c as f32;
-                    weights[x] = worst;
-                }
-            };
+            let span = y * w * c..(y + 1) * w * c;
             match frame.samples() {
-                Samples::Eight(v) => fill(&|i| usize::from(v[i])),
-                Samples::Sixteen(v) => fill(&|i| usize::from(v[i])),
+                Samples::Eight(v) => convert.row(&v[span], values, weights),
+                Samples::Sixteen(v) => convert.row(&v[span], values, weights),
             }
         };
         Pyramid::from_rows(w, frame.height() as usize, step, exposure, range, row)

@@ -16,14 +16,15 @@ trait Code: Copy + Send + Sync + PartialEq + Into<u32> {
 impl Code for u8 {
     const ZERO: u8 = 0;
     fn from_rounded(v: f32) -> u8 {
-        v.round().clamp(0.0, 255.0) as u8
+        // `v` is a bilinear mix of codes (≥ 0): adding a half and truncating rounds it.
+        (v + 0.5).min(255.0) as u8
     }
 }
 
 impl Code for u16 {
     const ZERO: u16 = 0;
     fn from_rounded(v: f32) -> u16 {
-        v.round().clamp(0.0, 65535.0) as u16
+        (v + 0.5).min(65535.0) as u16
     }
 }
 
@@ -81,30 +82,38 @@ fn warp_codes<T: Code>(
     top: u32,
     t: &[[f64; 3]; 3],
 ) -> Vec<T> {
-    let mut out = codes.to_vec();
+    let mut out = vec![T::ZERO; codes.len()];
     let top_code = T::from_rounded(top as f32);
+    let (last_x, last_y) = ((w - 1) as f64, (h - 1) as f64);
     out.par_chunks_mut(w * c).enumerate().for_each(|(y, row)| {
-        for x in 0..w {
-            let (sx, sy) = project(t, x as f64, y as f64);
-            let o = &mut row[x * c..(x + 1) * c];
-            let i = (y * w + x) * c;
-            if !(sx >= 0.0 && sy >= 0.0 && sx <= (w - 1) as f64 && sy <= (h - 1) as f64) {
-                for (ch, o) in o.iter_mut().enumerate() {
-                    let upper = reference[i + ch].into() * 2 > top;
-                    *o = if upper { top_code } else { T::ZERO };
+        // `T·(x, y, 1)ᵀ` is linear in `x` along the row: its three rows at `x = 0` and
+        // their increments per pixel.
+        let y = y as f64;
+        let start = [0, 1, 2].map(|r| t[r][1] * y + t[r][2]);
+        let along = [0, 1, 2].map(|r| t[r][0]);
+        for (x, o) in row.chunks_exact_mut(c).enumerate() {
+            let p = [0, 1, 2].map(|r| start[r] + along[r] * x as f64);
+            let (sx, sy) = (p[0] / p[2], p[1] / p[2]);
+            let i = (y as usize * w + x) * c;
+            if !(sx >= 0.0 && sy >= 0.0 && sx <= last_x && sy <= last_y) {
+                for (o, &r) in o.iter_mut().zip(&reference[i..i + c]) {
+                    *o = if r.into() * 2 > top {
+                        top_code
+                    } else {
+                        T::ZERO
+                    };
                 }
                 continue;
             }
             let (x0, y0) = ((sx as usize).min(w - 2), (sy as usize).min(h - 2));
             let (fx, fy) = ((sx - x0 as f64) as f32, (sy - y0 as f64) as f32);
             let base = (y0 * w + x0) * c;
+            let (upper, lower) = (
+                &codes[base..base + 2 * c],
+                &codes[base + w * c..base + w * c + 2 * c],
+            );
             for (ch, o) in o.iter_mut().enumerate() {
-                let quad = [
-                    codes[base + ch],
-                    codes[base + c + ch],
-                    codes[base + w * c + ch],
-                    codes[base + w * c + c + ch],
-                ];
+                let quad = [upper[ch], upper[c + ch], lower[ch], lower[c + ch]];
                 *o = if quad.contains(&top_code) {
                     top_code
                 } else if quad.contains(&T::ZERO) {
