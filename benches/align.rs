@@ -19,7 +19,8 @@
 //! **Cost.** `align::align` and `align::warp_frames` on three 6000×4000 8-bit frames two
 //! stops apart (the synthetic procedural scene), the two other than the reference moved
 //! as a handheld bracket; best of `--runs N` (default 3). Each frame's found and true
-//! transform are printed.
+//! transform are printed, and the merge's error as above (against the merge of the
+//! frames before the move): unaligned, aligned, and with the move undone.
 //!
 //! `cargo bench --bench align -- [accuracy | speed] [--runs N] [--only LABEL]`
 
@@ -436,10 +437,10 @@ fn speed(runs: usize) {
         })
         .collect();
     let frames: Vec<(Frame, f64)> = still
-        .into_iter()
+        .iter()
         .zip(exposures.iter().zip(&moves))
         .map(|(f, (&e, t))| match t {
-            None => (f, e),
+            None => (f.clone(), e),
             Some(t) => {
                 let seen = synthetic::moved(&radiance, t).expect("an invertible move");
                 (expose(&seen, e, &sensor), e)
@@ -483,6 +484,36 @@ fn speed(runs: usize) {
             f.motion, f.note
         );
     }
+    let still: Vec<(Frame, f64)> = still.into_iter().zip(exposures).collect();
+    merge_errors(&still, &frames, &moves, reference, &g);
+}
+
+/// The luminance error (as in `accuracy`) of the merge of `moved` (`moves[k]` takes a
+/// reference pixel to frame `k`'s) against the merge of `still`: unaligned, aligned, and
+/// with the exact move undone.
+fn merge_errors(
+    still: &[(Frame, f64)],
+    moved: &[(Frame, f64)],
+    moves: &[Option<[[f64; 3]; 3]>],
+    reference: usize,
+    g: &InverseResponse,
+) {
+    let truth = merged(still, g);
+    let error = |fs: &[(Frame, f64)]| errors(&merged(fs, g), &truth, &still[reference].0);
+    let undone: Vec<(Frame, f64)> = moved
+        .iter()
+        .zip(moves)
+        .map(|((f, e), t)| (t.map_or_else(|| f.clone(), |t| warped(f, &t)), *e))
+        .collect();
+    println!("\nthe merge against the still frames' (median / p95 / share > 0.1 stop)");
+    println!("| unaligned | filmback | move undone (floor) |");
+    println!("|---|---|---|");
+    println!(
+        "| {} | {} | {} |",
+        error(moved),
+        error(&aligned(moved, g).0),
+        error(&undone)
+    );
 }
 
 /// `map` through a lens: the `[1 2 1]/4` binomial blur twice in each direction (edges

@@ -6,7 +6,7 @@ use nalgebra::{DMatrix, DVector, Matrix3, Vector3};
 use rayon::prelude::*;
 
 use super::{
-    COARSEST_SIDE, ESTIMATION_PIXELS, FrameAlignment, IDENTITY_PX, MAX_UNCERTAINTY_PX,
+    COARSEST_SIDE, ESTIMATION_PIXELS, FrameAlignment, IDENTITY_PX, MAX_UNCERTAINTY_BLOCKS,
     MIN_CORRELATION, MIN_OVERLAP, Motion, SEARCH_RANGE, WELL_EXPOSED_HIGH, WELL_EXPOSED_LOW,
 };
 use crate::frame::{Frame, Samples};
@@ -1296,7 +1296,7 @@ fn descend(
     let (fine_ref, fine_mov) = (&reference[0], &moving[0]);
     loop {
         let spread = uncertainty_px(&normal, state.params(), geometry);
-        if spread <= MAX_UNCERTAINTY_PX {
+        if spread <= MAX_UNCERTAINTY_BLOCKS * fine_ref.step {
             return Ok((state, normal, note));
         }
         let Some(simpler) = state.motion.simpler() else {

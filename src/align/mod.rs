@@ -65,9 +65,9 @@
 //! the aligned residual is not smaller than the residual without alignment (so the merge is
 //! never worse than without it). A model whose parameters the texture does not determine
 //! (the standard deviation of the displacement they imply, `σ/√λ_min` with `λ_min` the
-//! smallest eigenvalue of the motion block of the Gauss–Newton matrix in pixel units, above
-//! [`MAX_UNCERTAINTY_PX`]) falls back to the next simpler one (homography → rigid →
-//! translation), with a note.
+//! smallest eigenvalue of the motion block of the Gauss–Newton matrix in pixel units,
+//! above [`MAX_UNCERTAINTY_BLOCKS`] of the finest level's blocks) falls back to the next
+//! simpler one (homography → rigid → translation), with a note.
 //!
 //! A transform that moves no pixel of the frame by more than [`IDENTITY_PX`] counts as the
 //! identity: the frame is not resampled, so an aligned tripod bracket merges bit for bit
@@ -138,9 +138,13 @@ pub const MIN_OVERLAP: f64 = 0.1;
 /// the frames have too little texture in common to be registered.
 pub const MIN_CORRELATION: f64 = 0.5;
 
-/// The largest standard deviation, in full-resolution pixels, of the displacement a
-/// model's parameters imply (`σ/√λ_min`, see the module docs) for the model to be kept.
-pub const MAX_UNCERTAINTY_PX: f64 = 0.05;
+/// The largest standard deviation of the displacement a model's parameters imply
+/// (`σ/√λ_min`, see the module docs) for the model to be kept, in blocks of the finest
+/// estimation level (`step` full-resolution pixels: 0.05 px for a frame of at most
+/// [`ESTIMATION_PIXELS`], 0.45 px at 24 MP). The estimation sees the frame at that
+/// sampling, so the bound scales with it: a fixed bound in pixels would refuse, on a
+/// large frame, the perspective the texture does determine.
+pub const MAX_UNCERTAINTY_BLOCKS: f64 = 0.05;
 
 /// The pixels [`choose_reference`] counts: every this-many-th row and column.
 const REFERENCE_STRIDE: usize = 4;
