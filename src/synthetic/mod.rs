@@ -112,7 +112,20 @@ pub enum SyntheticError {
     Dng(#[source] DngError),
     /// A response curve breaks its invariants.
     #[error("invalid response curve: {0}")]
-    Curve(String),
+    Curve(#[from] CurveError),
+    /// A curve of a curve file breaks its invariants.
+    #[error("{path}:{line}: curve {index}: invalid response curve: {source}")]
+    FileCurve {
+        /// The file.
+        path: PathBuf,
+        /// 1-based line number.
+        line: usize,
+        /// The curve's index in the file.
+        index: u32,
+        /// What is wrong with it.
+        #[source]
+        source: CurveError,
+    },
     /// A shot lacks exposure time, f-number or ISO, so its exposure is unknown.
     #[error("shot {shot}: exposure time, f-number and ISO are all needed")]
     UnknownExposure {
@@ -134,6 +147,34 @@ pub enum SyntheticError {
     /// A real bracket could not be made into a scene ([`real_place`]).
     #[error("cannot make a scene of the bracket: {0}")]
     Place(#[from] PlaceError),
+}
+
+/// Which invariant of a response curve is broken ([`SyntheticError::Curve`]).
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+pub enum CurveError {
+    /// γ is not finite and positive.
+    #[error("gamma {0} must be finite and positive")]
+    Gamma(f64),
+    /// Fewer than two samples.
+    #[error("{0} samples, need at least 2")]
+    TooFewSamples(usize),
+    /// A sample is NaN or infinite.
+    #[error("sample {0} is not finite")]
+    NotFinite(usize),
+    /// The first sample is not 0 or the last not 1.
+    #[error("ends are {first} and {last}, must be 0 and 1")]
+    Ends {
+        /// The first sample.
+        first: f64,
+        /// The last sample.
+        last: f64,
+    },
+    /// Samples `at` and `at + 1` do not increase.
+    #[error("not strictly increasing between samples {at} and {}", at + 1)]
+    NotIncreasing {
+        /// Index of the first of the two samples.
+        at: usize,
+    },
 }
 
 /// Why a frame or its EXIF could not be encoded ([`SyntheticError::Encode`]).
