@@ -133,7 +133,7 @@ pub fn run(args: Args) -> anyhow::Result<ExitCode> {
             let (ingest, state) = (config.folders.ingest.clone(), config.folders.state.clone());
             tokio::spawn(async move {
                 if let Err(e) = demo_bracket(&ingest, &state).await {
-                    error!(error = %format!("{e:#}"), "demo");
+                    error!(error = %super::chain_text(&e), "demo");
                 }
             });
         }
@@ -164,7 +164,7 @@ fn forward_signals(
                     let _ = sd_notify::notify(&[sd_notify::NotifyState::Reloading]);
                     match args.config() {
                         Ok(c) => { let _ = tx.send(Control::Reload(Box::new(c))).await; }
-                        Err(e) => error!(error = %format!("{e:#}"), "new configuration rejected; keeping the running one"),
+                        Err(e) => error!(error = %super::chain_text(&e), "new configuration rejected; keeping the running one"),
                     }
                     let _ = sd_notify::notify(&[sd_notify::NotifyState::Ready]);
                 }

@@ -37,7 +37,7 @@ use crate::daemon::bracket::CameraId;
 use crate::darkroom::CONTRADICTION_STOPS;
 use crate::histogram::TonePair;
 use crate::response::pool::{self, Evidence, PairSet};
-use crate::response::{Degree, InverseResponse};
+use crate::response::{Degree, InverseResponse, ResponseError};
 
 /// Version written into each cache file. Version 1 files (a running mean, no evidence)
 /// are read as a curve without evidence, which the first pooled bracket replaces; other
@@ -71,6 +71,42 @@ pub enum CacheError {
         path: PathBuf,
         /// Why.
         reason: String,
+    },
+    /// The file is not TOML of a cache entry's shape.
+    #[error("{path}: not a usable response cache entry: {source}")]
+    Syntax {
+        /// The file.
+        path: PathBuf,
+        /// The parser's error, with line and column.
+        #[source]
+        source: toml::de::Error,
+    },
+    /// The entry could not be written as TOML.
+    #[error("{path}: not a usable response cache entry: {source}")]
+    Serialise {
+        /// The file.
+        path: PathBuf,
+        /// The serialiser's error.
+        #[source]
+        source: toml::ser::Error,
+    },
+    /// The entry's recovered curve is not a valid inverse response.
+    #[error("{path}: not a usable response cache entry: {source}")]
+    Curve {
+        /// The file.
+        path: PathBuf,
+        /// What is wrong with the curve.
+        #[source]
+        source: ResponseError,
+    },
+    /// The entry's measured curve is not a valid inverse response.
+    #[error("{path}: not a usable response cache entry: measured curve: {source}")]
+    MeasuredCurve {
+        /// The file.
+        path: PathBuf,
+        /// What is wrong with the curve.
+        #[source]
+        source: ResponseError,
     },
     /// Publishing the updated entry failed.
     #[error(transparent)]
@@ -630,9 +666,9 @@ impl ResponseCache {
                     .collect(),
             }),
         };
-        let text = toml::to_string(&file).map_err(|e| CacheError::Invalid {
+        let text = toml::to_string(&file).map_err(|source| CacheError::Serialise {
             path: self.path_for(&entry.camera),
-            reason: e.to_string(),
+            source,
         })?;
         let text = format!(
             "# filmback response cache: inverse response g(B) of {}, sampled at B = i/(n-1).\n{text}",
@@ -745,7 +781,10 @@ fn parse(path: &Path, text: &str) -> Result<CachedResponse, CacheError> {
         path: path.to_path_buf(),
         reason,
     };
-    let file: CacheFile = toml::from_str(text).map_err(|e| invalid(e.to_string()))?;
+    let file: CacheFile = toml::from_str(text).map_err(|source| CacheError::Syntax {
+        path: path.to_path_buf(),
+        source,
+    })?;
     if !(file.version == 1 || file.version == VERSION) {
         return Err(invalid(format!(
             "version {} (this filmback reads versions 1 and {VERSION}); reset it",
@@ -756,7 +795,10 @@ fn parse(path: &Path, text: &str) -> Result<CachedResponse, CacheError> {
         return Err(invalid(format!("weight {:?} is not positive", file.weight)));
     }
     let response =
-        InverseResponse::from_samples(file.channels).map_err(|e| invalid(e.to_string()))?;
+        InverseResponse::from_samples(file.channels).map_err(|source| CacheError::Curve {
+            path: path.to_path_buf(),
+            source,
+        })?;
     let channels = response.channels();
     if !(file.confidence.is_empty() || file.confidence.len() == channels)
         || file.confidence.iter().any(|c| !(0.0..=1.0).contains(c))
@@ -775,8 +817,12 @@ fn parse(path: &Path, text: &str) -> Result<CachedResponse, CacheError> {
     let dissent = brackets(file.dissent)?;
     let measured = match file.measured {
         Some(m) => Some(MeasuredCurve {
-            response: InverseResponse::from_samples(m.channels)
-                .map_err(|e| invalid(format!("measured curve: {e}")))?,
+            response: InverseResponse::from_samples(m.channels).map_err(|source| {
+                CacheError::MeasuredCurve {
+                    path: path.to_path_buf(),
+                    source,
+                }
+            })?,
             coverage: m.coverage,
             captures: m.captures,
             updated: m.updated,

@@ -44,22 +44,24 @@ pub enum JournalError {
         source: io::Error,
     },
     /// An entry could not be written as JSON.
-    #[error("{path}: cannot serialise an entry: {reason}")]
+    #[error("{path}: cannot serialise an entry: {source}")]
     Serialise {
         /// The journal.
         path: PathBuf,
-        /// The serialiser's message.
-        reason: String,
+        /// The serialiser's error.
+        #[source]
+        source: serde_json::Error,
     },
     /// A line other than the last is not a journal entry: the file was edited or damaged.
-    #[error("{path}:{line}: not a journal entry: {reason}")]
+    #[error("{path}:{line}: not a journal entry: {source}")]
     Corrupt {
         /// The journal.
         path: PathBuf,
         /// 1-based line.
         line: usize,
-        /// The parser's message.
-        reason: String,
+        /// The parser's error.
+        #[source]
+        source: serde_json::Error,
     },
 }
 
@@ -338,9 +340,9 @@ impl Journal {
 
     /// Appends an entry and syncs it to disk.
     pub fn record(&mut self, entry: Entry) -> Result<(), JournalError> {
-        let line = serde_json::to_string(&entry).map_err(|e| JournalError::Serialise {
+        let line = serde_json::to_string(&entry).map_err(|source| JournalError::Serialise {
             path: self.path.clone(),
-            reason: e.to_string(),
+            source,
         })?;
         self.append_line(&line)?;
         self.note(entry);
@@ -414,11 +416,11 @@ pub fn read(state: &Path) -> Result<Vec<Entry>, JournalError> {
         match serde_json::from_str::<Entry>(line) {
             Ok(e) => entries.push(e),
             Err(_) if i + 1 == lines.len() && !text.ends_with('\n') => {}
-            Err(e) => {
+            Err(source) => {
                 return Err(JournalError::Corrupt {
                     path,
                     line: i + 1,
-                    reason: e.to_string(),
+                    source,
                 });
             }
         }

@@ -172,6 +172,10 @@ impl Facts {
     }
 }
 
+/// The reason a [`JobError`] gives: the error a lab met, kept whole with its sources (a
+/// decoder's, the file system's, the darkroom's), or plain text (`"…".into()`).
+pub type Cause = Box<dyn std::error::Error + Send + Sync + 'static>;
+
 /// Why a job failed; the variant decides what the daemon does next.
 #[derive(Debug, thiserror::Error)]
 pub enum JobError {
@@ -182,7 +186,8 @@ pub enum JobError {
         /// The frame.
         path: PathBuf,
         /// Why.
-        reason: String,
+        #[source]
+        reason: Cause,
     },
     /// An output could not be written (full disk, permissions): retried later.
     #[error("{path}: cannot write output: {reason}")]
@@ -190,13 +195,19 @@ pub enum JobError {
         /// The output.
         path: PathBuf,
         /// Why.
-        reason: String,
+        #[source]
+        reason: Cause,
     },
     /// The frames are fine one by one but cannot be developed together (different
     /// sizes, …): recorded as failed, retried only if an input changes.
     #[error("{0}")]
-    Bracket(String),
+    Bracket(#[source] Cause),
 }
+
+/// A preset whose looks do not resolve (an unknown film or tone map, a bad option).
+#[derive(Debug, thiserror::Error)]
+#[error("preset: {0}")]
+pub struct PresetError(#[source] pub rendering::RenderingError);
 
 /// Develops one job: reads the frames, publishes every output atomically under the job's
 /// names (replacing a complete file left by an interrupted earlier attempt).
@@ -234,10 +245,10 @@ impl From<DarkroomError> for JobError {
         if let Some(path) = e.output_path() {
             return JobError::Output {
                 path: path.to_path_buf(),
-                reason: e.to_string(),
+                reason: Box::new(e),
             };
         }
-        JobError::Bracket(e.to_string())
+        JobError::Bracket(Box::new(e))
     }
 }
 
@@ -287,13 +298,12 @@ impl Lab for DarkroomLab {
                 if std::fs::symlink_metadata(&c.input.path).is_ok_and(|m| m.is_symlink()) {
                     return Err(JobError::Frame {
                         path: c.input.path.clone(),
-                        reason: "became a symbolic link: links in ingest are not followed"
-                            .to_string(),
+                        reason: "became a symbolic link: links in ingest are not followed".into(),
                     });
                 }
                 frame::load(&c.input.path, Limits::default()).map_err(|e| JobError::Frame {
                     path: c.input.path.clone(),
-                    reason: e.to_string(),
+                    reason: Box::new(e),
                 })
             })
             .collect::<Result<_, _>>()?;
@@ -318,7 +328,7 @@ impl Lab for DarkroomLab {
         let _ = std::fs::remove_dir_all(&stage);
         std::fs::create_dir_all(&stage).map_err(|e| JobError::Output {
             path: stage.clone(),
-            reason: e.to_string(),
+            reason: Box::new(e),
         })?;
         let _staging = Staging(stage.clone());
         let developed = Self::develop(job, &frames, &looks, &exif, &stage);
@@ -345,7 +355,7 @@ impl Lab for DarkroomLab {
         };
         let outputs = atomic::publish_set(&stage, &job.out).map_err(|e| JobError::Output {
             path: e.path().to_path_buf(),
-            reason: e.to_string(),
+            reason: Box::new(e),
         })?;
         let pictures = job
             .previews
@@ -495,10 +505,13 @@ impl DarkroomLab {
                 .iter()
                 .map(|c| {
                     c.exposure.ok_or_else(|| {
-                        JobError::Bracket(format!(
-                            "{}: exposure unknown (EXIF lacks the exposure time, f-number or ISO)",
-                            c.input.path.display()
-                        ))
+                        JobError::Bracket(
+                            format!(
+                                "{}: exposure unknown (EXIF lacks the exposure time, f-number or ISO)",
+                                c.input.path.display()
+                            )
+                            .into(),
+                        )
                     })
                 })
                 .collect::<Result<_, _>>()?;
@@ -548,11 +561,11 @@ impl DarkroomLab {
 /// The looks of a preset (its films, then its tone maps), with the stocks of `stocks`
 /// beside the built-in ones.
 pub(crate) fn looks_of(preset: &Preset, stocks: Option<&Path>) -> Result<Vec<Look>, JobError> {
-    let mut catalogue = Catalogue::builtin().map_err(|e| JobError::Bracket(e.to_string()))?;
+    let mut catalogue = Catalogue::builtin().map_err(|e| JobError::Bracket(Box::new(e)))?;
     if let Some(dir) = stocks {
         catalogue = catalogue
             .with_folder(dir)
-            .map_err(|e| JobError::Bracket(e.to_string()))?;
+            .map_err(|e| JobError::Bracket(Box::new(e)))?;
     }
     rendering::looks(
         &catalogue,
@@ -562,7 +575,7 @@ pub(crate) fn looks_of(preset: &Preset, stocks: Option<&Path>) -> Result<Vec<Loo
         ColourMode::PerLayer,
         Key::LogAverage,
     )
-    .map_err(|e| JobError::Bracket(format!("preset: {e}")))
+    .map_err(|e| JobError::Bracket(Box::new(PresetError(e))))
 }
 
 /// What a job writes into `dir`: `STEM.exr` for a bracket when its preset asks for it,
@@ -685,9 +698,12 @@ fn unmix(job: &Job, frames: Vec<LoadedFrame>) -> Result<Unmixed, JobError> {
     }
     let keep_raws = raws >= 2;
     if !keep_raws && frames.len() - raws < 2 {
-        return Err(JobError::Bracket(format!(
-            "a bracket is either all raw or all JPEG/PNG/TIFF; this one mixes them ({stand_ins} among raws) with fewer than two of either kind"
-        )));
+        return Err(JobError::Bracket(
+            format!(
+                "a bracket is either all raw or all JPEG/PNG/TIFF; this one mixes them ({stand_ins} among raws) with fewer than two of either kind"
+            )
+            .into(),
+        ));
     }
     let (kept, left): (Vec<_>, Vec<_>) = frames
         .into_iter()

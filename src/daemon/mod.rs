@@ -50,7 +50,10 @@ use tokio::task::JoinSet;
 use tracing::{info, warn};
 
 pub use budget::{Footprint, job_bytes};
-pub use lab::{Aligned, DarkroomLab, Facts, Job, JobError, Lab, Pictured, Pictures, Processed};
+pub use lab::{
+    Aligned, Cause, DarkroomLab, Facts, Job, JobError, Lab, Pictured, Pictures, PresetError,
+    Processed,
+};
 pub use status::{Retry, Snapshot, lock_held, read_snapshot, state_writable};
 pub use viewer::PREVIEW_FOLDER;
 

@@ -122,7 +122,7 @@ impl State {
                     std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| lab.process(&job)))
                         .unwrap_or_else(|panic| {
                             let what = super::panic_text(&*panic);
-                            Err(JobError::Bracket(format!("lab panicked: {what}")))
+                            Err(JobError::Bracket(format!("lab panicked: {what}").into()))
                         });
                 (work, result, t.elapsed())
             });
@@ -250,13 +250,13 @@ impl State {
                 self.frame_missing(work, &path, now);
             }
             Err(JobError::Frame { path, reason }) => {
-                self.frame_failed(&work, &path, reason, now)?;
+                self.frame_failed(&work, &path, reason.to_string(), now)?;
             }
             Err(e @ JobError::Output { .. }) => {
                 error!(bracket = %work.closed.stem(), error = %e, "outputs not written");
                 self.retry_later(work, e.to_string(), now);
             }
-            Err(JobError::Bracket(reason)) => self.failed(&work, reason)?,
+            Err(JobError::Bracket(reason)) => self.failed(&work, reason.to_string())?,
         }
         Ok(())
     }

@@ -87,8 +87,8 @@ pub enum DarkroomError {
     DngNeedsRaw {
         /// The frame that is not raw.
         path: PathBuf,
-        /// Why it is not raw (its format, or a build without raw support).
-        reason: String,
+        /// Why it is not raw.
+        reason: NotRaw,
     },
     /// The DNG encoder refused the merged mosaic.
     #[cfg(feature = "raw")]
@@ -100,6 +100,18 @@ pub enum DarkroomError {
         #[source]
         source: crate::raw::dng::DngError,
     },
+}
+
+/// Why a frame is not camera raw ([`DarkroomError::DngNeedsRaw`]).
+#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
+pub enum NotRaw {
+    /// The frame is of another format: its extension in capitals ("JPG"), or "no file
+    /// extension".
+    #[error("this frame is {0}, not camera raw")]
+    Format(String),
+    /// This build reads no camera raw (feature `raw` off).
+    #[error("filmback was built without camera raw support (feature `raw`)")]
+    NoRawSupport,
 }
 
 impl DarkroomError {
@@ -741,15 +753,10 @@ fn dng_needs_raw(frames: &[LoadedFrame]) -> Result<(), DarkroomError> {
             || "no file extension".to_string(),
             |e| e.to_string_lossy().to_uppercase(),
         );
-        (f, format!("this frame is {kind}, not camera raw"))
+        (f, NotRaw::Format(kind))
     });
     #[cfg(not(feature = "raw"))]
-    let not_raw = frames.first().map(|f| {
-        (
-            f,
-            "filmback was built without camera raw support (feature `raw`)".to_string(),
-        )
-    });
+    let not_raw = frames.first().map(|f| (f, NotRaw::NoRawSupport));
     match not_raw {
         Some((f, reason)) => Err(DarkroomError::DngNeedsRaw {
             path: f.path.clone(),

@@ -317,7 +317,9 @@ fn develop(job: &Job) -> Result<crate::daemon::Processed, RunError> {
                 .map(|s| (*s).to_string())
                 .or_else(|| panic.downcast_ref::<String>().cloned())
                 .unwrap_or_default();
-            Err(JobError::Bracket(format!("the pipeline failed: {what}")))
+            Err(JobError::Bracket(
+                format!("the pipeline failed: {what}").into(),
+            ))
         })
         .map_err(RunError::from)
 }

@@ -61,12 +61,13 @@ pub enum FilmError {
         io: std::io::Error,
     },
     /// The file is not TOML of the expected form (missing or unknown key, wrong type).
-    #[error("{path}: {reason}")]
+    #[error("{path}: {source}")]
     Syntax {
         /// The stock file.
         path: PathBuf,
-        /// The parser's message, with line and column.
-        reason: String,
+        /// The parser's error, with line and column.
+        #[source]
+        source: toml::de::Error,
     },
     /// A field outside its sane range.
     #[error("{path}: {field}: {reason}")]

@@ -108,9 +108,9 @@ impl Paper {
     /// Parses and validates a paper file (density must rise with exposure, as a
     /// negative's does); `origin` names it in errors.
     pub fn from_toml(text: &str, origin: &Path) -> Result<Paper, FilmError> {
-        let file: PaperFile = toml::from_str(text).map_err(|e| FilmError::Syntax {
+        let file: PaperFile = toml::from_str(text).map_err(|source| FilmError::Syntax {
             path: origin.to_path_buf(),
-            reason: e.to_string(),
+            source,
         })?;
         let layers = [file.layers.red, file.layers.green, file.layers.blue];
         for (name, points) in LAYERS.iter().zip(&layers) {

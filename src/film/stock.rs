@@ -301,9 +301,9 @@ pub struct Speed {
 impl Stock {
     /// Parses and validates a stock file's text; `origin` names it in errors.
     pub fn from_toml(text: &str, origin: &Path) -> Result<Stock, FilmError> {
-        let file: StockFile = toml::from_str(text).map_err(|e| FilmError::Syntax {
+        let file: StockFile = toml::from_str(text).map_err(|source| FilmError::Syntax {
             path: origin.to_path_buf(),
-            reason: e.to_string(),
+            source,
         })?;
         let field = |field: &'static str, reason: String| FilmError::Field {
             path: origin.to_path_buf(),

@@ -52,11 +52,34 @@ struct Attribute {
     bytes: Range<usize>,
 }
 
+/// Why a header was not sorted, carried as the `InvalidData` [`io::Error`]'s inner error.
+#[derive(Debug, thiserror::Error)]
+enum Unsorted {
+    /// What this module found unexpected.
+    #[error("OpenEXR header not sorted: {0}")]
+    Refused(String),
+    /// The exr crate cannot read the header.
+    #[error("OpenEXR header not sorted: the exr crate cannot read it: {0}")]
+    Unreadable(#[source] exr::error::Error),
+    /// The exr crate cannot encode an attribute it read.
+    #[error("OpenEXR header not sorted: cannot encode {value}: {source}")]
+    Unencodable {
+        /// The attribute's value, debug-printed.
+        value: String,
+        /// The exr crate's error.
+        #[source]
+        source: exr::error::Error,
+    },
+}
+
+impl From<Unsorted> for io::Error {
+    fn from(e: Unsorted) -> io::Error {
+        io::Error::new(io::ErrorKind::InvalidData, e)
+    }
+}
+
 fn refuse(reason: impl std::fmt::Display) -> io::Error {
-    io::Error::new(
-        io::ErrorKind::InvalidData,
-        format!("OpenEXR header not sorted: {reason}"),
-    )
+    Unsorted::Refused(reason.to_string()).into()
 }
 
 /// The index of the first NUL byte in `bytes` from `from` on.
@@ -175,16 +198,19 @@ impl<W> SortedHeader<W> {
 /// NUL-terminated name; the encoded form compares floats by their bits, so a NaN equals
 /// itself).
 fn canonical(header: &[u8]) -> io::Result<Vec<Vec<u8>>> {
-    let meta = MetaData::read_from_buffered(header, false)
-        .map_err(|e| refuse(format!("the exr crate cannot read it: {e}")))?;
+    let meta = MetaData::read_from_buffered(header, false).map_err(Unsorted::Unreadable)?;
     let mut all = Vec::new();
     for part in &meta.headers {
         let mut attributes = part
             .all_named_attributes()
             .map(|(name, value)| {
                 let mut bytes = Vec::new();
-                exr::meta::attribute::write(name, &value, &mut bytes)
-                    .map_err(|e| refuse(format!("cannot encode {value:?}: {e}")))?;
+                exr::meta::attribute::write(name, &value, &mut bytes).map_err(|source| {
+                    Unsorted::Unencodable {
+                        value: format!("{value:?}"),
+                        source,
+                    }
+                })?;
                 Ok(bytes)
             })
             .collect::<io::Result<Vec<_>>>()?;

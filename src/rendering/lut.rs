@@ -444,10 +444,10 @@ pub fn film_lut(look: &Look, spec: LutSpec) -> Result<Lut, RenderingError> {
         let pixels: Vec<f32> = Lut::grid(size)
             .flat_map(|v| f(v).map(|x| x as f32))
             .collect();
-        RadianceMap::new((size * size) as u32, size as u32, 3, pixels).map_err(|e| {
-            RenderingError::Parse {
-                text: look.name(),
-                reason: e.to_string(),
+        RadianceMap::new((size * size) as u32, size as u32, 3, pixels).map_err(|source| {
+            RenderingError::Grid {
+                look: look.name(),
+                source,
             }
         })
     };

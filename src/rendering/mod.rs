@@ -61,6 +61,15 @@ pub enum RenderingError {
         /// What was expected.
         reason: String,
     },
+    /// A look's LUT grid could not be made into a radiance map.
+    #[error("{look:?}: {source}")]
+    Grid {
+        /// The look's name.
+        look: String,
+        /// Why the grid's buffer does not fit.
+        #[source]
+        source: crate::radiance::ShapeError,
+    },
 }
 
 /// Why a display image could not be encoded as a file.

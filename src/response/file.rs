@@ -24,7 +24,7 @@ use std::path::{Path, PathBuf};
 
 use serde::{Deserialize, Serialize};
 
-use super::{Calibration, InverseResponse, RatioSource};
+use super::{Calibration, InverseResponse, RatioSource, ResponseError};
 use crate::atomic::{self, Overwrite};
 
 /// The `format` value of a response file.
@@ -46,13 +46,40 @@ pub enum ResponseFileError {
         /// What the operating system said.
         source: std::io::Error,
     },
-    /// Not valid TOML of the expected shape, a wrong format/version, or an invalid curve.
+    /// A wrong format or version.
     #[error("{path}: {reason}")]
     Invalid {
         /// The file.
         path: PathBuf,
         /// What is wrong.
         reason: String,
+    },
+    /// Not valid TOML of the expected shape.
+    #[error("{path}: {source}")]
+    Syntax {
+        /// The file.
+        path: PathBuf,
+        /// The parser's error, with line and column.
+        #[source]
+        source: toml::de::Error,
+    },
+    /// The file's curves are not a valid inverse response.
+    #[error("{path}: {source}")]
+    Curve {
+        /// The file.
+        path: PathBuf,
+        /// What is wrong with them.
+        #[source]
+        source: ResponseError,
+    },
+    /// The record could not be written as TOML.
+    #[error("{path}: cannot encode: {source}")]
+    Encode {
+        /// The file.
+        path: PathBuf,
+        /// The serialiser's error.
+        #[source]
+        source: toml::ser::Error,
     },
 }
 
@@ -192,9 +219,9 @@ pub fn save(
         ratio_source: record.ratio_source,
         channel,
     };
-    let text = toml::to_string(&doc).map_err(|e| ResponseFileError::Invalid {
+    let text = toml::to_string(&doc).map_err(|source| ResponseFileError::Encode {
         path: path.to_path_buf(),
-        reason: format!("cannot encode: {e}"),
+        source,
     })?;
     atomic::publish(path, text.as_bytes(), overwrite)?;
     Ok(())
@@ -210,7 +237,10 @@ pub fn load(path: &Path) -> Result<ResponseRecord, ResponseFileError> {
         path: path.to_path_buf(),
         reason,
     };
-    let doc: Document = toml::from_str(&text).map_err(|e| invalid(e.to_string()))?;
+    let doc: Document = toml::from_str(&text).map_err(|source| ResponseFileError::Syntax {
+        path: path.to_path_buf(),
+        source,
+    })?;
     if doc.format != FORMAT {
         return Err(invalid(format!(
             "format is {:?}, expected {FORMAT:?}",
@@ -225,7 +255,11 @@ pub fn load(path: &Path) -> Result<ResponseRecord, ResponseFileError> {
     }
     let (channels, curves): (Vec<_>, Vec<_>) =
         doc.channel.into_iter().map(|c| (c.summary, c.g)).unzip();
-    let response = InverseResponse::from_samples(curves).map_err(|e| invalid(e.to_string()))?;
+    let response =
+        InverseResponse::from_samples(curves).map_err(|source| ResponseFileError::Curve {
+            path: path.to_path_buf(),
+            source,
+        })?;
     Ok(ResponseRecord {
         response,
         ratio: doc.ratio,

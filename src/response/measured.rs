@@ -30,7 +30,7 @@
 use crate::frame::{Frame, Samples};
 use crate::radiance::RadianceMap;
 
-use super::InverseResponse;
+use super::{InverseResponse, ResponseError};
 
 /// Histogram bins per stop of linear value.
 pub const BINS_PER_STOP: f64 = 64.0;
@@ -92,6 +92,9 @@ pub enum MeasureError {
         /// What is missing.
         reason: String,
     },
+    /// The measured curves are not a valid inverse response.
+    #[error("the measured curve: {0}")]
+    Curve(#[source] ResponseError),
 }
 
 /// A measured inverse response and how much of the code range backed it.
@@ -239,11 +242,7 @@ impl JpegMeter {
             isotonic(&mut points);
             channels.push(curve(&points));
         }
-        let response =
-            InverseResponse::from_samples(channels).map_err(|e| MeasureError::Coverage {
-                channel: 0,
-                reason: e.to_string(),
-            })?;
+        let response = InverseResponse::from_samples(channels).map_err(MeasureError::Curve)?;
         Ok(MeasuredResponse {
             response,
             coverage,

@@ -27,7 +27,7 @@ pub use fit::{ChannelFit, Degree, FitError};
 pub use measured::{JpegMeter, MeasureError, MeasuredResponse, stops_apart};
 
 /// Why an inverse response is not acceptable.
-#[derive(Debug, thiserror::Error)]
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
 pub enum ResponseError {
     /// Not 1 or 3 channels, or fewer than two samples.
     #[error("inverse response needs 1 or 3 channels of at least 2 samples, got {0}")]
@@ -192,6 +192,12 @@ pub enum CalibrationError {
     /// No channel could be fitted.
     #[error("no channel could be calibrated: {0}")]
     NoChannel(String),
+    /// Every channel's fit failed: each channel's name and reason, in channel order.
+    #[error("no channel could be calibrated: {}", fit_failures(.0))]
+    Unfitted(Vec<(&'static str, FitError)>),
+    /// The fitted curves do not make a valid inverse response.
+    #[error("no channel could be calibrated: the fitted curve is not a valid response: {0}")]
+    Curve(#[source] ResponseError),
     /// Every channel's tones run backwards: the frames or the ratio are swapped.
     #[error(
         "the brighter frame is darker than the darker one in most tones of every channel: frames or ratio swapped"
@@ -205,6 +211,15 @@ pub enum CalibrationError {
         /// The fit's reason.
         source: FitError,
     },
+}
+
+/// `name: reason` for each channel, joined by "; ".
+fn fit_failures(failures: &[(&'static str, FitError)]) -> String {
+    failures
+        .iter()
+        .map(|(name, e)| format!("{name}: {e}"))
+        .collect::<Vec<_>>()
+        .join("; ")
 }
 
 /// One channel's calibration.
@@ -369,12 +384,12 @@ fn assemble(
         .filter_map(|(c, (f, _))| f.as_ref().ok().map(|f| (c, f.clone())))
         .max_by(|a, b| a.1.confidence.total_cmp(&b.1.confidence));
     let Some((donor_c, donor_fit)) = donor else {
-        let reasons: Vec<String> = fitted
-            .iter()
+        let failures = fitted
+            .into_iter()
             .enumerate()
-            .filter_map(|(c, (f, _))| f.as_ref().err().map(|e| format!("{}: {e}", names[c])))
+            .filter_map(|(c, (f, _))| f.err().map(|e| (names[c], e)))
             .collect();
-        return Err(CalibrationError::NoChannel(reasons.join("; ")));
+        return Err(CalibrationError::Unfitted(failures));
     };
     Ok(fitted
         .into_iter()
@@ -533,9 +548,7 @@ fn finish(
             )
         })
         .collect();
-    let response = InverseResponse::from_samples(samples).map_err(|e| {
-        CalibrationError::NoChannel(format!("the fitted curve is not a valid response: {e}"))
-    })?;
+    let response = InverseResponse::from_samples(samples).map_err(CalibrationError::Curve)?;
     Ok(Calibration {
         ratio,
         ratio_source,

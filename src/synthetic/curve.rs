@@ -2,7 +2,7 @@
 
 use std::path::Path;
 
-use super::SyntheticError;
+use super::{CurveError, SyntheticError};
 
 /// Exponent `k` of the film-like S-curve (slope of its logistic in `ln X`).
 const FILM_S_POWER: f64 = 1.6;
@@ -72,30 +72,30 @@ impl ResponseCurve {
     /// Checks the invariants a curve's parameters must meet (γ finite and positive; a
     /// sampled table as in [`ResponseCurve::sampled`]). The other variants are always valid.
     pub fn check(&self) -> Result<(), SyntheticError> {
-        let bad = |reason: String| Err(SyntheticError::Curve(reason));
+        Ok(self.broken()?)
+    }
+
+    /// The first invariant [`ResponseCurve::check`] finds broken.
+    fn broken(&self) -> Result<(), CurveError> {
         match self {
             ResponseCurve::Gamma(gamma) if !(gamma.is_finite() && *gamma > 0.0) => {
-                bad(format!("gamma {gamma} must be finite and positive"))
+                Err(CurveError::Gamma(*gamma))
             }
             ResponseCurve::Sampled(b) => {
                 if b.len() < 2 {
-                    return bad(format!("{} samples, need at least 2", b.len()));
+                    return Err(CurveError::TooFewSamples(b.len()));
                 }
                 if let Some(i) = b.iter().position(|v| !v.is_finite()) {
-                    return bad(format!("sample {i} is not finite"));
+                    return Err(CurveError::NotFinite(i));
                 }
                 if b[0] != 0.0 || b[b.len() - 1] != 1.0 {
-                    return bad(format!(
-                        "ends are {} and {}, must be 0 and 1",
-                        b[0],
-                        b[b.len() - 1]
-                    ));
+                    return Err(CurveError::Ends {
+                        first: b[0],
+                        last: b[b.len() - 1],
+                    });
                 }
-                if let Some(i) = b.windows(2).position(|w| w[1] <= w[0]) {
-                    return bad(format!(
-                        "not strictly increasing between samples {i} and {}",
-                        i + 1
-                    ));
+                if let Some(at) = b.windows(2).position(|w| w[1] <= w[0]) {
+                    return Err(CurveError::NotIncreasing { at });
                 }
                 Ok(())
             }
@@ -262,8 +262,13 @@ pub fn dorf_curves(path: &Path) -> Result<Vec<(String, ResponseCurve)>, Syntheti
                 }
             }
         }
-        let curve = ResponseCurve::sampled(samples)
-            .map_err(|e| parse_error(format!("curve {index}: {e}")))?;
+        let curve = ResponseCurve::Sampled(samples);
+        curve.broken().map_err(|source| SyntheticError::FileCurve {
+            path: path.to_path_buf(),
+            line: number + 1,
+            index,
+            source,
+        })?;
         curves.push((format!("dorf-{index}"), curve));
     }
     if curves.is_empty() {

@@ -17,12 +17,13 @@ pub enum DemoError {
     #[error(transparent)]
     Synthetic(#[from] SyntheticError),
     /// Writing or renaming failed.
-    #[error("{path}: {reason}")]
+    #[error("{path}: {source}")]
     Write {
         /// The file.
         path: PathBuf,
-        /// Why.
-        reason: String,
+        /// What the operating system said.
+        #[source]
+        source: std::io::Error,
     },
 }
 
@@ -84,9 +85,9 @@ pub fn jpegs(
 pub fn drop_frame(dir: &Path, name: &str, bytes: &[u8]) -> Result<PathBuf, DemoError> {
     let path = dir.join(name);
     let part = dir.join(format!("{name}.part"));
-    let err = |e: std::io::Error| DemoError::Write {
+    let err = |source: std::io::Error| DemoError::Write {
         path: path.clone(),
-        reason: e.to_string(),
+        source,
     };
     let mut f = std::fs::File::create(&part).map_err(err)?;
     f.write_all(bytes).map_err(err)?;

@@ -14,7 +14,7 @@ use exif::experimental::Writer;
 use exif::{Field, In, Rational, Tag, Value};
 use image::{ExtendedColorType, ImageEncoder};
 
-use super::{Shot, SyntheticError};
+use super::{EncodeError, Shot, SyntheticError};
 use crate::atomic::{self, Overwrite};
 use crate::frame::{Frame, Samples};
 use crate::metadata::CaptureTime;
@@ -59,10 +59,10 @@ pub fn write(
     Ok(())
 }
 
-fn encode_error(format: &'static str, reason: impl ToString) -> SyntheticError {
+fn encode_error(format: &'static str, source: impl Into<EncodeError>) -> SyntheticError {
     SyntheticError::Encode {
         format,
-        reason: reason.to_string(),
+        source: source.into(),
     }
 }
 
@@ -81,16 +81,10 @@ fn exif_block(fields: &[Field]) -> Result<Vec<u8>, SyntheticError> {
 
 fn encode_jpeg(frame: &Frame, fields: &[Field], quality: u8) -> Result<Vec<u8>, SyntheticError> {
     if !(1..=100).contains(&quality) {
-        return Err(encode_error(
-            "JPEG",
-            format!("quality {quality} is outside 1..=100"),
-        ));
+        return Err(encode_error("JPEG", EncodeError::Quality(quality)));
     }
     let Samples::Eight(codes) = frame.samples() else {
-        return Err(encode_error(
-            "JPEG",
-            "JPEG holds 8 bits per sample; write a 16-bit frame as PNG or TIFF",
-        ));
+        return Err(encode_error("JPEG", EncodeError::SixteenBitJpeg));
     };
     let colour = match frame.channels() {
         1 => ExtendedColorType::L8,
@@ -100,7 +94,7 @@ fn encode_jpeg(frame: &Frame, fields: &[Field], quality: u8) -> Result<Vec<u8>, 
     let mut encoder = image::codecs::jpeg::JpegEncoder::new_with_quality(&mut bytes, quality);
     encoder
         .set_exif_metadata(exif_block(fields)?)
-        .map_err(|e| encode_error("JPEG", e))?;
+        .map_err(|e| encode_error("JPEG", image::ImageError::Unsupported(e)))?;
     encoder
         .write_image(codes, frame.width(), frame.height(), colour)
         .map_err(|e| encode_error("JPEG", e))?;
@@ -125,7 +119,7 @@ fn encode_png(frame: &Frame, fields: &[Field]) -> Result<Vec<u8>, SyntheticError
     let mut encoder = image::codecs::png::PngEncoder::new(&mut bytes);
     encoder
         .set_exif_metadata(exif_block(fields)?)
-        .map_err(|e| encode_error("PNG", e))?;
+        .map_err(|e| encode_error("PNG", image::ImageError::Unsupported(e)))?;
     encoder
         .write_image(&buffer, frame.width(), frame.height(), colour)
         .map_err(|e| encode_error("PNG", e))?;
@@ -221,7 +215,7 @@ fn exif_fields(shot: &Shot) -> Result<Vec<Field>, SyntheticError> {
     }
     if let Some(iso) = exposure.iso {
         if !(iso.is_finite() && iso >= 0.0 && iso <= f64::from(u32::MAX)) {
-            return Err(encode_error("EXIF", format!("ISO {iso} cannot be written")));
+            return Err(encode_error("EXIF", EncodeError::Iso(iso)));
         }
         let iso = iso.round();
         if iso <= 65_534.0 {
@@ -277,7 +271,10 @@ fn rational(value: f64, what: &str) -> Result<Rational, SyntheticError> {
     if !(value.is_finite() && value >= 0.0 && value <= f64::from(u32::MAX)) {
         return Err(encode_error(
             "EXIF",
-            format!("{what} {value} cannot be written as an unsigned rational"),
+            EncodeError::Rational {
+                what: what.to_string(),
+                value,
+            },
         ));
     }
     // Convergents h/k, starting from h₋₂/k₋₂ = 0/1 and h₋₁/k₋₁ = 1/0.

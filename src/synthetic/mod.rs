@@ -109,10 +109,23 @@ pub enum SyntheticError {
     /// A DNG could not be written.
     #[cfg(feature = "raw")]
     #[error("cannot write DNG: {0}")]
-    Dng(String),
+    Dng(#[source] DngError),
     /// A response curve breaks its invariants.
     #[error("invalid response curve: {0}")]
-    Curve(String),
+    Curve(#[from] CurveError),
+    /// A curve of a curve file breaks its invariants.
+    #[error("{path}:{line}: curve {index}: invalid response curve: {source}")]
+    FileCurve {
+        /// The file.
+        path: PathBuf,
+        /// 1-based line number.
+        line: usize,
+        /// The curve's index in the file.
+        index: u32,
+        /// What is wrong with it.
+        #[source]
+        source: CurveError,
+    },
     /// A shot lacks exposure time, f-number or ISO, so its exposure is unknown.
     #[error("shot {shot}: exposure time, f-number and ISO are all needed")]
     UnknownExposure {
@@ -120,19 +133,128 @@ pub enum SyntheticError {
         shot: usize,
     },
     /// A frame or its EXIF could not be encoded.
-    #[error("cannot encode {format}: {reason}")]
+    #[error("cannot encode {format}: {source}")]
     Encode {
         /// JPEG, PNG, TIFF or EXIF.
         format: &'static str,
         /// What went wrong.
-        reason: String,
+        #[source]
+        source: EncodeError,
     },
     /// The encoded file could not be published (the error names the path).
     #[error(transparent)]
     Publish(#[from] PublishError),
     /// A real bracket could not be made into a scene ([`real_place`]).
     #[error("cannot make a scene of the bracket: {0}")]
-    Place(String),
+    Place(#[from] PlaceError),
+}
+
+/// Which invariant of a response curve is broken ([`SyntheticError::Curve`]).
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+pub enum CurveError {
+    /// γ is not finite and positive.
+    #[error("gamma {0} must be finite and positive")]
+    Gamma(f64),
+    /// Fewer than two samples.
+    #[error("{0} samples, need at least 2")]
+    TooFewSamples(usize),
+    /// A sample is NaN or infinite.
+    #[error("sample {0} is not finite")]
+    NotFinite(usize),
+    /// The first sample is not 0 or the last not 1.
+    #[error("ends are {first} and {last}, must be 0 and 1")]
+    Ends {
+        /// The first sample.
+        first: f64,
+        /// The last sample.
+        last: f64,
+    },
+    /// Samples `at` and `at + 1` do not increase.
+    #[error("not strictly increasing between samples {at} and {}", at + 1)]
+    NotIncreasing {
+        /// Index of the first of the two samples.
+        at: usize,
+    },
+}
+
+/// Why a frame or its EXIF could not be encoded ([`SyntheticError::Encode`]).
+#[derive(Debug, thiserror::Error)]
+pub enum EncodeError {
+    /// The image encoder failed.
+    #[error(transparent)]
+    Image(#[from] image::ImageError),
+    /// The EXIF writer failed.
+    #[error(transparent)]
+    Exif(#[from] exif::Error),
+    /// A JPEG quality outside 1..=100.
+    #[error("quality {0} is outside 1..=100")]
+    Quality(u8),
+    /// A 16-bit frame asked for as JPEG.
+    #[error("JPEG holds 8 bits per sample; write a 16-bit frame as PNG or TIFF")]
+    SixteenBitJpeg,
+    /// An ISO speed that is negative, not finite or beyond 32 bits.
+    #[error("ISO {0} cannot be written")]
+    Iso(f64),
+    /// An exposure value that no unsigned 32-bit rational holds.
+    #[error("{what} {value} cannot be written as an unsigned rational")]
+    Rational {
+        /// The EXIF field ("exposure time", "f-number").
+        what: String,
+        /// The value.
+        value: f64,
+    },
+}
+
+/// Why a DNG could not be written ([`SyntheticError::Dng`]).
+#[cfg(feature = "raw")]
+#[derive(Debug, thiserror::Error)]
+pub enum DngError {
+    /// The mosaic does not have one code per pixel.
+    #[error("{codes} codes for {width}×{height} pixels")]
+    Size {
+        /// Codes given.
+        codes: usize,
+        /// Width in pixels.
+        width: usize,
+        /// Height in pixels.
+        height: usize,
+    },
+    /// The DNG writer failed.
+    #[error(transparent)]
+    Tiff(#[from] rawler::formats::tiff::TiffError),
+}
+
+/// Why a real bracket could not be made into a scene ([`SyntheticError::Place`]).
+#[derive(Debug, thiserror::Error)]
+pub enum PlaceError {
+    /// The bracket is empty.
+    #[error("no frames")]
+    NoFrames,
+    /// The frames are not RGB.
+    #[error("{0} channels, not RGB")]
+    NotRgb(usize),
+    /// The bracket's response could not be calibrated.
+    #[error(transparent)]
+    Calibration(#[from] crate::response::CalibrationError),
+    /// The bracket could not be merged.
+    #[error(transparent)]
+    Merge(#[from] crate::merge::MergeError),
+    /// The merged map is smaller than one box of the reduction.
+    #[error("{width}×{height} is smaller than one {k}×{k} box")]
+    TooSmall {
+        /// Width of the merged map.
+        width: usize,
+        /// Height of the merged map.
+        height: usize,
+        /// Side of the box.
+        k: usize,
+    },
+    /// The reduced map's median luminance is zero, negative or not finite.
+    #[error("its median luminance is {0}")]
+    Median(f64),
+    /// The reduced map could not be made.
+    #[error(transparent)]
+    Shape(#[from] crate::radiance::ShapeError),
 }
 
 #[cfg(test)]

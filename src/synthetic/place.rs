@@ -3,8 +3,8 @@
 
 use std::path::Path;
 
-use super::SyntheticError;
 use super::scene::MID_GREY;
+use super::{PlaceError, SyntheticError};
 use crate::darkroom::CALIBRATION_PIXELS;
 use crate::display::luminance;
 use crate::frame::Frame;
@@ -27,12 +27,11 @@ use crate::response::{Degree, RatioSource, calibrate_frames};
 /// radiances: the map carries the fitted curve's errors, the frames' noise and, where they
 /// are not aligned, doubled edges. RGB frames only.
 pub fn real_place(frames: &[(&Frame, f64)], pixels: f64) -> Result<RadianceMap, SyntheticError> {
-    let failed = |reason: String| SyntheticError::Place(reason);
     let Some(&(first, _)) = frames.first() else {
-        return Err(failed("no frames".into()));
+        return Err(PlaceError::NoFrames.into());
     };
     if first.channels() != 3 {
-        return Err(failed(format!("{} channels, not RGB", first.channels())));
+        return Err(PlaceError::NotRgb(first.channels()).into());
     }
     let stride = ((f64::from(first.width()) * f64::from(first.height())) / CALIBRATION_PIXELS)
         .sqrt()
@@ -42,8 +41,8 @@ pub fn real_place(frames: &[(&Frame, f64)], pixels: f64) -> Result<RadianceMap, 
         .map(|(f, _)| FrameCounts::of_frame(f, stride))
         .collect();
     let input: Vec<(&FrameCounts, f64)> = counts.iter().zip(frames.iter().map(|f| f.1)).collect();
-    let calibration = calibrate_frames(&input, RatioSource::Argument, Degree::Auto)
-        .map_err(|e| failed(e.to_string()))?;
+    let calibration =
+        calibrate_frames(&input, RatioSource::Argument, Degree::Auto).map_err(PlaceError::from)?;
     let camera = Camera::default();
     let bracket: Vec<BracketFrame<'_>> = frames
         .iter()
@@ -55,13 +54,18 @@ pub fn real_place(frames: &[(&Frame, f64)], pixels: f64) -> Result<RadianceMap, 
         })
         .collect();
     let merged = merge::merge(&bracket, &calibration.response, MergeOptions::default())
-        .map_err(|e| failed(e.to_string()))?;
+        .map_err(PlaceError::from)?;
     let map = merged.radiance;
     let (w, h) = (map.width() as usize, map.height() as usize);
     let k = ((w * h) as f64 / pixels).sqrt().round().max(1.0) as usize;
     let (ow, oh) = (w / k, h / k);
     if ow == 0 || oh == 0 {
-        return Err(failed(format!("{w}×{h} is smaller than one {k}×{k} box")));
+        return Err(PlaceError::TooSmall {
+            width: w,
+            height: h,
+            k,
+        }
+        .into());
     }
     let src = map.pixels();
     let mut out = vec![0f32; ow * oh * 3];
@@ -85,11 +89,11 @@ pub fn real_place(frames: &[(&Frame, f64)], pixels: f64) -> Result<RadianceMap, 
     let mid = lum.len() / 2;
     let median = *lum.select_nth_unstable_by(mid, f64::total_cmp).1;
     if !(median.is_finite() && median > 0.0) {
-        return Err(failed(format!("its median luminance is {median}")));
+        return Err(PlaceError::Median(median).into());
     }
     let scale = (MID_GREY / median) as f32;
     out.iter_mut().for_each(|v| *v *= scale);
-    RadianceMap::new(ow as u32, oh as u32, 3, out).map_err(|e| failed(e.to_string()))
+    RadianceMap::new(ow as u32, oh as u32, 3, out).map_err(|e| PlaceError::from(e).into())
 }
 
 #[cfg(test)]

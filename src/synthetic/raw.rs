@@ -18,7 +18,7 @@ use rawler::tags::ExifTag;
 use rayon::prelude::*;
 
 use super::sensor::{Normals, row_seed};
-use super::{Shot, SyntheticError};
+use super::{DngError, Shot, SyntheticError};
 use crate::radiance::RadianceMap;
 
 /// Linear Rec. 709 → CIE XYZ (D65), IEC 61966-2-1.
@@ -148,13 +148,14 @@ pub fn dng(
     sensor: &RawSensor,
     shot: &Shot,
 ) -> Result<Vec<u8>, SyntheticError> {
-    let fail = |e: rawler::formats::tiff::TiffError| SyntheticError::Dng(e.to_string());
+    let fail = |e: rawler::formats::tiff::TiffError| SyntheticError::Dng(e.into());
     let (width, height) = (width as usize, height as usize);
     if codes.len() != width * height || width == 0 || height == 0 {
-        return Err(SyntheticError::Dng(format!(
-            "{} codes for {width}×{height} pixels",
-            codes.len()
-        )));
+        return Err(SyntheticError::Dng(DngError::Size {
+            codes: codes.len(),
+            width,
+            height,
+        }));
     }
     let mut camera = RawCamera::new();
     camera.make = shot.camera.make.clone().unwrap_or_default();

@@ -38,6 +38,21 @@ pub enum ConfigError {
         /// What is wrong.
         message: String,
     },
+    /// The stock folder or a film or tone map a preset names does not load.
+    #[error("{path}:{line}:{column}: {key}: {source}")]
+    Looks {
+        /// The file (`<built-in defaults>` for the embedded file).
+        path: PathBuf,
+        /// 1-based line.
+        line: usize,
+        /// 1-based column.
+        column: usize,
+        /// The key (`folders.stocks`, or the preset's `films` or `tonemaps`).
+        key: String,
+        /// Why it does not load.
+        #[source]
+        source: Box<LooksError>,
+    },
     /// The folders are valid one by one but not together.
     #[error("{path}: [folders]: {reason}")]
     Folders {
@@ -46,6 +61,17 @@ pub enum ConfigError {
         /// What is wrong.
         reason: String,
     },
+}
+
+/// Why the looks a configuration names do not load ([`ConfigError::Looks`]).
+#[derive(Debug, thiserror::Error)]
+pub enum LooksError {
+    /// The stock folder, or a stock in it, does not load.
+    #[error(transparent)]
+    Stocks(#[from] crate::film::FilmError),
+    /// A film or tone map name that does not resolve.
+    #[error(transparent)]
+    Look(#[from] crate::rendering::RenderingError),
 }
 
 /// How the ingest folder is watched.
@@ -310,12 +336,12 @@ impl Config {
                 Some(dir) => c.with_folder(dir),
                 None => Ok(c),
             });
-        let catalogue = catalogue.map_err(|e| ConfigError::Invalid {
+        let catalogue = catalogue.map_err(|e| ConfigError::Looks {
             path: label.to_path_buf(),
             line: line_of_key(text, "stocks"),
             column: 1,
             key: "folders.stocks".into(),
-            message: e.to_string(),
+            source: Box::new(e.into()),
         })?;
         let presets = std::iter::once(("render".to_string(), &self.render)).chain(
             self.cameras.iter().map(|c| {
@@ -341,12 +367,12 @@ impl Config {
                         crate::film::ColourMode::PerLayer,
                         crate::film::Key::LogAverage,
                     )
-                    .map_err(|e| ConfigError::Invalid {
+                    .map_err(|e| ConfigError::Looks {
                         path: label.to_path_buf(),
                         line: line_of(text, &format!("\"{name}\"")),
                         column: 1,
                         key: format!("{table}.{key}"),
-                        message: e.to_string(),
+                        source: Box::new(e.into()),
                     })?;
                 }
             }

@@ -12,6 +12,16 @@ fn invalid(text: &str) -> (usize, usize, String, String) {
             assert_eq!(path, Path::new("studio.toml"));
             (line, column, key, message)
         }
+        ConfigError::Looks {
+            path,
+            line,
+            column,
+            key,
+            source,
+        } => {
+            assert_eq!(path, Path::new("studio.toml"));
+            (line, column, key, source.to_string())
+        }
         other => panic!("{other}"),
     }
 }
