@@ -813,47 +813,57 @@ fn accumulate(
     let step = reference.step;
     let to_level = geometry.s / step;
     let n = motion + 2;
-    (0..h)
-        .into_par_iter()
-        .step_by(stride)
-        .fold(Normal::zero, |mut acc, y| {
-            for x in (0..w).step_by(stride) {
-                let i = y * w + x;
-                if !reference.solid[i] {
-                    continue;
-                }
-                let (u, v) = geometry.to_normalised(step, x as f64, y as f64);
-                let p = m * Vector3::new(u, v, 1.0);
-                let (xp, yp) = (p.x / p.z, p.y / p.z);
-                let (lx, ly) = geometry.to_level(step, xp, yp);
-                let Some((value, gx, gy, moving_weight)) = moving.sample(lx, ly) else {
-                    continue;
-                };
-                // Inverse variance of the difference of two log values.
-                let reference_weight = f64::from(reference.weight[i]);
-                let weight = reference_weight * moving_weight / (reference_weight + moving_weight);
-                let r = state.gain * value + state.bias - f64::from(reference.log[i]);
-                let mut j = [0.0; MAX_PARAMS];
-                let (dx, dy) = state.jacobian(u, v, xp, yp, p.z);
-                let (gu, gv) = (gx * to_level, gy * to_level);
-                for k in 0..motion {
-                    j[k] = state.gain * (gu * dx[k] + gv * dy[k]);
-                }
-                j[motion] = value;
-                j[motion + 1] = 1.0;
-                for a in 0..n {
-                    for b in a..n {
-                        acc.jtj[a][b] += weight * j[a] * j[b];
+    // Rows in fixed groups, the groups' sums added in order: the same sums, to the last
+    // bit, however the threads share the work.
+    let rows: Vec<usize> = (0..h).step_by(stride).collect();
+    let groups: Vec<Normal> = rows
+        .par_chunks(ROWS_PER_GROUP)
+        .map(|group| {
+            let mut acc = Normal::zero();
+            for &y in group {
+                for x in (0..w).step_by(stride) {
+                    let i = y * w + x;
+                    if !reference.solid[i] {
+                        continue;
                     }
-                    acc.jtr[a] += weight * j[a] * r;
+                    let (u, v) = geometry.to_normalised(step, x as f64, y as f64);
+                    let p = m * Vector3::new(u, v, 1.0);
+                    let (xp, yp) = (p.x / p.z, p.y / p.z);
+                    let (lx, ly) = geometry.to_level(step, xp, yp);
+                    let Some((value, gx, gy, moving_weight)) = moving.sample(lx, ly) else {
+                        continue;
+                    };
+                    // Inverse variance of the difference of two log values.
+                    let reference_weight = f64::from(reference.weight[i]);
+                    let weight =
+                        reference_weight * moving_weight / (reference_weight + moving_weight);
+                    let r = state.gain * value + state.bias - f64::from(reference.log[i]);
+                    let mut j = [0.0; MAX_PARAMS];
+                    let (dx, dy) = state.jacobian(u, v, xp, yp, p.z);
+                    let (gu, gv) = (gx * to_level, gy * to_level);
+                    for k in 0..motion {
+                        j[k] = state.gain * (gu * dx[k] + gv * dy[k]);
+                    }
+                    j[motion] = value;
+                    j[motion + 1] = 1.0;
+                    for a in 0..n {
+                        for b in a..n {
+                            acc.jtj[a][b] += weight * j[a] * j[b];
+                        }
+                        acc.jtr[a] += weight * j[a] * r;
+                    }
+                    acc.sse += weight * r * r;
+                    acc.count += 1;
                 }
-                acc.sse += weight * r * r;
-                acc.count += 1;
             }
             acc
         })
-        .reduce(Normal::zero, Normal::add)
+        .collect();
+    groups.into_iter().fold(Normal::zero(), Normal::add)
 }
+
+/// Rows of a level [`accumulate`] sums in one task.
+const ROWS_PER_GROUP: usize = 8;
 
 /// The damped Gauss–Newton step `δ = −(JᵀJ + λ·diag(JᵀJ))⁻¹Jᵀr`, `None` when the
 /// system is singular.

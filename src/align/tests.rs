@@ -274,6 +274,30 @@ fn a_large_frame_keeps_the_perspective_its_texture_determines() {
     }
 }
 
+/// The estimate does not depend on how the threads share the work: the same transforms,
+/// to the last bit, on one thread and on four (a farm task and the daemon publish the
+/// same file).
+#[test]
+fn the_estimate_is_the_same_on_any_number_of_threads() {
+    let scene = scene(7);
+    let moves = [
+        transform(0.2, -3.1, 5.4, 4e-5, -3e-5),
+        IDENTITY,
+        transform(-0.35, 7.5, -2.5, -3e-5, 5e-5),
+    ];
+    let frames = frames(&scene, &EXPOSURES, &moves);
+    let on = |threads| {
+        rayon::ThreadPoolBuilder::new()
+            .num_threads(threads)
+            .build()
+            .unwrap()
+            .install(|| run(&frames, &EXPOSURES, AlignMode::Auto))
+    };
+    let one = on(1);
+    assert!(one.moves_any(), "{one:?}");
+    assert_eq!(one, on(4));
+}
+
 #[test]
 fn an_aligned_bracket_is_merged_as_it_is() {
     let scene = scene(9);

@@ -62,22 +62,35 @@ pub fn scene_key(map: &(impl RadianceSource + ?Sized), key: Key) -> f64 {
     let ch = map.channels();
     let count = map.width() as usize * map.height() as usize;
     let stride = count.div_ceil(1 << 20).max(1);
-    let (sum, n) = (0..count.div_ceil(stride))
+    let samples = count.div_ceil(stride);
+    // Fixed groups of samples, their sums added in order: the same key, to the last bit,
+    // however the threads share the work.
+    let groups: Vec<(f64, usize)> = (0..samples.div_ceil(SAMPLES_PER_GROUP))
         .into_par_iter()
-        .map(|j| {
+        .map(|g| {
             let mut p = [0f32; 3];
-            map.pixels_into(j * stride, &mut p[..ch]);
-            if ch == 3 {
-                luminance(p[0], p[1], p[2])
-            } else {
-                p[0]
+            let (mut sum, mut n) = (0.0, 0usize);
+            for j in g * SAMPLES_PER_GROUP..((g + 1) * SAMPLES_PER_GROUP).min(samples) {
+                map.pixels_into(j * stride, &mut p[..ch]);
+                let l = if ch == 3 {
+                    luminance(p[0], p[1], p[2])
+                } else {
+                    p[0]
+                };
+                if l.is_finite() && l > 0.0 {
+                    sum += f64::from(l).ln();
+                    n += 1;
+                }
             }
+            (sum, n)
         })
-        .filter(|l| l.is_finite() && *l > 0.0)
-        .map(|l| (f64::from(l).ln(), 1usize))
-        .reduce(|| (0.0, 0), |a, b| (a.0 + b.0, a.1 + b.1));
+        .collect();
+    let (sum, n) = groups.iter().fold((0.0, 0), |a, b| (a.0 + b.0, a.1 + b.1));
     if n == 0 { 1.0 } else { (sum / n as f64).exp() }
 }
+
+/// Samples of the key's mean summed in one task.
+const SAMPLES_PER_GROUP: usize = 4096;
 
 /// Mantissa bits kept in the table index: buckets of 2⁻¹¹ relative width, 1.06·10⁻⁴ in
 /// log10 H either side of the bucket centre.

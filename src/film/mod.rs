@@ -546,6 +546,25 @@ mod tests {
         Catalogue::builtin().expect("built-in stocks load")
     }
 
+    /// The log-average key of a 4 MP map (over a million samples) is the same, to the last
+    /// bit, on one thread and on four: a rendering does not depend on the machine.
+    #[test]
+    fn the_key_is_the_same_on_any_number_of_threads() {
+        let (w, h) = (2048u32, 2048u32);
+        let pixels: Vec<f32> = (0..w * h * 3)
+            .map(|i| 1e-3 + ((i as f32 * 0.618_034).fract()).powi(3) * 50.0)
+            .collect();
+        let map = crate::radiance::RadianceMap::new(w, h, 3, pixels).unwrap();
+        let on = |threads| {
+            rayon::ThreadPoolBuilder::new()
+                .num_threads(threads)
+                .build()
+                .unwrap()
+                .install(|| scene_key(&map, Key::LogAverage))
+        };
+        assert_eq!(on(1).to_bits(), on(4).to_bits());
+    }
+
     #[test]
     fn pchip_passes_through_points_and_is_monotone() {
         for stock in catalogue().stocks() {
