@@ -212,6 +212,16 @@ pub struct LoadedFrame {
     pub raw: Option<Box<crate::raw::RawInfo>>,
 }
 
+impl LoadedFrame {
+    /// True for a camera raw's mosaic (never without the `raw` feature).
+    pub fn is_raw(&self) -> bool {
+        #[cfg(feature = "raw")]
+        return self.raw.is_some();
+        #[cfg(not(feature = "raw"))]
+        false
+    }
+}
+
 impl Frame {
     /// Builds a frame from interleaved samples; `channels` is 1 (grey) or 3 (RGB). The
     /// samples count as [`Compression::Lossless`] (see [`Frame::with_compression`]).

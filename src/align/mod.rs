@@ -106,7 +106,8 @@ use crate::frame::{Frame, Samples};
 use crate::response::InverseResponse;
 
 #[cfg(feature = "raw")]
-pub use warp::{MosaicFrame, align_mosaics, warp_frame, warp_frames, warp_mosaics};
+pub use warp::{MosaicFrame, align_mosaics, warp_mosaics};
+pub use warp::{warp_frame, warp_frames};
 
 /// The lower end of the well-exposed code range, as a fraction of full scale: below it a
 /// sample is in the noise floor (code 10 of 255).

@@ -28,15 +28,6 @@ impl Code for u16 {
     }
 }
 
-/// `T·(x, y, 1)ᵀ` divided by its third coordinate.
-fn project(t: &[[f64; 3]; 3], x: f64, y: f64) -> (f64, f64) {
-    let w = t[2][0] * x + t[2][1] * y + t[2][2];
-    (
-        (t[0][0] * x + t[0][1] * y + t[0][2]) / w,
-        (t[1][0] * x + t[1][1] * y + t[1][2]) / w,
-    )
-}
-
 /// Every moved frame resampled onto the reference grid (`None` for a frame merged as it
 /// is), by [`warp_frame`].
 pub fn warp_frames(frames: &[AlignFrame<'_>], alignment: &Alignment) -> Vec<Option<Frame>> {
@@ -139,8 +130,16 @@ mod raw {
 
     use super::super::estimate::{self, Geometry, Pyramid};
     use super::super::{AlignMode, Alignment, SMALLEST_SIDE, exposure_weight};
-    use super::project;
     use crate::raw::{CLIPPED, RawInfo};
+
+    /// `T·(x, y, 1)ᵀ` divided by its third coordinate.
+    fn project(t: &[[f64; 3]; 3], x: f64, y: f64) -> (f64, f64) {
+        let w = t[2][0] * x + t[2][1] * y + t[2][2];
+        (
+            (t[0][0] * x + t[0][1] * y + t[0][2]) / w,
+            (t[1][0] * x + t[1][1] * y + t[1][2]) / w,
+        )
+    }
 
     /// One raw mosaic as alignment needs it.
     #[derive(Debug, Clone, Copy)]

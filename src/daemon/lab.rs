@@ -799,7 +799,7 @@ fn measure_companions(
     let mut notes = Vec::new();
     let mut pairs = 0;
     for ((f, capture), &e) in frames.iter().zip(&job.frames).zip(&exposures) {
-        if f.raw.is_none() {
+        if !f.is_raw() {
             continue;
         }
         // The JPEG of the same capture, paired by the intake (same stem, same or sibling
