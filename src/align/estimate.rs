@@ -787,6 +787,18 @@ impl Normal {
         self.mean_square().sqrt()
     }
 
+    /// Adds one equation: the first `n` entries of its row `j`, residual `r`, `weight`.
+    fn include(&mut self, j: &[f64; MAX_PARAMS], r: f64, weight: f64, n: usize) {
+        for a in 0..n {
+            for b in a..n {
+                self.jtj[a][b] += weight * j[a] * j[b];
+            }
+            self.jtr[a] += weight * j[a] * r;
+        }
+        self.sse += weight * r * r;
+        self.count += 1;
+    }
+
     /// The `n × n` matrix and the vector of the first `n` parameters.
     fn system(&self, n: usize) -> (DMatrix<f64>, DVector<f64>) {
         let a = DMatrix::from_fn(n, n, |i, j| self.jtj[i.min(j)][i.max(j)]);
@@ -846,14 +858,7 @@ fn accumulate(
                     }
                     j[motion] = value;
                     j[motion + 1] = 1.0;
-                    for a in 0..n {
-                        for b in a..n {
-                            acc.jtj[a][b] += weight * j[a] * j[b];
-                        }
-                        acc.jtr[a] += weight * j[a] * r;
-                    }
-                    acc.sse += weight * r * r;
-                    acc.count += 1;
+                    acc.include(&j, r, weight, n);
                 }
             }
             acc

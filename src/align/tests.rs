@@ -243,10 +243,11 @@ fn known_moves_are_recovered_within_a_tenth_of_a_pixel() {
 }
 
 /// A frame of 1.2 MP is estimated on blocks of 3 × 3 pixels; the perspective of a
-/// handheld move (the corners moved by about 8 px more than a rotation and a shift would)
-/// is determined by its texture at that sampling, and kept: where the merge takes both
-/// frames it lies well inside a rigid model's error. (It is recovered to about 0.8 px on
-/// the frame one stop darker and 3 px on the one brighter, against 10 px for rigid.)
+/// handheld move (two corners of each frame up to 11 px from where a rotation and a shift
+/// would put them) is determined by its texture at that sampling, and kept: where the
+/// merge takes both frames it lies well inside a rigid model's error. (It is recovered to
+/// about 0.8 px on the frame one stop darker and 3 px on the one brighter, against 10 px
+/// for rigid.)
 #[test]
 fn a_large_frame_keeps_the_perspective_its_texture_determines() {
     let size = (1280, 960);
