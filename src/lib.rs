@@ -22,8 +22,8 @@
 //! | looks and their encoders | [`rendering`] |
 //! | one bracket end to end | [`darkroom`] |
 //!
-//! Above the pipeline: [`synthetic`] renders ground-truth brackets (and the demo feed) for
-//! tests and demos; [`daemon`] is the service `filmback watch` runs (configuration, bracket
+//! Above the pipeline: [`synthetic`] renders the demo feed's scene and, with the feature
+//! `ground-truth` (tests, benchmarks and examples only), the tests' ground-truth brackets; [`daemon`] is the service `filmback watch` runs (configuration, bracket
 //! grouping, journal, response cache, queue, status); [`farm`] plans a folder tree into
 //! tasks with the daemon's grouping and runs one task per index on a render farm
 //! (`filmback plan`, `filmback run`).

@@ -8,14 +8,13 @@
 //! tags, with the exposure tags in its Exif IFD — a TIFF file *is* that structure.
 
 use std::io::Cursor;
-use std::path::Path;
 
 use exif::experimental::Writer;
 use exif::{Field, In, Rational, Tag, Value};
 use image::{ExtendedColorType, ImageEncoder};
 
 use super::{EncodeError, Shot, SyntheticError};
-use crate::atomic::{self, Overwrite};
+
 use crate::frame::{Frame, Samples};
 use crate::metadata::CaptureTime;
 
@@ -48,14 +47,15 @@ pub fn encode(frame: &Frame, shot: &Shot, encoding: Encoding) -> Result<Vec<u8>,
 }
 
 /// Encodes like [`encode`] and publishes the file atomically at `path` (replacing it).
+#[cfg(feature = "ground-truth")]
 pub fn write(
-    path: &Path,
+    path: &std::path::Path,
     frame: &Frame,
     shot: &Shot,
     encoding: Encoding,
 ) -> Result<(), SyntheticError> {
     let bytes = encode(frame, shot, encoding)?;
-    atomic::publish(path, &bytes, Overwrite::Replace)?;
+    crate::atomic::publish(path, &bytes, crate::atomic::Overwrite::Replace)?;
     Ok(())
 }
 

@@ -1,10 +1,14 @@
-//! Synthetic ground truth: HDR scenes (a procedural landscape, a studio set, flat patches:
-//! [`SceneKind`]; a real place's radiance map: [`real_place`]), exposed through a known
-//! camera response with noise and quantisation, written as JPEG, PNG or TIFF with EXIF
-//! exposure tags.
+//! Synthetic HDR scenes exposed through a known camera response with noise and
+//! quantisation, written as JPEG, PNG or TIFF with EXIF exposure tags: the demo feed of
+//! `filmback watch --demo` ([`demo`]) and the contact sheet's scene ([`scene()`]).
 //!
-//! Every stage downstream (histograms, response recovery, merge, film rendering, the
-//! daemon) can be tested end to end against numbers known exactly: the scene radiance
+//! With the feature `ground-truth` (turned on for the tests, benchmarks and examples by
+//! the package's dev-dependency on itself, off in the product) it is also the ground truth
+//! every stage downstream (histograms, response recovery, alignment, merge, film rendering,
+//! the daemon) is tested against end to end: more scenes (a studio set, flat patches:
+//! `SceneKind`; a real place's radiance map: `real_place`), known camera motion (`moved`),
+//! synthetic DNGs, response curves from the DoRF database's file (`dorf_curves`) and the
+//! error measures (`measure`). The numbers are known exactly: the scene radiance
 //! ([`scene()`]), the response `f` and its inverse `g` ([`ResponseCurve`]), the exposures
 //! ([`Shot`]) and the sensor noise ([`Sensor`]).
 //!
@@ -19,29 +23,43 @@
 //! ```
 
 pub mod demo;
+#[cfg(feature = "ground-truth")]
 pub mod measure;
 
 mod curve;
+#[cfg(feature = "ground-truth")]
+mod dorf;
 mod encode;
+#[cfg(feature = "ground-truth")]
 mod kinds;
+#[cfg(feature = "ground-truth")]
 mod motion;
+#[cfg(feature = "ground-truth")]
 mod place;
-#[cfg(feature = "raw")]
+#[cfg(all(feature = "raw", feature = "ground-truth"))]
 mod raw;
 mod scene;
 mod sensor;
 
+#[cfg(feature = "ground-truth")]
 use std::path::PathBuf;
 
 use crate::atomic::PublishError;
 use crate::metadata::{Camera, CaptureTime, Exposure};
 
-pub use curve::{ResponseCurve, dorf_curves};
-pub use encode::{Encoding, encode, write};
+pub use curve::ResponseCurve;
+#[cfg(feature = "ground-truth")]
+pub use dorf::dorf_curves;
+#[cfg(feature = "ground-truth")]
+pub use encode::write;
+pub use encode::{Encoding, encode};
+#[cfg(feature = "ground-truth")]
 pub use kinds::{SceneKind, UnknownScene, studio};
+#[cfg(feature = "ground-truth")]
 pub use motion::moved;
+#[cfg(feature = "ground-truth")]
 pub use place::real_place;
-#[cfg(feature = "raw")]
+#[cfg(all(feature = "raw", feature = "ground-truth"))]
 pub use raw::{RawSensor, dng, raw_codes, raw_signal};
 pub use scene::scene;
 pub use sensor::{Sensor, bracket, expose};
@@ -89,6 +107,7 @@ impl Shot {
 #[derive(Debug, thiserror::Error)]
 pub enum SyntheticError {
     /// A file could not be read.
+    #[cfg(feature = "ground-truth")]
     #[error("{path}: cannot read: {source}")]
     Read {
         /// The file.
@@ -97,6 +116,7 @@ pub enum SyntheticError {
         source: std::io::Error,
     },
     /// A curve file has a malformed line (line 0: the file as a whole).
+    #[cfg(feature = "ground-truth")]
     #[error("{path}:{line}: {reason}")]
     Parse {
         /// The file.
@@ -107,13 +127,14 @@ pub enum SyntheticError {
         reason: String,
     },
     /// A DNG could not be written.
-    #[cfg(feature = "raw")]
+    #[cfg(all(feature = "raw", feature = "ground-truth"))]
     #[error("cannot write DNG: {0}")]
     Dng(#[source] DngError),
     /// A response curve breaks its invariants.
     #[error("invalid response curve: {0}")]
     Curve(#[from] CurveError),
     /// A curve of a curve file breaks its invariants.
+    #[cfg(feature = "ground-truth")]
     #[error("{path}:{line}: curve {index}: invalid response curve: {source}")]
     FileCurve {
         /// The file.
@@ -145,6 +166,7 @@ pub enum SyntheticError {
     #[error(transparent)]
     Publish(#[from] PublishError),
     /// A real bracket could not be made into a scene ([`real_place`]).
+    #[cfg(feature = "ground-truth")]
     #[error("cannot make a scene of the bracket: {0}")]
     Place(#[from] PlaceError),
 }
@@ -206,7 +228,7 @@ pub enum EncodeError {
 }
 
 /// Why a DNG could not be written ([`SyntheticError::Dng`]).
-#[cfg(feature = "raw")]
+#[cfg(all(feature = "raw", feature = "ground-truth"))]
 #[derive(Debug, thiserror::Error)]
 pub enum DngError {
     /// The mosaic does not have one code per pixel.
@@ -225,6 +247,7 @@ pub enum DngError {
 }
 
 /// Why a real bracket could not be made into a scene ([`SyntheticError::Place`]).
+#[cfg(feature = "ground-truth")]
 #[derive(Debug, thiserror::Error)]
 pub enum PlaceError {
     /// The bracket is empty.
