@@ -16,6 +16,7 @@ mod common;
 mod daemon;
 mod deghost;
 mod demosaic;
+mod docs;
 mod dng;
 mod farm;
 mod film;
