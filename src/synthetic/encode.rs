@@ -14,7 +14,6 @@ use exif::{Field, In, Rational, Tag, Value};
 use image::{ExtendedColorType, ImageEncoder};
 
 use super::{EncodeError, Shot, SyntheticError};
-
 use crate::frame::{Frame, Samples};
 use crate::metadata::CaptureTime;
 

@@ -44,6 +44,7 @@ mod sensor;
 #[cfg(feature = "ground-truth")]
 use std::path::PathBuf;
 
+#[cfg(feature = "ground-truth")]
 use crate::atomic::PublishError;
 use crate::metadata::{Camera, CaptureTime, Exposure};
 
@@ -163,6 +164,7 @@ pub enum SyntheticError {
         source: EncodeError,
     },
     /// The encoded file could not be published (the error names the path).
+    #[cfg(feature = "ground-truth")]
     #[error(transparent)]
     Publish(#[from] PublishError),
     /// A real bracket could not be made into a scene ([`real_place`]).
