@@ -303,7 +303,7 @@ pub fn calibrate(
     };
     let names = channel_names(dark.channels());
     // Channels are independent: fitted on all cores, errors reported in channel order.
-    let mut fitted: Vec<(usize, Result<ChannelFit, FitError>, Vec<TonePair>)> = (0..names.len())
+    let mut fitted: Vec<(Result<ChannelFit, FitError>, Vec<TonePair>)> = (0..names.len())
         .into_par_iter()
         .map(|c| {
             let (a, b) = (dark.cumulative(c), bright.cumulative(c));
@@ -313,44 +313,22 @@ pub fn calibrate(
                 UsableTones::detect(&a, dark.compression()),
                 UsableTones::detect(&b, bright.compression()),
             );
-            (c, fit::fit(&pairs, log_ratio, degree), pairs)
+            (fit::fit(&pairs, log_ratio, degree), pairs)
         })
         .collect();
-    if let Some(e) = refusal(fitted.iter().map(|(c, f, _)| (names[*c], f))) {
+    if let Some(e) = refusal(names.iter().copied().zip(fitted.iter().map(|(f, _)| f))) {
         return Err(e);
     }
     let (ratio, ratio_source) = match ratio {
         Ratio::Known(r, source) => (r, source),
-        Ratio::Estimate => {
-            let mut per_channel: Vec<f64> = fitted
-                .iter()
-                .filter_map(|(_, f, _)| f.as_ref().ok())
-                .map(|f| PRIOR_MID_GREY.ln() / f.log_g(0.5))
-                .filter(|k| k.is_finite() && *k > 0.0)
-                .collect();
-            per_channel.sort_by(f64::total_cmp);
-            let Some(&k) = per_channel.get(per_channel.len().saturating_sub(1) / 2) else {
-                return Err(CalibrationError::NoChannel(
-                    "the ratio cannot be estimated: no channel has usable tones".into(),
-                ));
-            };
-            // Refitted at the estimated ratio rather than scaled by `k`: the smoothness
-            // floor depends on the ratio (see `fit`), so a fit at ratio e is not a fit
-            // at e^k raised to the k-th power.
-            fitted.par_iter_mut().for_each(|(_, f, pairs)| {
-                if f.is_ok() {
-                    *f = fit::fit(pairs, k, degree);
-                }
-            });
-            (k.exp(), RatioSource::Estimated)
-        }
+        Ratio::Estimate => (estimate_ratio(&mut fitted, degree)?, RatioSource::Estimated),
     };
     let log_ratio = ratio.ln();
     let channels = assemble(
         names,
         fitted
             .into_iter()
-            .map(|(_, f, pairs)| {
+            .map(|(f, pairs)| {
                 let sets = ChannelSets {
                     log_ratios: vec![log_ratio; pairs.len()],
                     set_lengths: vec![pairs.len()],
@@ -361,6 +339,37 @@ pub fn calibrate(
             .collect(),
     )?;
     finish(ratio, ratio_source, channels)
+}
+
+/// The ratio `γ = e^k` of a pair whose channels were `fitted` at `ln γ = 1`, with `k`
+/// the median over the fitted channels of `ln PRIOR_MID_GREY / ln g(0.5)`; each fitted
+/// channel is then fitted again at `ln γ = k`. Without a fitted channel it cannot be
+/// estimated.
+fn estimate_ratio(
+    fitted: &mut [(Result<ChannelFit, FitError>, Vec<TonePair>)],
+    degree: Degree,
+) -> Result<f64, CalibrationError> {
+    let mut per_channel: Vec<f64> = fitted
+        .iter()
+        .filter_map(|(f, _)| f.as_ref().ok())
+        .map(|f| PRIOR_MID_GREY.ln() / f.log_g(0.5))
+        .filter(|k| k.is_finite() && *k > 0.0)
+        .collect();
+    per_channel.sort_by(f64::total_cmp);
+    let Some(&k) = per_channel.get(per_channel.len().saturating_sub(1) / 2) else {
+        return Err(CalibrationError::NoChannel(
+            "the ratio cannot be estimated: no channel has usable tones".into(),
+        ));
+    };
+    // Refitted at the estimated ratio rather than scaled by `k`: the smoothness
+    // floor depends on the ratio (see `fit`), so a fit at ratio e is not a fit
+    // at e^k raised to the k-th power.
+    fitted.par_iter_mut().for_each(|(f, pairs)| {
+        if f.is_ok() {
+            *f = fit::fit(pairs, k, degree);
+        }
+    });
+    Ok(k.exp())
 }
 
 /// A channel's tone pairs as [`ChannelCalibration`] keeps them.
