@@ -410,7 +410,33 @@ pub fn decode(path: &Path, bytes: &[u8], limits: Limits) -> Result<LoadedFrame, 
     if let Some(warning) = extension_mismatch(path, format) {
         metadata.warnings.push(warning);
     }
+    let mut image = decode_image(path, bytes, format, limits)?;
+    if let Some(orientation) = image::metadata::Orientation::from_exif(metadata.orientation) {
+        image.apply_orientation(orientation);
+    }
+    let compression = if format == image::ImageFormat::Jpeg {
+        Compression::Lossy
+    } else {
+        Compression::Lossless
+    };
+    let frame = Frame::from_dynamic(image, path)?.with_compression(compression);
+    Ok(LoadedFrame {
+        path: path.to_path_buf(),
+        frame,
+        metadata,
+        #[cfg(feature = "raw")]
+        raw: None,
+    })
+}
 
+/// Decodes a JPEG, PNG or TIFF image of `format` in `bytes` within `limits`: its size
+/// is checked before its pixels are decoded, and a JPEG must be whole.
+fn decode_image(
+    path: &Path,
+    bytes: &[u8],
+    format: image::ImageFormat,
+    limits: Limits,
+) -> Result<image::DynamicImage, FrameError> {
     let decode_error = |source: DecodeFailure| FrameError::Decode {
         path: path.to_path_buf(),
         format: format_name(format),
@@ -444,23 +470,7 @@ pub fn decode(path: &Path, bytes: &[u8], limits: Limits) -> Result<LoadedFrame, 
     }
     let mut reader = ImageReader::with_format(Cursor::new(bytes), format);
     reader.limits(image_limits);
-    let mut image = reader.decode().map_err(|e| decode_error(e.into()))?;
-    if let Some(orientation) = image::metadata::Orientation::from_exif(metadata.orientation) {
-        image.apply_orientation(orientation);
-    }
-    let compression = if format == image::ImageFormat::Jpeg {
-        Compression::Lossy
-    } else {
-        Compression::Lossless
-    };
-    let frame = Frame::from_dynamic(image, path)?.with_compression(compression);
-    Ok(LoadedFrame {
-        path: path.to_path_buf(),
-        frame,
-        metadata,
-        #[cfg(feature = "raw")]
-        raw: None,
-    })
+    reader.decode().map_err(|e| decode_error(e.into()))
 }
 
 /// Decodes a camera raw: the frame is its visible mosaic (1 channel, 16-bit codes, not

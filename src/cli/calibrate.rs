@@ -85,8 +85,52 @@ pub fn run(args: Args) -> anyhow::Result<ExitCode> {
     if args.stride == 0 {
         bail!("--stride must be at least 1");
     }
-    let loaded: Vec<LoadedFrame> = args
-        .frames
+    let loaded = load_alike(&args.frames)?;
+    let counts: Vec<FrameCounts> = loaded
+        .iter()
+        .map(|l| FrameCounts::of_frame(&l.frame, args.stride))
+        .collect();
+    let exif: Vec<Option<f64>> = loaded
+        .iter()
+        .map(|l| l.metadata.exposure.relative())
+        .collect();
+    let times = given_times(&args.times, &loaded)?;
+    if loaded.len() > 2 {
+        return run_bracket(&args, &loaded, &counts, &exif, times);
+    }
+    let (exif, given_source) = if times.is_empty() {
+        (exif, RatioSource::Exif)
+    } else {
+        (times.into_iter().map(Some).collect(), RatioSource::Argument)
+    };
+    let (dark, ratio) = pair_ratio(args.ratio, &loaded, &counts, &exif, given_source)?;
+    let bright = 1 - dark;
+    // The two frames' histograms over the pixels they share (a JPEG's hard-clipped
+    // blocks left out of both).
+    let (h_dark, h_bright) = shared_counts(&counts[dark], &counts[bright]);
+    let calibration =
+        response::calibrate(&h_dark, &h_bright, ratio, args.degree).with_context(|| {
+            format!(
+                "calibrating {} (dark) against {} (bright)",
+                loaded[dark].path.display(),
+                loaded[bright].path.display()
+            )
+        })?;
+    if let Some(path) = &args.output {
+        response::save(path, &calibration.record(), Overwrite::Replace)?;
+    }
+    if let Some(path) = &args.plot {
+        plot::write(path, &h_dark, &h_bright, &calibration)?;
+    }
+    let mut report = report(&calibration);
+    report["dark"] = json!(loaded[dark].path.display().to_string());
+    report["bright"] = json!(loaded[bright].path.display().to_string());
+    print_report(&report, args.json)
+}
+
+/// Decodes `paths`; all must have the first's channels and bit depth.
+fn load_alike(paths: &[PathBuf]) -> anyhow::Result<Vec<LoadedFrame>> {
+    let loaded: Vec<LoadedFrame> = paths
         .iter()
         .map(|p| frame::load(p, Limits::default()))
         .collect::<Result<_, _>>()?;
@@ -105,38 +149,39 @@ pub fn run(args: Args) -> anyhow::Result<ExitCode> {
             );
         }
     }
-    let counts: Vec<FrameCounts> = loaded
-        .iter()
-        .map(|l| FrameCounts::of_frame(&l.frame, args.stride))
-        .collect();
-    let exif: Vec<Option<f64>> = loaded
-        .iter()
-        .map(|l| l.metadata.exposure.relative())
-        .collect();
-    if !args.times.is_empty() && args.times.len() != loaded.len() {
+    Ok(loaded)
+}
+
+/// The exposure times of `--times` in seconds, one per frame of `loaded` (none when
+/// none is given).
+fn given_times(times: &[String], loaded: &[LoadedFrame]) -> anyhow::Result<Vec<f64>> {
+    if !times.is_empty() && times.len() != loaded.len() {
         bail!(
             "--times gives {} exposure times for {} frames: give one per frame, in the order given",
-            args.times.len(),
+            times.len(),
             loaded.len()
         );
     }
-    let times = args
-        .times
+    times
         .iter()
-        .zip(&loaded)
+        .zip(loaded)
         .map(|(t, l)| {
             parse_time(t).with_context(|| format!("--times value for {}", l.path.display()))
         })
-        .collect::<anyhow::Result<Vec<f64>>>()?;
-    if loaded.len() > 2 {
-        return run_bracket(&args, &loaded, &counts, &exif, times);
-    }
-    let (exif, given_source) = if times.is_empty() {
-        (exif, RatioSource::Exif)
-    } else {
-        (times.into_iter().map(Some).collect(), RatioSource::Argument)
-    };
-    let (dark, ratio) = match (args.ratio, exif[0], exif[1]) {
+        .collect()
+}
+
+/// Which frame of a pair is the darker (0 or 1) and their ratio: the `--ratio` given
+/// (the darker by `exif` exposure, or by mean brightness), else from the `exif` (or
+/// `--times`) exposures of `given_source`, else estimated (the darker by brightness).
+fn pair_ratio(
+    ratio: Option<f64>,
+    loaded: &[LoadedFrame],
+    counts: &[FrameCounts],
+    exif: &[Option<f64>],
+    given_source: RatioSource,
+) -> anyhow::Result<(usize, Ratio)> {
+    Ok(match (ratio, exif[0], exif[1]) {
         (Some(r), ..) => {
             if !(r.is_finite() && r > 1.0) {
                 bail!("--ratio {r}: must be a number above 1 (bright over dark exposure)");
@@ -164,29 +209,7 @@ pub fn run(args: Args) -> anyhow::Result<ExitCode> {
             ),
             Ratio::Estimate,
         ),
-    };
-    let bright = 1 - dark;
-    // The two frames' histograms over the pixels they share (a JPEG's hard-clipped
-    // blocks left out of both).
-    let (h_dark, h_bright) = shared_counts(&counts[dark], &counts[bright]);
-    let calibration =
-        response::calibrate(&h_dark, &h_bright, ratio, args.degree).with_context(|| {
-            format!(
-                "calibrating {} (dark) against {} (bright)",
-                loaded[dark].path.display(),
-                loaded[bright].path.display()
-            )
-        })?;
-    if let Some(path) = &args.output {
-        response::save(path, &calibration.record(), Overwrite::Replace)?;
-    }
-    if let Some(path) = &args.plot {
-        plot::write(path, &h_dark, &h_bright, &calibration)?;
-    }
-    let mut report = report(&calibration);
-    report["dark"] = json!(loaded[dark].path.display().to_string());
-    report["bright"] = json!(loaded[bright].path.display().to_string());
-    print_report(&report, args.json)
+    })
 }
 
 /// More than two frames: one joint fit over every two frames adjacent in exposure
@@ -312,9 +335,20 @@ fn report(cal: &Calibration) -> Value {
     })
 }
 
+/// The text report of `r` ([`report`], with its frames or its pair): the frames and
+/// ratio, a row per channel, the models and the notes.
 fn table(r: &Value) -> String {
-    use std::fmt::Write;
     let mut out = String::new();
+    write_ratio(&mut out, r);
+    write_channels(&mut out, r);
+    write_notes(&mut out, r);
+    out
+}
+
+/// The frames (or the pair), the ratio and where it came from, and its range when it
+/// was estimated.
+fn write_ratio(out: &mut String, r: &Value) {
+    use std::fmt::Write;
     if let Some(frames) = r["frames"].as_array() {
         for f in frames {
             let _ = writeln!(
@@ -352,6 +386,11 @@ fn table(r: &Value) -> String {
             "the true ratio is {lo:.2}..{hi:.2} for four camera curves in five: give --ratio or EXIF for more"
         );
     }
+}
+
+/// A header and a row per channel: its fit's figures and `g` at codes 64, 128 and 191.
+fn write_channels(out: &mut String, r: &Value) {
+    use std::fmt::Write;
     let _ = writeln!(
         out,
         "{:<3} {:>6} {:>6} {:>9} {:>9} {:>15} {:>9} {:>9} {:>10} {:>10}  g(0.25) g(0.5) g(0.75)",
@@ -394,6 +433,12 @@ fn table(r: &Value) -> String {
             g(191),
         );
     }
+}
+
+/// The models fitted, what the curve is outside the covered tones, what the confidence
+/// means, and a warning when frames are further apart than it was calibrated on.
+fn write_notes(out: &mut String, r: &Value) {
+    use std::fmt::Write;
     let mut models: Vec<&str> = r["channels"]
         .as_array()
         .into_iter()
@@ -420,7 +465,6 @@ fn table(r: &Value) -> String {
             step.log2()
         );
     }
-    out
 }
 
 /// The frames' relative exposures: those listed for a bracket, `[1, ratio]` for a pair.

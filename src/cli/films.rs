@@ -66,86 +66,104 @@ pub fn run(args: Args) -> Result<std::process::ExitCode> {
         return write_luts(&catalogue, request, &args);
     }
     if !args.plot.is_empty() || args.contact_sheet {
-        let Some(output) = &args.output else {
-            bail!("--plot and --contact-sheet need -o FILE.png");
-        };
-        let image = if args.contact_sheet {
-            contact_sheet(&catalogue)?
-        } else {
-            let stocks = args
-                .plot
-                .iter()
-                .map(|id| catalogue.get(id))
-                .collect::<Result<Vec<_>, _>>()?;
-            plot(&stocks)
-        };
-        image
-            .publish_png(output, Overwrite::Replace)
-            .with_context(|| format!("writing {}", output.display()))?;
-        println!("{}", output.display());
-        return Ok(std::process::ExitCode::SUCCESS);
+        return write_chart(&catalogue, &args);
     }
     if args.json {
-        let list: Vec<_> = catalogue
-            .stocks()
-            .iter()
-            .map(|s| {
-                let speed = s.speed();
-                serde_json::json!({
-                    "id": s.id,
-                    "name": s.name,
-                    "maker": s.maker,
-                    "kind": s.kind,
-                    "iso": s.iso,
-                    "computed_speed": speed.map(|v| v.iso),
-                    "computed_minus_rated_stops": speed.map(|v| (v.iso / s.iso).log2()),
-                    "density": s.density_measure,
-                    "source": s.source,
-                    "uncertain": s.uncertain,
-                    "file": s.origin,
-                })
-            })
-            .collect();
-        println!("{}", serde_json::to_string_pretty(&list)?);
+        print_json(&catalogue)?;
     } else {
-        let mut out = std::io::stdout().lock();
-        writeln!(
-            out,
-            "{:<14} {:<9} {:>5} {:>9} {:>7}  {:<9} name / source",
-            "id", "kind", "ISO", "computed", "stops", "density"
-        )?;
-        for s in catalogue.stocks() {
-            let (speed, stops) = match s.speed() {
-                Some(v) => (
-                    format!("{:.0}", v.iso),
-                    format!("{:+.2}", (v.iso / s.iso).log2()),
-                ),
-                None => ("-".into(), "-".into()),
-            };
-            writeln!(
-                out,
-                "{:<14} {:<9} {:>5} {:>9} {:>7}  {:<9} {}{}",
-                s.id,
-                s.kind.to_string(),
-                s.iso,
-                speed,
-                stops,
-                s.density_measure,
-                s.name,
-                if s.uncertain.is_some() {
-                    "  [uncertain]"
-                } else {
-                    ""
-                }
-            )?;
-            writeln!(out, "{:<60}   {}", "", s.source)?;
-        }
-        writeln!(
-            out,
-            "computed: reversal ISO 2240 from the green curve, S = 10/sqrt(H1·H2), H1 at D-min+0.2, H2 at D-min+2.0; negative ISO 5800 speed point only, S = 0.8/H at D-min+0.1"
-        )?;
+        print_table(&catalogue)?;
     }
     Ok(std::process::ExitCode::SUCCESS)
+}
+
+/// `--plot` or `--contact-sheet`: the PNG.
+fn write_chart(catalogue: &Catalogue, args: &Args) -> Result<std::process::ExitCode> {
+    let Some(output) = &args.output else {
+        bail!("--plot and --contact-sheet need -o FILE.png");
+    };
+    let image = if args.contact_sheet {
+        contact_sheet(catalogue)?
+    } else {
+        let stocks = args
+            .plot
+            .iter()
+            .map(|id| catalogue.get(id))
+            .collect::<Result<Vec<_>, _>>()?;
+        plot(&stocks)
+    };
+    image
+        .publish_png(output, Overwrite::Replace)
+        .with_context(|| format!("writing {}", output.display()))?;
+    println!("{}", output.display());
+    Ok(std::process::ExitCode::SUCCESS)
+}
+
+/// `--json`: the catalogue's stocks, each with its computed speed.
+fn print_json(catalogue: &Catalogue) -> Result<()> {
+    let list: Vec<_> = catalogue
+        .stocks()
+        .iter()
+        .map(|s| {
+            let speed = s.speed();
+            serde_json::json!({
+                "id": s.id,
+                "name": s.name,
+                "maker": s.maker,
+                "kind": s.kind,
+                "iso": s.iso,
+                "computed_speed": speed.map(|v| v.iso),
+                "computed_minus_rated_stops": speed.map(|v| (v.iso / s.iso).log2()),
+                "density": s.density_measure,
+                "source": s.source,
+                "uncertain": s.uncertain,
+                "file": s.origin,
+            })
+        })
+        .collect();
+    println!("{}", serde_json::to_string_pretty(&list)?);
+    Ok(())
+}
+
+/// The catalogue's stocks as a table, each with its computed speed and source, and how
+/// the speed is computed.
+fn print_table(catalogue: &Catalogue) -> Result<()> {
+    let mut out = std::io::stdout().lock();
+    writeln!(
+        out,
+        "{:<14} {:<9} {:>5} {:>9} {:>7}  {:<9} name / source",
+        "id", "kind", "ISO", "computed", "stops", "density"
+    )?;
+    for s in catalogue.stocks() {
+        let (speed, stops) = match s.speed() {
+            Some(v) => (
+                format!("{:.0}", v.iso),
+                format!("{:+.2}", (v.iso / s.iso).log2()),
+            ),
+            None => ("-".into(), "-".into()),
+        };
+        writeln!(
+            out,
+            "{:<14} {:<9} {:>5} {:>9} {:>7}  {:<9} {}{}",
+            s.id,
+            s.kind.to_string(),
+            s.iso,
+            speed,
+            stops,
+            s.density_measure,
+            s.name,
+            if s.uncertain.is_some() {
+                "  [uncertain]"
+            } else {
+                ""
+            }
+        )?;
+        writeln!(out, "{:<60}   {}", "", s.source)?;
+    }
+    writeln!(
+        out,
+        "computed: reversal ISO 2240 from the green curve, S = 10/sqrt(H1·H2), H1 at D-min+0.2, H2 at D-min+2.0; negative ISO 5800 speed point only, S = 0.8/H at D-min+0.1"
+    )?;
+    Ok(())
 }
 
 /// `--lut`: the look's `.cube` (or, with `--split`, the negative's and the print's).
@@ -194,81 +212,142 @@ const LAYER_COLOURS: [Rgb<u8>; 3] = [Rgb([205, 30, 30]), Rgb([20, 140, 40]), Rgb
 /// told apart by dash pattern.
 fn plot(stocks: &[&Stock]) -> Canvas {
     let (w, h) = (1400i64, 900i64);
-    let (left, right, top, bottom) = (110i64, 40i64, 70i64, 110 + 26 * stocks.len() as i64);
     let mut img = Canvas::new(
         w as u32,
         h as u32 + 26 * stocks.len() as u32,
         Rgb([255, 255, 255]),
     );
-    let h = img.height() as i64;
-    let (mut x_min, mut x_max, mut d_max) = (f64::INFINITY, f64::NEG_INFINITY, 0.0f64);
-    for s in stocks {
-        for c in 0..3 {
-            let (a, b) = s.layer(c).log_h_range();
-            x_min = x_min.min(a);
-            x_max = x_max.max(b);
-            d_max = d_max.max(s.layer(c).d_max());
+    let chart = Chart::of(stocks, w, img.height() as i64);
+    chart.draw_grid(&mut img);
+    chart.draw_axes(&mut img);
+    for (i, s) in stocks.iter().enumerate() {
+        chart.draw_stock(&mut img, i, s);
+    }
+    img
+}
+
+/// Ink of the axes, ticks and labels.
+const INK: Rgb<u8> = Rgb([20, 20, 20]);
+
+/// Where [`plot`] draws: the canvas's size and margins (px) and the ranges of log10 H
+/// and density it shows.
+struct Chart {
+    w: i64,
+    h: i64,
+    left: i64,
+    right: i64,
+    top: i64,
+    bottom: i64,
+    /// log10 H at the left and right of the plot area, on half units.
+    x_min: f64,
+    x_max: f64,
+    /// Density at the top of the plot area, on half units (0 at the bottom).
+    d_top: f64,
+}
+
+impl Chart {
+    /// The chart of `stocks` on a canvas `w` × `h`, with a legend row per stock below
+    /// the axis title: every layer's curve fits.
+    fn of(stocks: &[&Stock], w: i64, h: i64) -> Chart {
+        let (mut x_min, mut x_max, mut d_max) = (f64::INFINITY, f64::NEG_INFINITY, 0.0f64);
+        for s in stocks {
+            for c in 0..3 {
+                let (a, b) = s.layer(c).log_h_range();
+                x_min = x_min.min(a);
+                x_max = x_max.max(b);
+                d_max = d_max.max(s.layer(c).d_max());
+            }
+        }
+        Chart {
+            w,
+            h,
+            left: 110,
+            right: 40,
+            top: 70,
+            bottom: 110 + 26 * stocks.len() as i64,
+            x_min: (x_min * 2.0).floor() / 2.0,
+            x_max: (x_max * 2.0).ceil() / 2.0,
+            d_top: (d_max * 2.0).ceil() / 2.0,
         }
     }
-    let x_min = (x_min * 2.0).floor() / 2.0;
-    let x_max = (x_max * 2.0).ceil() / 2.0;
-    let d_top = (d_max * 2.0).ceil() / 2.0;
-    let px = |x: f64| left as f64 + (x - x_min) / (x_max - x_min) * (w - left - right) as f64;
-    let py = |d: f64| (h - bottom) as f64 - d / d_top * (h - bottom - top) as f64;
-    let grid = Rgb([225, 225, 225]);
-    let ink = Rgb([20, 20, 20]);
-    // Grid and tick labels every 0.5.
-    let mut x = x_min;
-    while x <= x_max + 1e-9 {
-        let xp = px(x).round() as i64;
-        img.fill(xp, top, 1, h - bottom - top, grid);
-        img.fill(xp, h - bottom, 1, 8, ink);
-        let label = format!("{x:.1}");
-        img.text(
-            xp - Canvas::text_width(&label, 2) / 2,
-            h - bottom + 14,
-            2,
-            ink,
-            &label,
-        );
-        x += 0.5;
+
+    /// Canvas x of log10 H `x`.
+    fn px(&self, x: f64) -> f64 {
+        self.left as f64
+            + (x - self.x_min) / (self.x_max - self.x_min)
+                * (self.w - self.left - self.right) as f64
     }
-    let mut d = 0.0;
-    while d <= d_top + 1e-9 {
-        let yp = py(d).round() as i64;
-        img.fill(left, yp, w - left - right, 1, grid);
-        img.fill(left - 8, yp, 8, 1, ink);
-        let label = format!("{d:.1}");
-        img.text(
-            left - 14 - Canvas::text_width(&label, 2),
-            yp - 7,
-            2,
-            ink,
-            &label,
-        );
-        d += 0.5;
+
+    /// Canvas y of density `d`.
+    fn py(&self, d: f64) -> f64 {
+        (self.h - self.bottom) as f64 - d / self.d_top * (self.h - self.bottom - self.top) as f64
     }
-    // Axes.
-    img.fill(left, top, 2, h - bottom - top + 1, ink);
-    img.fill(left, h - bottom, w - left - right, 2, ink);
-    let x_title = "LOG10 H (LUX·S)";
-    img.text(
-        left + (w - left - right - Canvas::text_width(x_title, 2)) / 2,
-        h - bottom + 44,
-        2,
-        ink,
-        x_title,
-    );
-    img.text(12, top - 40, 2, ink, "DENSITY D");
-    let title = "CHARACTERISTIC CURVES (RED, GREEN, BLUE LAYERS)";
-    img.text(
-        left + (w - left - right - Canvas::text_width(title, 3)) / 2,
-        16,
-        3,
-        ink,
-        title,
-    );
-    for (i, s) in stocks.iter().enumerate() {
+
+    /// Grid lines and tick labels every 0.5 of log10 H and of density.
+    fn draw_grid(&self, img: &mut Canvas) {
+        let (w, h, left, right, top, bottom) =
+            (self.w, self.h, self.left, self.right, self.top, self.bottom);
+        let grid = Rgb([225, 225, 225]);
+        let mut x = self.x_min;
+        while x <= self.x_max + 1e-9 {
+            let xp = self.px(x).round() as i64;
+            img.fill(xp, top, 1, h - bottom - top, grid);
+            img.fill(xp, h - bottom, 1, 8, INK);
+            let label = format!("{x:.1}");
+            img.text(
+                xp - Canvas::text_width(&label, 2) / 2,
+                h - bottom + 14,
+                2,
+                INK,
+                &label,
+            );
+            x += 0.5;
+        }
+        let mut d = 0.0;
+        while d <= self.d_top + 1e-9 {
+            let yp = self.py(d).round() as i64;
+            img.fill(left, yp, w - left - right, 1, grid);
+            img.fill(left - 8, yp, 8, 1, INK);
+            let label = format!("{d:.1}");
+            img.text(
+                left - 14 - Canvas::text_width(&label, 2),
+                yp - 7,
+                2,
+                INK,
+                &label,
+            );
+            d += 0.5;
+        }
+    }
+
+    /// The axes, their titles and the chart's title.
+    fn draw_axes(&self, img: &mut Canvas) {
+        let (w, h, left, right, top, bottom) =
+            (self.w, self.h, self.left, self.right, self.top, self.bottom);
+        img.fill(left, top, 2, h - bottom - top + 1, INK);
+        img.fill(left, h - bottom, w - left - right, 2, INK);
+        let x_title = "LOG10 H (LUX·S)";
+        img.text(
+            left + (w - left - right - Canvas::text_width(x_title, 2)) / 2,
+            h - bottom + 44,
+            2,
+            INK,
+            x_title,
+        );
+        img.text(12, top - 40, 2, INK, "DENSITY D");
+        let title = "CHARACTERISTIC CURVES (RED, GREEN, BLUE LAYERS)";
+        img.text(
+            left + (w - left - right - Canvas::text_width(title, 3)) / 2,
+            16,
+            3,
+            INK,
+            title,
+        );
+    }
+
+    /// The layers' curves of stock `s`, the `i`-th, in its dash pattern, and its legend
+    /// row under the axis title.
+    fn draw_stock(&self, img: &mut Canvas, i: usize, s: &Stock) {
         let dash = DASHES[i % DASHES.len()];
         for (c, colour) in LAYER_COLOURS.iter().enumerate() {
             let curve = s.layer(c);
@@ -276,13 +355,13 @@ fn plot(stocks: &[&Stock]) -> Canvas {
             let points: Vec<(f64, f64)> = (0..=600)
                 .map(|k| {
                     let x = a + (b - a) * k as f64 / 600.0;
-                    (px(x), py(curve.density(x)))
+                    (self.px(x), self.py(curve.density(x)))
                 })
                 .collect();
             img.stroke(&points, 3, dash, *colour);
         }
-        // Legend row under the axis title.
-        let y = h - bottom + 80 + 26 * i as i64;
+        let left = self.left;
+        let y = self.h - self.bottom + 80 + 26 * i as i64;
         img.stroke(
             &[
                 (left as f64, y as f64 + 7.0),
@@ -290,7 +369,7 @@ fn plot(stocks: &[&Stock]) -> Canvas {
             ],
             3,
             dash,
-            ink,
+            INK,
         );
         let label = format!(
             "{}  {}  ISO {}{}",
@@ -303,9 +382,8 @@ fn plot(stocks: &[&Stock]) -> Canvas {
                 ""
             }
         );
-        img.text(left + 110, y, 2, ink, &label);
+        img.text(left + 110, y, 2, INK, &label);
     }
-    img
 }
 
 /// The report's Figure 8 made from the synthetic scene: eight renderings of one map,

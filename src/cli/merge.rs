@@ -180,61 +180,80 @@ pub fn run(args: Args) -> anyhow::Result<ExitCode> {
     let total = start.elapsed();
 
     if args.json {
-        let mut timings = serde_json::Map::new();
-        for (stage, d) in &developed.stages {
-            timings.insert((*stage).to_string(), json!(ms(*d)));
-        }
-        timings.insert("total".into(), json!(ms(total)));
-        let report = json!({
-            "outputs": developed.outputs.iter().map(|p| p.display().to_string()).collect::<Vec<_>>(),
-            "response": developed.response.report,
-            "frames": developed.order.iter().map(|&i| json!({
-                "path": frames[i].path.display().to_string(),
-                "exposure": exposures[i],
-            })).collect::<Vec<_>>(),
-            "ratio": developed.ratio,
-            "weighting": if developed.response.source == Source::Raw {
-                json!("noise-optimal (linear sensor)")
-            } else {
-                json!(options.weighting)
-            },
-            "merge_mode": if developed.fused {
-                "fused into encode (merge ms is the tables and the clipped count; the merge itself is inside encode ms)"
-            } else {
-                "buffered"
-            },
-            "clipped": { "high": developed.clipped.0, "low": developed.clipped.1 },
-            "deghost": developed.deghost,
-            "alignment": alignment_report(&developed, &frames),
-            "radiance_scale": developed.exr_scale,
-            "scale": { "kind": developed.scale.kind(), "convention": developed.scale.describe() },
-            "warnings": developed.warnings,
-            "timings_ms": timings,
-        });
-        println!("{}", serde_json::to_string_pretty(&report)?);
+        print_report(&developed, &frames, &exposures, options.weighting, total)?;
     } else {
-        for w in &developed.warnings {
-            eprintln!("warning: {w}");
-        }
-        for p in &developed.outputs {
-            println!("{}", p.display());
-        }
-        if let Some(d) = developed.deghost.as_ref().filter(|d| d.share > 0.0) {
-            println!(
-                "  deghosted: {:.1} % of pixels merged without some frame (reference {})",
-                100.0 * d.share,
-                frames[d.reference].path.display()
-            );
-        }
-        println!(
-            "  ratio {:.3} ({:.2} stops), response: {}, {:.0} ms",
-            developed.ratio,
-            developed.ratio.log2(),
-            developed.response.summary,
-            ms(total)
-        );
+        print_summary(&developed, &frames, total);
     }
     Ok(ExitCode::SUCCESS)
+}
+
+/// Prints the `--json` report of `developed` from `frames` of relative `exposures`,
+/// merged with `weighting`, in `total`.
+fn print_report(
+    developed: &darkroom::Developed,
+    frames: &[LoadedFrame],
+    exposures: &[f64],
+    weighting: Weighting,
+    total: Duration,
+) -> anyhow::Result<()> {
+    let mut timings = serde_json::Map::new();
+    for (stage, d) in &developed.stages {
+        timings.insert((*stage).to_string(), json!(ms(*d)));
+    }
+    timings.insert("total".into(), json!(ms(total)));
+    let report = json!({
+        "outputs": developed.outputs.iter().map(|p| p.display().to_string()).collect::<Vec<_>>(),
+        "response": developed.response.report,
+        "frames": developed.order.iter().map(|&i| json!({
+            "path": frames[i].path.display().to_string(),
+            "exposure": exposures[i],
+        })).collect::<Vec<_>>(),
+        "ratio": developed.ratio,
+        "weighting": if developed.response.source == Source::Raw {
+            json!("noise-optimal (linear sensor)")
+        } else {
+            json!(weighting)
+        },
+        "merge_mode": if developed.fused {
+            "fused into encode (merge ms is the tables and the clipped count; the merge itself is inside encode ms)"
+        } else {
+            "buffered"
+        },
+        "clipped": { "high": developed.clipped.0, "low": developed.clipped.1 },
+        "deghost": developed.deghost,
+        "alignment": alignment_report(developed, frames),
+        "radiance_scale": developed.exr_scale,
+        "scale": { "kind": developed.scale.kind(), "convention": developed.scale.describe() },
+        "warnings": developed.warnings,
+        "timings_ms": timings,
+    });
+    println!("{}", serde_json::to_string_pretty(&report)?);
+    Ok(())
+}
+
+/// Prints the warnings of `developed` (to stderr), its outputs, and a summary of the
+/// deghosting, the ratio, the response and the `total` time.
+fn print_summary(developed: &darkroom::Developed, frames: &[LoadedFrame], total: Duration) {
+    for w in &developed.warnings {
+        eprintln!("warning: {w}");
+    }
+    for p in &developed.outputs {
+        println!("{}", p.display());
+    }
+    if let Some(d) = developed.deghost.as_ref().filter(|d| d.share > 0.0) {
+        println!(
+            "  deghosted: {:.1} % of pixels merged without some frame (reference {})",
+            100.0 * d.share,
+            frames[d.reference].path.display()
+        );
+    }
+    println!(
+        "  ratio {:.3} ({:.2} stops), response: {}, {:.0} ms",
+        developed.ratio,
+        developed.ratio.log2(),
+        developed.response.summary,
+        ms(total)
+    );
 }
 
 /// What alignment did, for `--json`: the mode, the reference frame's path, and per frame

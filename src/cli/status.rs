@@ -36,37 +36,7 @@ pub fn run(args: Args) -> anyhow::Result<ExitCode> {
         );
     }
     let entries = journal::read(&args.state)?;
-    // A file's latest entry decides: a rejected file that was rewritten and then
-    // developed is no longer listed as rejected.
-    let mut latest: HashMap<&Path, &Entry> = HashMap::new();
-    for e in &entries {
-        for i in e.inputs() {
-            latest.insert(i.path.as_path(), e);
-        }
-    }
-    let (mut brackets, mut singles, mut failed) = (0usize, 0usize, Vec::new());
-    let mut rejected = Vec::new();
-    for e in &entries {
-        match e {
-            Entry::Bracket { .. } => brackets += 1,
-            Entry::Single { .. } => singles += 1,
-            Entry::Failed { inputs, reason, .. } => {
-                if inputs
-                    .iter()
-                    .all(|i| std::ptr::eq(latest[i.path.as_path()], e))
-                {
-                    failed.push(json!({"inputs": inputs.iter().map(|i| i.path.display().to_string()).collect::<Vec<_>>(), "reason": reason}));
-                }
-            }
-            Entry::Unchanged { .. } => {}
-            Entry::Rejected { input, reason, .. } => {
-                if std::ptr::eq(latest[input.path.as_path()], e) {
-                    rejected
-                        .push(json!({"file": input.path.display().to_string(), "reason": reason}));
-                }
-            }
-        }
-    }
+    let tally = Tally::of(&entries);
     let mut snap = daemon::read_snapshot(&args.state);
     let running = snap.as_ref().is_some_and(|s| alive(&args.state, s));
     if let Some(s) = snap.as_mut().filter(|_| !running) {
@@ -77,38 +47,18 @@ pub fn run(args: Args) -> anyhow::Result<ExitCode> {
     }
     // A daemon that can no longer replace status.json leaves an old snapshot behind.
     let stale = running && !daemon::state_writable(&args.state);
-    let cache = ResponseCache::new(&args.state);
-    let cached: Vec<Value> = cache
-        .list()?
-        .into_iter()
-        .map(|r| match r {
-            Ok(c) => json!({"camera": c.camera.to_string(), "brackets": c.brackets, "pooled": c.pool.len(), "confidence": c.min_confidence(), "updated": c.updated}),
-            Err(e) => json!({"error": e.to_string()}),
-        })
-        .collect();
-    // Output sets a killed daemon left half published: the rest appears at its next start.
-    let interrupted: Vec<Value> = snap
-        .as_ref()
-        .map(|s| filmback::atomic::interrupted_sets(&s.out))
-        .unwrap_or_default()
-        .iter()
-        .map(|set| {
-            let paths = |p: &[PathBuf]| -> Vec<String> {
-                p.iter().map(|p| p.display().to_string()).collect()
-            };
-            json!({"staging": set.stage.display().to_string(), "published": paths(&set.published), "pending": paths(&set.pending)})
-        })
-        .collect();
+    let cached = cached_responses(&args.state)?;
+    let interrupted = interrupted_sets(snap.as_ref());
     let report = json!({
         "state": args.state.display().to_string(),
         "interrupted_sets": interrupted,
         "running": running,
         "stale": stale,
         "daemon": snap.as_ref().map(|s| json!(s)),
-        "brackets_done": brackets,
-        "singles_done": singles,
-        "failed": failed,
-        "rejected": rejected,
+        "brackets_done": tally.brackets,
+        "singles_done": tally.singles,
+        "failed": tally.failed,
+        "rejected": tally.rejected,
         "cache": cached,
     });
     if args.json {
@@ -121,7 +71,100 @@ pub fn run(args: Args) -> anyhow::Result<ExitCode> {
             "warning       the state folder is not writable: the daemon cannot update its status, and what follows may be stale"
         );
     }
-    match &snap {
+    print_daemon(snap.as_ref(), running);
+    print_work(&tally, &interrupted);
+    print_cache(&cached);
+    Ok(ExitCode::SUCCESS)
+}
+
+/// What the journal says was done.
+struct Tally {
+    /// Brackets developed.
+    brackets: usize,
+    /// Single frames rendered or reported.
+    singles: usize,
+    /// Brackets whose latest word is a failure: their inputs and the reason.
+    failed: Vec<Value>,
+    /// Files whose latest word is a rejection: the file and the reason.
+    rejected: Vec<Value>,
+}
+
+impl Tally {
+    /// Counts the `entries`; a file's latest entry decides, so a rejected file that was
+    /// rewritten and then developed is no longer listed as rejected.
+    fn of(entries: &[Entry]) -> Tally {
+        let mut latest: HashMap<&Path, &Entry> = HashMap::new();
+        for e in entries {
+            for i in e.inputs() {
+                latest.insert(i.path.as_path(), e);
+            }
+        }
+        let (mut brackets, mut singles, mut failed) = (0usize, 0usize, Vec::new());
+        let mut rejected = Vec::new();
+        for e in entries {
+            match e {
+                Entry::Bracket { .. } => brackets += 1,
+                Entry::Single { .. } => singles += 1,
+                Entry::Failed { inputs, reason, .. } => {
+                    if inputs
+                        .iter()
+                        .all(|i| std::ptr::eq(latest[i.path.as_path()], e))
+                    {
+                        failed.push(json!({"inputs": inputs.iter().map(|i| i.path.display().to_string()).collect::<Vec<_>>(), "reason": reason}));
+                    }
+                }
+                Entry::Unchanged { .. } => {}
+                Entry::Rejected { input, reason, .. } => {
+                    if std::ptr::eq(latest[input.path.as_path()], e) {
+                        rejected.push(
+                            json!({"file": input.path.display().to_string(), "reason": reason}),
+                        );
+                    }
+                }
+            }
+        }
+        Tally {
+            brackets,
+            singles,
+            failed,
+            rejected,
+        }
+    }
+}
+
+/// Each camera's entry in the response cache of `state`: its bracket count, pooled
+/// brackets, confidence and update time, or why it is unusable.
+fn cached_responses(state: &Path) -> anyhow::Result<Vec<Value>> {
+    let cache = ResponseCache::new(state);
+    Ok(cache
+        .list()?
+        .into_iter()
+        .map(|r| match r {
+            Ok(c) => json!({"camera": c.camera.to_string(), "brackets": c.brackets, "pooled": c.pool.len(), "confidence": c.min_confidence(), "updated": c.updated}),
+            Err(e) => json!({"error": e.to_string()}),
+        })
+        .collect())
+}
+
+/// Output sets a killed daemon left half published in the output folder of `snap`: the
+/// rest appears at its next start.
+fn interrupted_sets(snap: Option<&Snapshot>) -> Vec<Value> {
+    snap.map(|s| filmback::atomic::interrupted_sets(&s.out))
+        .unwrap_or_default()
+        .iter()
+        .map(|set| {
+            let paths = |p: &[PathBuf]| -> Vec<String> {
+                p.iter().map(|p| p.display().to_string()).collect()
+            };
+            json!({"staging": set.stage.display().to_string(), "published": paths(&set.published), "pending": paths(&set.pending)})
+        })
+        .collect()
+}
+
+/// Prints whether the daemon runs and, when it does, its pending work, viewer and
+/// retries.
+fn print_daemon(snap: Option<&Snapshot>, running: bool) {
+    match snap {
         Some(s) if running => println!(
             "daemon        running (pid {}), watching {}{}\n  pending     {} settling, {} in open brackets, {} queued, {} developing, {} retrying",
             s.pid,
@@ -136,7 +179,7 @@ pub fn run(args: Args) -> anyhow::Result<ExitCode> {
         Some(s) => println!("daemon        not running (last pid {})", s.pid),
         None => println!("daemon        never ran here"),
     }
-    if let Some(s) = snap.as_ref().filter(|_| running) {
+    if let Some(s) = snap.filter(|_| running) {
         if let Some(url) = &s.viewer {
             println!("  viewer      {url}");
         }
@@ -151,33 +194,45 @@ pub fn run(args: Args) -> anyhow::Result<ExitCode> {
             );
         }
     }
-    println!("done          {brackets} brackets, {singles} single frames");
+}
+
+/// Prints what was done, the output sets left `interrupted`, and what failed or was
+/// rejected.
+fn print_work(tally: &Tally, interrupted: &[Value]) {
+    println!(
+        "done          {} brackets, {} single frames",
+        tally.brackets, tally.singles
+    );
     if !interrupted.is_empty() {
         println!(
             "interrupted   {} output set(s) partly published (the daemon was killed while renaming them); the rest appears at its next start",
             interrupted.len()
         );
-        for set in &interrupted {
+        for set in interrupted {
             println!(
                 "  published {}; pending {}",
                 set["published"], set["pending"]
             );
         }
     }
-    println!("failed        {}", failed.len());
-    for f in &failed {
+    println!("failed        {}", tally.failed.len());
+    for f in &tally.failed {
         println!("  {}: {}", f["inputs"], f["reason"].as_str().unwrap_or(""));
     }
-    println!("rejected      {}", rejected.len());
-    for r in &rejected {
+    println!("rejected      {}", tally.rejected.len());
+    for r in &tally.rejected {
         println!(
             "  {}: {}",
             r["file"].as_str().unwrap_or(""),
             r["reason"].as_str().unwrap_or("")
         );
     }
+}
+
+/// Prints the response cache's entries.
+fn print_cache(cached: &[Value]) {
     println!("cache         {} camera(s)", cached.len());
-    for c in &cached {
+    for c in cached {
         match c.get("error") {
             Some(e) => println!("  unusable: {}", e.as_str().unwrap_or("")),
             None => println!(
@@ -191,5 +246,4 @@ pub fn run(args: Args) -> anyhow::Result<ExitCode> {
             ),
         }
     }
-    Ok(ExitCode::SUCCESS)
 }

@@ -425,7 +425,6 @@ pub(crate) fn open_no_follow(path: &Path) -> std::io::Result<std::fs::File> {
 /// more than `max_bytes` (the memory budget: a frame never holds less than its file) is
 /// rejected without being read.
 pub(crate) fn probe(path: &Path, max_bytes: u64) -> Probe {
-    use std::io::Read;
     let observed = match observe(path) {
         Ok(o) => o,
         Err(e) if e.kind() == std::io::ErrorKind::NotFound => return Probe::Gone,
@@ -454,13 +453,7 @@ pub(crate) fn probe(path: &Path, max_bytes: u64) -> Probe {
         return Probe::Rejected(before, reason);
     }
     // At most one byte more than allowed: a file still growing shows as changed below.
-    let read = open_no_follow(path).and_then(|f| {
-        let mut bytes = Vec::new();
-        f.take(max_bytes.saturating_add(1))
-            .read_to_end(&mut bytes)
-            .map(|_| bytes)
-    });
-    let bytes = match read {
+    let bytes = match read_at_most(path, max_bytes.saturating_add(1)) {
         Ok(b) => b,
         Err(e) if e.kind() == std::io::ErrorKind::NotFound => return Probe::Gone,
         // ELOOP: swapped for a link since `identify`.
@@ -492,11 +485,30 @@ pub(crate) fn probe(path: &Path, max_bytes: u64) -> Probe {
         Some(Err(e)) => return Probe::Rejected(before, e.to_string()),
         None => {}
     }
-    let header = image::ImageReader::new(Cursor::new(&bytes))
+    let header = image_footprint(&bytes);
+    match header {
+        Ok(footprint) => capture(before, metadata::read(&bytes), footprint, inode, &bytes),
+        Err(reason) => Probe::Rejected(before, reason),
+    }
+}
+
+/// The first `limit` bytes of `path`, opened without following a link.
+fn read_at_most(path: &Path, limit: u64) -> std::io::Result<Vec<u8>> {
+    use std::io::Read;
+    let f = open_no_follow(path)?;
+    let mut bytes = Vec::new();
+    f.take(limit).read_to_end(&mut bytes)?;
+    Ok(bytes)
+}
+
+/// The footprint of a JPEG, PNG or TIFF image from its header in `bytes` (a JPEG must
+/// also be whole), or why it is not one.
+fn image_footprint(bytes: &[u8]) -> Result<Footprint, String> {
+    image::ImageReader::new(Cursor::new(bytes))
         .with_guessed_format()
         .map_err(|e| e.to_string())
         .and_then(|r| match r.format() {
-            Some(image::ImageFormat::Jpeg) if !jpeg_complete(&bytes) => {
+            Some(image::ImageFormat::Jpeg) if !jpeg_complete(bytes) => {
                 Err("JPEG data ends before its end-of-image marker (truncated file)".to_string())
             }
             Some(image::ImageFormat::Jpeg | image::ImageFormat::Png | image::ImageFormat::Tiff) => {
@@ -513,11 +525,7 @@ pub(crate) fn probe(path: &Path, max_bytes: u64) -> Probe {
                     .map_err(|e| format!("unreadable image header: {e}"))
             }
             _ => Err("not a JPEG, PNG or TIFF image (unrecognised content)".to_string()),
-        });
-    match header {
-        Ok(footprint) => capture(before, metadata::read(&bytes), footprint, inode, &bytes),
-        Err(reason) => Probe::Rejected(before, reason),
-    }
+        })
 }
 
 /// [`probe`], with a panic of a decoder or the EXIF reader on untrusted bytes turned into

@@ -289,47 +289,15 @@ impl DarkroomLab {
 impl Lab for DarkroomLab {
     fn process(&self, job: &Job) -> Result<Processed, JobError> {
         let start = std::time::Instant::now();
-        let frames: Vec<LoadedFrame> = job
-            .frames
-            .par_iter()
-            .map(|c| {
-                // Links in ingest are never followed (intake refuses them; this catches
-                // a frame swapped for a link since).
-                if std::fs::symlink_metadata(&c.input.path).is_ok_and(|m| m.is_symlink()) {
-                    return Err(JobError::Frame {
-                        path: c.input.path.clone(),
-                        reason: "became a symbolic link: links in ingest are not followed".into(),
-                    });
-                }
-                frame::load(&c.input.path, Limits::default()).map_err(|e| JobError::Frame {
-                    path: c.input.path.clone(),
-                    reason: Box::new(e),
-                })
-            })
-            .collect::<Result<_, _>>()?;
-        let unmixed = unmix(job, frames)?;
+        let unmixed = unmix(job, load_frames(job)?)?;
         let same_frames = unmixed.job.is_none();
         let job = unmixed.job.as_ref().unwrap_or(job);
         let frames = unmixed.frames;
         let decode = start.elapsed();
         let looks = looks_of(&job.preset, job.stocks.as_deref())?;
-        // The renderings carry the first frame's EXIF (camera, lens, exposure, date,
-        // artist, copyright); a frame whose file vanished since decoding carries none.
-        // Opened without following a link, as the intake does.
-        let exif = crate::daemon::intake::open_no_follow(&job.frames[0].input.path)
-            .and_then(|mut f| {
-                let mut bytes = Vec::new();
-                std::io::Read::read_to_end(&mut f, &mut bytes).map(|_| bytes)
-            })
-            .map(|bytes| SourceExif::from_frame_bytes(&bytes))
-            .unwrap_or_default();
+        let exif = first_frame_exif(job);
         // The outputs are written into a staging folder and published as one set.
-        let stage = atomic::stage_folder(&job.out, &job.id);
-        let _ = std::fs::remove_dir_all(&stage);
-        std::fs::create_dir_all(&stage).map_err(|e| JobError::Output {
-            path: stage.clone(),
-            reason: Box::new(e),
-        })?;
+        let stage = open_stage(job)?;
         let _staging = Staging(stage.clone());
         let developed = Self::develop(job, &frames, &looks, &exif, &stage);
         let (measured, measure_notes) = match &developed {
@@ -339,20 +307,7 @@ impl Lab for DarkroomLab {
             },
             Err(_) => (None, Vec::new()),
         };
-        let mut developed = match developed {
-            Ok(d) => d,
-            Err(e) => {
-                return Err(match e {
-                    JobError::Output { path, reason } => JobError::Output {
-                        path: path
-                            .file_name()
-                            .map_or_else(|| job.out.clone(), |n| job.out.join(n)),
-                        reason,
-                    },
-                    other => other,
-                });
-            }
-        };
+        let mut developed = developed.map_err(|e| in_output_folder(e, &job.out))?;
         let outputs = atomic::publish_set(&stage, &job.out).map_err(|e| JobError::Output {
             path: e.path().to_path_buf(),
             reason: Box::new(e),
@@ -398,6 +353,65 @@ impl Lab for DarkroomLab {
             facts,
             pictures,
         })
+    }
+}
+
+/// Decodes the frames of `job`, in parallel; a frame that became a link since the
+/// intake is refused (links in ingest are never followed).
+fn load_frames(job: &Job) -> Result<Vec<LoadedFrame>, JobError> {
+    job.frames
+        .par_iter()
+        .map(|c| {
+            if std::fs::symlink_metadata(&c.input.path).is_ok_and(|m| m.is_symlink()) {
+                return Err(JobError::Frame {
+                    path: c.input.path.clone(),
+                    reason: "became a symbolic link: links in ingest are not followed".into(),
+                });
+            }
+            frame::load(&c.input.path, Limits::default()).map_err(|e| JobError::Frame {
+                path: c.input.path.clone(),
+                reason: Box::new(e),
+            })
+        })
+        .collect()
+}
+
+/// The first frame's EXIF, which the renderings carry (camera, lens, exposure, date,
+/// artist, copyright); a frame whose file vanished since decoding carries none. Opened
+/// without following a link, as the intake does.
+fn first_frame_exif(job: &Job) -> SourceExif {
+    crate::daemon::intake::open_no_follow(&job.frames[0].input.path)
+        .and_then(|mut f| {
+            let mut bytes = Vec::new();
+            std::io::Read::read_to_end(&mut f, &mut bytes).map(|_| bytes)
+        })
+        .map(|bytes| SourceExif::from_frame_bytes(&bytes))
+        .unwrap_or_default()
+}
+
+/// The job's staging folder in its output folder, emptied of what an earlier attempt
+/// left.
+fn open_stage(job: &Job) -> Result<PathBuf, JobError> {
+    let stage = atomic::stage_folder(&job.out, &job.id);
+    let _ = std::fs::remove_dir_all(&stage);
+    std::fs::create_dir_all(&stage).map_err(|e| JobError::Output {
+        path: stage.clone(),
+        reason: Box::new(e),
+    })?;
+    Ok(stage)
+}
+
+/// `e`, with an output it names in the staging folder named where it would have been
+/// published, in `out`.
+fn in_output_folder(e: JobError, out: &Path) -> JobError {
+    match e {
+        JobError::Output { path, reason } => JobError::Output {
+            path: path
+                .file_name()
+                .map_or_else(|| out.to_path_buf(), |n| out.join(n)),
+            reason,
+        },
+        other => other,
     }
 }
 
@@ -641,15 +655,6 @@ struct Unmixed {
 ///
 /// Otherwise it cannot be developed ([`JobError::Bracket`]).
 fn unmix(job: &Job, frames: Vec<LoadedFrame>) -> Result<Unmixed, JobError> {
-    let is_raw = |f: &LoadedFrame| -> bool {
-        #[cfg(feature = "raw")]
-        return f.raw.is_some();
-        #[cfg(not(feature = "raw"))]
-        return {
-            let _ = f;
-            false
-        };
-    };
     let raws = frames.iter().filter(|f| is_raw(f)).count();
     if raws == 0 || raws == frames.len() {
         return Ok(Unmixed {
@@ -658,43 +663,9 @@ fn unmix(job: &Job, frames: Vec<LoadedFrame>) -> Result<Unmixed, JobError> {
             note: None,
         });
     }
-    let names = |paths: Vec<&Path>| -> String {
-        let names: Vec<String> = paths.iter().map(|p| p.display().to_string()).collect();
-        names.join(", ")
-    };
-    let stand_ins = names(
-        frames
-            .iter()
-            .filter(|f| !is_raw(f))
-            .map(|f| f.path.as_path())
-            .collect(),
-    );
+    let stand_ins = file_list(frames.iter().filter(|f| !is_raw(f)).map(|f| &*f.path));
     if let Some(jpegs) = companions_of(job, &frames, is_raw) {
-        let raws_out = names(
-            jpegs
-                .iter()
-                .map(|(k, _)| frames[*k].path.as_path())
-                .collect(),
-        );
-        let note = format!(
-            "{raws_out} left out: {stand_ins} stands for a capture without a usable raw, so the bracket is developed from every capture's JPEG"
-        );
-        let mut captures = job.frames.clone();
-        let mut frames = frames;
-        for (k, jpeg) in jpegs {
-            if let Some(companion) = captures[k].companion.take() {
-                captures[k].input = companion;
-            }
-            frames[k] = jpeg;
-        }
-        return Ok(Unmixed {
-            job: Some(Job {
-                frames: captures,
-                ..job.clone()
-            }),
-            frames,
-            note: Some(note),
-        });
+        return Ok(from_jpegs(job, frames, jpegs, &stand_ins));
     }
     let keep_raws = raws >= 2;
     if !keep_raws && frames.len() - raws < 2 {
@@ -705,26 +676,79 @@ fn unmix(job: &Job, frames: Vec<LoadedFrame>) -> Result<Unmixed, JobError> {
             .into(),
         ));
     }
-    let (kept, left): (Vec<_>, Vec<_>) = frames
-        .into_iter()
-        .zip(&job.frames)
-        .partition(|(f, _)| is_raw(f) == keep_raws);
+    Ok(of_one_kind(job, frames, keep_raws))
+}
+
+/// Whether `f` was decoded from a raw.
+fn is_raw(f: &LoadedFrame) -> bool {
+    #[cfg(feature = "raw")]
+    return f.raw.is_some();
+    #[cfg(not(feature = "raw"))]
+    return {
+        let _ = f;
+        false
+    };
+}
+
+/// The `paths`, displayed and joined by commas.
+fn file_list<'a>(paths: impl Iterator<Item = &'a Path>) -> String {
+    let names: Vec<String> = paths.map(|p| p.display().to_string()).collect();
+    names.join(", ")
+}
+
+/// The bracket of `job` developed from every capture's JPEG: each raw of `frames` is
+/// replaced by its decoded companion of `jpegs` (by index); `stand_ins` names the
+/// frames that stand for captures without a usable raw.
+fn from_jpegs(
+    job: &Job,
+    mut frames: Vec<LoadedFrame>,
+    jpegs: Vec<(usize, LoadedFrame)>,
+    stand_ins: &str,
+) -> Unmixed {
+    let raws_out = file_list(jpegs.iter().map(|(k, _)| &*frames[*k].path));
     let note = format!(
-        "{} left out: a bracket is either all raw or all JPEG/PNG/TIFF, and its other {} frames are {}",
-        names(left.iter().map(|(f, _)| f.path.as_path()).collect()),
-        kept.len(),
-        if keep_raws { "raws" } else { "not raws" }
+        "{raws_out} left out: {stand_ins} stands for a capture without a usable raw, so the bracket is developed from every capture's JPEG"
     );
-    let (frames, captures): (Vec<LoadedFrame>, Vec<Capture>) =
-        kept.into_iter().map(|(f, c)| (f, c.clone())).unzip();
-    Ok(Unmixed {
+    let mut captures = job.frames.clone();
+    for (k, jpeg) in jpegs {
+        if let Some(companion) = captures[k].companion.take() {
+            captures[k].input = companion;
+        }
+        frames[k] = jpeg;
+    }
+    Unmixed {
         job: Some(Job {
             frames: captures,
             ..job.clone()
         }),
         frames,
         note: Some(note),
-    })
+    }
+}
+
+/// The bracket of `job` developed from its raws alone (`keep_raws`) or from its other
+/// frames alone, the rest of `frames` left out.
+fn of_one_kind(job: &Job, frames: Vec<LoadedFrame>, keep_raws: bool) -> Unmixed {
+    let (kept, left): (Vec<_>, Vec<_>) = frames
+        .into_iter()
+        .zip(&job.frames)
+        .partition(|(f, _)| is_raw(f) == keep_raws);
+    let note = format!(
+        "{} left out: a bracket is either all raw or all JPEG/PNG/TIFF, and its other {} frames are {}",
+        file_list(left.iter().map(|(f, _)| &*f.path)),
+        kept.len(),
+        if keep_raws { "raws" } else { "not raws" }
+    );
+    let (frames, captures): (Vec<LoadedFrame>, Vec<Capture>) =
+        kept.into_iter().map(|(f, c)| (f, c.clone())).unzip();
+    Unmixed {
+        job: Some(Job {
+            frames: captures,
+            ..job.clone()
+        }),
+        frames,
+        note: Some(note),
+    }
 }
 
 /// The companion JPEG ([`Capture::companion`]) of each raw of `frames`, decoded, with

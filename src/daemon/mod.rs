@@ -264,57 +264,22 @@ struct State {
 pub async fn run(
     mut config: Config,
     lab: Arc<dyn Lab>,
-    mut control: mpsc::Receiver<Control>,
+    control: mpsc::Receiver<Control>,
 ) -> Result<Summary, DaemonError> {
-    for dir in [
-        &config.folders.ingest,
-        &config.folders.out,
-        &config.folders.state,
-    ] {
-        std::fs::create_dir_all(dir).map_err(|source| DaemonError::Folder {
-            path: dir.clone(),
-            source,
-        })?;
-    }
+    create_folders(&config.folders)?;
     // Before anything in the folders is touched: another daemon's work is its own.
     let lock = lock_state(&config.folders.state)?;
     let configured = config.folders.clone();
     let root = intake::IngestRoot::new(&configured.ingest);
     config.folders.ingest = root.real().to_path_buf();
     let folders = &config.folders;
-    for dir in [
-        folders.out.clone(),
-        folders.state.clone(),
-        ResponseCache::new(&folders.state).dir().to_path_buf(),
-    ] {
-        remove_temporaries(&dir, Duration::ZERO);
-    }
-    if let Ok(stems) = std::fs::read_dir(folders.state.join(PREVIEW_FOLDER)) {
-        for stem in stems.filter_map(Result::ok) {
-            remove_temporaries(&stem.path(), Duration::ZERO);
-        }
-    }
-    // In ingest a `filmback hook` may be handing a frame over right now: only what a
-    // killed hook left (its download is still where gphoto2 saved it).
-    remove_temporaries(&folders.ingest, STALE_HAND_OVER);
+    remove_leftovers(folders);
     refuse_overlap(&config)?;
-    for r in atomic::recover_sets(&folders.out) {
-        match r {
-            atomic::Recovered::Completed(stage, files) => info!(
-                stage = %stage.display(),
-                files = files.len(),
-                "finished publishing a bracket's outputs interrupted by a crash"
-            ),
-            atomic::Recovered::RolledBack(stage) => info!(
-                stage = %stage.display(),
-                "removed the unpublished outputs of an interrupted bracket"
-            ),
-        }
-    }
+    recover_outputs(&folders.out);
     let mut journal = Journal::open(&folders.state)?;
     journal.resolve_inputs(|p| root.identity(p));
     let viewer = open_viewer(&config, journal.entries()).await;
-    let (notices, mut rx) = mpsc::unbounded_channel();
+    let (notices, rx) = mpsc::unbounded_channel();
     let now = Instant::now();
     let mut st = State {
         cache: ResponseCache::new(&folders.state),
@@ -349,77 +314,151 @@ pub async fn run(
         hooks: None,
     };
     st.check_folder(now).await;
-    info!(
-        ingest = %st.config.folders.ingest.display(),
-        out = %st.config.folders.out.display(),
-        state = %st.config.folders.state.display(),
-        mode = ?st.config.watch.mode,
-        jobs = st.config.daemon.jobs,
-        finished_before = st.journal.entries().len(),
-        "watching"
-    );
+    st.log_watching();
     let _ = sd_notify::notify(&[sd_notify::NotifyState::Ready]);
-    let period =
-        (st.config.watch.settle / 4).clamp(Duration::from_millis(10), Duration::from_millis(250));
-    let mut tick = tokio::time::interval(period);
-    tick.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Delay);
-    loop {
-        let event = tokio::select! {
-            Some(notice) = rx.recv() => Event::Notice(notice),
-            Some(done) = st.in_flight.join_next(), if !st.in_flight.is_empty() => {
-                Event::Done(Box::new(done.expect("develop panics are caught inside the task")))
-            }
-            c = control.recv() => match c {
-                Some(Control::Reload(cfg)) => Event::Reload(cfg),
-                Some(Control::Stop) | None => break,
-            },
-            _ = tick.tick() => Event::Tick,
-        };
-        let now = Instant::now();
-        match event {
-            Event::Notice(notice) => st.notice(notice, now).await,
-            Event::Done(done) => st.finish(*done, now)?,
-            Event::Reload(config) => st.reload(*config, now).await,
-            Event::Tick => st.tick(now).await?,
-        }
-        // Listing and probing may have taken time.
-        let now = Instant::now();
-        st.dispatch(now)?;
-        st.report(false, now);
+    st.serve(rx, control).await?;
+    st.stop().await
+}
+
+/// Creates the ingest, output and state folders when they are missing.
+fn create_folders(folders: &config::Folders) -> Result<(), DaemonError> {
+    for dir in [&folders.ingest, &folders.out, &folders.state] {
+        std::fs::create_dir_all(dir).map_err(|source| DaemonError::Folder {
+            path: dir.clone(),
+            source,
+        })?;
     }
-    st.stopping = true;
-    let _ = sd_notify::notify(&[
-        sd_notify::NotifyState::Stopping,
-        sd_notify::NotifyState::Status("stopping: finishing brackets in flight"),
-    ]);
-    info!(in_flight = st.in_flight.len(), "stopping");
-    let deadline = tokio::time::Instant::now() + STOP_GRACE;
-    while !st.in_flight.is_empty() {
-        tokio::select! {
-            Some(done) = st.in_flight.join_next() => {
-                let done = done.expect("develop panics are caught inside the task");
-                st.finish(done, Instant::now())?;
-            }
-            () = tokio::time::sleep_until(deadline) => break,
+    Ok(())
+}
+
+/// Removes the temporary files a killed daemon left in the output and state folders
+/// (the response cache and the previews included), and those a killed hook left in
+/// ingest.
+fn remove_leftovers(folders: &config::Folders) {
+    for dir in [
+        folders.out.clone(),
+        folders.state.clone(),
+        ResponseCache::new(&folders.state).dir().to_path_buf(),
+    ] {
+        remove_temporaries(&dir, Duration::ZERO);
+    }
+    if let Ok(stems) = std::fs::read_dir(folders.state.join(PREVIEW_FOLDER)) {
+        for stem in stems.filter_map(Result::ok) {
+            remove_temporaries(&stem.path(), Duration::ZERO);
         }
     }
-    st.summary.abandoned = st.in_flight.len();
-    if st.summary.abandoned > 0 {
-        warn!(
-            abandoned = st.summary.abandoned,
-            "brackets still developing were abandoned; the next start redoes them"
+    // In ingest a `filmback hook` may be handing a frame over right now: only what a
+    // killed hook left (its download is still where gphoto2 saved it).
+    remove_temporaries(&folders.ingest, STALE_HAND_OVER);
+}
+
+/// Completes or rolls back the output sets in `out` whose publishing a crash
+/// interrupted, logging each.
+fn recover_outputs(out: &Path) {
+    for r in atomic::recover_sets(out) {
+        match r {
+            atomic::Recovered::Completed(stage, files) => info!(
+                stage = %stage.display(),
+                files = files.len(),
+                "finished publishing a bracket's outputs interrupted by a crash"
+            ),
+            atomic::Recovered::RolledBack(stage) => info!(
+                stage = %stage.display(),
+                "removed the unpublished outputs of an interrupted bracket"
+            ),
+        }
+    }
+}
+
+impl State {
+    /// Logs the folders and settings the daemon watches with.
+    fn log_watching(&self) {
+        info!(
+            ingest = %self.config.folders.ingest.display(),
+            out = %self.config.folders.out.display(),
+            state = %self.config.folders.state.display(),
+            mode = ?self.config.watch.mode,
+            jobs = self.config.daemon.jobs,
+            finished_before = self.journal.entries().len(),
+            "watching"
         );
     }
-    // Blocking threads cannot be interrupted; the process exit ends them, and their
-    // temporary files are removed at the next start.
-    st.in_flight.detach_all();
-    st.report(true, Instant::now());
-    info!(
-        finished = st.summary.finished,
-        rejected = st.summary.rejected,
-        "stopped"
-    );
-    Ok(st.summary)
+
+    /// The event loop: file notices, finished jobs, control messages and a tick of a
+    /// quarter of `settle` (10–250 ms), each followed by dispatching and reporting; it
+    /// returns at [`Control::Stop`] or when the control sender is dropped.
+    async fn serve(
+        &mut self,
+        mut notices: mpsc::UnboundedReceiver<Notice>,
+        mut control: mpsc::Receiver<Control>,
+    ) -> Result<(), DaemonError> {
+        let period = (self.config.watch.settle / 4)
+            .clamp(Duration::from_millis(10), Duration::from_millis(250));
+        let mut tick = tokio::time::interval(period);
+        tick.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Delay);
+        loop {
+            let event = tokio::select! {
+                Some(notice) = notices.recv() => Event::Notice(notice),
+                Some(done) = self.in_flight.join_next(), if !self.in_flight.is_empty() => {
+                    Event::Done(Box::new(done.expect("develop panics are caught inside the task")))
+                }
+                c = control.recv() => match c {
+                    Some(Control::Reload(cfg)) => Event::Reload(cfg),
+                    Some(Control::Stop) | None => return Ok(()),
+                },
+                _ = tick.tick() => Event::Tick,
+            };
+            let now = Instant::now();
+            match event {
+                Event::Notice(notice) => self.notice(notice, now).await,
+                Event::Done(done) => self.finish(*done, now)?,
+                Event::Reload(config) => self.reload(*config, now).await,
+                Event::Tick => self.tick(now).await?,
+            }
+            // Listing and probing may have taken time.
+            let now = Instant::now();
+            self.dispatch(now)?;
+            self.report(false, now);
+        }
+    }
+
+    /// Stops taking work, lets the brackets in flight finish for up to [`STOP_GRACE`],
+    /// abandons the rest and returns the run's summary.
+    async fn stop(mut self) -> Result<Summary, DaemonError> {
+        self.stopping = true;
+        let _ = sd_notify::notify(&[
+            sd_notify::NotifyState::Stopping,
+            sd_notify::NotifyState::Status("stopping: finishing brackets in flight"),
+        ]);
+        info!(in_flight = self.in_flight.len(), "stopping");
+        let deadline = tokio::time::Instant::now() + STOP_GRACE;
+        while !self.in_flight.is_empty() {
+            tokio::select! {
+                Some(done) = self.in_flight.join_next() => {
+                    let done = done.expect("develop panics are caught inside the task");
+                    self.finish(done, Instant::now())?;
+                }
+                () = tokio::time::sleep_until(deadline) => break,
+            }
+        }
+        self.summary.abandoned = self.in_flight.len();
+        if self.summary.abandoned > 0 {
+            warn!(
+                abandoned = self.summary.abandoned,
+                "brackets still developing were abandoned; the next start redoes them"
+            );
+        }
+        // Blocking threads cannot be interrupted; the process exit ends them, and their
+        // temporary files are removed at the next start.
+        self.in_flight.detach_all();
+        self.report(true, Instant::now());
+        info!(
+            finished = self.summary.finished,
+            rejected = self.summary.rejected,
+            "stopped"
+        );
+        Ok(self.summary)
+    }
 }
 
 /// The viewer's server, when `[viewer] enabled`; one that cannot be served is logged and

@@ -8,14 +8,14 @@ use std::time::{Duration, Instant};
 
 use tracing::{error, info, warn};
 
-use super::bracket::{Alone, Bracket, CameraId, Closed};
+use super::bracket::{Alone, Bracket, CameraId, Capture, Closed};
 use super::cache::{DISSENTS_TO_REPLACE, Dissent, PooledBracket};
 use super::config::{Recalibrate, Singles};
 use super::intake::{self, Arrival};
 use super::journal::{self, Entry};
 use super::{
-    DaemonError, Job, JobError, Outcome, Processed, State, Work, backoff, budget, file_stem,
-    job_bytes,
+    DaemonError, Job, JobError, Outcome, Processed, State, Superseded, Work, backoff, budget,
+    file_stem, job_bytes,
 };
 use crate::atomic;
 use crate::darkroom::{self, Pooling};
@@ -59,75 +59,99 @@ impl State {
             if let Closed::Single(capture, alone) = &work.closed
                 && self.config.bracket.singles == Singles::Report
             {
-                info!(file = %capture.input.path.display(), camera = %capture.camera, reason = %alone, "single frame reported, not rendered");
-                self.journal.record(Entry::Single {
-                    id: work.closed.id(),
-                    camera: capture.camera.clone(),
-                    input: capture.input.clone(),
-                    alone: *alone,
-                    outputs: Vec::new(),
-                    digests: self
-                        .files
-                        .taken(&capture.input.path)
-                        .map(|t| vec![t.digest])
-                        .unwrap_or_default(),
-                    at: journal::unix_now(),
-                })?;
-                self.summary.finished += 1;
-                self.release(&work.closed);
+                self.report_single(&work.closed, capture, *alone)?;
                 continue;
             }
-            // The JPEGs set aside beside raws, as they have settled by now.
-            for frame in work.closed.frames_mut() {
-                if frame.companion.is_none() {
-                    frame.companion = self.files.companion_of(&frame.input.path).cloned();
-                }
-            }
-            let camera = work.closed.camera().clone();
-            let preset = self
-                .config
-                .preset_for(camera.model.as_deref(), camera.serial.as_deref())
-                .clone();
-            let cached = match self.cache.get(&camera) {
-                Ok(c) => c,
-                Err(e) => {
-                    warn!(error = %e, "response cache entry unusable; developing without it");
-                    None
-                }
-            };
-            let job = Job {
-                id: work.closed.id(),
-                camera,
-                frames: work.closed.frames().into_iter().cloned().collect(),
-                cached: if preset.recalibrate == Recalibrate::Always {
-                    None
-                } else {
-                    cached
-                },
-                preset,
-                out: self.config.folders.out.clone(),
-                stem: work
-                    .supersedes
-                    .as_ref()
-                    .map_or_else(|| self.output_stem(&work.closed), |s| s.stem.clone()),
-                stocks: self.config.folders.stocks.clone(),
-                previews: self.viewer.is_some(),
-            };
-            let lab = Arc::clone(&self.lab);
-            self.in_use.reserve(need);
-            work.reserved = need;
-            self.in_flight.spawn_blocking(move || {
-                let t = Instant::now();
-                let result =
-                    std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| lab.process(&job)))
-                        .unwrap_or_else(|panic| {
-                            let what = super::panic_text(&*panic);
-                            Err(JobError::Bracket(format!("lab panicked: {what}").into()))
-                        });
-                (work, result, t.elapsed())
-            });
+            let job = self.job(&mut work);
+            self.start(work, job, need);
         }
         Ok(())
+    }
+
+    /// Journals the single `capture` of `closed` as reported, not rendered, because it
+    /// was `alone`, and releases its file.
+    fn report_single(
+        &mut self,
+        closed: &Closed,
+        capture: &Capture,
+        alone: Alone,
+    ) -> Result<(), DaemonError> {
+        info!(file = %capture.input.path.display(), camera = %capture.camera, reason = %alone, "single frame reported, not rendered");
+        self.journal.record(Entry::Single {
+            id: closed.id(),
+            camera: capture.camera.clone(),
+            input: capture.input.clone(),
+            alone,
+            outputs: Vec::new(),
+            digests: self
+                .files
+                .taken(&capture.input.path)
+                .map(|t| vec![t.digest])
+                .unwrap_or_default(),
+            at: journal::unix_now(),
+        })?;
+        self.summary.finished += 1;
+        self.release(closed);
+        Ok(())
+    }
+
+    /// The lab's job for `work`: its frames (with the JPEGs set aside beside raws, as
+    /// they have settled by now), its camera's preset, the cached response unless the
+    /// preset always recalibrates, and where and under which stem to publish.
+    fn job(&mut self, work: &mut Work) -> Job {
+        for frame in work.closed.frames_mut() {
+            if frame.companion.is_none() {
+                frame.companion = self.files.companion_of(&frame.input.path).cloned();
+            }
+        }
+        let camera = work.closed.camera().clone();
+        let preset = self
+            .config
+            .preset_for(camera.model.as_deref(), camera.serial.as_deref())
+            .clone();
+        let cached = match self.cache.get(&camera) {
+            Ok(c) => c,
+            Err(e) => {
+                warn!(error = %e, "response cache entry unusable; developing without it");
+                None
+            }
+        };
+        Job {
+            id: work.closed.id(),
+            camera,
+            frames: work.closed.frames().into_iter().cloned().collect(),
+            cached: if preset.recalibrate == Recalibrate::Always {
+                None
+            } else {
+                cached
+            },
+            preset,
+            out: self.config.folders.out.clone(),
+            stem: work
+                .supersedes
+                .as_ref()
+                .map_or_else(|| self.output_stem(&work.closed), |s| s.stem.clone()),
+            stocks: self.config.folders.stocks.clone(),
+            previews: self.viewer.is_some(),
+        }
+    }
+
+    /// Reserves `need` bytes of the budget for `work` and develops its `job` on a
+    /// blocking thread; a panic of the lab is the bracket's failure.
+    fn start(&mut self, mut work: Work, job: Job, need: u64) {
+        let lab = Arc::clone(&self.lab);
+        self.in_use.reserve(need);
+        work.reserved = need;
+        self.in_flight.spawn_blocking(move || {
+            let t = Instant::now();
+            let result =
+                std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| lab.process(&job)))
+                    .unwrap_or_else(|panic| {
+                        let what = super::panic_text(&*panic);
+                        Err(JobError::Bracket(format!("lab panicked: {what}").into()))
+                    });
+            (work, result, t.elapsed())
+        });
     }
 
     /// The first frame's stem, unless an earlier, different bracket already published
@@ -277,21 +301,7 @@ impl State {
             .collect::<Option<_>>()
             .unwrap_or_default();
         let camera = closed.camera().clone();
-        let preset = self
-            .config
-            .preset_for(camera.model.as_deref(), camera.serial.as_deref());
-        if let Some(pooling) = &dev.pooling
-            && preset.recalibrate == Recalibrate::Auto
-        {
-            self.pool(&camera, &closed.stem(), dev, pooling);
-        }
-        if let Some(measured) = &dev.measured
-            && let Err(e) = self
-                .cache
-                .put_measured(&camera, measured, journal::unix_now())
-        {
-            warn!(error = %e, "cannot store the measured JPEG curve in the response cache");
-        }
+        self.learn(&camera, closed, dev);
         for note in &dev.notes {
             warn!(bracket = %closed.stem(), "{note}");
         }
@@ -299,73 +309,13 @@ impl State {
             .supersedes
             .as_ref()
             .map_or_else(|| self.output_stem(closed), |s| s.stem.clone());
-        let at = journal::unix_now();
-        let entry = match closed {
-            Closed::Bracket(b) => Entry::Bracket {
-                id: closed.id(),
-                camera: camera.clone(),
-                inputs: b.frames.iter().map(|c| c.input.clone()).collect(),
-                outputs: dev.outputs.clone(),
-                digests,
-                ratio: b.ratio(),
-                response: dev.source,
-                at,
-            },
-            Closed::Single(c, alone) => Entry::Single {
-                id: closed.id(),
-                camera: camera.clone(),
-                input: c.input.clone(),
-                alone: *alone,
-                outputs: dev.outputs.clone(),
-                digests,
-                at,
-            },
-        };
-        self.journal.record(entry)?;
+        self.journal
+            .record(developed_entry(closed, &camera, dev, digests))?;
         if let Some(old) = &work.supersedes {
-            // Outputs of the earlier development the new one did not replace are stale.
-            for stale in old.outputs.iter().filter(|o| !dev.outputs.contains(o)) {
-                match std::fs::remove_file(stale) {
-                    Ok(()) => info!(file = %stale.display(), "removed stale output"),
-                    Err(e) if e.kind() == std::io::ErrorKind::NotFound => {}
-                    Err(e) => {
-                        warn!(file = %stale.display(), error = %e, "cannot remove stale output")
-                    }
-                }
-            }
+            remove_stale(old, &dev.outputs);
         }
         self.summary.finished += 1;
-        let stages: Vec<String> = dev
-            .stages
-            .iter()
-            .map(|(s, d)| format!("{s}={:.0}ms", d.as_secs_f64() * 1e3))
-            .collect();
-        let outputs: Vec<String> = dev
-            .outputs
-            .iter()
-            .map(|p| p.display().to_string())
-            .collect();
-        match closed {
-            Closed::Bracket(b) => info!(
-                camera = %camera,
-                frames = b.frames.len(),
-                ratio = format!("{:.2}", b.ratio()),
-                response = %dev.source,
-                stages = stages.join(" "),
-                total_ms = took.as_millis() as u64,
-                outputs = outputs.join(" "),
-                "bracket developed"
-            ),
-            Closed::Single(c, alone) => info!(
-                camera = %camera,
-                file = %c.input.path.display(),
-                reason = %alone,
-                response = %dev.source,
-                total_ms = took.as_millis() as u64,
-                outputs = outputs.join(" "),
-                "single frame rendered"
-            ),
-        }
+        log_developed(closed, &camera, dev, took);
         let replaced = self.replaced_since_read(closed);
         let archived = if replaced.is_empty() {
             self.archive(closed)
@@ -379,6 +329,26 @@ impl State {
             self.consider(path, Arrival::Writing, now);
         }
         Ok(())
+    }
+
+    /// Refines `camera`'s cached response with what developing `closed` measured: its
+    /// pooled pairs when the preset recalibrates automatically, a JPEG curve measured.
+    fn learn(&mut self, camera: &CameraId, closed: &Closed, dev: &Processed) {
+        let preset = self
+            .config
+            .preset_for(camera.model.as_deref(), camera.serial.as_deref());
+        if let Some(pooling) = &dev.pooling
+            && preset.recalibrate == Recalibrate::Auto
+        {
+            self.pool(camera, &closed.stem(), dev, pooling);
+        }
+        if let Some(measured) = &dev.measured
+            && let Err(e) = self
+                .cache
+                .put_measured(camera, measured, journal::unix_now())
+        {
+            warn!(error = %e, "cannot store the measured JPEG curve in the response cache");
+        }
     }
 
     /// Tells the viewer and the `on_developed` hook that `closed` was published under
@@ -631,6 +601,87 @@ fn numbered(name: &OsStr, n: u32) -> OsString {
         out.push(ext);
     }
     out
+}
+
+/// The journal entry of `closed`, developed by `camera` into `dev`'s outputs; `digests`
+/// are its inputs' contents as read.
+fn developed_entry(
+    closed: &Closed,
+    camera: &CameraId,
+    dev: &Processed,
+    digests: Vec<u64>,
+) -> Entry {
+    let at = journal::unix_now();
+    match closed {
+        Closed::Bracket(b) => Entry::Bracket {
+            id: closed.id(),
+            camera: camera.clone(),
+            inputs: b.frames.iter().map(|c| c.input.clone()).collect(),
+            outputs: dev.outputs.clone(),
+            digests,
+            ratio: b.ratio(),
+            response: dev.source,
+            at,
+        },
+        Closed::Single(c, alone) => Entry::Single {
+            id: closed.id(),
+            camera: camera.clone(),
+            input: c.input.clone(),
+            alone: *alone,
+            outputs: dev.outputs.clone(),
+            digests,
+            at,
+        },
+    }
+}
+
+/// Removes the outputs of the earlier development `old` that the new `outputs` did not
+/// replace: they are stale.
+fn remove_stale(old: &Superseded, outputs: &[PathBuf]) {
+    for stale in old.outputs.iter().filter(|o| !outputs.contains(o)) {
+        match std::fs::remove_file(stale) {
+            Ok(()) => info!(file = %stale.display(), "removed stale output"),
+            Err(e) if e.kind() == std::io::ErrorKind::NotFound => {}
+            Err(e) => {
+                warn!(file = %stale.display(), error = %e, "cannot remove stale output")
+            }
+        }
+    }
+}
+
+/// Logs `closed` as developed by `camera` in `took`: its stages' times and outputs.
+fn log_developed(closed: &Closed, camera: &CameraId, dev: &Processed, took: Duration) {
+    let stages: Vec<String> = dev
+        .stages
+        .iter()
+        .map(|(s, d)| format!("{s}={:.0}ms", d.as_secs_f64() * 1e3))
+        .collect();
+    let outputs: Vec<String> = dev
+        .outputs
+        .iter()
+        .map(|p| p.display().to_string())
+        .collect();
+    match closed {
+        Closed::Bracket(b) => info!(
+            camera = %camera,
+            frames = b.frames.len(),
+            ratio = format!("{:.2}", b.ratio()),
+            response = %dev.source,
+            stages = stages.join(" "),
+            total_ms = took.as_millis() as u64,
+            outputs = outputs.join(" "),
+            "bracket developed"
+        ),
+        Closed::Single(c, alone) => info!(
+            camera = %camera,
+            file = %c.input.path.display(),
+            reason = %alone,
+            response = %dev.source,
+            total_ms = took.as_millis() as u64,
+            outputs = outputs.join(" "),
+            "single frame rendered"
+        ),
+    }
 }
 
 #[cfg(test)]

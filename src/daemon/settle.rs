@@ -35,7 +35,7 @@ use std::time::{Duration, Instant};
 
 use tracing::{error, info, warn};
 
-use super::bracket::{Alone, Bracket, Capture, Closed, Input};
+use super::bracket::{Alone, Bracket, CameraId, Capture, Closed, Input};
 use super::intake::{self, Arrival, Notice, Probe};
 use super::journal::{self, Entry};
 use super::{
@@ -378,7 +378,22 @@ impl State {
 
     /// Probes settled files (off the async threads) and feeds the grouper.
     pub(super) async fn take(&mut self, ready: Vec<PathBuf>) -> Result<(), DaemonError> {
-        // The JPEG of a RAW+JPEG capture whose raw is known is not even read.
+        let read = self.set_aside_paired_jpegs(ready);
+        let probed = self.probe_all(read).await;
+        let now = Instant::now();
+        let frames = self.sift(probed, now)?;
+        let admitted = self.admit(frames, now)?;
+        let mut frames = self.redevelop_reshot(admitted).await;
+        // A batch (start-up scan, burst) enters in capture-time order, as it is now (the
+        // re-shot frames' probing took time).
+        frames.sort_by(super::bracket::capture_order);
+        self.hand_to_grouper(frames, Instant::now());
+        Ok(())
+    }
+
+    /// Sets aside the JPEG of a RAW+JPEG capture whose raw is known (it is not even
+    /// read); the other files of `ready` are returned, to be probed.
+    fn set_aside_paired_jpegs(&mut self, ready: Vec<PathBuf>) -> Vec<PathBuf> {
         let mut read = Vec::with_capacity(ready.len());
         for path in ready {
             match self.pairing_raw(&path) {
@@ -386,8 +401,17 @@ impl State {
                 None => read.push(path),
             }
         }
-        let probed = self.probe_all(read).await;
-        let now = Instant::now();
+        read
+    }
+
+    /// Acts on what probing found at `now`: rejects, retries later or looks again at
+    /// what is not a frame, journals a touched frame whose content is unchanged, and
+    /// returns the new frames.
+    fn sift(
+        &mut self,
+        probed: Vec<(PathBuf, Probe)>,
+        now: Instant,
+    ) -> Result<Vec<(Capture, intake::Taken)>, DaemonError> {
         let mut frames = Vec::new();
         for (path, probe) in probed {
             if !matches!(probe, Probe::Unreadable(_)) {
@@ -424,6 +448,16 @@ impl State {
                 Probe::Gone => {}
             }
         }
+        Ok(frames)
+    }
+
+    /// Takes the `frames` whose development fits the memory budget alone; the others
+    /// are rejected at `now`, naming their size.
+    fn admit(
+        &mut self,
+        frames: Vec<(Capture, intake::Taken)>,
+        now: Instant,
+    ) -> Result<Vec<Capture>, DaemonError> {
         let mut admitted = Vec::new();
         for (c, taken) in frames {
             let footprint = taken.footprint;
@@ -442,8 +476,13 @@ impl State {
                 admitted.push(c);
             }
         }
-        // A new version of a frame of a developed bracket (re-shot under the same name)
-        // re-develops that bracket with it, in place of the old outputs.
+        Ok(admitted)
+    }
+
+    /// A new version of a frame of a developed bracket (re-shot under the same name)
+    /// re-develops that bracket with it, in place of the old outputs; the frames of
+    /// `admitted` that are new work are returned.
+    async fn redevelop_reshot(&mut self, admitted: Vec<Capture>) -> Vec<Capture> {
         let mut reshot: Vec<(Entry, Vec<Capture>)> = Vec::new();
         let mut frames = Vec::new();
         for c in admitted {
@@ -463,10 +502,12 @@ impl State {
                 frames.extend(new);
             }
         }
-        // A batch (start-up scan, burst) enters in capture-time order, as it is now (the
-        // re-shot frames' probing took time).
-        frames.sort_by(super::bracket::capture_order);
-        let now = Instant::now();
+        frames
+    }
+
+    /// Pushes `frames` to the grouper at `now`, queueing the brackets they close; a raw
+    /// sets its JPEG aside, and a JPEG of a body shooting RAW+JPEG is held for its raw.
+    fn hand_to_grouper(&mut self, frames: Vec<Capture>, now: Instant) {
         let now_s = self.since_start(now);
         for c in frames {
             let path = c.input.path.clone();
@@ -494,7 +535,6 @@ impl State {
                 self.queue.push_back(Work::new(closed));
             }
         }
-        Ok(())
     }
 
     /// Develops again the frames of an earlier bracket or single `old`, with `new`
@@ -527,31 +567,11 @@ impl State {
         if others.iter().any(|p| self.files.taken(p).is_some()) {
             return Err((new, "its other frames are being developed".to_string()));
         }
-        let journaled: Vec<Input> = old.inputs().into_iter().cloned().collect();
-        let digests: Vec<(PathBuf, Option<u64>)> = journaled
-            .iter()
-            .map(|i| (i.path.clone(), old.digest_of(&i.path)))
-            .collect();
-        // Unchanged: the very file journaled, or (touched since) the same content.
-        let unchanged = |c: &Capture, digest: u64| {
-            journaled.contains(&c.input)
-                || digests
-                    .iter()
-                    .any(|(p, d)| *p == c.input.path && *d == Some(digest))
-        };
-        let probed = self.probe_all(others).await;
         let mut frames = new;
-        let mut found = Vec::new();
-        for (path, probe) in probed {
-            match probe {
-                Probe::Frame(c, taken) if unchanged(&c, taken.digest) => {
-                    found.push((c, taken));
-                }
-                _ => {
-                    return Err((frames, format!("{} changed or is gone", path.display())));
-                }
-            }
-        }
+        let found = match self.probe_unchanged(old, others).await {
+            Ok(found) => found,
+            Err(why) => return Err((frames, why)),
+        };
         let Some(camera) = frames
             .first()
             .or(found.first().map(|(c, _)| c))
@@ -570,14 +590,9 @@ impl State {
             self.files.take(c.input.path.clone(), taken);
             frames.push(c);
         }
-        frames.sort_by(|a, b| a.time_s.total_cmp(&b.time_s));
-        let closed = match frames.pop() {
-            Some(only) if frames.is_empty() => Closed::Single(only, Alone::NoPartner),
-            Some(last) => {
-                frames.push(last);
-                Closed::Bracket(Bracket { camera, frames })
-            }
-            None => return Err((frames, "no frame left".to_string())),
+        let closed = match reassemble(camera, frames) {
+            Ok(closed) => closed,
+            Err(frames) => return Err((frames, "no frame left".to_string())),
         };
         info!(bracket = %stem, frames = closed.frames().len(), "developing again");
         self.queue.push_back(Work {
@@ -590,6 +605,38 @@ impl State {
             }),
         });
         Ok(())
+    }
+
+    /// Probes the `others` inputs of the earlier development `old`; each must be
+    /// unchanged: the very file journaled, or (touched since) the same content. The first
+    /// that changed or is gone is named in the error.
+    async fn probe_unchanged(
+        &self,
+        old: &Entry,
+        others: Vec<PathBuf>,
+    ) -> Result<Vec<(Capture, intake::Taken)>, String> {
+        let journaled: Vec<Input> = old.inputs().into_iter().cloned().collect();
+        let digests: Vec<(PathBuf, Option<u64>)> = journaled
+            .iter()
+            .map(|i| (i.path.clone(), old.digest_of(&i.path)))
+            .collect();
+        let unchanged = |c: &Capture, digest: u64| {
+            journaled.contains(&c.input)
+                || digests
+                    .iter()
+                    .any(|(p, d)| *p == c.input.path && *d == Some(digest))
+        };
+        let probed = self.probe_all(others).await;
+        let mut found = Vec::new();
+        for (path, probe) in probed {
+            match probe {
+                Probe::Frame(c, taken) if unchanged(&c, taken.digest) => {
+                    found.push((c, taken));
+                }
+                _ => return Err(format!("{} changed or is gone", path.display())),
+            }
+        }
+        Ok(found)
     }
 
     /// Requests of `filmback redo STEM`: files in `state/redo/`, each named by the output
@@ -686,4 +733,18 @@ async fn redo_listing(dir: PathBuf) -> Vec<PathBuf> {
         warn!(error = %e, "listing the redo requests did not finish");
         Vec::new()
     })
+}
+
+/// The `frames` of `camera` in capture-time order as one closed set: a bracket, or a
+/// single with no partner when one frame is left; no frame is handed back.
+fn reassemble(camera: CameraId, mut frames: Vec<Capture>) -> Result<Closed, Vec<Capture>> {
+    frames.sort_by(|a, b| a.time_s.total_cmp(&b.time_s));
+    match frames.pop() {
+        Some(only) if frames.is_empty() => Ok(Closed::Single(only, Alone::NoPartner)),
+        Some(last) => {
+            frames.push(last);
+            Ok(Closed::Bracket(Bracket { camera, frames }))
+        }
+        None => Err(frames),
+    }
 }

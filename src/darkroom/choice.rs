@@ -217,15 +217,7 @@ pub fn choose_response(
             WeakFit::Kept(note) => notes.push(note),
         }
     }
-    let exposures: Vec<f64> = chosen.iter().map(|f| f.exposure).collect();
-    if let Some(widest) = response::beyond_calibrated_ratios(&exposures) {
-        notes.push(format!(
-            "frames {:.1} stops apart in {}: the fit's confidence is calibrated on frames \
-             up to four stops apart",
-            widest.log2(),
-            pair
-        ));
-    }
+    notes.extend(wide_pair_note(&chosen, &pair));
     let pooling = (fitted.confidence >= min_confidence)
         .then(|| pooling_of(&fitted.calibration, chosen.len()));
     // The pool is steadier from scene to scene than one bracket's fit (docs/accuracy.md,
@@ -248,6 +240,20 @@ pub fn choose_response(
         contradicts_cache,
         pooling,
     ))
+}
+
+/// A note when frames of `chosen` (named `pair`) are further apart than the fit's
+/// confidence is calibrated on (four stops).
+fn wide_pair_note(chosen: &[&BracketFrame<'_>], pair: &str) -> Option<String> {
+    let exposures: Vec<f64> = chosen.iter().map(|f| f.exposure).collect();
+    response::beyond_calibrated_ratios(&exposures).map(|widest| {
+        format!(
+            "frames {:.1} stops apart in {}: the fit's confidence is calibrated on frames \
+             up to four stops apart",
+            widest.log2(),
+            pair
+        )
+    })
 }
 
 /// The frames a bracket's response is fitted from, and the fit.

@@ -63,25 +63,7 @@ pub(super) fn merge(
     let Some(first_raw) = frames.iter().find(|f| f.raw.is_some()) else {
         return Ok(None);
     };
-    let mut inputs = Vec::with_capacity(frames.len());
-    for (f, &exposure) in frames.iter().zip(exposures) {
-        let (Some(info), Samples::Sixteen(codes)) = (f.raw.as_deref(), f.frame.samples()) else {
-            return Err(RawError::Mismatch {
-                first: first_raw.path.clone(),
-                other: f.path.clone(),
-                reason: "a bracket is either all raw or all JPEG/PNG/TIFF".to_string(),
-            }
-            .into());
-        };
-        inputs.push(RawExposure {
-            path: &f.path,
-            codes,
-            width: f.frame.width(),
-            height: f.frame.height(),
-            info,
-            exposure,
-        });
-    }
+    let inputs = raw_exposures(frames, exposures, first_raw)?;
     let (alignment, warped) = align_mosaics(&inputs, align, stages);
     let inputs: Vec<RawExposure<'_>> = inputs
         .iter()
@@ -109,26 +91,7 @@ pub(super) fn merge(
     });
     let radiance = RadianceMap::new(developed.width, developed.height, 3, developed.rgb)
         .expect("three values per pixel of the mosaic");
-    let chosen = ChosenResponse {
-        response: InverseResponse::from_samples(vec![vec![0.0, 1.0]; 3])
-            .expect("a straight line is a valid response"),
-        source: Source::Raw,
-        summary: LINEAR_RAW.to_string(),
-        report: serde_json::json!({
-            "source": Source::Raw,
-            "model": LINEAR_RAW,
-            "camera": info.camera(),
-            "black": info.black,
-            "white": info.white,
-            "cfa": info.cfa.name(),
-            "demosaic": developed.demosaic,
-            "colour": format!("camera → XYZ ({} matrix) → Rec. 709, as-shot neutral {:?}", info.matrix_illuminant, info.neutral),
-        }),
-        fit: None,
-        notes: Vec::new(),
-        contradicts_cache: false,
-        pooling: None,
-    };
+    let chosen = linear_response(info, developed.demosaic);
     Ok(Some(RawMerge {
         chosen,
         merged: Merged {
@@ -144,6 +107,60 @@ pub(super) fn merge(
         alignment,
         dng,
     }))
+}
+
+/// Each of `frames` as a raw exposure of its relative `exposures`; a frame that is not a
+/// raw refuses the bracket, naming it beside `first_raw`.
+fn raw_exposures<'f>(
+    frames: &'f [LoadedFrame],
+    exposures: &[f64],
+    first_raw: &LoadedFrame,
+) -> Result<Vec<RawExposure<'f>>, DarkroomError> {
+    let mut inputs = Vec::with_capacity(frames.len());
+    for (f, &exposure) in frames.iter().zip(exposures) {
+        let (Some(info), Samples::Sixteen(codes)) = (f.raw.as_deref(), f.frame.samples()) else {
+            return Err(RawError::Mismatch {
+                first: first_raw.path.clone(),
+                other: f.path.clone(),
+                reason: "a bracket is either all raw or all JPEG/PNG/TIFF".to_string(),
+            }
+            .into());
+        };
+        inputs.push(RawExposure {
+            path: &f.path,
+            codes,
+            width: f.frame.width(),
+            height: f.frame.height(),
+            info,
+            exposure,
+        });
+    }
+    Ok(inputs)
+}
+
+/// The response reported for a raw bracket of the camera of `info`: linear, with its
+/// black and white levels, colour filter array, `demosaic` method and colour conversion.
+fn linear_response(info: &RawInfo, demosaic: &str) -> ChosenResponse {
+    ChosenResponse {
+        response: InverseResponse::from_samples(vec![vec![0.0, 1.0]; 3])
+            .expect("a straight line is a valid response"),
+        source: Source::Raw,
+        summary: LINEAR_RAW.to_string(),
+        report: serde_json::json!({
+            "source": Source::Raw,
+            "model": LINEAR_RAW,
+            "camera": info.camera(),
+            "black": info.black,
+            "white": info.white,
+            "cfa": info.cfa.name(),
+            "demosaic": demosaic,
+            "colour": format!("camera → XYZ ({} matrix) → Rec. 709, as-shot neutral {:?}", info.matrix_illuminant, info.neutral),
+        }),
+        fit: None,
+        notes: Vec::new(),
+        contradicts_cache: false,
+        pooling: None,
+    }
 }
 
 /// The mosaics' alignment under `mode` (stage `align`, unless `off`) and each moved

@@ -335,19 +335,7 @@ impl Emulsion {
         options: &Options,
         size: (u32, u32),
     ) -> Result<Emulsion, FilmError> {
-        let h_key = stock.metered_exposure();
-        let k = h_key / key;
-        let mut scale = [(exposure * k) as f32; 3];
-        if mode == ColourMode::NeutralGrey {
-            let green = stock.layer(1);
-            let above_base = green.density(h_key.log10()) - green.d_min();
-            for (c, s) in scale.iter_mut().enumerate() {
-                let curve = stock.layer(c);
-                if let Some(x) = curve.log_h_at(curve.d_min() + above_base) {
-                    *s *= 10f64.powf(x - h_key.log10()) as f32;
-                }
-            }
-        }
+        let scale = layer_scales(stock, exposure, key, mode);
         let print = match stock.kind {
             Kind::Reversal => None,
             Kind::Negative => Some(Printer::new(stock, options, &scale, key)?),
@@ -373,33 +361,7 @@ impl Emulsion {
         let pitch_mm = options.format_mm / long_side;
         let grained = match options.grain {
             None => None,
-            Some(strength) => {
-                let grain = Grain::new(stock, strength, pitch_mm * 1000.0, options.seed)
-                    .ok_or_else(|| FilmError::NoData {
-                        id: stock.id.clone(),
-                        reason: "its data sheet gives no RMS granularity, so +grain cannot be modelled (Kodak gives only a Print Grain Index for colour negatives)".into(),
-                    })?;
-                let from_density = [0, 1, 2].map(|c| {
-                    let curve = stock.layer(c);
-                    DensityTable::new(curve.d_min() - 1.0, curve.d_max() + 1.0, |d| {
-                        linear(c, d).min(1.0)
-                    })
-                });
-                let density = [0, 1, 2].map(|c| {
-                    ExposureTable::new(stock.layer(c), |d| {
-                        let d = d as f32;
-                        [
-                            from_density[c].units(d),
-                            grain.sigma(c, d) * (1.0 / DENSITY_STEP),
-                        ]
-                    })
-                });
-                Some(Grained {
-                    grain,
-                    density,
-                    from_density,
-                })
-            }
+            Some(strength) => Some(grained(stock, strength, pitch_mm, options.seed, linear)?),
         };
         let kernels = if options.mtf {
             let mtf = stock.mtf.as_ref().ok_or_else(|| FilmError::NoData {
@@ -802,4 +764,61 @@ pub fn render(
 ) -> Result<DisplayImage, FilmError> {
     let emulsion = Emulsion::new(stock, exposure, scene_key(map, key), mode)?;
     Ok(emulsion.render(map, Depth::Sixteen))
+}
+
+/// Each layer's scale: `exposure · H_key / key`, and in the neutral-grey mode layer `c`
+/// further multiplied by `10^s_c` (see [`Emulsion::with_options`]).
+fn layer_scales(stock: &Stock, exposure: f64, key: f64, mode: ColourMode) -> [f32; 3] {
+    let h_key = stock.metered_exposure();
+    let k = h_key / key;
+    let mut scale = [(exposure * k) as f32; 3];
+    if mode == ColourMode::NeutralGrey {
+        let green = stock.layer(1);
+        let above_base = green.density(h_key.log10()) - green.d_min();
+        for (c, s) in scale.iter_mut().enumerate() {
+            let curve = stock.layer(c);
+            if let Some(x) = curve.log_h_at(curve.d_min() + above_base) {
+                *s *= 10f64.powf(x - h_key.log10()) as f32;
+            }
+        }
+    }
+    scale
+}
+
+/// The grain of `stock` at `strength` (seeded by `seed`) for pixels of `pitch_mm` at film scale, with its
+/// tables: each layer's display light by density, `linear(c, d)` capped at 1, and each
+/// layer's density and grain by exposure. A stock whose data sheet gives no RMS
+/// granularity cannot be grained.
+fn grained(
+    stock: &Stock,
+    strength: f64,
+    pitch_mm: f64,
+    seed: u64,
+    linear: impl Fn(usize, f64) -> f64,
+) -> Result<Grained, FilmError> {
+    let grain = Grain::new(stock, strength, pitch_mm * 1000.0, seed)
+        .ok_or_else(|| FilmError::NoData {
+            id: stock.id.clone(),
+            reason: "its data sheet gives no RMS granularity, so +grain cannot be modelled (Kodak gives only a Print Grain Index for colour negatives)".into(),
+        })?;
+    let from_density = [0, 1, 2].map(|c| {
+        let curve = stock.layer(c);
+        DensityTable::new(curve.d_min() - 1.0, curve.d_max() + 1.0, |d| {
+            linear(c, d).min(1.0)
+        })
+    });
+    let density = [0, 1, 2].map(|c| {
+        ExposureTable::new(stock.layer(c), |d| {
+            let d = d as f32;
+            [
+                from_density[c].units(d),
+                grain.sigma(c, d) * (1.0 / DENSITY_STEP),
+            ]
+        })
+    });
+    Ok(Grained {
+        grain,
+        density,
+        from_density,
+    })
 }

@@ -330,6 +330,46 @@ impl Default for Options {
 /// anti-halation layer shows around a bare bulb.
 pub const DEFAULT_HALATION: f64 = 0.1;
 
+/// The number `v` of option `name`, which must lie in `[lo, hi]`.
+fn option_number(name: &str, v: Option<&str>, lo: f64, hi: f64) -> Result<f64, RequestError> {
+    let v = v.ok_or_else(|| RequestError::NeedsValue(name.to_string()))?;
+    let (name, value) = (name.to_string(), v.to_string());
+    let x: f64 = v.parse().map_err(|_| RequestError::NotANumber {
+        name: name.clone(),
+        value: value.clone(),
+    })?;
+    if x.is_finite() && (lo..=hi).contains(&x) {
+        Ok(x)
+    } else {
+        Err(RequestError::Outside {
+            name,
+            value,
+            lo,
+            hi,
+        })
+    }
+}
+
+/// The long side in mm of the film format `value` of `+format=`: a named format
+/// (`35mm` or `135`, `645`, `6x6` or `120`, `6x7`, `4x5`) or `<mm>mm` within 1–1000 mm.
+fn format_mm(value: Option<&str>) -> Result<f64, RequestError> {
+    let v = value.ok_or(RequestError::Missing(
+        "format needs a value such as 35mm or 6x7",
+    ))?;
+    Ok(match v {
+        "35mm" | "135" => 36.0,
+        "645" => 56.0,
+        "6x6" | "120" => 56.0,
+        "6x7" => 70.0,
+        "4x5" => 120.0,
+        mm => mm
+            .strip_suffix("mm")
+            .and_then(|n| n.parse::<f64>().ok())
+            .filter(|n| n.is_finite() && (1.0..=1000.0).contains(n))
+            .ok_or_else(|| RequestError::Format(v.to_string()))?,
+    })
+}
+
 impl Options {
     /// Parses the options after the stock (each without its `+`).
     pub fn parse<'a>(items: impl IntoIterator<Item = &'a str>) -> Result<Options, RequestError> {
@@ -345,24 +385,7 @@ impl Options {
                 return Err(RequestError::Twice(name.to_string()));
             }
             seen.push(name);
-            let number = |v: Option<&str>, lo: f64, hi: f64| -> Result<f64, RequestError> {
-                let v = v.ok_or_else(|| RequestError::NeedsValue(name.to_string()))?;
-                let (name, value) = (name.to_string(), v.to_string());
-                let x: f64 = v.parse().map_err(|_| RequestError::NotANumber {
-                    name: name.clone(),
-                    value: value.clone(),
-                })?;
-                if x.is_finite() && (lo..=hi).contains(&x) {
-                    Ok(x)
-                } else {
-                    Err(RequestError::Outside {
-                        name,
-                        value,
-                        lo,
-                        hi,
-                    })
-                }
-            };
+            let number = |v: Option<&str>, lo: f64, hi: f64| option_number(name, v, lo, hi);
             match name {
                 "grain" => {
                     o.grain = Some(match value {
@@ -377,23 +400,7 @@ impl Options {
                         v => number(v, 0.0, 10.0)?,
                     })
                 }
-                "format" => {
-                    let v = value.ok_or(RequestError::Missing(
-                        "format needs a value such as 35mm or 6x7",
-                    ))?;
-                    o.format_mm = match v {
-                        "35mm" | "135" => 36.0,
-                        "645" => 56.0,
-                        "6x6" | "120" => 56.0,
-                        "6x7" => 70.0,
-                        "4x5" => 120.0,
-                        mm => mm
-                            .strip_suffix("mm")
-                            .and_then(|n| n.parse::<f64>().ok())
-                            .filter(|n| n.is_finite() && (1.0..=1000.0).contains(n))
-                            .ok_or_else(|| RequestError::Format(v.to_string()))?,
-                    };
-                }
+                "format" => o.format_mm = format_mm(value)?,
                 "seed" => {
                     let v = value.ok_or(RequestError::Missing("seed needs a value"))?;
                     o.seed = v.parse().map_err(|_| RequestError::Seed(v.to_string()))?;

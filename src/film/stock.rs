@@ -509,49 +509,9 @@ pub(super) fn validate_layer(
         density: points[i].1,
         reason,
     };
-    for (i, &(log_h, d)) in points.iter().enumerate() {
-        if !(log_h.is_finite() && (LOG_H_RANGE.0..=LOG_H_RANGE.1).contains(&log_h)) {
-            return Err(bad(
-                i,
-                format!(
-                    "log10 H outside {}..{} (lux·s)",
-                    LOG_H_RANGE.0, LOG_H_RANGE.1
-                ),
-            ));
-        }
-        if !(d.is_finite() && (DENSITY_RANGE.0..=DENSITY_RANGE.1).contains(&d)) {
-            return Err(bad(
-                i,
-                format!("density outside {}..{}", DENSITY_RANGE.0, DENSITY_RANGE.1),
-            ));
-        }
-        if i > 0 {
-            let (prev_h, prev_d) = points[i - 1];
-            if log_h <= prev_h {
-                return Err(bad(
-                    i,
-                    format!("log H must increase (previous point at {prev_h})"),
-                ));
-            }
-            match kind {
-                Kind::Reversal if d > prev_d => {
-                    return Err(bad(
-                        i,
-                        format!(
-                            "density rises from {prev_d}; a reversal film's density must fall (or stay) as exposure rises"
-                        ),
-                    ));
-                }
-                Kind::Negative if d < prev_d => {
-                    return Err(bad(
-                        i,
-                        format!(
-                            "density falls from {prev_d}; a negative's density must rise (or stay) with exposure"
-                        ),
-                    ));
-                }
-                _ => {}
-            }
+    for i in 0..points.len() {
+        if let Some(reason) = point_fault(kind, points, i) {
+            return Err(bad(i, reason));
         }
     }
     let first = points[0].1;
@@ -567,6 +527,41 @@ pub(super) fn validate_layer(
         });
     }
     Ok(())
+}
+
+/// What is wrong with point `i` of a layer of a film of `kind`, if anything: its log H
+/// and density within range, log H increasing, and density monotonic in the film's
+/// sense (rising for a negative, falling for a slide).
+fn point_fault(kind: Kind, points: &[(f64, f64)], i: usize) -> Option<String> {
+    let (log_h, d) = points[i];
+    if !(log_h.is_finite() && (LOG_H_RANGE.0..=LOG_H_RANGE.1).contains(&log_h)) {
+        return Some(format!(
+            "log10 H outside {}..{} (lux·s)",
+            LOG_H_RANGE.0, LOG_H_RANGE.1
+        ));
+    }
+    if !(d.is_finite() && (DENSITY_RANGE.0..=DENSITY_RANGE.1).contains(&d)) {
+        return Some(format!(
+            "density outside {}..{}",
+            DENSITY_RANGE.0, DENSITY_RANGE.1
+        ));
+    }
+    if i == 0 {
+        return None;
+    }
+    let (prev_h, prev_d) = points[i - 1];
+    if log_h <= prev_h {
+        return Some(format!("log H must increase (previous point at {prev_h})"));
+    }
+    match kind {
+        Kind::Reversal if d > prev_d => Some(format!(
+            "density rises from {prev_d}; a reversal film's density must fall (or stay) as exposure rises"
+        )),
+        Kind::Negative if d < prev_d => Some(format!(
+            "density falls from {prev_d}; a negative's density must rise (or stay) with exposure"
+        )),
+        _ => None,
+    }
 }
 
 /// The built-in stock files, embedded at build time.

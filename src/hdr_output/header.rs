@@ -24,6 +24,11 @@ pub(super) fn image_attributes(size: Vec2<usize>, primaries: Primaries) -> Image
     attributes
 }
 
+/// The layer's attributes from the provenance `p`: the capture date, the longest
+/// frame's exposure, the camera, each frame, the response, the scale (the file's values
+/// are the radiance times `scale`) and the `primaries`' interop id.
+// Kept whole: a linear list of the header's attributes, each set from the provenance;
+// split, it would only scatter them.
 pub(super) fn layer_attributes(
     p: &Provenance,
     scale: f32,

@@ -307,6 +307,8 @@ fn green_row(m: &[f32], green: &mut [f32], half: usize, row_sites: &[Site; 2], r
 /// Steps 2 and 3 and the matrix for `n` pixels of half `p` of working row `r`, from value
 /// `k0 + 2` of the half (image column `2·k0 + p`): the output's three colours into
 /// `rgb[0..n]`, `rgb[CHUNK..CHUNK + n]` and `rgb[2·CHUNK..2·CHUNK + n]`.
+// Kept whole: both sites' kernels share the run offsets and the matrix writer; split,
+// each would take a dozen loose arguments.
 fn colour_run(
     m: &[f32],
     g: &[f32],

@@ -286,54 +286,7 @@ pub fn develop_keeping(
     scale: f64,
     keep_mosaic: bool,
 ) -> Result<DevelopedRaw, RawError> {
-    let Some(first) = frames.first() else {
-        return Err(RawError::Decode {
-            path: PathBuf::new(),
-            reason: "no frames".to_string(),
-        });
-    };
-    for other in &frames[1..] {
-        let mismatch = |reason: String| RawError::Mismatch {
-            first: first.path.to_path_buf(),
-            other: other.path.to_path_buf(),
-            reason,
-        };
-        if (other.width, other.height) != (first.width, first.height) {
-            return Err(mismatch(format!(
-                "{}×{} against {}×{} pixels",
-                first.width, first.height, other.width, other.height
-            )));
-        }
-        if other.info.cfa != first.info.cfa {
-            return Err(mismatch(format!(
-                "colour filter arrays {} and {}",
-                first.info.cfa.name(),
-                other.info.cfa.name()
-            )));
-        }
-        if other.info.camera() != first.info.camera() {
-            return Err(mismatch(format!(
-                "taken by {} and {}",
-                first.info.camera(),
-                other.info.camera()
-            )));
-        }
-    }
-    for f in frames {
-        let pixels = f.width as usize * f.height as usize;
-        if f.codes.len() != pixels || !(f.exposure.is_finite() && f.exposure > 0.0) {
-            return Err(RawError::Decode {
-                path: f.path.to_path_buf(),
-                reason: format!(
-                    "{} codes for {}×{} pixels, exposure {}",
-                    f.codes.len(),
-                    f.width,
-                    f.height,
-                    f.exposure
-                ),
-            });
-        }
-    }
+    let first = check_frames(frames)?;
     let codes: Vec<mosaic::Codes<'_>> = frames
         .iter()
         .map(|f| mosaic::Codes {
@@ -380,6 +333,66 @@ pub fn develop_keeping(
         timings,
         mosaic,
     })
+}
+
+/// The first of `frames`, once all have its size, colour filter array and camera, and
+/// each has a code per pixel and a finite, positive exposure.
+fn check_frames<'f, 'a>(frames: &'f [RawExposure<'a>]) -> Result<&'f RawExposure<'a>, RawError> {
+    let Some(first) = frames.first() else {
+        return Err(RawError::Decode {
+            path: PathBuf::new(),
+            reason: "no frames".to_string(),
+        });
+    };
+    for other in &frames[1..] {
+        check_alike(first, other)?;
+    }
+    for f in frames {
+        let pixels = f.width as usize * f.height as usize;
+        if f.codes.len() != pixels || !(f.exposure.is_finite() && f.exposure > 0.0) {
+            return Err(RawError::Decode {
+                path: f.path.to_path_buf(),
+                reason: format!(
+                    "{} codes for {}×{} pixels, exposure {}",
+                    f.codes.len(),
+                    f.width,
+                    f.height,
+                    f.exposure
+                ),
+            });
+        }
+    }
+    Ok(first)
+}
+
+/// `other` against `first`: the same size, colour filter array and camera.
+fn check_alike(first: &RawExposure<'_>, other: &RawExposure<'_>) -> Result<(), RawError> {
+    let mismatch = |reason: String| RawError::Mismatch {
+        first: first.path.to_path_buf(),
+        other: other.path.to_path_buf(),
+        reason,
+    };
+    if (other.width, other.height) != (first.width, first.height) {
+        return Err(mismatch(format!(
+            "{}×{} against {}×{} pixels",
+            first.width, first.height, other.width, other.height
+        )));
+    }
+    if other.info.cfa != first.info.cfa {
+        return Err(mismatch(format!(
+            "colour filter arrays {} and {}",
+            first.info.cfa.name(),
+            other.info.cfa.name()
+        )));
+    }
+    if other.info.camera() != first.info.camera() {
+        return Err(mismatch(format!(
+            "taken by {} and {}",
+            first.info.camera(),
+            other.info.camera()
+        )));
+    }
+    Ok(())
 }
 
 /// White balance, demosaicking, camera → Rec. 709 and `scale` in one pass: interleaved

@@ -440,34 +440,12 @@ pub fn film_lut(look: &Look, spec: LutSpec) -> Result<Lut, RenderingError> {
         key: Key::Grey(LUT_MID_GREY),
         options: options.clone(),
     };
-    let grid_map = |f: &dyn Fn([f64; 3]) -> [f64; 3]| -> Result<RadianceMap, RenderingError> {
-        let pixels: Vec<f32> = Lut::grid(size)
-            .flat_map(|v| f(v).map(|x| x as f32))
-            .collect();
-        RadianceMap::new((size * size) as u32, size as u32, 3, pixels).map_err(|source| {
-            RenderingError::Grid {
-                look: look.name(),
-                source,
-            }
-        })
-    };
     let to_working = spec.input.gamut().matrix_to(Gamut::REC709);
     let scene = |v: [f64; 3]| apply_matrix(&to_working, v.map(|x| spec.input.decode(x)));
     let table = match spec.part {
-        LutPart::Whole => {
-            let map = grid_map(&scene)?;
-            let img = lut_look.render(&map, Depth::Sixteen)?;
-            let to_display = Gamut::REC709.matrix_to(spec.output.gamut());
-            img.samples()
-                .chunks_exact(3)
-                .map(|px| {
-                    let linear = [0, 1, 2].map(|c| srgb_decode(f64::from(px[c]) / 65535.0));
-                    apply_matrix(&to_display, linear).map(|l| spec.output.encode(l) as f32)
-                })
-                .collect()
-        }
+        LutPart::Whole => whole_table(&lut_look, &grid_map(look, size, &scene)?, spec.output)?,
         LutPart::Negative | LutPart::Print => {
-            let map = grid_map(&scene)?;
+            let map = grid_map(look, size, &scene)?;
             let emulsion = lut_look.emulsion(&map)?;
             let (Some(light), Some(printing)) =
                 (emulsion.printer_light(), emulsion.printing_density())
@@ -488,6 +466,43 @@ pub fn film_lut(look: &Look, spec: LutSpec) -> Result<Lut, RenderingError> {
         size,
         table,
     })
+}
+
+/// The grid of a LUT of `size` points per axis, each point mapped by `f`, as a map of
+/// `size²` × `size` pixels for `look` to render.
+fn grid_map(
+    look: &Look,
+    size: usize,
+    f: &dyn Fn([f64; 3]) -> [f64; 3],
+) -> Result<RadianceMap, RenderingError> {
+    let pixels: Vec<f32> = Lut::grid(size)
+        .flat_map(|v| f(v).map(|x| x as f32))
+        .collect();
+    RadianceMap::new((size * size) as u32, size as u32, 3, pixels).map_err(|source| {
+        RenderingError::Grid {
+            look: look.name(),
+            source,
+        }
+    })
+}
+
+/// The whole look's table: `look` rendered of the grid `map` at 16 bits, decoded from
+/// sRGB to linear Rec. 709, converted to the `output`'s gamut and encoded by it.
+fn whole_table(
+    look: &Look,
+    map: &RadianceMap,
+    output: OutputEncoding,
+) -> Result<Vec<[f32; 3]>, RenderingError> {
+    let img = look.render(map, Depth::Sixteen)?;
+    let to_display = Gamut::REC709.matrix_to(output.gamut());
+    Ok(img
+        .samples()
+        .chunks_exact(3)
+        .map(|px| {
+            let linear = [0, 1, 2].map(|c| srgb_decode(f64::from(px[c]) / 65535.0));
+            apply_matrix(&to_display, linear).map(|l| output.encode(l) as f32)
+        })
+        .collect())
 }
 
 /// Cineon code of printing density `p` (above the film's minimum), `(95 + p/0.002)/1023`.

@@ -1059,15 +1059,7 @@ fn finish(problem: &Problem, lambda: f64, log_floor: f64, covered: (f64, f64)) -
     let chi2 = resid.norm_squared();
     let residual_rms =
         (chi2 / problem.total_weight().max(f64::MIN_POSITIVE)).sqrt() / std::f64::consts::LN_2;
-    let sv = data_a.clone().svd(false, false).singular_values;
-    let (smax, smin) = sv.iter().fold((0.0f64, f64::INFINITY), |(hi, lo), &s| {
-        (hi.max(s), lo.min(s))
-    });
-    let condition = if smin > 0.0 {
-        smax / smin
-    } else {
-        f64::INFINITY
-    };
+    let condition = condition_number(&data_a);
     // Covariance of the free increments under the penalised model: s²·(R⁻¹R⁻ᵀ) from the
     // SVD of the free columns of the full (data + smoothness) system, with
     // s² = 2·max(1, χ²/(m − p)): the misfit inflates it, and each pixel bin feeds two
@@ -1075,55 +1067,9 @@ fn finish(problem: &Problem, lambda: f64, log_floor: f64, covered: (f64, f64)) -
     let free: Vec<usize> = (0..n).filter(|&j| d[j] > 0.0).collect();
     let p = free.len().max(1);
     let scale2 = 2.0 * problem.dependence * (chi2 / (m.saturating_sub(p).max(1)) as f64).max(1.0);
-    let (predicted_error, predicted_shape_error, effective_parameters) = if free.is_empty() {
-        (f64::INFINITY, f64::INFINITY, 0.0)
-    } else {
-        let svd = a.select_columns(&free).svd(false, true);
-        let vt = svd.v_t.unwrap_or_else(|| DMatrix::identity(p, p));
-        // Per code, `Σ⁻¹Vᵀφ(b)`: its squared norm is the variance of `ln g(b)` (over s²),
-        // and that of its deviation from the codes' mean the variance of the shape.
-        let codes = ASSESSED_CODES;
-        let count = codes.clone().count() as f64;
-        let whitened: Vec<DVector<f64>> = codes
-            .map(|k| {
-                let x = (f64::from(k) / 255.0).ln().max(log_floor);
-                let r = problem.basis.ramps(x);
-                let phi = DVector::from_iterator(p, free.iter().map(|&j| r[j]));
-                let mut w = &vt * phi;
-                for (v, s) in w.iter_mut().zip(svd.singular_values.iter()) {
-                    *v = if *s > 0.0 { *v / s } else { f64::INFINITY };
-                }
-                w
-            })
-            .collect();
-        let var_sum: f64 = whitened.iter().map(|w| w.norm_squared()).sum();
-        let mean = whitened.iter().fold(DVector::zeros(p), |acc, w| acc + w) / count;
-        let shape_sum: f64 = if var_sum.is_finite() {
-            whitened.iter().map(|w| (w - &mean).norm_squared()).sum()
-        } else {
-            f64::INFINITY
-        };
-        // tr(A (SᵀS)⁻¹ Aᵀ) = ‖A V Σ⁻¹‖²_F for the stacked system S = U Σ Vᵀ.
-        let mut projected = data_a.select_columns(&free) * vt.transpose();
-        for (mut column, s) in projected.column_iter_mut().zip(svd.singular_values.iter()) {
-            // A direction the stacked system does not see (σ = 0) is one `A` does not
-            // see either: it adds nothing to the trace.
-            column *= if *s > 0.0 { 1.0 / s } else { 0.0 };
-        }
-        (
-            (scale2 * var_sum / count).sqrt() / std::f64::consts::LN_2,
-            (scale2 * shape_sum / count).sqrt() / std::f64::consts::LN_2,
-            projected.norm_squared(),
-        )
-    };
+    let predicted = predict(problem, &a, &data_a, &free, scale2, log_floor);
     let (lo, hi) = (covered.0, covered.1.min(1.0));
-    let (first, last) = (
-        f64::from(*ASSESSED_CODES.start()) / 255.0,
-        f64::from(*ASSESSED_CODES.end()) / 255.0,
-    );
-    let span = f64::from(ASSESSED_CODES.end() - ASSESSED_CODES.start()) / 255.0;
-    let coverage = ((hi.min(last) - lo.max(first)) / span).clamp(0.0, 1.0);
-    let dof = (m as f64 - effective_parameters).max(1.0);
+    let dof = (m as f64 - predicted.effective_parameters).max(1.0);
     let mut fit = ChannelFit {
         degree: problem.basis.degree(),
         knots: problem.basis.interior().to_vec(),
@@ -1133,11 +1079,11 @@ fn finish(problem: &Problem, lambda: f64, log_floor: f64, covered: (f64, f64)) -
         covered: (lo, hi),
         residual_rms,
         equations: m,
-        effective_parameters,
+        effective_parameters: predicted.effective_parameters,
         condition,
-        predicted_error,
-        predicted_shape_error,
-        coverage,
+        predicted_error: predicted.error,
+        predicted_shape_error: predicted.shape_error,
+        coverage: coverage(lo, hi),
         misfit: chi2 / dof,
         log_ratio: problem.ripple_log_ratio,
         top_span: 0.0,
@@ -1146,6 +1092,99 @@ fn finish(problem: &Problem, lambda: f64, log_floor: f64, covered: (f64, f64)) -
     fit.top_span = (-fit.log_g(hi) / std::f64::consts::LN_2).max(0.0);
     fit.confidence = confidence(&fit);
     fit
+}
+
+/// The ratio of the largest to the smallest singular value of `data_a` (infinite when
+/// it is singular).
+fn condition_number(data_a: &DMatrix<f64>) -> f64 {
+    let sv = data_a.clone().svd(false, false).singular_values;
+    let (smax, smin) = sv.iter().fold((0.0f64, f64::INFINITY), |(hi, lo), &s| {
+        (hi.max(s), lo.min(s))
+    });
+    if smin > 0.0 {
+        smax / smin
+    } else {
+        f64::INFINITY
+    }
+}
+
+/// What the covariance of a fit predicts of it.
+struct Prediction {
+    /// RMS over the assessed codes of the standard error of `log₂ g`, in stops.
+    error: f64,
+    /// The same of the curve's shape (its deviation from its mean over the codes).
+    shape_error: f64,
+    /// `tr(A (SᵀS)⁻¹ Aᵀ)`: the parameters the data effectively determine.
+    effective_parameters: f64,
+}
+
+/// The errors predicted from the SVD of the `free` columns of the full (data +
+/// smoothness) system `a`, whose first rows are `data_a`, at variance factor `scale2`
+/// (s²); without a free increment they are infinite, with no effective parameter.
+fn predict(
+    problem: &Problem,
+    a: &DMatrix<f64>,
+    data_a: &DMatrix<f64>,
+    free: &[usize],
+    scale2: f64,
+    log_floor: f64,
+) -> Prediction {
+    if free.is_empty() {
+        return Prediction {
+            error: f64::INFINITY,
+            shape_error: f64::INFINITY,
+            effective_parameters: 0.0,
+        };
+    }
+    let p = free.len();
+    let svd = a.select_columns(free).svd(false, true);
+    let vt = svd.v_t.unwrap_or_else(|| DMatrix::identity(p, p));
+    // Per code, `Σ⁻¹Vᵀφ(b)`: its squared norm is the variance of `ln g(b)` (over s²),
+    // and that of its deviation from the codes' mean the variance of the shape.
+    let codes = ASSESSED_CODES;
+    let count = codes.clone().count() as f64;
+    let whitened: Vec<DVector<f64>> = codes
+        .map(|k| {
+            let x = (f64::from(k) / 255.0).ln().max(log_floor);
+            let r = problem.basis.ramps(x);
+            let phi = DVector::from_iterator(p, free.iter().map(|&j| r[j]));
+            let mut w = &vt * phi;
+            for (v, s) in w.iter_mut().zip(svd.singular_values.iter()) {
+                *v = if *s > 0.0 { *v / s } else { f64::INFINITY };
+            }
+            w
+        })
+        .collect();
+    let var_sum: f64 = whitened.iter().map(|w| w.norm_squared()).sum();
+    let mean = whitened.iter().fold(DVector::zeros(p), |acc, w| acc + w) / count;
+    let shape_sum: f64 = if var_sum.is_finite() {
+        whitened.iter().map(|w| (w - &mean).norm_squared()).sum()
+    } else {
+        f64::INFINITY
+    };
+    // tr(A (SᵀS)⁻¹ Aᵀ) = ‖A V Σ⁻¹‖²_F for the stacked system S = U Σ Vᵀ.
+    let mut projected = data_a.select_columns(free) * vt.transpose();
+    for (mut column, s) in projected.column_iter_mut().zip(svd.singular_values.iter()) {
+        // A direction the stacked system does not see (σ = 0) is one `A` does not
+        // see either: it adds nothing to the trace.
+        column *= if *s > 0.0 { 1.0 / s } else { 0.0 };
+    }
+    Prediction {
+        error: (scale2 * var_sum / count).sqrt() / std::f64::consts::LN_2,
+        shape_error: (scale2 * shape_sum / count).sqrt() / std::f64::consts::LN_2,
+        effective_parameters: projected.norm_squared(),
+    }
+}
+
+/// Share of the assessed codes ([`ASSESSED_CODES`]) inside the brightness range
+/// `[lo, hi]` the pairs covered.
+fn coverage(lo: f64, hi: f64) -> f64 {
+    let (first, last) = (
+        f64::from(*ASSESSED_CODES.start()) / 255.0,
+        f64::from(*ASSESSED_CODES.end()) / 255.0,
+    );
+    let span = f64::from(ASSESSED_CODES.end() - ASSESSED_CODES.start()) / 255.0;
+    ((hi.min(last) - lo.max(first)) / span).clamp(0.0, 1.0)
 }
 
 /// `coverage · min(p, 1 / (1 + (predicted_shape_error / 0.2 stop)²))` with `p` the

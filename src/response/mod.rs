@@ -303,7 +303,7 @@ pub fn calibrate(
     };
     let names = channel_names(dark.channels());
     // Channels are independent: fitted on all cores, errors reported in channel order.
-    let mut fitted: Vec<(usize, Result<ChannelFit, FitError>, Vec<TonePair>)> = (0..names.len())
+    let mut fitted: Vec<(Result<ChannelFit, FitError>, Vec<TonePair>)> = (0..names.len())
         .into_par_iter()
         .map(|c| {
             let (a, b) = (dark.cumulative(c), bright.cumulative(c));
@@ -313,44 +313,22 @@ pub fn calibrate(
                 UsableTones::detect(&a, dark.compression()),
                 UsableTones::detect(&b, bright.compression()),
             );
-            (c, fit::fit(&pairs, log_ratio, degree), pairs)
+            (fit::fit(&pairs, log_ratio, degree), pairs)
         })
         .collect();
-    if let Some(e) = refusal(fitted.iter().map(|(c, f, _)| (names[*c], f))) {
+    if let Some(e) = refusal(names.iter().copied().zip(fitted.iter().map(|(f, _)| f))) {
         return Err(e);
     }
     let (ratio, ratio_source) = match ratio {
         Ratio::Known(r, source) => (r, source),
-        Ratio::Estimate => {
-            let mut per_channel: Vec<f64> = fitted
-                .iter()
-                .filter_map(|(_, f, _)| f.as_ref().ok())
-                .map(|f| PRIOR_MID_GREY.ln() / f.log_g(0.5))
-                .filter(|k| k.is_finite() && *k > 0.0)
-                .collect();
-            per_channel.sort_by(f64::total_cmp);
-            let Some(&k) = per_channel.get(per_channel.len().saturating_sub(1) / 2) else {
-                return Err(CalibrationError::NoChannel(
-                    "the ratio cannot be estimated: no channel has usable tones".into(),
-                ));
-            };
-            // Refitted at the estimated ratio rather than scaled by `k`: the smoothness
-            // floor depends on the ratio (see `fit`), so a fit at ratio e is not a fit
-            // at e^k raised to the k-th power.
-            fitted.par_iter_mut().for_each(|(_, f, pairs)| {
-                if f.is_ok() {
-                    *f = fit::fit(pairs, k, degree);
-                }
-            });
-            (k.exp(), RatioSource::Estimated)
-        }
+        Ratio::Estimate => (estimate_ratio(&mut fitted, degree)?, RatioSource::Estimated),
     };
     let log_ratio = ratio.ln();
     let channels = assemble(
         names,
         fitted
             .into_iter()
-            .map(|(_, f, pairs)| {
+            .map(|(f, pairs)| {
                 let sets = ChannelSets {
                     log_ratios: vec![log_ratio; pairs.len()],
                     set_lengths: vec![pairs.len()],
@@ -361,6 +339,37 @@ pub fn calibrate(
             .collect(),
     )?;
     finish(ratio, ratio_source, channels)
+}
+
+/// The ratio `γ = e^k` of a pair whose channels were `fitted` at `ln γ = 1`, with `k`
+/// the median over the fitted channels of `ln PRIOR_MID_GREY / ln g(0.5)`; each fitted
+/// channel is then fitted again at `ln γ = k`. Without a fitted channel it cannot be
+/// estimated.
+fn estimate_ratio(
+    fitted: &mut [(Result<ChannelFit, FitError>, Vec<TonePair>)],
+    degree: Degree,
+) -> Result<f64, CalibrationError> {
+    let mut per_channel: Vec<f64> = fitted
+        .iter()
+        .filter_map(|(f, _)| f.as_ref().ok())
+        .map(|f| PRIOR_MID_GREY.ln() / f.log_g(0.5))
+        .filter(|k| k.is_finite() && *k > 0.0)
+        .collect();
+    per_channel.sort_by(f64::total_cmp);
+    let Some(&k) = per_channel.get(per_channel.len().saturating_sub(1) / 2) else {
+        return Err(CalibrationError::NoChannel(
+            "the ratio cannot be estimated: no channel has usable tones".into(),
+        ));
+    };
+    // Refitted at the estimated ratio rather than scaled by `k`: the smoothness
+    // floor depends on the ratio (see `fit`), so a fit at ratio e is not a fit
+    // at e^k raised to the k-th power.
+    fitted.par_iter_mut().for_each(|(f, pairs)| {
+        if f.is_ok() {
+            *f = fit::fit(pairs, k, degree);
+        }
+    });
+    Ok(k.exp())
 }
 
 /// A channel's tone pairs as [`ChannelCalibration`] keeps them.
@@ -633,6 +642,25 @@ fn calibrate_pairs<'h>(
     degree: Degree,
     pair: impl Fn(usize, usize) -> (Cow<'h, Histogram>, Cow<'h, Histogram>) + Sync,
 ) -> Result<Calibration, CalibrationError> {
+    let first = check_frames(frames)?;
+    let pairing = pair_frames(frames)?;
+    let names = channel_names(first.channels());
+    let counted: Vec<(Cow<Histogram>, Cow<Histogram>)> =
+        pairing.pairs.par_iter().map(|&(i, j)| pair(i, j)).collect();
+    let fitted: Vec<(Result<ChannelFit, FitError>, ChannelSets)> = (0..names.len())
+        .into_par_iter()
+        .map(|c| fit_channel(c, frames, &pairing, &counted, degree))
+        .collect();
+    if let Some(e) = refusal(names.iter().copied().zip(fitted.iter().map(|(f, _)| f))) {
+        return Err(e);
+    }
+    let channels = assemble(names, fitted)?;
+    finish(pairing.ratio, ratio_source, channels)
+}
+
+/// The first frame's histogram, once every frame has its channels and depth and a
+/// finite, positive relative exposure.
+fn check_frames<'h>(frames: &[(&'h Histogram, f64)]) -> Result<&'h Histogram, CalibrationError> {
     let Some(&(first, _)) = frames.first() else {
         return Err(CalibrationError::Mismatch("no frames".into()));
     };
@@ -651,15 +679,31 @@ fn calibrate_pairs<'h>(
     if let Some(&(_, e)) = frames.iter().find(|(_, e)| !(e.is_finite() && *e > 0.0)) {
         return Err(CalibrationError::Ratio(e));
     }
+    Ok(first)
+}
+
+/// The pairs of frames a bracket is calibrated from.
+struct Pairing {
+    /// `(dark, bright)` frame indices of each pair.
+    pairs: Vec<(usize, usize)>,
+    /// The bracket's ratio: brightest over darkest exposure.
+    ratio: f64,
+    /// How many distinct exposures the bracket has.
+    distinct: usize,
+}
+
+/// Pairs each frame with the brighter ones of adjacent distinct exposures (no frame
+/// strictly between them) or close enough (within [`WIDEST_PAIR`]); a bracket without
+/// two distinct exposures is an error giving its ratio.
+fn pair_frames(frames: &[(&Histogram, f64)]) -> Result<Pairing, CalibrationError> {
     let mut order: Vec<usize> = (0..frames.len()).collect();
     order.sort_by(|&a, &b| frames[a].1.total_cmp(&frames[b].1));
-    let pairs_of_frames: Vec<(usize, usize)> = order
+    let pairs: Vec<(usize, usize)> = order
         .iter()
         .enumerate()
         .flat_map(|(k, &i)| order[k + 1..].iter().map(move |&j| (i, j)))
         .filter(|&(i, j)| frames[j].1 > SAME_EXPOSURE * frames[i].1)
         .filter(|&(i, j)| {
-            // Adjacent distinct exposures (no frame strictly between them), or close enough.
             frames[j].1 <= WIDEST_PAIR * SAME_EXPOSURE * frames[i].1
                 || !frames.iter().any(|(_, e)| {
                     *e > SAME_EXPOSURE * frames[i].1 && *e * SAME_EXPOSURE < frames[j].1
@@ -667,70 +711,56 @@ fn calibrate_pairs<'h>(
         })
         .collect();
     let (darkest, brightest) = (frames[order[0]].1, frames[order[order.len() - 1]].1);
-    if pairs_of_frames.is_empty() {
+    if pairs.is_empty() {
         return Err(CalibrationError::Ratio(brightest / darkest));
     }
     let distinct = 1 + order
         .windows(2)
         .filter(|w| frames[w[1]].1 > SAME_EXPOSURE * frames[w[0]].1)
         .count();
-    let names = channel_names(first.channels());
-    type Fitted = (
-        usize,
-        Result<ChannelFit, FitError>,
-        Vec<TonePair>,
-        Vec<f64>,
-        Vec<usize>,
-    );
-    let counted: Vec<(Cow<Histogram>, Cow<Histogram>)> = pairs_of_frames
-        .par_iter()
-        .map(|&(i, j)| pair(i, j))
-        .collect();
-    let fitted: Vec<Fitted> = (0..names.len())
-        .into_par_iter()
-        .map(|c| {
-            let sets: Vec<(Vec<TonePair>, f64)> = pairs_of_frames
-                .iter()
-                .zip(&counted)
-                .map(|(&(i, j), (dark, bright))| {
-                    let (a, b) = (dark.cumulative(c), bright.cumulative(c));
-                    let usable_a = UsableTones::detect(&a, dark.compression());
-                    let usable_b = UsableTones::detect(&b, bright.compression());
-                    (
-                        tone_pairs(&a, &b, usable_a, usable_b),
-                        (frames[j].1 / frames[i].1).ln(),
-                    )
-                })
-                .collect();
-            let borrowed: Vec<(&[TonePair], f64)> =
-                sets.iter().map(|(p, r)| (p.as_slice(), *r)).collect();
-            let result = fit::fit_joint(&borrowed, distinct, degree);
-            let (pairs, log_ratios) = sets
-                .iter()
-                .flat_map(|(p, r)| p.iter().map(move |p| (*p, *r)))
-                .unzip();
-            let set_lengths = sets.iter().map(|(p, _)| p.len()).collect();
-            (c, result, pairs, log_ratios, set_lengths)
+    Ok(Pairing {
+        pairs,
+        ratio: brightest / darkest,
+        distinct,
+    })
+}
+
+/// Fits channel `c` jointly over the tone pairs of every pair of `pairing`, with the
+/// `counted` histograms of each pair and `ln(bright/dark)` as its log ratio.
+fn fit_channel(
+    c: usize,
+    frames: &[(&Histogram, f64)],
+    pairing: &Pairing,
+    counted: &[(Cow<Histogram>, Cow<Histogram>)],
+    degree: Degree,
+) -> (Result<ChannelFit, FitError>, ChannelSets) {
+    let sets: Vec<(Vec<TonePair>, f64)> = pairing
+        .pairs
+        .iter()
+        .zip(counted)
+        .map(|(&(i, j), (dark, bright))| {
+            let (a, b) = (dark.cumulative(c), bright.cumulative(c));
+            let usable_a = UsableTones::detect(&a, dark.compression());
+            let usable_b = UsableTones::detect(&b, bright.compression());
+            (
+                tone_pairs(&a, &b, usable_a, usable_b),
+                (frames[j].1 / frames[i].1).ln(),
+            )
         })
         .collect();
-    if let Some(e) = refusal(fitted.iter().map(|(c, f, ..)| (names[*c], f))) {
-        return Err(e);
-    }
-    let channels = assemble(
-        names,
-        fitted
-            .into_iter()
-            .map(|(_, f, pairs, log_ratios, set_lengths)| {
-                let sets = ChannelSets {
-                    pairs,
-                    log_ratios,
-                    set_lengths,
-                };
-                (f, sets)
-            })
-            .collect(),
-    )?;
-    finish(brightest / darkest, ratio_source, channels)
+    let borrowed: Vec<(&[TonePair], f64)> = sets.iter().map(|(p, r)| (p.as_slice(), *r)).collect();
+    let result = fit::fit_joint(&borrowed, pairing.distinct, degree);
+    let (pairs, log_ratios) = sets
+        .iter()
+        .flat_map(|(p, r)| p.iter().map(move |p| (*p, *r)))
+        .unzip();
+    let set_lengths = sets.iter().map(|(p, _)| p.len()).collect();
+    let sets = ChannelSets {
+        pairs,
+        log_ratios,
+        set_lengths,
+    };
+    (result, sets)
 }
 
 /// Samples `g` at `i/(n−1)`, pinning `g(0) = 0`, `g(1) = 1` and non-decreasing order.

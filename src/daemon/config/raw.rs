@@ -347,35 +347,17 @@ pub(super) fn line_of_key(text: &str, key: &str) -> usize {
         .map_or(1, |i| i + 1)
 }
 
+/// What a missing default says: the defaults file sets every key.
+const MISSING: &str = "key set in config/filmback.toml";
+
 /// User values over defaults. The defaults file sets every key, so each `expect` holds
 /// by construction (and the embedded-defaults test checks it).
 pub(super) fn merge(d: RawConfig, u: RawConfig, source: Option<PathBuf>) -> Config {
-    let df = d.folders.unwrap_or_default();
-    let uf = u.folders.unwrap_or_default();
-    let dw = d.watch.unwrap_or_default();
-    let uw = u.watch.unwrap_or_default();
-    let db = d.bracket.unwrap_or_default();
-    let ub = u.bracket.unwrap_or_default();
-    let dd = d.daemon.unwrap_or_default();
-    let ud = u.daemon.unwrap_or_default();
-    let dr = d.render.unwrap_or_default();
-    let ur = u.render.unwrap_or_default();
-    const MISSING: &str = "key set in config/filmback.toml";
-    let render = overlay(&dr, &ur);
+    let render = overlay(&d.render.unwrap_or_default(), &u.render.unwrap_or_default());
     let (dm, um) = (d.merge.unwrap_or_default(), u.merge.unwrap_or_default());
     let align = um.align.or(dm.align).expect(MISSING);
     let deghost = um.deghost.or(dm.deghost).expect(MISSING);
-    let rescan = uw.rescan_s.or(dw.rescan_s).expect(MISSING).0;
-    let (dv, uv) = (d.viewer.unwrap_or_default(), u.viewer.unwrap_or_default());
-    let viewer = Viewer {
-        enabled: uv.enabled.or(dv.enabled).expect(MISSING),
-        address: std::net::SocketAddr::new(
-            uv.bind.or(dv.bind).expect(MISSING),
-            uv.port.or(dv.port).expect(MISSING).0,
-        ),
-        token: uv.token.map(super::Token),
-        token_file: uv.token_file,
-    };
+    let viewer = viewer(d.viewer.unwrap_or_default(), u.viewer.unwrap_or_default());
     let cameras = u
         .camera
         .into_iter()
@@ -392,40 +374,10 @@ pub(super) fn merge(d: RawConfig, u: RawConfig, source: Option<PathBuf>) -> Conf
         .collect();
     Config {
         source,
-        folders: Folders {
-            ingest: uf.ingest.or(df.ingest).expect(MISSING),
-            out: uf.out.or(df.out).expect(MISSING),
-            state: uf.state.or(df.state).expect(MISSING),
-            archive: uf.archive.or(df.archive),
-            stocks: uf.stocks.or(df.stocks),
-        },
-        watch: Watch {
-            mode: uw.mode.or(dw.mode).expect(MISSING),
-            poll: Duration::from_millis(uw.poll_ms.or(dw.poll_ms).expect(MISSING).0),
-            rescan: (rescan > 0).then(|| Duration::from_secs(rescan)),
-            recursive: uw.recursive.or(dw.recursive).expect(MISSING),
-            settle: Duration::from_millis(uw.settle_ms.or(dw.settle_ms).expect(MISSING).0),
-            ignore: uw.ignore.or(dw.ignore).expect(MISSING),
-            extensions: uw
-                .extensions
-                .or(dw.extensions)
-                .expect(MISSING)
-                .into_iter()
-                .map(|e| e.trim_start_matches('.').to_ascii_lowercase())
-                .collect(),
-        },
-        bracket: BracketRules {
-            max_gap_s: ub.max_gap_s.or(db.max_gap_s).expect(MISSING).0,
-            min_step_ev: ub.min_step_ev.or(db.min_step_ev).expect(MISSING).0,
-            size: ub.size.or(db.size).expect(MISSING).0,
-            singles: ub.singles.or(db.singles).expect(MISSING),
-        },
-        daemon: Daemon {
-            jobs: ud.jobs.or(dd.jobs).expect(MISSING).0,
-            queue: ud.queue.or(dd.queue).expect(MISSING).0,
-            retry: Duration::from_secs(ud.retry_s.or(dd.retry_s).expect(MISSING).0),
-            memory_mb: ud.memory_mb.or(dd.memory_mb).expect(MISSING).0,
-        },
+        folders: folders(d.folders.unwrap_or_default(), u.folders.unwrap_or_default()),
+        watch: watch(d.watch.unwrap_or_default(), u.watch.unwrap_or_default()),
+        bracket: bracket_rules(d.bracket.unwrap_or_default(), u.bracket.unwrap_or_default()),
+        daemon: daemon(d.daemon.unwrap_or_default(), u.daemon.unwrap_or_default()),
         render: Preset {
             align,
             deghost,
@@ -440,6 +392,71 @@ pub(super) fn merge(d: RawConfig, u: RawConfig, source: Option<PathBuf>) -> Conf
                 .or_else(|| d.hooks.and_then(|h| h.on_developed))
                 .map(|c| c.0),
         },
+    }
+}
+
+/// `[folders]`: the user's `uf` over the defaults `df`.
+fn folders(df: RawFolders, uf: RawFolders) -> Folders {
+    Folders {
+        ingest: uf.ingest.or(df.ingest).expect(MISSING),
+        out: uf.out.or(df.out).expect(MISSING),
+        state: uf.state.or(df.state).expect(MISSING),
+        archive: uf.archive.or(df.archive),
+        stocks: uf.stocks.or(df.stocks),
+    }
+}
+
+/// `[watch]`: the user's `uw` over the defaults `dw`; a rescan period of 0 is none, and
+/// the extensions are kept without their dot, in lower case.
+fn watch(dw: RawWatch, uw: RawWatch) -> Watch {
+    let rescan = uw.rescan_s.or(dw.rescan_s).expect(MISSING).0;
+    Watch {
+        mode: uw.mode.or(dw.mode).expect(MISSING),
+        poll: Duration::from_millis(uw.poll_ms.or(dw.poll_ms).expect(MISSING).0),
+        rescan: (rescan > 0).then(|| Duration::from_secs(rescan)),
+        recursive: uw.recursive.or(dw.recursive).expect(MISSING),
+        settle: Duration::from_millis(uw.settle_ms.or(dw.settle_ms).expect(MISSING).0),
+        ignore: uw.ignore.or(dw.ignore).expect(MISSING),
+        extensions: uw
+            .extensions
+            .or(dw.extensions)
+            .expect(MISSING)
+            .into_iter()
+            .map(|e| e.trim_start_matches('.').to_ascii_lowercase())
+            .collect(),
+    }
+}
+
+/// `[bracket]`: the user's `ub` over the defaults `db`.
+fn bracket_rules(db: RawBracket, ub: RawBracket) -> BracketRules {
+    BracketRules {
+        max_gap_s: ub.max_gap_s.or(db.max_gap_s).expect(MISSING).0,
+        min_step_ev: ub.min_step_ev.or(db.min_step_ev).expect(MISSING).0,
+        size: ub.size.or(db.size).expect(MISSING).0,
+        singles: ub.singles.or(db.singles).expect(MISSING),
+    }
+}
+
+/// `[daemon]`: the user's `ud` over the defaults `dd`.
+fn daemon(dd: RawDaemon, ud: RawDaemon) -> Daemon {
+    Daemon {
+        jobs: ud.jobs.or(dd.jobs).expect(MISSING).0,
+        queue: ud.queue.or(dd.queue).expect(MISSING).0,
+        retry: Duration::from_secs(ud.retry_s.or(dd.retry_s).expect(MISSING).0),
+        memory_mb: ud.memory_mb.or(dd.memory_mb).expect(MISSING).0,
+    }
+}
+
+/// `[viewer]`: the user's `uv` over the defaults `dv`; the token is the user's alone.
+fn viewer(dv: RawViewer, uv: RawViewer) -> Viewer {
+    Viewer {
+        enabled: uv.enabled.or(dv.enabled).expect(MISSING),
+        address: std::net::SocketAddr::new(
+            uv.bind.or(dv.bind).expect(MISSING),
+            uv.port.or(dv.port).expect(MISSING).0,
+        ),
+        token: uv.token.map(super::Token),
+        token_file: uv.token_file,
     }
 }
 
@@ -461,7 +478,6 @@ fn overlay(base: &RawRender, over: &RawRender) -> RawRender {
 }
 
 fn preset(r: &RawRender) -> Preset {
-    const MISSING: &str = "key set in config/filmback.toml";
     let names = |v: &Option<Vec<LookName>>| {
         v.clone()
             .expect(MISSING)

@@ -81,21 +81,7 @@ impl<'a> Bits<'a> {
 
 /// Appends OpenEXR's Huffman encoding of `words` (non-empty) to `out`.
 pub(super) fn huffman_encode(words: &[u16], out: &mut Vec<u8>) -> Option<()> {
-    // Counted in two interleaved tables so that runs of one word do not wait on
-    // their own previous increment.
-    let mut frequency = vec![0u64; SYMBOLS];
-    let mut odd = vec![0u64; SYMBOLS];
-    let pairs = words.chunks_exact(2);
-    if let [w] = pairs.remainder() {
-        frequency[usize::from(*w)] += 1;
-    }
-    for pair in pairs {
-        frequency[usize::from(pair[0])] += 1;
-        odd[usize::from(pair[1])] += 1;
-    }
-    for (f, o) in frequency.iter_mut().zip(&odd) {
-        *f += o;
-    }
+    let mut frequency = word_frequencies(words);
     let first = frequency.iter().position(|&f| f > 0)?;
     let run_symbol = frequency.iter().rposition(|&f| f > 0)? + 1;
     frequency[run_symbol] = 1;
@@ -106,35 +92,7 @@ pub(super) fn huffman_encode(words: &[u16], out: &mut Vec<u8>) -> Option<()> {
     let header_at = out.len();
     out.extend_from_slice(&[0; 20]);
 
-    // The code table: lengths, runs of absent symbols shortened; at most 6 bits a symbol.
-    let table_at = out.len();
-    out.resize(table_at + lengths.len() * 6 / 8 + 9, 0);
-    let mut bits = Bits::new(&mut out[table_at..]);
-    let mut s = 0;
-    while s < lengths.len() {
-        if lengths[s] == 0 {
-            let mut zeros = 1;
-            while s + 1 < lengths.len() && zeros < LONGEST_LONG_RUN && lengths[s + 1] == 0 {
-                s += 1;
-                zeros += 1;
-            }
-            if zeros >= SHORTEST_LONG_RUN {
-                bits.put(LONG_ZERO_RUN, 6);
-                bits.put((zeros - SHORTEST_LONG_RUN) as u64, 8);
-                s += 1;
-                continue;
-            }
-            if zeros >= 2 {
-                bits.put(SHORT_ZERO_RUN + zeros as u64 - 2, 6);
-                s += 1;
-                continue;
-            }
-        }
-        bits.put(u64::from(lengths[s]), 6);
-        s += 1;
-    }
-    let (_, table_bytes) = bits.finish();
-    out.truncate(table_at + table_bytes);
+    let table_bytes = write_code_table(&lengths, out);
 
     // The data: each word costs at most its code (a run is sent as one only when
     // shorter), so Σ frequency·length bounds the bits.
@@ -168,6 +126,59 @@ pub(super) fn huffman_encode(words: &[u16], out: &mut Vec<u8>) -> Option<()> {
         out[header_at + 4 * k..header_at + 4 * k + 4].copy_from_slice(&v.to_le_bytes());
     }
     Some(())
+}
+
+/// How often each word occurs in `words`, by word. Counted in two interleaved tables so
+/// that runs of one word do not wait on their own previous increment.
+fn word_frequencies(words: &[u16]) -> Vec<u64> {
+    let mut frequency = vec![0u64; SYMBOLS];
+    let mut odd = vec![0u64; SYMBOLS];
+    let pairs = words.chunks_exact(2);
+    if let [w] = pairs.remainder() {
+        frequency[usize::from(*w)] += 1;
+    }
+    for pair in pairs {
+        frequency[usize::from(pair[0])] += 1;
+        odd[usize::from(pair[1])] += 1;
+    }
+    for (f, o) in frequency.iter_mut().zip(&odd) {
+        *f += o;
+    }
+    frequency
+}
+
+/// Appends the code table to `out`: the code `lengths`, runs of absent symbols
+/// shortened; at most 6 bits a symbol. Returns its bytes.
+fn write_code_table(lengths: &[u8], out: &mut Vec<u8>) -> usize {
+    let table_at = out.len();
+    out.resize(table_at + lengths.len() * 6 / 8 + 9, 0);
+    let mut bits = Bits::new(&mut out[table_at..]);
+    let mut s = 0;
+    while s < lengths.len() {
+        if lengths[s] == 0 {
+            let mut zeros = 1;
+            while s + 1 < lengths.len() && zeros < LONGEST_LONG_RUN && lengths[s + 1] == 0 {
+                s += 1;
+                zeros += 1;
+            }
+            if zeros >= SHORTEST_LONG_RUN {
+                bits.put(LONG_ZERO_RUN, 6);
+                bits.put((zeros - SHORTEST_LONG_RUN) as u64, 8);
+                s += 1;
+                continue;
+            }
+            if zeros >= 2 {
+                bits.put(SHORT_ZERO_RUN + zeros as u64 - 2, 6);
+                s += 1;
+                continue;
+            }
+        }
+        bits.put(u64::from(lengths[s]), 6);
+        s += 1;
+    }
+    let (_, table_bytes) = bits.finish();
+    out.truncate(table_at + table_bytes);
+    table_bytes
 }
 
 /// Words checked at once for a stretch without runs.
