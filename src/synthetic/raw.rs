@@ -10,6 +10,7 @@ use rawler::decoders::{Camera as RawCamera, Orientation};
 use rawler::dng::writer::DngWriter;
 use rawler::dng::{CropMode, DNG_VERSION_V1_4, DngCompression, DngPhotometricConversion};
 use rawler::formats::tiff::Rational;
+use rawler::formats::tiff::writer::DirectoryWriter;
 use rawler::imgop::xyz::Illuminant;
 use rawler::rawimage::{
     BlackLevel, CFAConfig, RawImage, RawImageData, RawPhotometricInterpretation, WhiteLevel,
@@ -157,6 +158,34 @@ pub fn dng(
             height,
         }));
     }
+    let image = raw_image(codes, width, height, sensor, shot);
+    let mut buffer = Cursor::new(Vec::new());
+    let mut writer = DngWriter::new(&mut buffer, DNG_VERSION_V1_4).map_err(fail)?;
+    let mut raw = writer.subframe_on_root(0);
+    raw.raw_image(
+        &image,
+        CropMode::None,
+        DngCompression::Lossless,
+        DngPhotometricConversion::Original,
+        1,
+    )
+    .map_err(fail)?;
+    raw.finalize().map_err(fail)?;
+    writer.load_base_tags(&image).map_err(fail)?;
+    write_exposure(writer.exif_ifd_mut(), shot);
+    writer.close().map_err(fail)?;
+    Ok(buffer.into_inner())
+}
+
+/// rawler's description of the mosaic: the body of `shot`, the sensor's bit depth,
+/// levels, CFA and XYZ → camera matrix (D65), white balance `1/neutral` (green 1).
+fn raw_image(
+    codes: &[u16],
+    width: usize,
+    height: usize,
+    sensor: &RawSensor,
+    shot: &Shot,
+) -> RawImage {
     let mut camera = RawCamera::new();
     camera.make = shot.camera.make.clone().unwrap_or_default();
     camera.model = shot.camera.model.clone().unwrap_or_default();
@@ -176,7 +205,7 @@ pub fn dng(
     for (r, row) in sensor.xyz_to_camera.iter().enumerate() {
         xyz_to_cam[r] = row.map(|v| v as f32);
     }
-    let image = RawImage {
+    RawImage {
         make: camera.make.clone(),
         model: camera.model.clone(),
         clean_make: camera.clean_make.clone(),
@@ -207,21 +236,12 @@ pub fn dng(
         color_matrix: HashMap::from([(Illuminant::D65, matrix)]),
         dng_tags: HashMap::new(),
         fuji_rotation_width: None,
-    };
-    let mut buffer = Cursor::new(Vec::new());
-    let mut writer = DngWriter::new(&mut buffer, DNG_VERSION_V1_4).map_err(fail)?;
-    let mut raw = writer.subframe_on_root(0);
-    raw.raw_image(
-        &image,
-        CropMode::None,
-        DngCompression::Lossless,
-        DngPhotometricConversion::Original,
-        1,
-    )
-    .map_err(fail)?;
-    raw.finalize().map_err(fail)?;
-    writer.load_base_tags(&image).map_err(fail)?;
-    let exif = writer.exif_ifd_mut();
+    }
+}
+
+/// The EXIF of `shot` into the DNG's EXIF directory: exposure time and f-number as
+/// rationals of 10⁻⁶, ISO (1..=65 535) and the capture time (`YYYY:MM:DD HH:MM:SS`).
+fn write_exposure(exif: &mut DirectoryWriter, shot: &Shot) {
     let micro = |v: f64| Rational::new((v * 1e6).round() as u32, 1_000_000);
     if let Some(t) = shot.exposure.time_s {
         exif.add_tag(ExifTag::ExposureTime, micro(t));
@@ -241,6 +261,4 @@ pub fn dng(
         t.year, t.month, t.day, t.hour, t.minute, t.second
     );
     exif.add_tag(ExifTag::DateTimeOriginal, date.as_str());
-    writer.close().map_err(fail)?;
-    Ok(buffer.into_inner())
 }
