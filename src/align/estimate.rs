@@ -9,8 +9,12 @@ use super::{
     COARSEST_SIDE, ESTIMATION_PIXELS, FrameAlignment, IDENTITY_PX, MAX_UNCERTAINTY_BLOCKS,
     MIN_CORRELATION, MIN_OVERLAP, Motion, SEARCH_RANGE, WELL_EXPOSED_HIGH, WELL_EXPOSED_LOW,
 };
-use crate::frame::{Frame, Samples};
+use crate::frame::{BitDepth, Frame, Samples};
 use crate::response::InverseResponse;
+
+mod full;
+
+pub(super) use full::FullFrame;
 
 /// Gauss–Newton iterations per level at most.
 const MAX_ITERATIONS: usize = 60;
@@ -351,27 +355,51 @@ struct Blocks {
 /// measure for [`Pyramid::clipped_alike`] to compare them.
 const LEAST_COMMON_SPAN: f32 = std::f32::consts::LN_2;
 
-/// Codes to what [`Pyramid::from_rows`] takes: per code and channel `g(B)`, per code its
-/// [`log_weight`].
-struct Convert<'a> {
-    tables: &'a [Vec<f32>],
-    weight_of: &'a [f32],
+/// Codes to linear values and weights, per code and channel `g(B)` and per code its
+/// [`log_weight`]: what [`Pyramid::from_rows`] and the full-resolution refinement read.
+pub(super) struct Convert {
+    tables: Vec<Vec<f32>>,
+    weight_of: Vec<f32>,
+    /// The mean `g` over the channels at the lower and upper well-exposed codes.
+    range: (f32, f32),
 }
 
-impl Convert<'_> {
-    /// A row of pixels (`codes`, channels interleaved): each pixel's mean `g(B)` over its
-    /// channels and its worst channel's weight.
+impl Convert {
+    /// The tables of frames of `channels` channels at `depth` through `response`.
+    pub(super) fn new(response: &InverseResponse, depth: BitDepth, channels: usize) -> Convert {
+        let levels = depth.levels();
+        let tables: Vec<Vec<f32>> = (0..channels)
+            .map(|ch| response.table(ch.min(response.channels() - 1), levels))
+            .collect();
+        let max = depth.max_code() as f32;
+        let (low, high) = super::well_exposed_codes(depth.max_code());
+        let mean_at = |k: u32| tables.iter().map(|t| t[k as usize]).sum::<f32>() / channels as f32;
+        let range = (mean_at(low), mean_at(high));
+        let weight_of = (0..levels).map(|k| log_weight(k as f32 / max)).collect();
+        Convert {
+            tables,
+            weight_of,
+            range,
+        }
+    }
+
+    /// One pixel's codes (one per channel): its mean `g(B)` over the channels and its
+    /// worst channel's weight.
+    fn pixel<T: Copy + Into<usize>>(&self, codes: &[T]) -> (f32, f32) {
+        let (mut sum, mut worst) = (0.0f32, f32::INFINITY);
+        for (&k, table) in codes.iter().zip(&self.tables) {
+            let k: usize = k.into();
+            sum += table[k];
+            worst = worst.min(self.weight_of[k]);
+        }
+        (sum / self.tables.len() as f32, worst)
+    }
+
+    /// A row of pixels (`codes`, channels interleaved) as [`Convert::pixel`] gives them.
     fn row<T: Copy + Into<usize>>(&self, codes: &[T], values: &mut [f32], weights: &mut [f32]) {
         let c = self.tables.len();
         for ((pixel, value), weight) in codes.chunks_exact(c).zip(values).zip(weights) {
-            let (mut sum, mut worst) = (0.0f32, f32::INFINITY);
-            for (&k, table) in pixel.iter().zip(self.tables) {
-                let k: usize = k.into();
-                sum += table[k];
-                worst = worst.min(self.weight_of[k]);
-            }
-            *value = sum / c as f32;
-            *weight = worst;
+            (*value, *weight) = self.pixel(pixel);
         }
     }
 }
@@ -386,27 +414,14 @@ pub(super) fn step_for(width: usize, height: usize, tile: usize) -> usize {
 }
 
 impl Pyramid {
-    /// The pyramid of a frame of codes through `response` at relative `exposure`.
+    /// The pyramid of a frame of codes through `convert` at relative `exposure`.
     pub(super) fn of_frame(
         frame: &Frame,
-        response: &InverseResponse,
+        convert: &Convert,
         exposure: f64,
         step: usize,
     ) -> Pyramid {
         let (w, c) = (frame.width() as usize, frame.channels());
-        let levels = frame.bit_depth().levels();
-        let tables: Vec<Vec<f32>> = (0..c)
-            .map(|ch| response.table(ch.min(response.channels() - 1), levels))
-            .collect();
-        let max = frame.bit_depth().max_code() as f32;
-        let (low, high) = super::well_exposed_codes(frame.bit_depth().max_code());
-        let mean_at = |k: u32| tables.iter().map(|t| t[k as usize]).sum::<f32>() / c as f32;
-        let range = (mean_at(low), mean_at(high));
-        let weight_of: Vec<f32> = (0..levels).map(|k| log_weight(k as f32 / max)).collect();
-        let convert = Convert {
-            tables: &tables,
-            weight_of: &weight_of,
-        };
         let row = |y: usize, values: &mut [f32], weights: &mut [f32]| {
             let span = y * w * c..(y + 1) * w * c;
             match frame.samples() {
@@ -414,7 +429,8 @@ impl Pyramid {
                 Samples::Sixteen(v) => convert.row(&v[span], values, weights),
             }
         };
-        Pyramid::from_rows(w, frame.height() as usize, step, exposure, range, row)
+        let (h, range) = (frame.height() as usize, convert.range);
+        Pyramid::from_rows(w, h, step, exposure, range, row)
     }
 
     /// The pyramid of a `width × height` image whose row `y` `row(y, values, weights)`
@@ -799,6 +815,33 @@ impl Normal {
         self.count += 1;
     }
 
+    /// Adds the equation of one reference sample at normalised `(u, v)`, `reference` its
+    /// log radiance and weight, whose image `p = T·(u, v, 1)ᵀ` the moving frame samples
+    /// as `seen`: log radiance, its gradient per normalised unit and weight. The residual
+    /// is `gain·L_k + bias − L_ref`, its row the first `motion` motion parameters of
+    /// `state`, gain and offset; the weight `w_ref·w_k/(w_ref + w_k)`, the inverse
+    /// variance of the difference of two log values.
+    fn equation(
+        &mut self,
+        state: &State,
+        motion: usize,
+        (u, v): (f64, f64),
+        p: &Vector3<f64>,
+        (reference, reference_weight): (f64, f64),
+        (value, gu, gv, moving_weight): (f64, f64, f64, f64),
+    ) {
+        let weight = reference_weight * moving_weight / (reference_weight + moving_weight);
+        let r = state.gain * value + state.bias - reference;
+        let mut j = [0.0; MAX_PARAMS];
+        let (dx, dy) = state.jacobian(u, v, p.x / p.z, p.y / p.z, p.z);
+        for k in 0..motion {
+            j[k] = state.gain * (gu * dx[k] + gv * dy[k]);
+        }
+        j[motion] = value;
+        j[motion + 1] = 1.0;
+        self.include(&j, r, weight, motion + 2);
+    }
+
     /// The `n × n` matrix and the vector of the first `n` parameters.
     fn system(&self, n: usize) -> (DMatrix<f64>, DVector<f64>) {
         let a = DMatrix::from_fn(n, n, |i, j| self.jtj[i.min(j)][i.max(j)]);
@@ -824,7 +867,6 @@ fn accumulate(
     let m = state.matrix();
     let step = reference.step;
     let to_level = geometry.s / step;
-    let n = motion + 2;
     // Rows in fixed groups, the groups' sums added in order: the same sums, to the last
     // bit, however the threads share the work.
     let rows: Vec<usize> = (0..h).step_by(stride).collect();
@@ -845,20 +887,9 @@ fn accumulate(
                     let Some((value, gx, gy, moving_weight)) = moving.sample(lx, ly) else {
                         continue;
                     };
-                    // Inverse variance of the difference of two log values.
-                    let reference_weight = f64::from(reference.weight[i]);
-                    let weight =
-                        reference_weight * moving_weight / (reference_weight + moving_weight);
-                    let r = state.gain * value + state.bias - f64::from(reference.log[i]);
-                    let mut j = [0.0; MAX_PARAMS];
-                    let (dx, dy) = state.jacobian(u, v, xp, yp, p.z);
-                    let (gu, gv) = (gx * to_level, gy * to_level);
-                    for k in 0..motion {
-                        j[k] = state.gain * (gu * dx[k] + gv * dy[k]);
-                    }
-                    j[motion] = value;
-                    j[motion + 1] = 1.0;
-                    acc.include(&j, r, weight, n);
+                    let reference = (f64::from(reference.log[i]), f64::from(reference.weight[i]));
+                    let seen = (value, gx * to_level, gy * to_level, moving_weight);
+                    acc.equation(state, motion, (u, v), &p, reference, seen);
                 }
             }
             acc
@@ -880,20 +911,34 @@ fn solve(normal: &Normal, n: usize, damping: f64) -> Option<DVector<f64>> {
     a.cholesky().map(|c| -c.solve(&b))
 }
 
-/// Refines `state` on one level by damped Gauss–Newton (Levenberg–Marquardt: the
-/// diagonal of `JᵀJ` raised by the factor `1 + λ`, `λ` divided by 10 after a step that
-/// lowers the mean squared residual and multiplied by 10 after one that does not) until an
-/// accepted step moves no corner by more than [`CONVERGED_PX`] of the level's pixels, or
-/// no step short of `λ` = [`MAX_DAMPING`] lowers the residual: the state and its normal
+/// Refines `state` on one level by [`damped`] Gauss–Newton: the state and its normal
 /// equations, or why it failed.
 fn refine(
     reference: &Level,
     moving: &Level,
     geometry: &Geometry,
-    mut state: State,
+    state: State,
 ) -> Result<(State, Normal), Refusal> {
     let n = state.params();
-    let mut current = accumulate(reference, moving, geometry, &state, n);
+    let normal = |s: &State| accumulate(reference, moving, geometry, s, n);
+    damped(geometry, reference.step, state, &normal)
+}
+
+/// Refines `state` by damped Gauss–Newton on the normal equations `normal` gives at a
+/// state (Levenberg–Marquardt: the diagonal of `JᵀJ` raised by the factor `1 + λ`, `λ`
+/// divided by 10 after a step that lowers the mean squared residual and multiplied by 10
+/// after one that does not) until an accepted step moves no corner by more than
+/// [`CONVERGED_PX`] of `step` full-resolution pixels, or no step short of `λ` =
+/// [`MAX_DAMPING`] lowers the residual: the state and its normal equations, or why it
+/// failed.
+fn damped(
+    geometry: &Geometry,
+    step: f64,
+    mut state: State,
+    normal: &dyn Fn(&State) -> Normal,
+) -> Result<(State, Normal), Refusal> {
+    let n = state.params();
+    let mut current = normal(&state);
     let mut damping = INITIAL_DAMPING;
     for _ in 0..MAX_ITERATIONS {
         if current.count < MIN_SAMPLES {
@@ -908,11 +953,11 @@ fn refine(
         }
         trial.gain += delta[n];
         trial.bias += delta[n + 1];
-        let moved = geometry.corner_shift(&state.matrix(), &trial.matrix()) / reference.step;
+        let moved = geometry.corner_shift(&state.matrix(), &trial.matrix()) / step;
         if !moved.is_finite() {
             return Err(Refusal::Diverged);
         }
-        let next = accumulate(reference, moving, geometry, &trial, n);
+        let next = normal(&trial);
         let better = next.count >= MIN_SAMPLES && next.mean_square() <= current.mean_square();
         if better {
             (state, current) = (trial, next);
@@ -1033,7 +1078,9 @@ struct Registration {
 }
 
 /// Every frame's alignment onto frame `reference` (input order), models capped at
-/// `model`.
+/// `model`; with `full` (the frames at full resolution, when the pyramids' finest level
+/// has blocks of more than one pixel), each registration on well-exposed blocks is then
+/// refined on them ([`full::refine`]).
 ///
 /// Frames are visited outward from the reference in exposure order, the shorter ones and
 /// then the longer ones. Each is registered onto the reference; when that fails (most
@@ -1042,6 +1089,7 @@ struct Registration {
 /// composed: `T_k = T_{k←n}·T_n` (reference pixel → frame `n` → frame `k`).
 pub(super) fn register_all(
     pyramids: &[Pyramid],
+    full: Option<&[FullFrame<'_>]>,
     reference: usize,
     geometry: &Geometry,
     model: Motion,
@@ -1061,7 +1109,13 @@ pub(super) fn register_all(
         // The frame nearest in exposure that was registered, with its transform.
         let mut via: Option<(usize, Registration)> = None;
         for k in side {
-            let found = register_or_chain(pyramids, reference, via.as_ref(), k, geometry, model);
+            let pair = Pair {
+                pyramids,
+                full,
+                geometry,
+                model,
+            };
+            let found = register_or_chain(&pair, reference, via.as_ref(), k);
             results[k] = match found {
                 Ok(registration) => {
                     let alignment = settle(&registration, geometry);
@@ -1075,19 +1129,27 @@ pub(super) fn register_all(
     results
 }
 
+/// What [`register_or_chain`] registers frames with: their pyramids, the frames at full
+/// resolution when refined there, the geometry and the most general model.
+struct Pair<'p, 'f> {
+    pyramids: &'p [Pyramid],
+    full: Option<&'p [FullFrame<'f>]>,
+    geometry: &'p Geometry,
+    model: Motion,
+}
+
 /// Frame `k` registered, the first that works of: onto the reference; onto `via` (a
 /// registered frame nearer the reference in exposure, with its transform), composed with
 /// its transform; the same two on their finer levels only, where a coarse level shared
 /// too few blocks; the same two compared as [`Pyramid::clipped_alike`]. The registration,
 /// or why none worked.
 fn register_or_chain(
-    pyramids: &[Pyramid],
+    with: &Pair<'_, '_>,
     reference: usize,
     via: Option<&(usize, Registration)>,
     k: usize,
-    geometry: &Geometry,
-    model: Motion,
 ) -> Result<Registration, Failures> {
+    let (geometry, model) = (with.geometry, with.model);
     let mut targets = vec![(reference, None)];
     if let Some((n, through)) = via {
         targets.push((*n, Some(through)));
@@ -1100,10 +1162,11 @@ fn register_or_chain(
                 // Only a coarse level that shared too few blocks makes this way differ.
                 continue;
             }
-            let (fixed, moving) = (&pyramids[n], &pyramids[k]);
+            let (fixed, moving) = (&with.pyramids[n], &with.pyramids[k]);
+            let full = with.full.map(|frames| (&frames[n], &frames[k]));
             let found = match way {
-                Way::Measured => register(fixed, moving, geometry, model, false),
-                Way::FinerLevels => register(fixed, moving, geometry, model, true),
+                Way::Measured => register(fixed, moving, full, geometry, model, false),
+                Way::FinerLevels => register(fixed, moving, full, geometry, model, true),
                 Way::ClippedAlike => register_clipped(fixed, moving, geometry, model),
             };
             match found {
@@ -1167,15 +1230,21 @@ fn settle(registration: &Registration, geometry: &Geometry) -> FrameAlignment {
 
 /// Frame `moving` registered onto frame `fixed` (see the parent module's docs for the
 /// steps and the fallbacks), or why it cannot be; with `skip_sparse`, a level above the
-/// finest whose shared blocks are too few to refine on is passed over.
+/// finest whose shared blocks are too few to refine on is passed over; with `full` (the
+/// two frames at full resolution), the pyramid's estimate is refined on them.
 fn register(
     fixed: &Pyramid,
     moving: &Pyramid,
+    full: Option<(&FullFrame<'_>, &FullFrame<'_>)>,
     geometry: &Geometry,
     model: Motion,
     skip_sparse: bool,
 ) -> Result<Registration, Refusal> {
     let (state, note) = estimate(&fixed.levels, &moving.levels, geometry, model, skip_sparse)?;
+    let state = match full {
+        Some((f, m)) => full::refine(f, m, geometry, state, fixed.levels[0].step),
+        None => state,
+    };
     Ok(Registration {
         matrix: state.matrix(),
         motion: state.motion,

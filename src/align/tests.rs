@@ -242,24 +242,45 @@ fn known_moves_are_recovered_within_a_tenth_of_a_pixel() {
     }
 }
 
-/// A frame of 1.2 MP is estimated on blocks of 3 × 3 pixels; the perspective of a
-/// handheld move (two corners of each frame up to 11 px from where a rotation and a shift
-/// would put them) is determined by its texture at that sampling, and kept: where the
-/// merge takes both frames it lies well inside a rigid model's error. (It is recovered to
-/// about 0.8 px on the frame one stop darker and 3 px on the one brighter, against 10 px
-/// for rigid.)
-#[test]
-fn a_large_frame_keeps_the_perspective_its_texture_determines() {
+/// The frames of a bracket, their exposures and the true moves of the frames moved.
+struct Bracket {
+    frames: Vec<Frame>,
+    exposures: [f64; 3],
+    truths: [(usize, [[f64; 3]; 3]); 2],
+}
+
+/// A bracket of 1.2 MP (1280 × 960, estimated on blocks of 3 × 3 pixels) one stop apart,
+/// the outer frames (0 and 2) moved as a handheld bracket (two corners of each frame up
+/// to 11 px from where a rotation and a shift would put them).
+fn large_bracket() -> Bracket {
     let size = (1280, 960);
     let scene = lens(&lens(&synthetic::scene(FINE * size.0, FINE * size.1, 23)));
     let dark = transform_in(size, 0.4, (9.5, -7.2), (1.5e-5, -1e-5));
     let bright = transform_in(size, -0.5, (-11.3, 6.1), (-1e-5, 1.5e-5));
     let exposures = [0.125, 0.25, 0.5];
     let frames = frames(&scene, &exposures, &[dark, IDENTITY, bright]);
+    let truths = [(0, dark), (2, bright)];
+    Bracket {
+        frames,
+        exposures,
+        truths,
+    }
+}
+
+/// On [`large_bracket`] the perspective is determined by the texture at the pyramid's
+/// sampling, and kept: where the merge takes both frames it lies well inside a rigid
+/// model's error.
+#[test]
+fn a_large_frame_keeps_the_perspective_its_texture_determines() {
+    let Bracket {
+        frames,
+        exposures,
+        truths,
+    } = large_bracket();
     let alignment = run(&frames, &exposures, AlignMode::Auto);
     let rigid = run(&frames, &exposures, AlignMode::Rigid);
     assert_eq!(alignment.reference, 1);
-    for (k, truth) in [(0, dark), (2, bright)] {
+    for (k, truth) in truths {
         let found = &alignment.frames[k];
         assert_eq!(
             found.motion,
@@ -275,6 +296,31 @@ fn a_large_frame_keeps_the_perspective_its_texture_determines() {
     }
 }
 
+/// On [`large_bracket`] the pyramid's homography lands 0.8–3 px from the true move
+/// (its blocks are 3 px); refined at full resolution it lands within half a pixel, as on
+/// frames the pyramid sees whole.
+#[test]
+fn a_large_frame_is_refined_at_full_resolution() {
+    let Bracket {
+        frames,
+        exposures,
+        truths,
+    } = large_bracket();
+    let alignment = run(&frames, &exposures, AlignMode::Auto);
+    let errors = truths.map(|(k, truth)| {
+        distance_where_merged(
+            &alignment.frames[k].transform,
+            &truth,
+            &frames[1],
+            &frames[k],
+        )
+    });
+    assert!(
+        errors.iter().all(|&e| e < 0.6),
+        "{errors:.3?} px off ({alignment:?})"
+    );
+}
+
 /// The estimate does not depend on how the threads share the work: the same transforms,
 /// to the last bit, on one thread and on four (a farm task and the daemon publish the
 /// same file).
@@ -287,12 +333,32 @@ fn the_estimate_is_the_same_on_any_number_of_threads() {
         transform(-0.35, 7.5, -2.5, -3e-5, 5e-5),
     ];
     let frames = frames(&scene, &EXPOSURES, &moves);
+    assert_same_on_any_number_of_threads(&frames);
+}
+
+/// As [`the_estimate_is_the_same_on_any_number_of_threads`], on 640 × 480 frames: blocks
+/// of 2 × 2 pixels, so the estimate is refined at full resolution.
+#[test]
+fn the_full_resolution_refinement_is_the_same_on_any_number_of_threads() {
+    let size = (640, 480);
+    let scene = lens(&lens(&synthetic::scene(FINE * size.0, FINE * size.1, 7)));
+    let moves = [
+        transform_in(size, 0.2, (-3.1, 5.4), (2e-5, -1.5e-5)),
+        IDENTITY,
+        transform_in(size, -0.35, (7.5, -2.5), (-1.5e-5, 2.5e-5)),
+    ];
+    assert_same_on_any_number_of_threads(&frames(&scene, &EXPOSURES, &moves));
+}
+
+/// The alignment of `frames` (at [`EXPOSURES`]) moves some frame and is the same, to the
+/// last bit, on one thread and on four.
+fn assert_same_on_any_number_of_threads(frames: &[Frame]) {
     let on = |threads| {
         rayon::ThreadPoolBuilder::new()
             .num_threads(threads)
             .build()
             .unwrap()
-            .install(|| run(&frames, &EXPOSURES, AlignMode::Auto))
+            .install(|| run(frames, &EXPOSURES, AlignMode::Auto))
     };
     let one = on(1);
     assert!(one.moves_any(), "{one:?}");

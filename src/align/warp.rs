@@ -218,7 +218,7 @@ mod raw {
         Alignment {
             mode,
             reference,
-            frames: estimate::register_all(&pyramids, reference, &geometry, model),
+            frames: estimate::register_all(&pyramids, None, reference, &geometry, model),
         }
     }
 

@@ -1,0 +1,234 @@
+//! The last step of a registration whose finest pyramid level has blocks of more than one
+//! pixel: the same Gauss–Newton ([`damped`]) on sparse full-resolution samples of the
+//! frame registered onto, starting from the pyramid's estimate.
+
+use std::sync::OnceLock;
+
+use nalgebra::Vector3;
+use rayon::prelude::*;
+
+use super::{Convert, Geometry, Normal, State, damped, solve};
+use crate::frame::{Frame, Samples};
+
+/// The reference samples the refinement reads at most: one per cell of a square grid
+/// sized to hold this many cells.
+const MOST_SAMPLES: usize = 150_000;
+
+/// The farthest, in blocks of the finest pyramid level, the refinement may move a
+/// corner from the pyramid's estimate for its result to be kept: that estimate is good
+/// to about a block, so a descent that went farther did not refine it.
+const MOST_BLOCKS: f64 = 2.0;
+
+/// Samples [`accumulate`] sums in one task.
+const SAMPLES_PER_GROUP: usize = 4096;
+
+/// One frame's pixels as log radiance, read on the fly through `convert`, and the
+/// samples the refinement takes of it when other frames are registered onto it (chosen
+/// once).
+pub(in crate::align) struct FullFrame<'a> {
+    frame: &'a Frame,
+    convert: &'a Convert,
+    /// `ln e`, `e` the frame's relative exposure.
+    log_e: f32,
+    samples: OnceLock<Vec<Sample>>,
+}
+
+/// A reference pixel the refinement compares: its position, log radiance and weight.
+#[derive(Debug, Clone, Copy)]
+struct Sample {
+    x: u32,
+    y: u32,
+    log: f32,
+    weight: f32,
+}
+
+impl<'a> FullFrame<'a> {
+    /// `frame` at relative `exposure`, its codes read through `convert`.
+    pub(in crate::align) fn new(frame: &'a Frame, convert: &'a Convert, exposure: f64) -> Self {
+        FullFrame {
+            frame,
+            convert,
+            log_e: exposure.ln() as f32,
+            samples: OnceLock::new(),
+        }
+    }
+
+    /// Pixel `(x, y)`'s mean `g(B)` over its channels and its worst channel's
+    /// [`super::log_weight`].
+    fn pixel(&self, x: usize, y: usize) -> (f32, f32) {
+        let c = self.frame.channels();
+        let i = (y * self.frame.width() as usize + x) * c;
+        match self.frame.samples() {
+            Samples::Eight(v) => self.convert.pixel(&v[i..i + c]),
+            Samples::Sixteen(v) => self.convert.pixel(&v[i..i + c]),
+        }
+    }
+
+    /// The samples, chosen on first use.
+    fn samples(&self) -> &[Sample] {
+        self.samples.get_or_init(|| self.choose())
+    }
+
+    /// One sample per cell of `n × n` pixels, `n` the least (at least 2) that makes at
+    /// most [`MOST_SAMPLES`] cells: the pixel of the cell with the steepest log-radiance
+    /// gradient (central differences, `|∇m|/m` of the linear mean `m`) among those that
+    /// are well exposed with their four neighbours; none where no pixel is. Cell rows are
+    /// chosen in parallel and kept in order.
+    fn choose(&self) -> Vec<Sample> {
+        let (w, h) = (self.frame.width() as usize, self.frame.height() as usize);
+        let n = ((w * h) as f64 / MOST_SAMPLES as f64)
+            .sqrt()
+            .ceil()
+            .max(2.0) as usize;
+        let rows: Vec<Vec<Sample>> = (0..h / n)
+            .into_par_iter()
+            .map(|j| self.choose_in_row(j * n..(j + 1) * n, n))
+            .collect();
+        rows.concat()
+    }
+
+    /// [`FullFrame::choose`] for the cells of the pixel rows `rows`, `n` pixels wide.
+    fn choose_in_row(&self, rows: std::ops::Range<usize>, n: usize) -> Vec<Sample> {
+        let (w, h) = (self.frame.width() as usize, self.frame.height() as usize);
+        // Pixel rows rows.start − 1 ..= rows.end (clamped): values and weights.
+        let first = rows.start.saturating_sub(1);
+        let last = rows.end.min(h - 1);
+        let read: Vec<Vec<(f32, f32)>> = (first..=last)
+            .map(|y| (0..w).map(|x| self.pixel(x, y)).collect())
+            .collect();
+        let at = |x: usize, y: usize| read[y - first][x];
+        let mut samples = Vec::with_capacity(w / n);
+        for cell in 0..w / n {
+            let mut best: Option<(f32, usize, usize)> = None;
+            for y in rows.start.max(1)..rows.end.min(h - 1) {
+                for x in (cell * n).max(1)..((cell + 1) * n).min(w - 1) {
+                    let around = [
+                        at(x, y),
+                        at(x - 1, y),
+                        at(x + 1, y),
+                        at(x, y - 1),
+                        at(x, y + 1),
+                    ];
+                    if around.iter().any(|&(m, weight)| weight <= 0.0 || m <= 0.0) {
+                        continue;
+                    }
+                    let (gx, gy) = (around[2].0 - around[1].0, around[4].0 - around[3].0);
+                    let steep = (gx * gx + gy * gy) / (around[0].0 * around[0].0);
+                    if best.is_none_or(|(b, _, _)| steep > b) {
+                        best = Some((steep, x, y));
+                    }
+                }
+            }
+            if let Some((_, x, y)) = best {
+                let (m, weight) = at(x, y);
+                let log = m.ln() - self.log_e;
+                let (x, y) = (x as u32, y as u32);
+                samples.push(Sample { x, y, log, weight });
+            }
+        }
+        samples
+    }
+
+    /// The log radiance `ln m − ln e` at full-resolution `(x, y)` (`m` the bilinear
+    /// interpolation of the four pixels' linear means), its gradient `∇m/m` per pixel (of
+    /// the interpolating patch) and the interpolated weight, when the four pixels are
+    /// well exposed.
+    fn sample(&self, x: f64, y: f64) -> Option<(f64, f64, f64, f64)> {
+        let (w, h) = (self.frame.width() as usize, self.frame.height() as usize);
+        if !(x >= 0.0 && y >= 0.0) {
+            return None;
+        }
+        let (x0, y0) = (x as usize, y as usize);
+        if x0 + 1 >= w || y0 + 1 >= h {
+            return None;
+        }
+        let quad = [
+            self.pixel(x0, y0),
+            self.pixel(x0 + 1, y0),
+            self.pixel(x0, y0 + 1),
+            self.pixel(x0 + 1, y0 + 1),
+        ];
+        if quad.iter().any(|&(_, weight)| weight <= 0.0) {
+            return None;
+        }
+        let (fx, fy) = (x - x0 as f64, y - y0 as f64);
+        let [a, b, c, d] = quad.map(|(m, weight)| (f64::from(m), f64::from(weight)));
+        let mix = |a: f64, b: f64, c: f64, d: f64| {
+            (1.0 - fy) * ((1.0 - fx) * a + fx * b) + fy * ((1.0 - fx) * c + fx * d)
+        };
+        let m = mix(a.0, b.0, c.0, d.0);
+        if m <= 0.0 {
+            return None;
+        }
+        let dx = (1.0 - fy) * (b.0 - a.0) + fy * (d.0 - c.0);
+        let dy = (1.0 - fx) * (c.0 - a.0) + fx * (d.0 - b.0);
+        let value = m.ln() - f64::from(self.log_e);
+        Some((value, dx / m, dy / m, mix(a.1, b.1, c.1, d.1)))
+    }
+}
+
+/// The normal equations of the residual `gain·L_k(T·x) + bias − L_ref(x)` over the
+/// samples of `reference` (as [`super::accumulate`] on a level), in the first `motion`
+/// motion parameters of `state`, gain and offset. Samples in fixed groups, the groups'
+/// sums added in order: the same sums however the threads share the work.
+fn accumulate(
+    reference: &FullFrame<'_>,
+    moving: &FullFrame<'_>,
+    geometry: &Geometry,
+    state: &State,
+    motion: usize,
+) -> Normal {
+    let m = state.matrix();
+    let groups: Vec<Normal> = reference
+        .samples()
+        .par_chunks(SAMPLES_PER_GROUP)
+        .map(|group| {
+            let mut acc = Normal::zero();
+            for s in group {
+                let (u, v) = geometry.to_normalised(1.0, f64::from(s.x), f64::from(s.y));
+                let p = m * Vector3::new(u, v, 1.0);
+                let (x, y) = geometry.to_level(1.0, p.x / p.z, p.y / p.z);
+                let Some((value, gx, gy, weight)) = moving.sample(x, y) else {
+                    continue;
+                };
+                let seen = (value, gx * geometry.s, gy * geometry.s, weight);
+                let fixed = (f64::from(s.log), f64::from(s.weight));
+                acc.equation(state, motion, (u, v), &p, fixed, seen);
+            }
+            acc
+        })
+        .collect();
+    groups.into_iter().fold(Normal::zero(), Normal::add)
+}
+
+/// `state` (the pyramid's estimate of `moving` onto `reference`, whose finest level has
+/// blocks of `step` pixels) refined at full resolution: gain and offset fitted to the
+/// samples, then [`damped`] Gauss–Newton in the same model. The refined state is kept
+/// only when it lowers the samples' mean squared residual below that of `state` (gain and
+/// offset fitted) and moves no corner by more than [`MOST_BLOCKS`] blocks; otherwise, or
+/// when the refinement fails (too few samples overlap, a singular system), `state`.
+pub(super) fn refine(
+    reference: &FullFrame<'_>,
+    moving: &FullFrame<'_>,
+    geometry: &Geometry,
+    state: State,
+    step: f64,
+) -> State {
+    let n = state.params();
+    let normal = |s: &State| accumulate(reference, moving, geometry, s, n);
+    let mut start = state;
+    if let Some(delta) = solve(&accumulate(reference, moving, geometry, &state, 0), 2, 0.0) {
+        start.gain += delta[0];
+        start.bias += delta[1];
+    }
+    let before = normal(&start).mean_square();
+    let Ok((refined, after)) = damped(geometry, 1.0, start, &normal) else {
+        return state;
+    };
+    let moved = geometry.corner_shift(&state.matrix(), &refined.matrix());
+    if after.mean_square() < before && moved <= MOST_BLOCKS * step {
+        refined
+    } else {
+        state
+    }
+}
