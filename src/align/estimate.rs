@@ -438,6 +438,9 @@ impl Pyramid {
     /// relative `exposure`; `range` is the linear values that bound the usable ones (an
     /// unusable pixel is bright above their geometric mean, dark below it). A block's
     /// weight is its pixels' mean, 0 unless all are usable.
+    ///
+    /// Kept whole: one parallel pass over rows of blocks, whose closure fills three
+    /// outputs from three scratch rows; split, each part would take most of them.
     pub(super) fn from_rows<F>(
         width: usize,
         height: usize,
