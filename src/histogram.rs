@@ -493,7 +493,7 @@ impl UsableTones {
     /// scale, noise only blurs the histogram below as it does at every tone, and the edge
     /// of the clipped bin is exact. A JPEG keeps the 2.5/255 margin: the DCT blocks that
     /// hold clipped areas ring and move their unclipped neighbours by a few codes.
-    /// Measured on the DoRF curves at ratio 4 (`benches/response_accuracy.rs`, 8-bit
+    /// Measured on the DoRF curves at ratio 4 (`benches/accuracy/response_accuracy.rs`, 8-bit
     /// lossless, own-normalisation median): 2.5 → 0.022 stops, 1.5 → 0.021, 0.5 → 0.020
     /// (shape error unchanged); JPEG q95 with 0.5 at ratio 16: shape p90 0.19 → 0.47.
     ///

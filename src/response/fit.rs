@@ -337,7 +337,7 @@ pub const FEATURES: usize = 3;
 /// level, set by `g(1) = 1` above the brightest tone any equation reaches, is not part of
 /// it: no feature of the histograms predicts it (docs/accuracy.md states its spread, "How
 /// accurate is a response from a pair?"). Fitted by maximum likelihood on the tuning split
-/// of `benches/response_accuracy.rs` (DoRF records ≡ 0 mod 4, every fourth of them, scenes
+/// of `benches/accuracy/response_accuracy.rs` (DoRF records ≡ 0 mod 4, every fourth of them, scenes
 /// at seed 7, every scene kind, 512×384, 8-bit lossless, JPEG q95 and 16-bit at ratios
 /// 2–16 and 3-frame brackets at ratio 4, lossless and JPEG q90); `--fit-confidence FILES
 /// --target colour` refits it, and docs/accuracy.md ("When can I trust the confidence?")
@@ -1029,7 +1029,7 @@ const MAD_TO_SIGMA: f64 = 1.4826;
 const SPLINE_DEGREE: usize = 3;
 
 /// Pieces of the `auto` spline (fewer with fewer than 8 equations a piece). Measured on
-/// the DoRF curves at ratio 4 (8-bit lossless, `benches/response_accuracy.rs`): 6, 8, 10,
+/// the DoRF curves at ratio 4 (8-bit lossless, `benches/accuracy/response_accuracy.rs`): 6, 8, 10,
 /// 12 and 14 pieces differ by less than the spread between halves of the curve set; 10
 /// had the lowest tail.
 pub const AUTO_PIECES: usize = 10;

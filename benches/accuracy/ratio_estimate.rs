@@ -25,6 +25,7 @@ use filmback::histogram::{FrameCounts, Histogram, shared_counts};
 use filmback::response::{Degree, PRIOR_MID_GREY, Ratio, calibrate};
 use filmback::synthetic::{self, SceneKind, Sensor};
 
+#[path = "../common/mod.rs"]
 mod common;
 use common::arg;
 

@@ -72,6 +72,7 @@ use filmback::synthetic::{
 };
 use nalgebra::{DMatrix, DVector};
 
+#[path = "../common/mod.rs"]
 mod common;
 use common::{arg, quantile};
 

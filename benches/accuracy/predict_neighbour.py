@@ -36,7 +36,7 @@ alike: `listed` (default) keeps the listed times, `measured` gives the chained m
 ratios, `cut` keeps the longest run of frames whose adjacent ratios are within it.
 
     cargo build --release
-    /tmp/filmback-peer-venv/bin/python benches/predict_neighbour.py [--bin PATH] [--quick]
+    /tmp/filmback-peer-venv/bin/python benches/accuracy/predict_neighbour.py [--bin PATH] [--quick]
         [--bracket NAME] [--times listed|measured|cut] [--brackets DIR]
 
 (the peer's python from ../shared/peer/setup.sh: cv2, numpy.) Output: markdown
@@ -729,7 +729,7 @@ def report(brackets, args):
 
 def main():
     ap = argparse.ArgumentParser(description=__doc__.split('\n')[0])
-    ap.add_argument('--bin', default=os.path.join(HERE, '..', 'target', 'release', 'filmback'),
+    ap.add_argument('--bin', default=os.path.join(HERE, '..', '..', 'target', 'release', 'filmback'),
                     help='filmback binary (default: target/release/filmback)')
     ap.add_argument('--brackets', default=find_brackets(), help='folder of bracket folders')
     ap.add_argument('--quick', action='store_true', help=f'one bracket ({QUICK}), a smoke run')

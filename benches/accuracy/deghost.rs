@@ -33,6 +33,7 @@ use filmback::radiance::RadianceMap;
 use filmback::response::InverseResponse;
 use filmback::synthetic::{ResponseCurve, SceneKind, Sensor, expose};
 
+#[path = "../common/mod.rs"]
 mod common;
 
 /// Frames with their relative exposures.

@@ -32,6 +32,7 @@ use filmback::synthetic::{
     self, Encoding as FileEncoding, ResponseCurve as Curve, SceneKind, Sensor, measure,
 };
 
+#[path = "../common/mod.rs"]
 mod common;
 use common::arg;
 

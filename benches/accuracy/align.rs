@@ -8,7 +8,7 @@
 //! (one response, fitted on the unmoved frames; no deghosting) after: nothing; filmback's
 //! alignment (`--align auto`); the exact inverse move (the floor an aligner can reach:
 //! the frames were resampled twice); and, when Python with OpenCV is found
-//! (`FILMBACK_PYTHON`, else `python3`), OpenCV's `AlignMTB` (`benches/opencv_align.py`).
+//! (`FILMBACK_PYTHON`, else `python3`), OpenCV's `AlignMTB` (`benches/accuracy/opencv_align.py`).
 //! Against the merge of the unmoved frames: the luminance error in stops (median, p95,
 //! share of pixels off by more than 0.1 stop) over the pixels the reference exposes
 //! well (every channel within codes 10..245), a margin of 3 % of the longer side left
@@ -37,6 +37,7 @@ use rayon::prelude::*;
 
 use filmback::synthetic::{self, ResponseCurve, SceneKind, Sensor, expose};
 
+#[path = "../common/mod.rs"]
 mod common;
 
 /// One outer frame's move: a shift `(dx, dy)` in pixels, a rotation in degrees about the
@@ -318,7 +319,7 @@ fn aligned(frames: &[(Frame, f64)], g: &InverseResponse) -> (Vec<(Frame, f64)>, 
 }
 
 /// `frames` aligned by OpenCV's AlignMTB onto frame `reference` through
-/// `benches/opencv_align.py` (frames written as binary PPM, read back as PNG), or why not.
+/// `benches/accuracy/opencv_align.py` (frames written as binary PPM, read back as PNG), or why not.
 fn opencv_aligned(
     python: &str,
     bracket: &str,
@@ -335,7 +336,7 @@ fn opencv_aligned(
     std::fs::create_dir_all(&dir).map_err(|e| e.to_string())?;
     let mut args = vec![
         Path::new(env!("CARGO_MANIFEST_DIR"))
-            .join("benches/opencv_align.py")
+            .join("benches/accuracy/opencv_align.py")
             .display()
             .to_string(),
         reference.to_string(),
