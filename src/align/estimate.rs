@@ -924,13 +924,14 @@ fn refine(
 ) -> Result<(State, Normal), Refusal> {
     let n = state.params();
     let normal = |s: &State| accumulate(reference, moving, geometry, s, n);
-    damped(geometry, reference.step, state, &normal)
+    let current = normal(&state);
+    damped(geometry, reference.step, state, current, &normal)
 }
 
-/// Refines `state` by damped Gauss–Newton on the normal equations `normal` gives at a
-/// state (Levenberg–Marquardt: the diagonal of `JᵀJ` raised by the factor `1 + λ`, `λ`
-/// divided by 10 after a step that lowers the mean squared residual and multiplied by 10
-/// after one that does not) until an accepted step moves no corner by more than
+/// Refines `state`, whose normal equations are `current`, by damped Gauss–Newton on
+/// those `normal` gives at a state (Levenberg–Marquardt: the diagonal of `JᵀJ` raised by
+/// the factor `1 + λ`, `λ` divided by 10 after a step that lowers the mean squared
+/// residual and multiplied by 10 after one that does not) until an accepted step moves no corner by more than
 /// [`CONVERGED_PX`] of `step` full-resolution pixels, or no step short of `λ` =
 /// [`MAX_DAMPING`] lowers the residual: the state and its normal equations, or why it
 /// failed.
@@ -938,10 +939,10 @@ fn damped(
     geometry: &Geometry,
     step: f64,
     mut state: State,
+    mut current: Normal,
     normal: &dyn Fn(&State) -> Normal,
 ) -> Result<(State, Normal), Refusal> {
     let n = state.params();
-    let mut current = normal(&state);
     let mut damping = INITIAL_DAMPING;
     for _ in 0..MAX_ITERATIONS {
         if current.count < MIN_SAMPLES {

@@ -646,6 +646,26 @@ struct Unmixed {
     note: Option<String>,
 }
 
+impl Unmixed {
+    /// `job` developed from `captures` alone (decoded as `frames`), `note` saying what was
+    /// left out and why.
+    fn left_out(
+        job: &Job,
+        captures: Vec<Capture>,
+        frames: Vec<LoadedFrame>,
+        note: String,
+    ) -> Unmixed {
+        Unmixed {
+            job: Some(Job {
+                frames: captures,
+                ..job.clone()
+            }),
+            frames,
+            note: Some(note),
+        }
+    }
+}
+
 /// The frames a bracket is developed from. A bracket is either all raw or all
 /// JPEG/PNG/TIFF; one that mixes them (a RAW+JPEG capture whose raw was rejected stands
 /// in it as its JPEG) is developed, in this order of preference:
@@ -716,14 +736,7 @@ fn from_jpegs(
         }
         frames[k] = jpeg;
     }
-    Unmixed {
-        job: Some(Job {
-            frames: captures,
-            ..job.clone()
-        }),
-        frames,
-        note: Some(note),
-    }
+    Unmixed::left_out(job, captures, frames, note)
 }
 
 /// The bracket of `job` developed from its raws alone (`keep_raws`) or from its other
@@ -741,14 +754,7 @@ fn of_one_kind(job: &Job, frames: Vec<LoadedFrame>, keep_raws: bool) -> Unmixed 
     );
     let (frames, captures): (Vec<LoadedFrame>, Vec<Capture>) =
         kept.into_iter().map(|(f, c)| (f, c.clone())).unzip();
-    Unmixed {
-        job: Some(Job {
-            frames: captures,
-            ..job.clone()
-        }),
-        frames,
-        note: Some(note),
-    }
+    Unmixed::left_out(job, captures, frames, note)
 }
 
 /// The companion JPEG ([`Capture::companion`]) of each raw of `frames`, decoded, with

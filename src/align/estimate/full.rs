@@ -221,8 +221,9 @@ pub(super) fn refine(
         start.gain += delta[0];
         start.bias += delta[1];
     }
-    let before = normal(&start).mean_square();
-    let Ok((refined, after)) = damped(geometry, 1.0, start, &normal) else {
+    let current = normal(&start);
+    let before = current.mean_square();
+    let Ok((refined, after)) = damped(geometry, 1.0, start, current, &normal) else {
         return state;
     };
     let moved = geometry.corner_shift(&state.matrix(), &refined.matrix());
