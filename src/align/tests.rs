@@ -551,3 +551,84 @@ fn the_header_record_names_the_reference_and_each_transform() {
     );
     assert!(text.contains("frame 0 (a.jpg): identity"), "{text}");
 }
+
+/// Pixel `(x, y)` of `frame` (codes `codes`, `c` channels) resampled at `T·(x, y, 1)ᵀ`
+/// pixel by pixel: what [`warp_frame`] computes in runs.
+fn warped_at(
+    codes: &[u16],
+    (w, h, c): (usize, usize, usize),
+    t: &[[f64; 3]; 3],
+    x: usize,
+    y: usize,
+) -> Option<Vec<u16>> {
+    let (sx, sy) = apply(t, x as f64, y as f64);
+    if !(sx >= 0.0 && sy >= 0.0 && sx <= (w - 1) as f64 && sy <= (h - 1) as f64) {
+        return None;
+    }
+    let (x0, y0) = ((sx as usize).min(w - 2), (sy as usize).min(h - 2));
+    let (fx, fy) = (sx - x0 as f64, sy - y0 as f64);
+    let at = |x: usize, y: usize, ch: usize| codes[(y * w + x) * c + ch];
+    let value = |ch: usize| {
+        let quad = [
+            at(x0, y0, ch),
+            at(x0 + 1, y0, ch),
+            at(x0, y0 + 1, ch),
+            at(x0 + 1, y0 + 1, ch),
+        ];
+        if quad.contains(&u16::MAX) {
+            return u16::MAX;
+        }
+        if quad.contains(&0) {
+            return 0;
+        }
+        let [a, b, d, e] = quad.map(f64::from);
+        let upper = a + (b - a) * fx;
+        let lower = d + (e - d) * fx;
+        (upper + (lower - upper) * fy).round() as u16
+    };
+    Some((0..c).map(value).collect())
+}
+
+#[test]
+fn a_warped_frame_is_the_bilinear_mix_at_each_moved_pixel() {
+    let (w, h, c) = (97usize, 61usize, 3usize);
+    let mut state = 12345u32;
+    let mut next = || {
+        state = state.wrapping_mul(1_664_525).wrapping_add(1_013_904_223);
+        state >> 16
+    };
+    // Smooth ramps with clipped and black patches, so runs, clipping and zeros all occur.
+    let codes: Vec<u16> = (0..w * h * c)
+        .map(|i| match next() % 50 {
+            0 => u16::MAX,
+            1 => 0,
+            k => ((i / c) % w * 600 + (i / c) / w * 300 + k as usize * 7) as u16,
+        })
+        .collect();
+    let frame = Frame::new(w as u32, h as u32, c, Samples::Sixteen(codes.clone())).unwrap();
+    let moves = [
+        transform_in((w as u32, h as u32), 0.5, (3.3, -2.7), (0.0, 0.0)),
+        transform_in((w as u32, h as u32), -1.5, (-0.4, 1.6), (0.0004, -0.0003)),
+        transform_in((w as u32, h as u32), 0.0, (2.0, 1.0), (0.0, 0.0)),
+    ];
+    for t in moves {
+        let Samples::Sixteen(out) = warp_frame(&frame, &frame, &t).unwrap().samples().clone()
+        else {
+            panic!("16-bit")
+        };
+        for y in 0..h {
+            for x in 0..w {
+                let Some(expected) = warped_at(&codes, (w, h, c), &t, x, y) else {
+                    continue;
+                };
+                let got = &out[(y * w + x) * c..(y * w + x + 1) * c];
+                for (g, e) in got.iter().zip(&expected) {
+                    assert!(
+                        g.abs_diff(*e) <= 1,
+                        "({x}, {y}) under {t:?}: {got:?}, expected {expected:?}"
+                    );
+                }
+            }
+        }
+    }
+}
