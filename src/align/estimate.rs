@@ -23,6 +23,22 @@ const MAX_ITERATIONS: usize = 60;
 /// pixels.
 const CONVERGED_PX: f64 = 0.002;
 
+/// A level a finer stage refines has converged when a proposed step would move no corner
+/// by more than this many of its pixels: the finer stage starts well within its reach.
+const ROUGH_PX: f64 = 0.05;
+
+/// How far [`damped`] refines a level.
+#[derive(Debug, Clone, Copy, PartialEq)]
+enum Convergence {
+    /// To [`CONVERGED_PX`], or to where no step lowers the residual: the level's result
+    /// is the registration's.
+    Final,
+    /// Until a proposed step would move no corner by more than this many of the level's
+    /// pixels; the step is not taken. [`ROUGH_PX`] where a finer level, or the
+    /// full-resolution refinement, follows.
+    Within(f64),
+}
+
 /// Samples one Gauss–Newton iteration reads at most (a regular subsample of the level).
 const SAMPLES_PER_ITERATION: usize = 120_000;
 
@@ -360,6 +376,8 @@ const LEAST_COMMON_SPAN: f32 = std::f32::consts::LN_2;
 pub(super) struct Convert {
     tables: Vec<Vec<f32>>,
     weight_of: Vec<f32>,
+    /// The codes whose weight is not 0, first and last: the weight rises between them.
+    weighed: (usize, usize),
     /// The mean `g` over the channels at the lower and upper well-exposed codes.
     range: (f32, f32),
 }
@@ -375,10 +393,16 @@ impl Convert {
         let (low, high) = super::well_exposed_codes(depth.max_code());
         let mean_at = |k: u32| tables.iter().map(|t| t[k as usize]).sum::<f32>() / channels as f32;
         let range = (mean_at(low), mean_at(high));
-        let weight_of = (0..levels).map(|k| log_weight(k as f32 / max)).collect();
+        let weight_of: Vec<f32> = (0..levels).map(|k| log_weight(k as f32 / max)).collect();
+        let first = weight_of
+            .iter()
+            .position(|&w| w > 0.0)
+            .unwrap_or(weight_of.len());
+        let last = weight_of.iter().rposition(|&w| w > 0.0).unwrap_or(0);
         Convert {
             tables,
             weight_of,
+            weighed: (first, last),
             range,
         }
     }
@@ -397,9 +421,35 @@ impl Convert {
 
     /// A row of pixels (`codes`, channels interleaved) as [`Convert::pixel`] gives them.
     fn row<T: Copy + Into<usize>>(&self, codes: &[T], values: &mut [f32], weights: &mut [f32]) {
-        let c = self.tables.len();
-        for ((pixel, value), weight) in codes.chunks_exact(c).zip(values).zip(weights) {
-            (*value, *weight) = self.pixel(pixel);
+        match self.tables.len() {
+            1 => self.row_of::<T, 1>(codes, values, weights),
+            _ => self.row_of::<T, 3>(codes, values, weights),
+        }
+    }
+
+    /// [`Convert::row`] for `C` channels. The worst channel's weight is that of the
+    /// lowest code when every code is weighed ([`log_weight`] rises with the code), else 0.
+    fn row_of<T: Copy + Into<usize>, const C: usize>(
+        &self,
+        codes: &[T],
+        values: &mut [f32],
+        weights: &mut [f32],
+    ) {
+        let tables: [&[f32]; C] = std::array::from_fn(|ch| self.tables[ch].as_slice());
+        let (first, last) = self.weighed;
+        for ((pixel, value), weight) in codes.chunks_exact(C).zip(values).zip(weights) {
+            let (mut sum, mut low, mut high) = (0.0f32, usize::MAX, 0);
+            for (&k, table) in pixel.iter().zip(tables) {
+                let k: usize = k.into();
+                sum += table[k];
+                (low, high) = (low.min(k), high.max(k));
+            }
+            *value = sum / C as f32;
+            *weight = if low >= first && high <= last {
+                self.weight_of[low]
+            } else {
+                0.0
+            };
         }
     }
 }
@@ -479,15 +529,19 @@ impl Pyramid {
                             .enumerate()
                         {
                             let block = i * step..(i + 1) * step;
-                            *sum += values[block.clone()].iter().sum::<f32>();
-                            *wsum += weights[block.clone()].iter().sum::<f32>();
+                            let (mut s, mut ws) = (0.0f32, 0.0f32);
+                            let (mut usable, mut bright) = (0, 0);
                             for (&v, &o) in values[block.clone()].iter().zip(&weights[block]) {
-                                match (o > 0.0, v >= middle) {
-                                    (true, _) => count.0 += 1,
-                                    (false, true) => count.1 += 1,
-                                    (false, false) => count.2 += 1,
-                                }
+                                (s, ws) = (s + v, ws + o);
+                                usable += usize::from(o > 0.0);
+                                bright += usize::from(o <= 0.0 && v >= middle);
                             }
+                            (*sum, *wsum) = (*sum + s, *wsum + ws);
+                            *count = (
+                                count.0 + usable,
+                                count.1 + bright,
+                                count.2 + step - usable - bright,
+                            );
                         }
                     }
                     let all = step * step;
@@ -914,33 +968,42 @@ fn solve(normal: &Normal, n: usize, damping: f64) -> Option<DVector<f64>> {
     a.cholesky().map(|c| -c.solve(&b))
 }
 
-/// Refines `state` on one level by [`damped`] Gauss–Newton: the state and its normal
-/// equations, or why it failed.
+/// Refines `state` on one level by [`damped`] Gauss–Newton to `convergence`: the state
+/// and its normal equations, or why it failed.
 fn refine(
-    reference: &Level,
-    moving: &Level,
+    (reference, moving): (&Level, &Level),
     geometry: &Geometry,
     state: State,
+    convergence: Convergence,
 ) -> Result<(State, Normal), Refusal> {
     let n = state.params();
     let normal = |s: &State| accumulate(reference, moving, geometry, s, n);
     let current = normal(&state);
-    damped(geometry, reference.step, state, current, &normal)
+    damped(
+        geometry,
+        reference.step,
+        state,
+        current,
+        &normal,
+        convergence,
+    )
 }
 
 /// Refines `state`, whose normal equations are `current`, by damped Gauss–Newton on
 /// those `normal` gives at a state (Levenberg–Marquardt: the diagonal of `JᵀJ` raised by
 /// the factor `1 + λ`, `λ` divided by 10 after a step that lowers the mean squared
-/// residual and multiplied by 10 after one that does not) until an accepted step moves no corner by more than
-/// [`CONVERGED_PX`] of `step` full-resolution pixels, or no step short of `λ` =
-/// [`MAX_DAMPING`] lowers the residual: the state and its normal equations, or why it
-/// failed.
+/// residual and multiplied by 10 after one that does not) until, in units of `step`
+/// full-resolution pixels, an accepted step moves no corner by more than
+/// [`CONVERGED_PX`], or (for [`Convergence::Within`]) a proposed step would move none by
+/// more than its bound (it is not taken), or no step short of `λ` = [`MAX_DAMPING`]
+/// lowers the residual: the state and its normal equations, or why it failed.
 fn damped(
     geometry: &Geometry,
     step: f64,
     mut state: State,
     mut current: Normal,
     normal: &dyn Fn(&State) -> Normal,
+    convergence: Convergence,
 ) -> Result<(State, Normal), Refusal> {
     let n = state.params();
     let mut damping = INITIAL_DAMPING;
@@ -960,6 +1023,11 @@ fn damped(
         let moved = geometry.corner_shift(&state.matrix(), &trial.matrix()) / step;
         if !moved.is_finite() {
             return Err(Refusal::Diverged);
+        }
+        if let Convergence::Within(bound) = convergence
+            && moved < bound
+        {
+            return Ok((state, current));
         }
         let next = normal(&trial);
         let better = next.count >= MIN_SAMPLES && next.mean_square() <= current.mean_square();
@@ -1235,7 +1303,8 @@ fn settle(registration: &Registration, geometry: &Geometry) -> FrameAlignment {
 /// Frame `moving` registered onto frame `fixed` (see the parent module's docs for the
 /// steps and the fallbacks), or why it cannot be; with `skip_sparse`, a level above the
 /// finest whose shared blocks are too few to refine on is passed over; with `full` (the
-/// two frames at full resolution), the pyramid's estimate is refined on them.
+/// two frames at full resolution), the pyramid's estimate is refined on them (and its
+/// finest level converges [`Convergence::Within`] [`ROUGH_PX`]).
 fn register(
     fixed: &Pyramid,
     moving: &Pyramid,
@@ -1244,7 +1313,16 @@ fn register(
     model: Motion,
     skip_sparse: bool,
 ) -> Result<Registration, Refusal> {
-    let (state, note) = estimate(&fixed.levels, &moving.levels, geometry, model, skip_sparse)?;
+    let finest = if full.is_some() {
+        Convergence::Within(ROUGH_PX)
+    } else {
+        Convergence::Final
+    };
+    let schedule = Schedule {
+        skip_sparse,
+        finest,
+    };
+    let (state, note) = estimate(&fixed.levels, &moving.levels, geometry, model, schedule)?;
     let state = match full {
         Some((f, m)) => full::refine(f, m, geometry, state, fixed.levels[0].step),
         None => state,
@@ -1271,9 +1349,14 @@ fn register_clipped(
     let Some((clamped_fixed, clamped_moving)) = fixed.clipped_alike(moving) else {
         return Err(Refusal::NoCommonRange);
     };
-    let (state, note) = estimate(&clamped_fixed, &clamped_moving, geometry, model, false)?;
+    let schedule = Schedule {
+        skip_sparse: false,
+        finest: Convergence::Final,
+    };
+    let (state, note) = estimate(&clamped_fixed, &clamped_moving, geometry, model, schedule)?;
+    let fine = (&fixed.levels[0], &moving.levels[0]);
     // Too few well-exposed blocks in common to refine: nothing contradicts the edges.
-    if let Ok((refined, normal)) = refine(&fixed.levels[0], &moving.levels[0], geometry, state) {
+    if let Ok((refined, normal)) = refine(fine, geometry, state, Convergence::Final) {
         let apart = geometry.corner_shift(&state.matrix(), &refined.matrix());
         let spread = uncertainty_px(&normal, refined.params(), geometry);
         if apart > CLIPPED_AGREEMENT_PX.max(3.0 * spread) {
@@ -1291,20 +1374,30 @@ fn register_clipped(
 /// refinement on the tones both frames measure for the first to be kept.
 const CLIPPED_AGREEMENT_PX: f64 = 1.0;
 
+/// How [`descend`] goes down the levels.
+#[derive(Debug, Clone, Copy)]
+struct Schedule {
+    /// A level above the finest whose shared blocks are too few to refine on is passed
+    /// over.
+    skip_sparse: bool,
+    /// How far the finest level converges; the coarser ones, [`Convergence::Within`] [`ROUGH_PX`].
+    finest: Convergence,
+}
+
 /// The state of [`register`], with a note when the model was simplified.
 fn estimate(
     fixed: &[Level],
     moving: &[Level],
     geometry: &Geometry,
     model: Motion,
-    skip_sparse: bool,
+    schedule: Schedule,
 ) -> Result<(State, Option<String>), Refusal> {
     let (fine_fixed, fine_moving) = (&fixed[0], &moving[0]);
     let shared = overlap(fine_fixed, fine_moving);
     if shared < MIN_OVERLAP {
         return Err(Refusal::LittleOverlap { shared });
     }
-    let (state, normal, note) = descend(fixed, moving, geometry, model, skip_sparse)?;
+    let (state, normal, note) = descend(fixed, moving, geometry, model, schedule)?;
     let displacement = geometry.corner_shift(&Matrix3::identity(), &state.matrix());
     let farthest = 2.0 * SEARCH_RANGE * geometry.width.max(geometry.height);
     if displacement > farthest {
@@ -1333,7 +1426,7 @@ fn descend(
     moving: &[Level],
     geometry: &Geometry,
     model: Motion,
-    skip_sparse: bool,
+    schedule: Schedule,
 ) -> Result<(State, Normal, Option<String>), Refusal> {
     let top = reference.len().min(moving.len()) - 1;
     let (dx, dy) = coarse_search(&reference[top], &moving[top])?;
@@ -1364,7 +1457,13 @@ fn descend(
             state = state.as_motion(target);
         }
         let start = state;
-        match refine(&reference[level], &moving[level], geometry, state) {
+        let convergence = if level == 0 {
+            schedule.finest
+        } else {
+            Convergence::Within(ROUGH_PX)
+        };
+        let pair = (&reference[level], &moving[level]);
+        match refine(pair, geometry, state, convergence) {
             Ok((refined, normal)) => {
                 state = refined;
                 if level == 0 {
@@ -1373,7 +1472,7 @@ fn descend(
             }
             // A coarse level can hold too few shared blocks where the finer ones do not:
             // the finer level starts from where this one would have.
-            Err(Refusal::FewBlocks(_)) if skip_sparse && level > 0 => {}
+            Err(Refusal::FewBlocks(_)) if schedule.skip_sparse && level > 0 => {}
             Err(why) => return Err(why),
         }
     }
@@ -1381,10 +1480,10 @@ fn descend(
         return Err(Refusal::NoLevel);
     };
     let mut note = None;
-    let (fine_ref, fine_mov) = (&reference[0], &moving[0]);
+    let fine = (&reference[0], &moving[0]);
     loop {
         let spread = uncertainty_px(&normal, state.params(), geometry);
-        if spread <= MAX_UNCERTAINTY_BLOCKS * fine_ref.step {
+        if spread <= MAX_UNCERTAINTY_BLOCKS * fine.0.step {
             return Ok((state, normal, note));
         }
         let Some(simpler) = state.motion.simpler() else {
@@ -1395,7 +1494,7 @@ fn descend(
             state.motion.as_str(),
             simpler.as_str()
         ));
-        (state, normal) = refine(fine_ref, fine_mov, geometry, start.as_motion(simpler))?;
+        (state, normal) = refine(fine, geometry, start.as_motion(simpler), schedule.finest)?;
     }
 }
 

@@ -7,7 +7,7 @@ use std::sync::OnceLock;
 use nalgebra::Vector3;
 use rayon::prelude::*;
 
-use super::{Convert, Geometry, Normal, State, damped, solve};
+use super::{Convergence, Convert, Geometry, Normal, State, damped, solve};
 use crate::frame::{Frame, Samples};
 
 /// The reference samples the refinement reads at most: one per cell of a square grid
@@ -18,6 +18,11 @@ const MOST_SAMPLES: usize = 150_000;
 /// corner from the pyramid's estimate for its result to be kept: that estimate is good
 /// to about a block, so a descent that went farther did not refine it.
 const MOST_BLOCKS: f64 = 2.0;
+
+/// The refinement ends when a proposed step would move no corner by more than this many
+/// pixels: a hundredth of a pixel is far below what the merge can show, and steps that
+/// small only chase the residual's noise.
+const SETTLED_PX: f64 = 0.01;
 
 /// Samples [`accumulate`] sums in one task.
 const SAMPLES_PER_GROUP: usize = 4096;
@@ -64,6 +69,18 @@ impl<'a> FullFrame<'a> {
         }
     }
 
+    /// Row `y`'s pixels as [`FullFrame::pixel`] gives them: means and weights.
+    fn row(&self, y: usize) -> (Vec<f32>, Vec<f32>) {
+        let (w, c) = (self.frame.width() as usize, self.frame.channels());
+        let (mut values, mut weights) = (vec![0.0; w], vec![0.0; w]);
+        let span = y * w * c..(y + 1) * w * c;
+        match self.frame.samples() {
+            Samples::Eight(v) => self.convert.row(&v[span], &mut values, &mut weights),
+            Samples::Sixteen(v) => self.convert.row(&v[span], &mut values, &mut weights),
+        }
+        (values, weights)
+    }
+
     /// The samples, chosen on first use.
     fn samples(&self) -> &[Sample] {
         self.samples.get_or_init(|| self.choose())
@@ -87,46 +104,41 @@ impl<'a> FullFrame<'a> {
         rows.concat()
     }
 
-    /// [`FullFrame::choose`] for the cells of the pixel rows `rows`, `n` pixels wide.
+    /// [`FullFrame::choose`] for the cells of the pixel rows `rows`, `n` pixels wide: the
+    /// rows are scanned in order, each cell keeping its first steepest pixel.
     fn choose_in_row(&self, rows: std::ops::Range<usize>, n: usize) -> Vec<Sample> {
         let (w, h) = (self.frame.width() as usize, self.frame.height() as usize);
         // Pixel rows rows.start − 1 ..= rows.end (clamped): values and weights.
         let first = rows.start.saturating_sub(1);
         let last = rows.end.min(h - 1);
-        let read: Vec<Vec<(f32, f32)>> = (first..=last)
-            .map(|y| (0..w).map(|x| self.pixel(x, y)).collect())
-            .collect();
-        let at = |x: usize, y: usize| read[y - first][x];
-        let mut samples = Vec::with_capacity(w / n);
-        for cell in 0..w / n {
-            let mut best: Option<(f32, usize, usize)> = None;
-            for y in rows.start.max(1)..rows.end.min(h - 1) {
-                for x in (cell * n).max(1)..((cell + 1) * n).min(w - 1) {
-                    let around = [
-                        at(x, y),
-                        at(x - 1, y),
-                        at(x + 1, y),
-                        at(x, y - 1),
-                        at(x, y + 1),
-                    ];
-                    if around.iter().any(|&(m, weight)| weight <= 0.0 || m <= 0.0) {
-                        continue;
-                    }
-                    let (gx, gy) = (around[2].0 - around[1].0, around[4].0 - around[3].0);
-                    let steep = (gx * gx + gy * gy) / (around[0].0 * around[0].0);
-                    if best.is_none_or(|(b, _, _)| steep > b) {
-                        best = Some((steep, x, y));
+        let read: Vec<(Vec<f32>, Vec<f32>)> = (first..=last).map(|y| self.row(y)).collect();
+        // Per cell: the steepest pixel so far (steepness ≥ 0 beats the start, -1).
+        let mut best = vec![(-1.0f32, 0usize, 0usize); w / n];
+        let mut steep = vec![-1.0f32; w];
+        for y in rows.start.max(1)..rows.end.min(h - 1) {
+            let row = |dy: usize| &read[y + dy - 1 - first];
+            steepness(row(0), row(1), row(2), &mut steep);
+            for (cell, best) in best.iter_mut().enumerate() {
+                let span = (cell * n).max(1)..((cell + 1) * n).min(w - 1);
+                for (x, &s) in span.clone().zip(&steep[span]) {
+                    if s > best.0 {
+                        *best = (s, x, y);
                     }
                 }
             }
-            if let Some((_, x, y)) = best {
-                let (m, weight) = at(x, y);
-                let log = m.ln() - self.log_e;
-                let (x, y) = (x as u32, y as u32);
-                samples.push(Sample { x, y, log, weight });
-            }
         }
-        samples
+        best.into_iter()
+            .filter(|&(s, _, _)| s >= 0.0)
+            .map(|(_, x, y)| {
+                let (values, weights) = &read[y - first];
+                Sample {
+                    x: x as u32,
+                    y: y as u32,
+                    log: values[x].ln() - self.log_e,
+                    weight: weights[x],
+                }
+            })
+            .collect()
     }
 
     /// The log radiance `ln m − ln e` at full-resolution `(x, y)` (`m` the bilinear
@@ -164,6 +176,37 @@ impl<'a> FullFrame<'a> {
         let dy = (1.0 - fx) * (c.0 - a.0) + fx * (d.0 - b.0);
         let value = m.ln() - f64::from(self.log_e);
         Some((value, dx / m, dy / m, mix(a.1, b.1, c.1, d.1)))
+    }
+}
+
+/// The steepness `|∇m|²/m²` (central differences of the linear means `m`) of each pixel
+/// of the middle row of `above`, `middle`, `below` (values and weights) into `out`, -1
+/// where it or one of its four neighbours is not well exposed (weight or value 0) and at
+/// the row's ends.
+fn steepness(
+    above: &(Vec<f32>, Vec<f32>),
+    middle: &(Vec<f32>, Vec<f32>),
+    below: &(Vec<f32>, Vec<f32>),
+    out: &mut [f32],
+) {
+    let w = out.len();
+    let usable =
+        |(values, weights): &(Vec<f32>, Vec<f32>), x: usize| weights[x] > 0.0 && values[x] > 0.0;
+    out[0] = -1.0;
+    out[w - 1] = -1.0;
+    for x in 1..w - 1 {
+        let around = usable(middle, x)
+            && usable(middle, x - 1)
+            && usable(middle, x + 1)
+            && usable(above, x)
+            && usable(below, x);
+        let m = &middle.0;
+        let (gx, gy) = (m[x + 1] - m[x - 1], below.0[x] - above.0[x]);
+        out[x] = if around {
+            (gx * gx + gy * gy) / (m[x] * m[x])
+        } else {
+            -1.0
+        };
     }
 }
 
@@ -223,7 +266,14 @@ pub(super) fn refine(
     }
     let current = normal(&start);
     let before = current.mean_square();
-    let Ok((refined, after)) = damped(geometry, 1.0, start, current, &normal) else {
+    let Ok((refined, after)) = damped(
+        geometry,
+        1.0,
+        start,
+        current,
+        &normal,
+        Convergence::Within(SETTLED_PX),
+    ) else {
         return state;
     };
     let moved = geometry.corner_shift(&state.matrix(), &refined.matrix());
