@@ -284,16 +284,21 @@ fn accuracy() {
     found.iter().for_each(|line| println!("{line}"));
 }
 
-/// `frames` after filmback's alignment (mode auto), and one line per frame saying what it
-/// found (model, shift at the centre, rotation, note).
-fn aligned(frames: &[(Frame, f64)], g: &InverseResponse) -> (Vec<(Frame, f64)>, String) {
-    let views: Vec<AlignFrame> = frames
+/// `frames` (with their exposures) as alignment reads them.
+fn views(frames: &[(Frame, f64)]) -> Vec<AlignFrame<'_>> {
+    frames
         .iter()
         .map(|(frame, exposure)| AlignFrame {
             frame,
             exposure: *exposure,
         })
-        .collect();
+        .collect()
+}
+
+/// `frames` after filmback's alignment (mode auto), and one line per frame saying what it
+/// found (model, shift at the centre, rotation, note).
+fn aligned(frames: &[(Frame, f64)], g: &InverseResponse) -> (Vec<(Frame, f64)>, String) {
+    let views = views(frames);
     let alignment = align::align(&views, g, AlignMode::Auto);
     let (w, h) = (frames[0].0.width(), frames[0].0.height());
     let found: Vec<String> = alignment
@@ -448,13 +453,7 @@ fn speed(runs: usize) {
             }
         })
         .collect();
-    let views: Vec<AlignFrame> = frames
-        .iter()
-        .map(|(frame, exposure)| AlignFrame {
-            frame,
-            exposure: *exposure,
-        })
-        .collect();
+    let views = views(&frames);
     let g = InverseResponse::srgb(3, 1024);
     let alignment = align::align(&views, &g, AlignMode::Auto);
     let estimate = common::best_of(runs, &|| {

@@ -210,17 +210,21 @@ fn subject(frame: &Frame, k: usize) -> (usize, (usize, usize), (usize, usize)) {
     (side, (w * 5 / 8, h * 47 / 100), (x, h / 2))
 }
 
-fn report(case: &Case) {
-    let camera = Camera::default();
-    let moved: Vec<(Frame, f64)> = case
-        .frames
+/// `frames` with the moving subject pasted into each ([`subject`], [`paste`]).
+fn with_subject(frames: &[(Frame, f64)]) -> Vec<(Frame, f64)> {
+    frames
         .iter()
         .enumerate()
         .map(|(k, (f, e))| {
             let (side, from, to) = subject(f, k);
             (paste(f, side, from, to), *e)
         })
-        .collect();
+        .collect()
+}
+
+fn report(case: &Case) {
+    let camera = Camera::default();
+    let moved = with_subject(&case.frames);
     let views: Vec<&Frame> = moved.iter().map(|(f, _)| f).collect();
     let r = align::choose_reference(&views);
     let still: Vec<(Frame, f64)> = case
@@ -320,14 +324,7 @@ fn speed(runs: usize) {
         .iter()
         .map(|&e| (expose(&radiance, e, &sensor), e))
         .collect();
-    let moved: Vec<(Frame, f64)> = still
-        .iter()
-        .enumerate()
-        .map(|(k, (f, e))| {
-            let (side, from, to) = subject(f, k);
-            (paste(f, side, from, to), *e)
-        })
-        .collect();
+    let moved = with_subject(&still);
     let g = InverseResponse::srgb(3, 1024);
     let camera = Camera::default();
     println!("wall time, and CPU time of all threads in parentheses");
