@@ -2,6 +2,8 @@
 //! mosaics' alignment, which estimates on whole CFA tiles and warps each CFA position's
 //! sub-lattice.
 
+use std::ops::Range;
+
 use rayon::prelude::*;
 
 use super::{AlignFrame, Alignment};
@@ -88,16 +90,15 @@ fn warp_codes<T: Code>(
         codes,
         reference,
         w,
-        h,
     };
     out.par_chunks_mut(w * c).enumerate().for_each_init(
         || Positions::new(w, c),
         |at, (y, row)| {
             if c == 1 {
-                at.locate::<T, 1>(&grid, y, t);
+                at.locate::<1>((w, h), y, t);
                 grid.row::<1>(y, row, at);
             } else {
-                at.locate::<T, 3>(&grid, y, t);
+                at.locate::<3>((w, h), y, t);
                 grid.row::<3>(y, row, at);
             }
         },
@@ -110,7 +111,6 @@ struct Grid<'a, T> {
     codes: &'a [T],
     reference: &'a [T],
     w: usize,
-    h: usize,
 }
 
 /// Where one output row reads the frame: per pixel whether it is covered and the upper
@@ -141,14 +141,13 @@ impl Positions {
         }
     }
 
-    /// Output row `y`'s positions in `grid`'s frame, `C` channels: `T·(x, y, 1)ᵀ` over
+    /// Output row `y`'s positions in a `w × h` frame, `C` channels: `T·(x, y, 1)ᵀ` over
     /// its third coordinate (in `f64`, linear in `x` before the division), then as `f32`
     /// (off by under 0.001 px on frames under 16 384 px): `x0` its floor (the integer
     /// nearest `sx − ½`, one up where that tie went down) and at most `w − 2`,
     /// `fx = sx − x0` in `[0, 1]` where covered; the same in `y`. Written so that it
     /// vectorises.
-    fn locate<T: Code, const C: usize>(&mut self, grid: &Grid<'_, T>, y: usize, t: &[[f64; 3]; 3]) {
-        let (w, h) = (grid.w, grid.h);
+    fn locate<const C: usize>(&mut self, (w, h): (usize, usize), y: usize, t: &[[f64; 3]; 3]) {
         let (last_x, last_y) = ((w - 1) as f32, (h - 1) as f32);
         let (most_x0, most_y0) = ((w - 2) as f32, (h - 2) as f32);
         let yf = y as f64;
@@ -190,36 +189,63 @@ impl Positions {
     }
 }
 
+/// A stretch of an output row (see [`Positions::segments`]).
+enum Segment {
+    /// A pixel the frame does not cover.
+    Uncovered(usize),
+    /// Covered pixels whose four neighbours lie on the same two frame rows at the same
+    /// offset from the output pixel; the first one's upper left neighbour `(x0, y0)`.
+    Run(Range<usize>, (usize, usize)),
+}
+
+impl Positions {
+    /// The row's pixels in order, each not covered alone and the covered ones in
+    /// [`Segment::Run`]s: a near-identity transform keeps runs long.
+    fn segments(&self) -> impl Iterator<Item = Segment> + '_ {
+        let w = self.covered.len();
+        let mut x = 0;
+        std::iter::from_fn(move || {
+            if x >= w {
+                return None;
+            }
+            let start = x;
+            if !self.covered[x] {
+                x += 1;
+                return Some(Segment::Uncovered(start));
+            }
+            let (x0, y0) = (self.x0[x] as usize, self.y0[x]);
+            x += 1;
+            while x < w
+                && self.covered[x]
+                && (self.x0[x] as usize, self.y0[x]) == (x0 + x - start, y0)
+            {
+                x += 1;
+            }
+            Some(Segment::Run(start..x, (x0, y0 as usize)))
+        })
+    }
+}
+
 impl<T: Code> Grid<'_, T> {
-    /// Output row `y` of `C` interleaved channels at the positions `at`: in runs of
-    /// covered pixels whose neighbours lie on the same two frame rows at the same offset
-    /// from the output pixel (a near-identity transform keeps runs long), so each run
-    /// reads two contiguous spans of the frame.
+    /// Output row `y` of `C` interleaved channels at the positions `at`, in the
+    /// [`Positions::segments`] (a run reads two contiguous spans of the frame).
     fn row<const C: usize>(&self, y: usize, row: &mut [T], at: &Positions) {
         let w = self.w;
-        let mut x = 0;
-        while x < w {
-            if !at.covered[x] {
-                self.uncovered(&mut row[x * C..(x + 1) * C], (y * w + x) * C);
-                x += 1;
-                continue;
+        for segment in at.segments() {
+            match segment {
+                Segment::Uncovered(x) => {
+                    self.uncovered(&mut row[x * C..(x + 1) * C], (y * w + x) * C);
+                }
+                Segment::Run(pixels, (x0, y0)) => {
+                    let samples = pixels.start * C..pixels.end * C;
+                    self.run::<C>(
+                        &mut row[samples.clone()],
+                        (y0 * w + x0) * C,
+                        &at.fx[samples.clone()],
+                        &at.fy[samples],
+                    );
+                }
             }
-            let (x0, y0) = (at.x0[x] as usize, at.y0[x]);
-            let mut end = x + 1;
-            while end < w
-                && at.covered[end]
-                && (at.x0[end] as usize, at.y0[end]) == (x0 + end - x, y0)
-            {
-                end += 1;
-            }
-            let samples = x * C..end * C;
-            self.run::<C>(
-                &mut row[samples.clone()],
-                (y0 as usize * w + x0) * C,
-                &at.fx[samples.clone()],
-                &at.fy[samples],
-            );
-            x = end;
         }
     }
 
@@ -271,20 +297,14 @@ pub use raw::{MosaicFrame, align_mosaics, warp_mosaics};
 
 #[cfg(feature = "raw")]
 mod raw {
+    use nalgebra::Matrix3;
     use rayon::prelude::*;
+
+    use super::{Code, Positions, Segment, rounded};
 
     use super::super::estimate::{self, Geometry, Pyramid};
     use super::super::{AlignMode, Alignment, SMALLEST_SIDE, exposure_weight};
     use crate::raw::{CLIPPED, RawInfo};
-
-    /// `T·(x, y, 1)ᵀ` divided by its third coordinate.
-    fn project(t: &[[f64; 3]; 3], x: f64, y: f64) -> (f64, f64) {
-        let w = t[2][0] * x + t[2][1] * y + t[2][2];
-        (
-            (t[0][0] * x + t[0][1] * y + t[0][2]) / w,
-            (t[1][0] * x + t[1][1] * y + t[1][2]) / w,
-        )
-    }
 
     /// One raw mosaic as alignment needs it.
     #[derive(Debug, Clone, Copy)]
@@ -306,6 +326,29 @@ mod raw {
         fn signal(&self, x: usize, y: usize) -> f32 {
             let b = self.info.black_at(x, y);
             (f32::from(self.codes[y * self.width + x]) - b) / (self.info.white - b)
+        }
+
+        /// Per row of the black-level tile, every column's black level `b` and `w − b`:
+        /// what [`MosaicFrame::signal_row`] reads.
+        fn levels(&self) -> Vec<(Vec<f32>, Vec<f32>)> {
+            (0..self.info.black_height.max(1))
+                .map(|y| {
+                    let black: Vec<f32> =
+                        (0..self.width).map(|x| self.info.black_at(x, y)).collect();
+                    let span = black.iter().map(|b| self.info.white - b).collect();
+                    (black, span)
+                })
+                .collect()
+        }
+
+        /// Row `y`'s signal as [`MosaicFrame::signal`] gives it, into `out`, with the
+        /// frame's [`MosaicFrame::levels`] (a loop the compiler vectorises).
+        fn signal_row(&self, levels: &[(Vec<f32>, Vec<f32>)], y: usize, out: &mut [f32]) {
+            let (black, span) = &levels[y % levels.len()];
+            let codes = &self.codes[y * self.width..(y + 1) * self.width];
+            for (((o, &k), &b), &d) in out.iter_mut().zip(codes).zip(black).zip(span) {
+                *o = (f32::from(k) - b) / d;
+            }
         }
 
         /// The score of `choose_reference` on the signal: the hat weight of every
@@ -369,6 +412,7 @@ mod raw {
 
     fn pyramid(f: &MosaicFrame<'_>, step: usize) -> Pyramid {
         let range = (RAW_FLOOR, CLIPPED);
+        let levels = f.levels();
         Pyramid::from_rows(
             f.width,
             f.height,
@@ -376,10 +420,10 @@ mod raw {
             f.exposure,
             range,
             |y, values, weights| {
-                for (x, (v, w)) in values.iter_mut().zip(weights.iter_mut()).enumerate() {
-                    let s = f.signal(x, y);
-                    *v = s.max(0.0);
-                    *w = raw_log_weight(s);
+                f.signal_row(&levels, y, values);
+                for (v, w) in values.iter_mut().zip(weights.iter_mut()) {
+                    *w = raw_log_weight(*v);
+                    *v = v.max(0.0);
                 }
             },
         )
@@ -415,39 +459,238 @@ mod raw {
             .collect()
     }
 
+    /// `f` resampled at `T·x` for every pixel `x` of the reference grid, one CFA
+    /// position's sub-lattice at a time ([`Lattice::warp`]).
     fn warp_mosaic(f: &MosaicFrame<'_>, t: &[[f64; 3]; 3]) -> Vec<u16> {
-        let (w, h) = (f.width, f.height);
+        let w = f.width;
         let white = f.info.white.ceil().clamp(0.0, 65535.0) as u16;
-        let mut out = vec![white; w * h];
-        out.par_chunks_mut(w).enumerate().for_each(|(y, row)| {
-            let oy = y % 2;
-            let rows = (h - oy).div_ceil(2);
-            for (x, o) in row.iter_mut().enumerate() {
-                let ox = x % 2;
-                let cols = (w - ox).div_ceil(2);
-                let (sx, sy) = project(t, x as f64, y as f64);
-                let (i, j) = ((sx - ox as f64) / 2.0, (sy - oy as f64) / 2.0);
-                if !(i >= 0.0 && j >= 0.0 && i <= (cols - 1) as f64 && j <= (rows - 1) as f64) {
-                    continue;
-                }
-                let (i0, j0) = ((i as usize).min(cols - 2), (j as usize).min(rows - 2));
-                let (fi, fj) = ((i - i0 as f64) as f32, (j - j0 as f64) as f32);
-                let at = |a: usize, b: usize| (ox + 2 * a, oy + 2 * b);
-                let quad = [
-                    at(i0, j0),
-                    at(i0 + 1, j0),
-                    at(i0, j0 + 1),
-                    at(i0 + 1, j0 + 1),
-                ];
-                if quad.iter().any(|&(px, py)| f.signal(px, py) >= CLIPPED) {
-                    continue;
-                }
-                let [a, b, c, d] = quad.map(|(px, py)| f32::from(f.codes[py * w + px]));
-                let top = a + (b - a) * fi;
-                let bottom = c + (d - c) * fi;
-                *o = (top + (bottom - top) * fj).round().clamp(0.0, 65535.0) as u16;
-            }
-        });
+        let levels = f.levels();
+        let mut out = vec![white; w * f.height];
+        for (ox, oy) in [(0, 0), (1, 0), (0, 1), (1, 1)] {
+            let lattice = Lattice::of(f, &levels, (ox, oy));
+            let warped = lattice.warp(&on_lattice(t, (ox, oy)), white);
+            out.par_chunks_mut(w)
+                .skip(oy)
+                .step_by(2)
+                .zip(warped.par_chunks(lattice.cols))
+                .for_each(|(row, samples)| {
+                    for (o, &v) in row.iter_mut().skip(ox).step_by(2).zip(samples) {
+                        *o = v;
+                    }
+                });
+        }
         out
+    }
+
+    /// `T` between sub-lattices of the CFA position `(ox, oy)`: `S⁻¹·T·S`, where `S` takes
+    /// lattice `(i, j)` to pixel `(2i + ox, 2j + oy)`.
+    fn on_lattice(t: &[[f64; 3]; 3], (ox, oy): (usize, usize)) -> [[f64; 3]; 3] {
+        let (ox, oy) = (ox as f64, oy as f64);
+        let s = Matrix3::new(2.0, 0.0, ox, 0.0, 2.0, oy, 0.0, 0.0, 1.0);
+        let s_inv = Matrix3::new(0.5, 0.0, -ox / 2.0, 0.0, 0.5, -oy / 2.0, 0.0, 0.0, 1.0);
+        let m = s_inv * Matrix3::from_fn(|r, c| t[r][c]) * s;
+        std::array::from_fn(|r| std::array::from_fn(|c| m[(r, c)]))
+    }
+
+    /// The pixels of one CFA position of a mosaic, `cols × rows`: codes, and whether each
+    /// is clipped (signal ≥ [`CLIPPED`]).
+    struct Lattice {
+        codes: Vec<u16>,
+        clipped: Vec<bool>,
+        cols: usize,
+        rows: usize,
+    }
+
+    impl Lattice {
+        /// The pixels `(ox + 2i, oy + 2j)` of `f`, whose [`MosaicFrame::levels`] are `levels`.
+        fn of(
+            f: &MosaicFrame<'_>,
+            levels: &[(Vec<f32>, Vec<f32>)],
+            (ox, oy): (usize, usize),
+        ) -> Self {
+            let (cols, rows) = ((f.width - ox).div_ceil(2), (f.height - oy).div_ceil(2));
+            let mut codes = vec![0u16; cols * rows];
+            let mut clipped = vec![false; cols * rows];
+            codes
+                .par_chunks_mut(cols)
+                .zip(clipped.par_chunks_mut(cols))
+                .enumerate()
+                .for_each_init(
+                    || vec![0f32; f.width],
+                    |signal, (j, (codes, clipped))| {
+                        let y = oy + 2 * j;
+                        f.signal_row(levels, y, signal);
+                        let row = &f.codes[y * f.width..(y + 1) * f.width];
+                        let pixels = row.iter().zip(signal.iter()).skip(ox).step_by(2);
+                        for ((c, k), (&code, &s)) in
+                            codes.iter_mut().zip(clipped.iter_mut()).zip(pixels)
+                        {
+                            (*c, *k) = (code, s >= CLIPPED);
+                        }
+                    },
+                );
+            Lattice {
+                codes,
+                clipped,
+                cols,
+                rows,
+            }
+        }
+
+        /// The lattice resampled at `T·x` for every lattice point `x`, bilinear in codes;
+        /// `white` where `T·x` falls outside the lattice or one of its four neighbours
+        /// is clipped (the raw merge gives it weight 0).
+        fn warp(&self, t: &[[f64; 3]; 3], white: u16) -> Vec<u16> {
+            let mut out = vec![white; self.codes.len()];
+            out.par_chunks_mut(self.cols).enumerate().for_each_init(
+                || Positions::new(self.cols, 1),
+                |at, (y, row)| {
+                    at.locate::<1>((self.cols, self.rows), y, t);
+                    for segment in at.segments() {
+                        if let Segment::Run(pixels, (x0, y0)) = segment {
+                            let (fx, fy) = (&at.fx[pixels.clone()], &at.fy[pixels.clone()]);
+                            self.run(&mut row[pixels], y0 * self.cols + x0, (fx, fy), white);
+                        }
+                    }
+                },
+            );
+            out
+        }
+
+        /// One [`Segment::Run`]: output `i` mixes lattice samples `base + i`,
+        /// `base + i + 1` and the two below them with weights `fx[i]`, `fy[i]`
+        /// ([`rounded`]), or is `white` where one of the four is clipped.
+        fn run(&self, out: &mut [u16], base: usize, (fx, fy): (&[f32], &[f32]), white: u16) {
+            let n = out.len();
+            let lower = base + self.cols;
+            let spans = [base, base + 1, lower, lower + 1];
+            let [a, b, d, e] = spans.map(|i| &self.codes[i..i + n]);
+            let [ka, kb, kd, ke] = spans.map(|i| &self.clipped[i..i + n]);
+            let (fx, fy) = (&fx[..n], &fy[..n]);
+            for i in 0..n {
+                let [p, q, r, s] = [a[i], b[i], d[i], e[i]].map(f32::from);
+                let upper = p + (q - p) * fx[i];
+                let under = r + (s - r) * fx[i];
+                let mix = u16::from_low_bits(rounded(upper + (under - upper) * fy[i]));
+                out[i] = if ka[i] | kb[i] | kd[i] | ke[i] {
+                    white
+                } else {
+                    mix
+                };
+            }
+        }
+    }
+
+    #[cfg(test)]
+    mod tests {
+        use super::*;
+        use crate::raw::{Cfa, RawInfo};
+
+        /// A 2 × 2 RGGB mosaic's description, black level `black` per CFA position.
+        fn info(black: [f32; 4], white: f32) -> RawInfo {
+            RawInfo {
+                make: "filmback".into(),
+                model: "Raw Body".into(),
+                bits: 14,
+                cfa: Cfa {
+                    width: 2,
+                    height: 2,
+                    colours: vec![0, 1, 1, 2],
+                },
+                black: black.to_vec(),
+                black_width: 2,
+                black_height: 2,
+                white,
+                neutral: [0.5, 1.0, 0.7],
+                xyz_to_camera: [[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]],
+                matrix_illuminant: "D65".into(),
+                colour_matrices: Vec::new(),
+                exposure_time_s: None,
+                f_number: None,
+                iso: None,
+                captured: None,
+            }
+        }
+
+        /// Pixel `(x, y)` of `f` resampled at `T·(x, y, 1)ᵀ` pixel by pixel, in `f64`:
+        /// what [`warp_mosaic`] computes a lattice and a run at a time (`None` outside
+        /// the frame's lattice, the white level where a neighbour is clipped).
+        fn warped_at(
+            f: &MosaicFrame<'_>,
+            t: &[[f64; 3]; 3],
+            (x, y): (usize, usize),
+        ) -> Option<u16> {
+            let (ox, oy) = (x % 2, y % 2);
+            let (cols, rows) = ((f.width - ox).div_ceil(2), (f.height - oy).div_ceil(2));
+            let (x, y) = (x as f64, y as f64);
+            let w = t[2][0] * x + t[2][1] * y + t[2][2];
+            let sx = (t[0][0] * x + t[0][1] * y + t[0][2]) / w;
+            let sy = (t[1][0] * x + t[1][1] * y + t[1][2]) / w;
+            let (i, j) = ((sx - ox as f64) / 2.0, (sy - oy as f64) / 2.0);
+            if !(i >= 0.0 && j >= 0.0 && i <= (cols - 1) as f64 && j <= (rows - 1) as f64) {
+                return None;
+            }
+            let (i0, j0) = ((i as usize).min(cols - 2), (j as usize).min(rows - 2));
+            let (fi, fj) = (i - i0 as f64, j - j0 as f64);
+            let quad = [(i0, j0), (i0 + 1, j0), (i0, j0 + 1), (i0 + 1, j0 + 1)]
+                .map(|(a, b)| (ox + 2 * a, oy + 2 * b));
+            if quad.iter().any(|&(px, py)| f.signal(px, py) >= CLIPPED) {
+                return Some(f.info.white as u16);
+            }
+            let [a, b, c, d] = quad.map(|(px, py)| f64::from(f.codes[py * f.width + px]));
+            let top = a + (b - a) * fi;
+            let bottom = c + (d - c) * fi;
+            Some((top + (bottom - top) * fj).round() as u16)
+        }
+
+        #[test]
+        fn a_warped_mosaic_mixes_each_pixels_own_cfa_colour() {
+            let (w, h) = (97usize, 61usize);
+            let info = info([500.0, 510.0, 505.0, 515.0], 15_000.0);
+            let mut state = 12345u32;
+            let mut next = || {
+                state = state.wrapping_mul(1_664_525).wrapping_add(1_013_904_223);
+                state >> 16
+            };
+            // Ramps of a different slope per CFA colour, with clipped pixels scattered.
+            let codes: Vec<u16> = (0..w * h)
+                .map(|i| {
+                    let (x, y) = (i % w, i / w);
+                    match next() % 40 {
+                        0 => 15_000,
+                        k => {
+                            (600 + x * (40 + 30 * (x % 2)) + y * (70 + 50 * (y % 2)) + k as usize)
+                                as u16
+                        }
+                    }
+                })
+                .collect();
+            let frame = MosaicFrame {
+                codes: &codes,
+                width: w,
+                height: h,
+                info: &info,
+                exposure: 1.0,
+            };
+            let (a, c) = (0.6f64.to_radians().sin(), 0.6f64.to_radians().cos());
+            let moves = [
+                [[1.0, 0.0, 3.3], [0.0, 1.0, -2.7], [0.0, 0.0, 1.0]],
+                [[c, -a, 1.4], [a, c, -0.6], [0.0002, -0.0001, 1.0]],
+                [[1.0, 0.0, 2.0], [0.0, 1.0, 1.0], [0.0, 0.0, 1.0]],
+            ];
+            for t in moves {
+                let out = warp_mosaic(&frame, &t);
+                for y in 0..h {
+                    for x in 0..w {
+                        let got = out[y * w + x];
+                        let expected = warped_at(&frame, &t, (x, y)).unwrap_or(15_000);
+                        assert!(
+                            got.abs_diff(expected) <= 1,
+                            "({x}, {y}) under {t:?}: {got}, expected {expected}"
+                        );
+                    }
+                }
+            }
+        }
     }
 }
