@@ -671,7 +671,7 @@ fn mask_of(share: &[f32], width: usize, height: usize) -> Option<Vec<u8>> {
     if share.iter().all(|&s| s <= GHOST_SHARE) {
         return None;
     }
-    let neighbourhood = box_mean(share, bw, bh, 1);
+    let neighbourhood = box_mean(share, bw, bh);
     let ghost: Vec<f32> = neighbourhood
         .iter()
         .map(|&s| if s > GHOST_SHARE { 1.0 } else { 0.0 })
@@ -679,30 +679,25 @@ fn mask_of(share: &[f32], width: usize, height: usize) -> Option<Vec<u8>> {
     if ghost.iter().all(|&g| g == 0.0) {
         return None;
     }
-    let grown: Vec<f32> = box_mean(&ghost, bw, bh, 1)
+    let grown: Vec<f32> = box_mean(&ghost, bw, bh)
         .iter()
         .map(|&g| if g > 0.0 { 1.0 } else { 0.0 })
         .collect();
-    let soft = box_mean(&box_mean(&grown, bw, bh, 1), bw, bh, 1);
+    let soft = box_mean(&box_mean(&grown, bw, bh), bw, bh);
     Some(upsample(&soft, bw, bh, width, height))
 }
 
-/// The mean over the `(2r+1)²` neighbourhood of each cell (clamped at the borders: only
-/// the cells inside the grid count), along rows then along columns, rows in parallel.
-fn box_mean(grid: &[f32], w: usize, h: usize, r: usize) -> Vec<f32> {
+/// The mean over the 3×3 neighbourhood of each cell (clamped at the borders: only the
+/// cells inside the grid count), along rows then along columns, rows in parallel.
+fn box_mean(grid: &[f32], w: usize, h: usize) -> Vec<f32> {
     let mut across = vec![0.0f32; grid.len()];
     across
         .par_chunks_mut(w)
         .zip(grid.par_chunks(w))
-        .for_each(|(out, row)| {
-            for (x, o) in out.iter_mut().enumerate() {
-                let (lo, hi) = (x.saturating_sub(r), (x + r).min(w - 1));
-                *o = row[lo..=hi].iter().sum::<f32>() / (hi - lo + 1) as f32;
-            }
-        });
+        .for_each(|(out, row)| mean_of_three(row, out));
     let mut out = vec![0.0f32; grid.len()];
     out.par_chunks_mut(w).enumerate().for_each(|(y, row)| {
-        let (lo, hi) = (y.saturating_sub(r), (y + r).min(h - 1));
+        let (lo, hi) = (y.saturating_sub(1), (y + 1).min(h - 1));
         for above in across[lo * w..(hi + 1) * w].chunks(w) {
             row.iter_mut().zip(above).for_each(|(o, &v)| *o += v);
         }
@@ -710,6 +705,22 @@ fn box_mean(grid: &[f32], w: usize, h: usize, r: usize) -> Vec<f32> {
         row.iter_mut().for_each(|o| *o /= n);
     });
     out
+}
+
+/// Each cell of `row` into `out` as the mean of it and its neighbours in the row (one
+/// neighbour at the ends), summed left to right.
+fn mean_of_three(row: &[f32], out: &mut [f32]) {
+    let w = row.len();
+    if w < 2 {
+        out.copy_from_slice(row);
+        return;
+    }
+    out[0] = (row[0] + row[1]) / 2.0;
+    out[w - 1] = (row[w - 2] + row[w - 1]) / 2.0;
+    let (left, middle, right) = (&row[..w - 2], &row[1..w - 1], &row[2..]);
+    for (((o, &a), &b), &c) in out[1..w - 1].iter_mut().zip(left).zip(middle).zip(right) {
+        *o = (a + b + c) / 3.0;
+    }
 }
 
 /// Pixel weights `255·(1 − s)` from the block grid `soft` (`s` the left-out share),
