@@ -321,15 +321,20 @@ mod raw {
         pub exposure: f64,
     }
 
+    /// Code `k` as a normalised signal `(k − b)/d`, `b` its black level and `d = w − b`.
+    fn normalised(k: u16, b: f32, d: f32) -> f32 {
+        (f32::from(k) - b) / d
+    }
+
     impl MosaicFrame<'_> {
         /// The normalised signal `(k − b)/(w − b)` of pixel `(x, y)`.
         fn signal(&self, x: usize, y: usize) -> f32 {
             let b = self.info.black_at(x, y);
-            (f32::from(self.codes[y * self.width + x]) - b) / (self.info.white - b)
+            normalised(self.codes[y * self.width + x], b, self.info.white - b)
         }
 
         /// Per row of the black-level tile, every column's black level `b` and `w − b`:
-        /// what [`MosaicFrame::signal_row`] reads.
+        /// what [`MosaicFrame::signal_row`] and [`Lattice::of`] read.
         fn levels(&self) -> Vec<(Vec<f32>, Vec<f32>)> {
             (0..self.info.black_height.max(1))
                 .map(|y| {
@@ -347,7 +352,7 @@ mod raw {
             let (black, span) = &levels[y % levels.len()];
             let codes = &self.codes[y * self.width..(y + 1) * self.width];
             for (((o, &k), &b), &d) in out.iter_mut().zip(codes).zip(black).zip(span) {
-                *o = (f32::from(k) - b) / d;
+                *o = normalised(k, b, d);
             }
         }
 
@@ -515,20 +520,17 @@ mod raw {
                 .par_chunks_mut(cols)
                 .zip(clipped.par_chunks_mut(cols))
                 .enumerate()
-                .for_each_init(
-                    || vec![0f32; f.width],
-                    |signal, (j, (codes, clipped))| {
-                        let y = oy + 2 * j;
-                        f.signal_row(levels, y, signal);
-                        let row = &f.codes[y * f.width..(y + 1) * f.width];
-                        let pixels = row.iter().zip(signal.iter()).skip(ox).step_by(2);
-                        for ((c, k), (&code, &s)) in
-                            codes.iter_mut().zip(clipped.iter_mut()).zip(pixels)
-                        {
-                            (*c, *k) = (code, s >= CLIPPED);
-                        }
-                    },
-                );
+                .for_each(|(j, (codes, clipped))| {
+                    let y = oy + 2 * j;
+                    let (black, span) = &levels[y % levels.len()];
+                    let row = &f.codes[y * f.width..(y + 1) * f.width];
+                    let pixels = row.iter().zip(black).zip(span).skip(ox).step_by(2);
+                    for ((c, k), ((&code, &b), &d)) in
+                        codes.iter_mut().zip(clipped.iter_mut()).zip(pixels)
+                    {
+                        (*c, *k) = (code, normalised(code, b, d) >= CLIPPED);
+                    }
+                });
             Lattice {
                 codes,
                 clipped,
