@@ -916,43 +916,103 @@ fn accumulate(
     state: &State,
     motion: usize,
 ) -> Normal {
-    let (w, h) = (reference.width, reference.height);
-    let stride = (((w * h) as f64 / SAMPLES_PER_ITERATION as f64)
-        .sqrt()
-        .floor() as usize)
-        .max(1);
-    let m = state.matrix();
-    let step = reference.step;
-    let to_level = geometry.s / step;
+    let sampling = Sampling::of(reference, geometry, state);
     // Rows in fixed groups, the groups' sums added in order: the same sums, to the last
     // bit, however the threads share the work.
-    let rows: Vec<usize> = (0..h).step_by(stride).collect();
+    let rows: Vec<usize> = (0..reference.height).step_by(sampling.stride).collect();
     let groups: Vec<Normal> = rows
         .par_chunks(ROWS_PER_GROUP)
         .map(|group| {
             let mut acc = Normal::zero();
             for &y in group {
-                for x in (0..w).step_by(stride) {
-                    let i = y * w + x;
-                    if !reference.solid[i] {
-                        continue;
-                    }
-                    let (u, v) = geometry.to_normalised(step, x as f64, y as f64);
-                    let p = m * Vector3::new(u, v, 1.0);
-                    let (xp, yp) = (p.x / p.z, p.y / p.z);
-                    let (lx, ly) = geometry.to_level(step, xp, yp);
-                    let Some((value, gx, gy, moving_weight)) = moving.sample(lx, ly) else {
-                        continue;
-                    };
-                    let reference = (f64::from(reference.log[i]), f64::from(reference.weight[i]));
-                    let seen = (value, gx * to_level, gy * to_level, moving_weight);
-                    acc.equation(state, motion, (u, v), &p, reference, seen);
+                for x in (0..reference.width).step_by(sampling.stride) {
+                    sampling.add(reference, moving, state, motion, (x, y), &mut acc);
                 }
             }
             acc
         })
         .collect();
     groups.into_iter().fold(Normal::zero(), Normal::add)
+}
+
+/// The normal equations of [`accumulate`] split by cell of a [`CELLS`] × [`CELLS`] grid
+/// over the level: what [`robust_uncertainty_px`] reads the residuals' spatial correlation
+/// from.
+fn accumulate_cells(
+    reference: &Level,
+    moving: &Level,
+    geometry: &Geometry,
+    state: &State,
+    motion: usize,
+) -> Vec<Normal> {
+    let sampling = Sampling::of(reference, geometry, state);
+    let (w, h) = (reference.width, reference.height);
+    (0..CELLS)
+        .into_par_iter()
+        .flat_map_iter(|cy| {
+            let rows = cy * h / CELLS..(cy + 1) * h / CELLS;
+            let mut cells: Vec<Normal> = (0..CELLS).map(|_| Normal::zero()).collect();
+            for y in rows.filter(|y| y.is_multiple_of(sampling.stride)) {
+                for x in (0..w).step_by(sampling.stride) {
+                    let cell = &mut cells[x * CELLS / w];
+                    sampling.add(reference, moving, state, motion, (x, y), cell);
+                }
+            }
+            cells
+        })
+        .collect()
+}
+
+/// Cells per side of the grid [`accumulate_cells`] splits the samples by.
+const CELLS: usize = 16;
+
+/// How [`accumulate`] samples a reference level under a state: every `stride`-th block
+/// of every `stride`-th row (at most [`SAMPLES_PER_ITERATION`]).
+struct Sampling<'g> {
+    stride: usize,
+    matrix: Matrix3<f64>,
+    geometry: &'g Geometry,
+}
+
+impl Sampling<'_> {
+    fn of<'g>(reference: &Level, geometry: &'g Geometry, state: &State) -> Sampling<'g> {
+        let blocks = (reference.width * reference.height) as f64;
+        let stride = ((blocks / SAMPLES_PER_ITERATION as f64).sqrt().floor() as usize).max(1);
+        Sampling {
+            stride,
+            matrix: state.matrix(),
+            geometry,
+        }
+    }
+
+    /// Adds the equation of reference block `(x, y)` to `acc`, when it is solid and its
+    /// image lands on solid blocks of `moving`.
+    fn add(
+        &self,
+        reference: &Level,
+        moving: &Level,
+        state: &State,
+        motion: usize,
+        (x, y): (usize, usize),
+        acc: &mut Normal,
+    ) {
+        let i = y * reference.width + x;
+        if !reference.solid[i] {
+            return;
+        }
+        let step = reference.step;
+        let (u, v) = self.geometry.to_normalised(step, x as f64, y as f64);
+        let p = self.matrix * Vector3::new(u, v, 1.0);
+        let (xp, yp) = (p.x / p.z, p.y / p.z);
+        let (lx, ly) = self.geometry.to_level(step, xp, yp);
+        let Some((value, gx, gy, moving_weight)) = moving.sample(lx, ly) else {
+            return;
+        };
+        let to_level = self.geometry.s / step;
+        let fixed = (f64::from(reference.log[i]), f64::from(reference.weight[i]));
+        let seen = (value, gx * to_level, gy * to_level, moving_weight);
+        acc.equation(state, motion, (u, v), &p, fixed, seen);
+    }
 }
 
 /// Rows of a level [`accumulate`] sums in one task.
@@ -1071,6 +1131,44 @@ fn uncertainty_px(normal: &Normal, motion: usize, geometry: &Geometry) -> f64 {
     }
     let sigma2 = normal.sse / normal.count.max(1) as f64;
     (sigma2 / per_px).sqrt()
+}
+
+/// The cluster-robust standard deviation, in full-resolution pixels, of the displacement
+/// the motion parameters imply: with `A = Σ wJJᵀ` the normal matrix and `g_c = Σ_{i∈c}
+/// w_i r_i J_i` each cell's score (centred on their mean), the parameters' covariance is
+/// `A⁻¹ (Σ_c g_c g_cᵀ) A⁻¹`; the largest eigenvalue `λ` of its motion block gives
+/// `s·√λ` (`s` the normalisation's half side). Residuals correlated within a cell (a flat
+/// patch quantised alike, a response off in one tone) count once per cell, not per block.
+fn robust_uncertainty_px(cells: &[Normal], motion: usize, geometry: &Geometry) -> f64 {
+    let n = motion + 2;
+    let total = cells.iter().cloned().fold(Normal::zero(), Normal::add);
+    let (a, _) = total.system(n);
+    let Some(a_inv) = a.try_inverse() else {
+        return f64::INFINITY;
+    };
+    let scores: Vec<DVector<f64>> = cells
+        .iter()
+        .filter(|c| c.count > 0)
+        .map(|c| DVector::from_fn(n, |i, _| c.jtr[i]))
+        .collect();
+    if scores.len() < 2 {
+        return f64::INFINITY;
+    }
+    let mean = scores.iter().fold(DVector::zeros(n), |acc, g| acc + g) / scores.len() as f64;
+    let meat = scores.iter().fold(DMatrix::zeros(n, n), |acc, g| {
+        let d = g - &mean;
+        acc + &d * d.transpose()
+    }) * (scores.len() as f64 / (scores.len() - 1) as f64);
+    let covariance = &a_inv * meat * &a_inv;
+    let largest = covariance
+        .view((0, 0), (motion, motion))
+        .into_owned()
+        .symmetric_eigen()
+        .eigenvalues
+        .iter()
+        .copied()
+        .fold(0.0, f64::max);
+    geometry.s * largest.sqrt()
 }
 
 /// The best integer shift of the coarsest level within [`SEARCH_RANGE`], by normalised
@@ -1476,27 +1574,104 @@ fn descend(
             Err(why) => return Err(why),
         }
     }
-    let Some((start, mut normal)) = finest else {
+    let Some((start, normal)) = finest else {
         return Err(Refusal::NoLevel);
     };
-    let mut note = None;
     let fine = (&reference[0], &moving[0]);
+    let kept = Kept {
+        state,
+        normal,
+        start,
+    };
+    let (kept, note) = determined(fine, geometry, kept, schedule.finest)?;
+    let kept = significant(fine, geometry, kept, schedule.finest);
+    Ok((kept.state, kept.normal, note))
+}
+
+/// The finest level's result: the state, its normal equations and the state the level
+/// started from (what a simpler model is refined from).
+struct Kept {
+    state: State,
+    normal: Normal,
+    start: State,
+}
+
+/// `kept` simplified while its model's parameters are not determined
+/// ([`MAX_UNCERTAINTY_BLOCKS`]), with a note when it was; why not, when even a
+/// translation is not.
+fn determined(
+    fine: (&Level, &Level),
+    geometry: &Geometry,
+    mut kept: Kept,
+    convergence: Convergence,
+) -> Result<(Kept, Option<String>), Refusal> {
+    let mut note = None;
     loop {
-        let spread = uncertainty_px(&normal, state.params(), geometry);
+        let spread = uncertainty_px(&kept.normal, kept.state.params(), geometry);
         if spread <= MAX_UNCERTAINTY_BLOCKS * fine.0.step {
-            return Ok((state, normal, note));
+            return Ok((kept, note));
         }
-        let Some(simpler) = state.motion.simpler() else {
+        let Some(simpler) = kept.state.motion.simpler() else {
             return Err(Refusal::Undetermined(spread));
         };
         note = Some(format!(
             "the texture does not determine a {} model (±{spread:.2} px): {} used",
-            state.motion.as_str(),
+            kept.state.motion.as_str(),
             simpler.as_str()
         ));
-        (state, normal) = refine(fine, geometry, start.as_motion(simpler), schedule.finest)?;
+        (kept.state, kept.normal) =
+            refine(fine, geometry, kept.start.as_motion(simpler), convergence)?;
     }
 }
+
+/// `kept` as the rigid model, refined from the same start, when it is a homography that
+/// moves no corner from that rigid fit by more than [`SIGNIFICANT_SPREADS`] cluster-robust
+/// standard deviations ([`robust_uncertainty_px`]) or [`SIGNIFICANT_BLOCKS`]: its
+/// perspective and scale then fit the residuals' correlated structure (a flat patch
+/// quantised alike, a dark frame's noise where the shared blocks crowd into part of the
+/// frame), extrapolated to corners no shared block reaches, and would resample a still
+/// frame. A rotation is not tested so: the whole support determines it, and a nudged
+/// tripod turns by a few hundredths of a degree.
+fn significant(
+    fine: (&Level, &Level),
+    geometry: &Geometry,
+    kept: Kept,
+    convergence: Convergence,
+) -> Kept {
+    if kept.state.motion != Motion::Homography {
+        return kept;
+    }
+    let Ok((rigid, normal)) = refine(
+        fine,
+        geometry,
+        kept.start.as_motion(Motion::Rigid),
+        convergence,
+    ) else {
+        return kept;
+    };
+    let params = kept.state.params();
+    let cells = accumulate_cells(fine.0, fine.1, geometry, &kept.state, params);
+    let spread = robust_uncertainty_px(&cells, params, geometry);
+    let apart = geometry.corner_shift(&kept.state.matrix(), &rigid.matrix());
+    if apart > (SIGNIFICANT_SPREADS * spread).max(SIGNIFICANT_BLOCKS * fine.0.step) {
+        kept
+    } else {
+        Kept {
+            state: rigid,
+            normal,
+            ..kept
+        }
+    }
+}
+
+/// How many cluster-robust standard deviations a homography must move a corner by, from
+/// the rigid fit, to be kept.
+const SIGNIFICANT_SPREADS: f64 = 3.0;
+
+/// The least a homography must move a corner by, from the rigid fit, to be kept, in
+/// blocks of the finest level (1 px for a 24 MP raw): the blocks bound the estimate's
+/// precision.
+const SIGNIFICANT_BLOCKS: f64 = 0.1;
 
 /// The residual's RMS without moving the frame, gain and offset fitted.
 fn identity_rms(reference: &Level, moving: &Level, geometry: &Geometry) -> f64 {
@@ -1513,3 +1688,6 @@ fn identity_rms(reference: &Level, moving: &Level, geometry: &Geometry) -> f64 {
     }
     accumulate(reference, moving, geometry, &state, 0).rms()
 }
+
+#[cfg(test)]
+mod tests;

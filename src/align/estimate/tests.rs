@@ -1,0 +1,88 @@
+//! The cluster-robust spread against the per-block one.
+
+use super::*;
+
+const W: usize = 256;
+const H: usize = 192;
+
+/// A smooth texture in log radiance at block `(x, y)`.
+fn texture(x: f64, y: f64) -> f32 {
+    (0.3 * (0.7 * x).sin() + 0.3 * (0.5 * y + 0.3 * x).sin() + 0.2 * (0.23 * y).cos()) as f32
+}
+
+/// A level of `log(x, y)` at step 1, every block usable with weight 1.
+fn level(log: impl Fn(usize, usize) -> f32) -> Level {
+    let values = (0..W * H).map(|i| log(i % W, i / W)).collect();
+    Level::new(W, H, 1.0, values, vec![1.0; W * H])
+}
+
+/// The per-block and the cluster-robust spread of a homography at the identity between
+/// the texture and `moving`, and the residual's RMS.
+fn spreads(moving: &Level) -> (f64, f64, f64) {
+    let reference = level(|x, y| texture(x as f64, y as f64));
+    let geometry = Geometry::new(W as u32, H as u32);
+    let state = State {
+        motion: Motion::Homography,
+        p: [0.0; 8],
+        gain: 1.0,
+        bias: 0.0,
+    };
+    let n = state.params();
+    let normal = accumulate(&reference, moving, &geometry, &state, n);
+    let cells = accumulate_cells(&reference, moving, &geometry, &state, n);
+    (
+        uncertainty_px(&normal, n, &geometry),
+        robust_uncertainty_px(&cells, n, &geometry),
+        normal.rms(),
+    )
+}
+
+/// Every cell of the grid shifted by ±0.3 block, alternately: residuals that agree
+/// within a cell. Independent noise of the same RMS: residuals that do not.
+#[test]
+fn residuals_that_agree_within_a_cell_widen_the_robust_spread_only() {
+    let (cw, ch) = (W / CELLS, H / CELLS);
+    let sign = |x: usize, y: usize| {
+        if (x / cw + y / ch).is_multiple_of(2) {
+            1.0
+        } else {
+            -1.0
+        }
+    };
+    let patched = level(|x, y| texture(x as f64 + 0.3 * sign(x, y), y as f64));
+    let (per_block, robust, rms) = spreads(&patched);
+    // A uniform variate of the same RMS from a fixed linear congruential sequence.
+    let mut state = 12_345u64;
+    let mut noise = move || {
+        state = state
+            .wrapping_mul(6_364_136_223_846_793_005)
+            .wrapping_add(1);
+        ((state >> 11) as f64 / (1u64 << 53) as f64 - 0.5) * 12f64.sqrt()
+    };
+    // The RMS is weighted by 1/2 (two weights of 1), and the binomial smoothing keeps
+    // √0.375 of the noise's standard deviation in each direction.
+    let amplitude = rms / (0.5f64.sqrt() * 0.375);
+    let values: Vec<f32> = (0..W * H)
+        .map(|i| texture((i % W) as f64, (i / W) as f64) + (amplitude * noise()) as f32)
+        .collect();
+    let noisy = Level::new(W, H, 1.0, values, vec![1.0; W * H]);
+    let (per_block_noise, robust_noise, rms_noise) = spreads(&noisy);
+    assert!(
+        (rms_noise / rms - 1.0).abs() < 0.35,
+        "RMS {rms_noise:.4} against {rms:.4}"
+    );
+    assert!(
+        per_block < 2.0 * per_block_noise && per_block_noise < 2.0 * per_block,
+        "per block: {per_block:.4} patched, {per_block_noise:.4} noisy"
+    );
+    // The smoothing correlates neighbouring blocks' noise, which the per-block spread
+    // ignores: up to √(1/0.375²) ≈ 2.7 times wider.
+    assert!(
+        (1.0..3.0).contains(&(robust_noise / per_block_noise)),
+        "noise: robust {robust_noise:.4}, per block {per_block_noise:.4}"
+    );
+    assert!(
+        robust > 4.0 * robust_noise,
+        "robust: {robust:.4} patched, {robust_noise:.4} noisy (per block {per_block:.4})"
+    );
+}
