@@ -33,7 +33,6 @@ use filmback::merge::{self, MergeOptions};
 use filmback::metadata::Camera;
 use filmback::radiance::RadianceMap;
 use filmback::response::InverseResponse;
-use rayon::prelude::*;
 
 use filmback::synthetic::{self, ResponseCurve, SceneKind, Sensor, expose};
 
@@ -422,7 +421,7 @@ fn errors(a: &RadianceMap, b: &RadianceMap, middle: &Frame) -> String {
 fn speed(runs: usize) {
     let (w, h) = (6000, 4000);
     println!("\ncost at {w}×{h}, three 8-bit frames two stops apart, best of {runs}");
-    let radiance = lens(&SceneKind::Procedural.render(w, h, 7));
+    let radiance = common::lens(&SceneKind::Procedural.render(w, h, 7));
     let sensor = Sensor {
         read_noise_dn: 1.0,
         seed: 7,
@@ -514,31 +513,4 @@ fn merge_errors(
         error(&aligned(moved, g).0),
         error(&undone)
     );
-}
-
-/// `map` through a lens: the `[1 2 1]/4` binomial blur twice in each direction (edges
-/// repeated), so that no detail is finer than the sensor samples and a moved camera sees
-/// what a real one would (the procedural scene's stripes and glyphs are drawn in pixels).
-fn lens(map: &RadianceMap) -> RadianceMap {
-    let (w, h, c) = (map.width() as usize, map.height() as usize, map.channels());
-    let mut pixels = map.pixels().to_vec();
-    for _ in 0..2 {
-        pixels = binomial(&pixels, w, c, 1, w);
-        pixels = binomial(&pixels, w, c, w, h);
-    }
-    RadianceMap::new(w as u32, h as u32, c, pixels).expect("the same size")
-}
-
-/// The `[1 2 1]/4` blur along one axis: neighbours `stride` pixels apart, `len` of them.
-fn binomial(p: &[f32], w: usize, c: usize, stride: usize, len: usize) -> Vec<f32> {
-    let mut out = vec![0f32; p.len()];
-    out.par_chunks_mut(c).enumerate().for_each(|(i, px)| {
-        let along = if stride == 1 { i % w } else { i / w };
-        let before = if along == 0 { i } else { i - stride };
-        let after = if along + 1 == len { i } else { i + stride };
-        for (ch, v) in px.iter_mut().enumerate() {
-            *v = 0.25 * p[before * c + ch] + 0.5 * p[i * c + ch] + 0.25 * p[after * c + ch];
-        }
-    });
-    out
 }

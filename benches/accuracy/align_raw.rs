@@ -1,8 +1,9 @@
 //! `cargo bench --bench align_raw`: how alignment treats synthetic 24 MP raw brackets,
 //! still and moved by known amounts.
 //!
-//! Each bracket is three DNGs of a procedural scene ([`synthetic::scene`]) through the
-//! typical 14-bit Bayer sensor ([`RawSensor::typical`], shot and read noise, one seed per
+//! Each bracket is three DNGs of a procedural scene ([`synthetic::scene`], through the
+//! lens blur of `cargo bench --bench align`: the scene's stripes are drawn in pixels, finer
+//! than a colour filter array samples each colour) through the typical 14-bit Bayer sensor ([`RawSensor::typical`], shot and read noise, one seed per
 //! bracket), exposed at the listed shutter times (the longest is the reference, as
 //! [`align::align_mosaics`] chooses it), decoded as the pipeline decodes them.
 //!
@@ -83,7 +84,7 @@ fn still(width: u32, height: u32) {
     println!("|---|---|---|---|---|");
     let (mut resampled, mut frames) = (0, 0);
     for (scene_seed, times, seeds) in STILL {
-        let scene = synthetic::scene(width, height, scene_seed);
+        let scene = common::lens(&synthetic::scene(width, height, scene_seed));
         let (mut moved, mut largest) = (0, 0.0f64);
         for &seed in seeds {
             let views = [None, None, None];
@@ -115,7 +116,7 @@ fn moved(width: u32, height: u32) {
     println!("|---|---|---|---|");
     let times = [500.0, 60.0, 8.0];
     for scene_seed in [10, 11] {
-        let scene = synthetic::scene(width, height, scene_seed);
+        let scene = common::lens(&synthetic::scene(width, height, scene_seed));
         for (name, outer) in MOVES {
             let views = [
                 Some(matrix(width, height, outer[0])),

@@ -1631,7 +1631,7 @@ fn determined(
 /// quantised alike, a dark frame's noise where the shared blocks crowd into part of the
 /// frame), extrapolated to corners no shared block reaches, and would resample a still
 /// frame. A rotation is not tested so: the whole support determines it, and a nudged
-/// tripod turns by a few hundredths of a degree.
+/// tripod's tenth of a degree must be kept.
 fn significant(
     fine: (&Level, &Level),
     geometry: &Geometry,
