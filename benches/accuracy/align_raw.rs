@@ -2,10 +2,11 @@
 //! still and moved by known amounts.
 //!
 //! Each bracket is three DNGs of a procedural scene ([`synthetic::scene`], through the
-//! lens blur of `cargo bench --bench align`: the scene's stripes are drawn in pixels, finer
-//! than a colour filter array samples each colour) through the typical 14-bit Bayer sensor ([`RawSensor::typical`], shot and read noise, one seed per
-//! bracket), exposed at the listed shutter times (the longest is the reference, as
-//! [`align::align_mosaics`] chooses it), decoded as the pipeline decodes them.
+//! lens blur of `cargo bench --bench align`: the scene's stripes are drawn in pixels,
+//! finer than a colour filter array samples each colour) through the typical 14-bit Bayer
+//! sensor ([`RawSensor::typical`], shot and read noise, one seed per bracket), exposed at
+//! the listed shutter times (the longest is the reference, as [`align::align_mosaics`]
+//! chooses it), decoded as the pipeline decodes them.
 //!
 //! **Still.** Nothing moves: every frame should be merged as it is. Per bracket, how many
 //! of the two other frames alignment resamples, and the largest corner displacement it
