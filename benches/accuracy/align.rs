@@ -39,35 +39,6 @@ use filmback::synthetic::{self, ResponseCurve, SceneKind, Sensor, expose};
 #[path = "../common/mod.rs"]
 mod common;
 
-/// One outer frame's move: a shift `(dx, dy)` in pixels, a rotation in degrees about the
-/// centre, and the perspective terms `(px, py)` in coordinates normalised by half the
-/// longer side.
-#[derive(Clone, Copy)]
-struct FrameMove((f64, f64), f64, (f64, f64));
-
-/// A move of the outer frames, first and last.
-struct Move {
-    name: &'static str,
-    outer: [FrameMove; 2],
-}
-
-const MOVES: [Move; 2] = [
-    Move {
-        name: "nudge (≤ 3 px, 0.1°)",
-        outer: [
-            FrameMove((2.3, -1.7), 0.08, (0.0, 0.0)),
-            FrameMove((-2.8, 1.2), -0.1, (0.0, 0.0)),
-        ],
-    },
-    Move {
-        name: "handheld (≤ 12 px, 0.5°, perspective)",
-        outer: [
-            FrameMove((9.5, -7.2), 0.4, (0.004, -0.003)),
-            FrameMove((-11.3, 6.1), -0.5, (-0.003, 0.004)),
-        ],
-    },
-];
-
 fn main() {
     let args: Vec<String> = std::env::args().collect();
     let all = !args.iter().any(|a| a == "accuracy" || a == "speed");
@@ -80,33 +51,9 @@ fn main() {
     }
 }
 
-/// The pixel matrix (reference pixel → moved frame's pixel) of one outer frame's move in
-/// a `w × h` frame: `C·H·C⁻¹`, `C` taking normalised coordinates (centre `c`, unit half
-/// the longer side `s`) to pixels.
-fn matrix(w: u32, h: u32, m: FrameMove) -> [[f64; 3]; 3] {
-    let FrameMove((dx, dy), degrees, (px, py)) = m;
-    let (cx, cy) = (f64::from(w - 1) / 2.0, f64::from(h - 1) / 2.0);
-    let s = f64::from(w.max(h)) / 2.0;
-    let (sin, cos) = degrees.to_radians().sin_cos();
-    let n = nalgebra::Matrix3::new(cos, -sin, dx / s, sin, cos, dy / s, px, py, 1.0);
-    let c = nalgebra::Matrix3::new(s, 0.0, cx, 0.0, s, cy, 0.0, 0.0, 1.0);
-    let c_inv = nalgebra::Matrix3::new(1.0 / s, 0.0, -cx / s, 0.0, 1.0 / s, -cy / s, 0.0, 0.0, 1.0);
-    to_array(&(c * n * c_inv))
-}
-
-fn to_array(m: &nalgebra::Matrix3<f64>) -> [[f64; 3]; 3] {
-    let mut out = [[0.0; 3]; 3];
-    for (r, row) in out.iter_mut().enumerate() {
-        for (c, v) in row.iter_mut().enumerate() {
-            *v = m[(r, c)] / m[(2, 2)];
-        }
-    }
-    out
-}
-
 fn inverse(t: &[[f64; 3]; 3]) -> [[f64; 3]; 3] {
     let m = nalgebra::Matrix3::from_fn(|r, c| t[r][c]);
-    to_array(&m.try_inverse().expect("an invertible move"))
+    common::to_array(&m.try_inverse().expect("an invertible move"))
 }
 
 /// `frame` resampled so that pixel `x` shows what `frame` shows at `T·x`.
@@ -225,12 +172,12 @@ fn accuracy() {
         // The frame alignment registers the others onto stays where it is.
         let views: Vec<&Frame> = frames.iter().map(|(f, _)| f).collect();
         let reference = align::choose_reference(&views);
-        for m in &MOVES {
+        for m in &common::MOVES {
             let mut outer = m.outer.iter();
             let moves: Vec<Option<[[f64; 3]; 3]>> = (0..frames.len())
                 .map(|k| {
                     (k != reference)
-                        .then(|| outer.next().map(|&f| matrix(w, h, f)))
+                        .then(|| outer.next().map(|&f| common::matrix(w, h, f)))
                         .flatten()
                 })
                 .collect();
@@ -434,11 +381,12 @@ fn speed(runs: usize) {
         .map(|&e| expose(&radiance, e, &sensor))
         .collect();
     let reference = align::choose_reference(&still.iter().collect::<Vec<_>>());
-    let mut outer = MOVES[1].outer.iter();
+    let mut outer = common::MOVES[1].outer.iter();
     // Reference pixel → moved frame's pixel: the moved camera sees the scene moved.
     let moves: Vec<Option<[[f64; 3]; 3]>> = (0..exposures.len())
         .map(|k| {
-            (k != reference).then(|| inverse(&matrix(w, h, *outer.next().expect("two moves"))))
+            (k != reference)
+                .then(|| inverse(&common::matrix(w, h, *outer.next().expect("two moves"))))
         })
         .collect();
     let frames: Vec<(Frame, f64)> = still

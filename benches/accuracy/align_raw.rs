@@ -14,8 +14,8 @@
 //! is kept; scenes 5–9 (seeds 7–8) and the moved brackets were not.
 //!
 //! **Moved.** The two shorter frames see the scene moved by the nudge or handheld moves of
-//! `cargo bench --bench align` (the same shifts, rotations and perspective, scaled to the
-//! frame); the found transform's error is the largest distance, over the frame's
+//! `cargo bench --bench align` (`common::MOVES`: shifts in pixels, rotations, and the
+//! perspective in normalised coordinates); the found transform's error is the largest distance, over the frame's
 //! corners, between where it and the true move send them.
 //!
 //! `cargo bench --bench align_raw -- [still | moved] [--mp MP]`
@@ -41,28 +41,6 @@ const STILL: [(u64, [f64; 3], &[u64]); 9] = [
     (7, [32.0, 8.0, 2.0], &[7, 8]),
     (8, [250.0, 30.0, 4.0], &[7, 8]),
     (9, [500.0, 60.0, 8.0], &[7, 8]),
-];
-
-/// A frame's move: shift `(dx, dy)` in pixels at 24 MP, rotation in degrees about the
-/// centre, perspective terms in coordinates normalised by half the longer side.
-type FrameMove = ((f64, f64), f64, (f64, f64));
-
-/// The nudge and handheld moves of `cargo bench --bench align`, first and second frame.
-const MOVES: [(&str, [FrameMove; 2]); 2] = [
-    (
-        "nudge (≤ 3 px, 0.1°)",
-        [
-            ((2.3, -1.7), 0.08, (0.0, 0.0)),
-            ((-2.8, 1.2), -0.1, (0.0, 0.0)),
-        ],
-    ),
-    (
-        "handheld (≤ 12 px, 0.5°, perspective)",
-        [
-            ((9.5, -7.2), 0.4, (0.004, -0.003)),
-            ((-11.3, 6.1), -0.5, (-0.003, 0.004)),
-        ],
-    ),
 ];
 
 fn main() {
@@ -118,10 +96,10 @@ fn moved(width: u32, height: u32) {
     let times = [500.0, 60.0, 8.0];
     for scene_seed in [10, 11] {
         let scene = common::lens(&synthetic::scene(width, height, scene_seed));
-        for (name, outer) in MOVES {
+        for common::Move { name, outer } in &common::MOVES {
             let views = [
-                Some(matrix(width, height, outer[0])),
-                Some(matrix(width, height, outer[1])),
+                Some(common::matrix(width, height, outer[0])),
+                Some(common::matrix(width, height, outer[1])),
                 None,
             ];
             let alignment = aligned(&scene, &views, times, scene_seed);
@@ -210,31 +188,6 @@ fn aligned(
     let alignment = align::align_mosaics(&mosaics, AlignMode::Auto);
     assert_eq!(alignment.reference, 2, "the longest frame is the reference");
     alignment.frames
-}
-
-/// The pixel matrix of a move at `w × h`: `C·N·C⁻¹`, `C` taking normalised coordinates
-/// (centre, unit half the longer side) to pixels, `N` the rotation, shift (scaled from
-/// 24 MP) and perspective.
-fn matrix(w: u32, h: u32, ((dx, dy), degrees, (px, py)): FrameMove) -> [[f64; 3]; 3] {
-    let (cx, cy) = (f64::from(w - 1) / 2.0, f64::from(h - 1) / 2.0);
-    let s = f64::from(w.max(h)) / 2.0;
-    let scale = s / 3000.0;
-    let (sin, cos) = degrees.to_radians().sin_cos();
-    let n = Matrix3::new(
-        cos,
-        -sin,
-        dx * scale / s,
-        sin,
-        cos,
-        dy * scale / s,
-        px,
-        py,
-        1.0,
-    );
-    let c = Matrix3::new(s, 0.0, cx, 0.0, s, cy, 0.0, 0.0, 1.0);
-    let c_inv = Matrix3::new(1.0 / s, 0.0, -cx / s, 0.0, 1.0 / s, -cy / s, 0.0, 0.0, 1.0);
-    let m = c * n * c_inv;
-    [0, 1, 2].map(|r| [0, 1, 2].map(|c| m[(r, c)] / m[(2, 2)]))
 }
 
 /// The transform alignment found for a frame (the identity when merged unmoved).

@@ -213,3 +213,58 @@ fn binomial(p: &[f32], w: usize, c: usize, stride: usize, len: usize) -> Vec<f32
     });
     out
 }
+
+/// One outer frame's move: a shift `(dx, dy)` in pixels, a rotation in degrees about the
+/// centre, and the perspective terms `(px, py)` in coordinates normalised by half the
+/// longer side.
+#[derive(Clone, Copy)]
+pub struct FrameMove(pub (f64, f64), pub f64, pub (f64, f64));
+
+/// A move of the outer frames, first and last.
+pub struct Move {
+    pub name: &'static str,
+    pub outer: [FrameMove; 2],
+}
+
+/// The moves `cargo bench --bench align` and `align_raw` apply: a nudged tripod and a
+/// handheld bracket.
+pub const MOVES: [Move; 2] = [
+    Move {
+        name: "nudge (≤ 3 px, 0.1°)",
+        outer: [
+            FrameMove((2.3, -1.7), 0.08, (0.0, 0.0)),
+            FrameMove((-2.8, 1.2), -0.1, (0.0, 0.0)),
+        ],
+    },
+    Move {
+        name: "handheld (≤ 12 px, 0.5°, perspective)",
+        outer: [
+            FrameMove((9.5, -7.2), 0.4, (0.004, -0.003)),
+            FrameMove((-11.3, 6.1), -0.5, (-0.003, 0.004)),
+        ],
+    },
+];
+
+/// The pixel matrix (reference pixel → moved frame's pixel) of one outer frame's move in
+/// a `w × h` frame: `C·H·C⁻¹`, `C` taking normalised coordinates (centre `c`, unit half
+/// the longer side `s`) to pixels.
+pub fn matrix(w: u32, h: u32, m: FrameMove) -> [[f64; 3]; 3] {
+    let FrameMove((dx, dy), degrees, (px, py)) = m;
+    let (cx, cy) = (f64::from(w - 1) / 2.0, f64::from(h - 1) / 2.0);
+    let s = f64::from(w.max(h)) / 2.0;
+    let (sin, cos) = degrees.to_radians().sin_cos();
+    let n = nalgebra::Matrix3::new(cos, -sin, dx / s, sin, cos, dy / s, px, py, 1.0);
+    let c = nalgebra::Matrix3::new(s, 0.0, cx, 0.0, s, cy, 0.0, 0.0, 1.0);
+    let c_inv = nalgebra::Matrix3::new(1.0 / s, 0.0, -cx / s, 0.0, 1.0 / s, -cy / s, 0.0, 0.0, 1.0);
+    to_array(&(c * n * c_inv))
+}
+
+pub fn to_array(m: &nalgebra::Matrix3<f64>) -> [[f64; 3]; 3] {
+    let mut out = [[0.0; 3]; 3];
+    for (r, row) in out.iter_mut().enumerate() {
+        for (c, v) in row.iter_mut().enumerate() {
+            *v = m[(r, c)] / m[(2, 2)];
+        }
+    }
+    out
+}
