@@ -14,7 +14,9 @@ use crate::response::InverseResponse;
 
 mod full;
 
-pub(super) use full::FullFrame;
+#[cfg(feature = "raw")]
+pub(super) use full::Picture;
+pub(super) use full::{Codes, FullFrame};
 
 /// Gauss–Newton iterations per level at most.
 const MAX_ITERATIONS: usize = 60;
@@ -1420,11 +1422,18 @@ fn register(
         skip_sparse,
         finest,
     };
-    let (state, note) = estimate(&fixed.levels, &moving.levels, geometry, model, schedule)?;
-    let state = match full {
-        Some((f, m)) => full::refine(f, m, geometry, state, fixed.levels[0].step),
-        None => state,
-    };
+    let (mut state, note) = estimate(&fixed.levels, &moving.levels, geometry, model, schedule)?;
+    if let Some((f, m)) = full {
+        let still =
+            |s: &State| geometry.corner_shift(&Matrix3::identity(), &s.matrix()) < IDENTITY_PX;
+        if still(&state) {
+            let finest = (&fixed.levels[0], &moving.levels[0]);
+            state = refine(finest, geometry, state, Convergence::Final).map_or(state, |(s, _)| s);
+        }
+        if !still(&state) {
+            state = full::refine(f, m, geometry, state, fixed.levels[0].step);
+        }
+    }
     Ok(Registration {
         matrix: state.matrix(),
         motion: state.motion,

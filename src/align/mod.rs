@@ -51,8 +51,10 @@
 //!    chosen for their gradient, so their `σ/√λ_min` is not comparable with a bound set on
 //!    every block, and the refinement only sharpens parameters the blocks determined.
 //!    Registrations compared clipped alike are not refined (their samples would be the
-//!    tones both frames measure, which is what that way could not register on), nor are
-//!    raw frames (see "Camera raw").
+//!    tones both frames measure, which is what that way could not register on). Nor is
+//!    an estimate that moves no pixel by [`IDENTITY_PX`] after the finest level has
+//!    converged fully: a still frame stays still, and its noise is not refined into a
+//!    move. A raw frame is refined on its CFA tiles (see "Camera raw").
 //!
 //! # Frames far apart in exposure
 //!
@@ -116,9 +118,15 @@
 //! space. Frames whose transform is the identity are not touched and keep the CFA merge's
 //! full resolution; a warped frame's planes are interpolated at half resolution. X-Trans
 //! mosaics (a 6 × 6 tile, too sparse a sub-lattice to interpolate) are not aligned, with a
-//! note. A raw frame's estimate is not refined at full resolution: the warp interpolates
-//! each colour plane at half resolution, and a pixel of one colour does not measure
-//! luminance, so the finest level's whole tiles are what it is estimated on.
+//! note. A pixel of one colour does not measure luminance, so the full-resolution
+//! refinement reads a raw frame's 2 × 2 tiles instead: per tile the mean normalised
+//! signal, filtered by the binomial `[1 2 1]/4` in both directions (unfiltered, one
+//! tile's shot noise, which the bilinear interpolation averages down most at half-tile
+//! offsets, drew a still dark frame about a pixel off). Translations and rotations are
+//! refined there; a homography keeps the pyramid's estimate: on the moved test brackets a
+//! homography refined on the tiles landed farther from the true move than the pyramid's,
+//! with a lower residual than the true move's, so what the tiles measure (not the
+//! descent) is off in the perspective terms.
 
 mod estimate;
 mod warp;
@@ -481,9 +489,17 @@ pub fn align(frames: &[AlignFrame<'_>], response: &InverseResponse, mode: AlignM
         .iter()
         .map(|f| estimate::Pyramid::of_frame(f.frame, &convert, f.exposure, step))
         .collect();
+    let pictures: Vec<estimate::Codes<'_>> = frames
+        .iter()
+        .map(|f| estimate::Codes {
+            frame: f.frame,
+            convert: &convert,
+        })
+        .collect();
     let full: Vec<estimate::FullFrame<'_>> = frames
         .iter()
-        .map(|f| estimate::FullFrame::new(f.frame, &convert, f.exposure))
+        .zip(&pictures)
+        .map(|(f, picture)| estimate::FullFrame::new(picture, f.exposure))
         .collect();
     let full = (step > 1).then_some(full.as_slice());
     let geometry = estimate::Geometry::new(first.width(), first.height());

@@ -297,12 +297,14 @@ pub use raw::{MosaicFrame, align_mosaics, warp_mosaics};
 
 #[cfg(feature = "raw")]
 mod raw {
+    use std::sync::OnceLock;
+
     use nalgebra::Matrix3;
     use rayon::prelude::*;
 
     use super::{Code, Positions, Segment, rounded};
 
-    use super::super::estimate::{self, Geometry, Pyramid};
+    use super::super::estimate::{self, FullFrame, Geometry, Picture, Pyramid};
     use super::super::{AlignMode, Alignment, SMALLEST_SIDE, exposure_weight};
     use crate::raw::{CLIPPED, RawInfo};
 
@@ -406,32 +408,163 @@ mod raw {
             return Alignment::unmoved(mode, reference, frames.len(), why);
         }
         let step = estimate::step_for(first.width, first.height, 2);
-        let pyramids: Vec<Pyramid> = frames.iter().map(|f| pyramid(f, step)).collect();
+        let tiles: Vec<Tiles<'_>> = frames.iter().map(Tiles::of).collect();
+        let pyramids: Vec<Pyramid> = tiles.iter().map(|t| t.pyramid(step)).collect();
+        let full: Vec<FullFrame<'_>> = tiles
+            .iter()
+            .map(|t| FullFrame::new(t, t.frame.exposure))
+            .collect();
+        let full = (step > 2).then_some(full.as_slice());
         let geometry = Geometry::new(first.width as u32, first.height as u32);
         Alignment {
             mode,
             reference,
-            frames: estimate::register_all(&pyramids, None, reference, &geometry, model),
+            frames: estimate::register_all(&pyramids, full, reference, &geometry, model),
         }
     }
 
-    fn pyramid(f: &MosaicFrame<'_>, step: usize) -> Pyramid {
-        let range = (RAW_FLOOR, CLIPPED);
-        let levels = f.levels();
-        Pyramid::from_rows(
-            f.width,
-            f.height,
-            step,
-            f.exposure,
-            range,
-            |y, values, weights| {
-                f.signal_row(&levels, y, values);
-                for (v, w) in values.iter_mut().zip(weights.iter_mut()) {
-                    *w = raw_log_weight(*v);
-                    *v = v.max(0.0);
-                }
-            },
-        )
+    /// A raw frame with its [`MosaicFrame::levels`]: the pyramid's rows, and the
+    /// [`Picture`] the full-resolution refinement reads, one value per 2 × 2 CFA tile:
+    /// the mean of its four normalised signals, filtered by the binomial kernel
+    /// `[1 2 1]/4` in both directions (as the pyramid's levels are) and weighed as
+    /// [`raw_log_weight`] of the result, usable when all nine tiles it reads are wholly
+    /// within [`RAW_FLOOR`] and [`CLIPPED`] (the parent module's "Camera raw" says why
+    /// filtered). The picture is made on first use: 4 bytes a tile, a byte a pixel.
+    struct Tiles<'a> {
+        frame: &'a MosaicFrame<'a>,
+        levels: Vec<(Vec<f32>, Vec<f32>)>,
+        /// Per tile its filtered value, -1 where not usable.
+        filtered: OnceLock<Vec<f32>>,
+    }
+
+    impl<'a> Tiles<'a> {
+        fn of(frame: &'a MosaicFrame<'a>) -> Tiles<'a> {
+            Tiles {
+                frame,
+                levels: frame.levels(),
+                filtered: OnceLock::new(),
+            }
+        }
+
+        /// Row `y`'s signals (clamped at 0) and their [`raw_log_weight`]s.
+        fn signal_row(&self, y: usize, values: &mut [f32], weights: &mut [f32]) {
+            self.frame.signal_row(&self.levels, y, values);
+            for (v, w) in values.iter_mut().zip(weights.iter_mut()) {
+                *w = raw_log_weight(*v);
+                *v = v.max(0.0);
+            }
+        }
+
+        fn pyramid(&self, step: usize) -> Pyramid {
+            let (f, range) = (self.frame, (RAW_FLOOR, CLIPPED));
+            Pyramid::from_rows(f.width, f.height, step, f.exposure, range, |y, v, w| {
+                self.signal_row(y, v, w)
+            })
+        }
+
+        /// The filtered tile image: each tile row's means filtered along the row, then
+        /// the rows filtered down the columns.
+        fn filtered(&self) -> &[f32] {
+            self.filtered.get_or_init(|| {
+                let (w, h) = self.size();
+                let mut along = vec![-1f32; w * h];
+                along.par_chunks_mut(w).enumerate().for_each_init(
+                    || (vec![0f32; 2 * w], vec![0f32; 2 * w], vec![0f32; w]),
+                    |(top, bottom, means), (y, out)| {
+                        self.frame.signal_row(&self.levels, 2 * y, top);
+                        self.frame.signal_row(&self.levels, 2 * y + 1, bottom);
+                        let pairs = top.chunks_exact(2).zip(bottom.chunks_exact(2));
+                        for (m, (t, b)) in means.iter_mut().zip(pairs) {
+                            *m = tile([t[0], t[1], b[0], b[1]]);
+                        }
+                        along_row(means, out);
+                    },
+                );
+                let mut out = vec![-1f32; w * h];
+                out.par_chunks_mut(w).enumerate().for_each(|(y, row)| {
+                    if y > 0 && y + 1 < h {
+                        for (x, o) in row.iter_mut().enumerate() {
+                            let column = [
+                                along[x + (y - 1) * w],
+                                along[x + y * w],
+                                along[x + (y + 1) * w],
+                            ];
+                            *o = filter(column);
+                        }
+                    }
+                });
+                out
+            })
+        }
+    }
+
+    impl Picture for Tiles<'_> {
+        fn size(&self) -> (usize, usize) {
+            (self.frame.width / 2, self.frame.height / 2)
+        }
+
+        fn step(&self) -> usize {
+            2
+        }
+
+        fn pixel(&self, x: usize, y: usize) -> (f32, f32) {
+            let v = self.filtered()[y * self.size().0 + x];
+            weighed(v)
+        }
+
+        fn row(&self, y: usize, values: &mut [f32], weights: &mut [f32]) {
+            let w = self.size().0;
+            let row = &self.filtered()[y * w..(y + 1) * w];
+            for ((value, weight), &v) in values.iter_mut().zip(weights.iter_mut()).zip(row) {
+                (*value, *weight) = weighed(v);
+            }
+        }
+
+        /// No: the parent module's "Camera raw" says why.
+        fn refines_perspective(&self) -> bool {
+            false
+        }
+    }
+
+    /// A tile of four normalised signals: their mean when all four are within
+    /// [`RAW_FLOOR`] and [`CLIPPED`], else -1.
+    fn tile(s: [f32; 4]) -> f32 {
+        if s.iter().all(|&v| raw_log_weight(v) > 0.0) {
+            s.iter().sum::<f32>() / 4.0
+        } else {
+            -1.0
+        }
+    }
+
+    /// The `[1 2 1]/4` filter of three values, -1 when one of them is (not usable).
+    fn filter([a, b, c]: [f32; 3]) -> f32 {
+        if a < 0.0 || b < 0.0 || c < 0.0 {
+            -1.0
+        } else {
+            0.25 * a + 0.5 * b + 0.25 * c
+        }
+    }
+
+    /// `values` filtered along their row into `out` ([`filter`]), -1 at the row's ends.
+    fn along_row(values: &[f32], out: &mut [f32]) {
+        let n = values.len();
+        for (x, o) in out.iter_mut().enumerate() {
+            *o = if x > 0 && x + 1 < n {
+                filter([values[x - 1], values[x], values[x + 1]])
+            } else {
+                -1.0
+            };
+        }
+    }
+
+    /// A filtered tile value as a [`Picture`] pixel: the value and [`raw_log_weight`] of
+    /// it, or `(0, 0)` where not usable.
+    fn weighed(v: f32) -> (f32, f32) {
+        if v < 0.0 {
+            (0.0, 0.0)
+        } else {
+            (v, raw_log_weight(v))
+        }
     }
 
     /// The least normalised raw signal a block is estimated from: ten times the read noise of

@@ -1,14 +1,71 @@
 //! The last step of a registration whose finest pyramid level has blocks of more than one
-//! pixel: the same Gauss–Newton ([`damped`]) on sparse full-resolution samples of the
-//! frame registered onto, starting from the pyramid's estimate.
+//! pixel: the same Gauss–Newton ([`damped`]) on sparse samples of the frame registered
+//! onto at its finest [`Picture`] (full resolution, or a raw frame's CFA tiles), starting
+//! from the pyramid's estimate.
 
 use std::sync::OnceLock;
 
 use nalgebra::Vector3;
 use rayon::prelude::*;
 
-use super::{Convergence, Convert, Geometry, Normal, State, damped, solve};
+use super::{Convergence, Convert, Geometry, Motion, Normal, State, damped, solve};
 use crate::frame::{Frame, Samples};
+
+/// What the refinement reads of a frame: an image of linear values (the mean `g(B)` of a
+/// pixel's channels, or of a raw CFA tile's normalised signals) and their
+/// [`super::log_weight`]s (0: not usable), each image pixel covering `step × step`
+/// full-resolution pixels.
+pub(in crate::align) trait Picture: Sync {
+    /// Width and height in image pixels.
+    fn size(&self) -> (usize, usize);
+    /// Full-resolution pixels per image pixel, on a side.
+    fn step(&self) -> usize;
+    /// Image pixel `(x, y)`: value and weight.
+    fn pixel(&self, x: usize, y: usize) -> (f32, f32);
+    /// Image row `y`'s values and weights, into the two slices (one per image pixel).
+    fn row(&self, y: usize, values: &mut [f32], weights: &mut [f32]);
+    /// Whether a homography is refined on this picture (a translation or a rotation
+    /// always is).
+    fn refines_perspective(&self) -> bool {
+        true
+    }
+}
+
+/// A frame of codes read through the bracket's inverse response: a [`Picture`] at full
+/// resolution.
+pub(in crate::align) struct Codes<'a> {
+    pub(in crate::align) frame: &'a Frame,
+    pub(in crate::align) convert: &'a Convert,
+}
+
+impl Picture for Codes<'_> {
+    fn size(&self) -> (usize, usize) {
+        (self.frame.width() as usize, self.frame.height() as usize)
+    }
+
+    fn step(&self) -> usize {
+        1
+    }
+
+    /// The pixel's mean `g(B)` over its channels and its worst channel's weight.
+    fn pixel(&self, x: usize, y: usize) -> (f32, f32) {
+        let c = self.frame.channels();
+        let i = (y * self.frame.width() as usize + x) * c;
+        match self.frame.samples() {
+            Samples::Eight(v) => self.convert.pixel(&v[i..i + c]),
+            Samples::Sixteen(v) => self.convert.pixel(&v[i..i + c]),
+        }
+    }
+
+    fn row(&self, y: usize, values: &mut [f32], weights: &mut [f32]) {
+        let (w, c) = (self.frame.width() as usize, self.frame.channels());
+        let span = y * w * c..(y + 1) * w * c;
+        match self.frame.samples() {
+            Samples::Eight(v) => self.convert.row(&v[span], values, weights),
+            Samples::Sixteen(v) => self.convert.row(&v[span], values, weights),
+        }
+    }
+}
 
 /// The reference samples the refinement reads at most: one per cell of a square grid
 /// sized to hold this many cells.
@@ -27,12 +84,10 @@ const SETTLED_PX: f64 = 0.01;
 /// Samples [`accumulate`] sums in one task.
 const SAMPLES_PER_GROUP: usize = 4096;
 
-/// One frame's pixels as log radiance, read on the fly through `convert`, and the
-/// samples the refinement takes of it when other frames are registered onto it (chosen
-/// once).
+/// One frame's [`Picture`] as log radiance, read on the fly, and the samples the
+/// refinement takes of it when other frames are registered onto it (chosen once).
 pub(in crate::align) struct FullFrame<'a> {
-    frame: &'a Frame,
-    convert: &'a Convert,
+    picture: &'a dyn Picture,
     /// `ln e`, `e` the frame's relative exposure.
     log_e: f32,
     samples: OnceLock<Vec<Sample>>,
@@ -48,36 +103,20 @@ struct Sample {
 }
 
 impl<'a> FullFrame<'a> {
-    /// `frame` at relative `exposure`, its codes read through `convert`.
-    pub(in crate::align) fn new(frame: &'a Frame, convert: &'a Convert, exposure: f64) -> Self {
+    /// `picture` of a frame at relative `exposure`.
+    pub(in crate::align) fn new(picture: &'a dyn Picture, exposure: f64) -> Self {
         FullFrame {
-            frame,
-            convert,
+            picture,
             log_e: exposure.ln() as f32,
             samples: OnceLock::new(),
         }
     }
 
-    /// Pixel `(x, y)`'s mean `g(B)` over its channels and its worst channel's
-    /// [`super::log_weight`].
-    fn pixel(&self, x: usize, y: usize) -> (f32, f32) {
-        let c = self.frame.channels();
-        let i = (y * self.frame.width() as usize + x) * c;
-        match self.frame.samples() {
-            Samples::Eight(v) => self.convert.pixel(&v[i..i + c]),
-            Samples::Sixteen(v) => self.convert.pixel(&v[i..i + c]),
-        }
-    }
-
-    /// Row `y`'s pixels as [`FullFrame::pixel`] gives them: means and weights.
+    /// The picture's row `y`: values and weights.
     fn row(&self, y: usize) -> (Vec<f32>, Vec<f32>) {
-        let (w, c) = (self.frame.width() as usize, self.frame.channels());
+        let w = self.picture.size().0;
         let (mut values, mut weights) = (vec![0.0; w], vec![0.0; w]);
-        let span = y * w * c..(y + 1) * w * c;
-        match self.frame.samples() {
-            Samples::Eight(v) => self.convert.row(&v[span], &mut values, &mut weights),
-            Samples::Sixteen(v) => self.convert.row(&v[span], &mut values, &mut weights),
-        }
+        self.picture.row(y, &mut values, &mut weights);
         (values, weights)
     }
 
@@ -86,13 +125,13 @@ impl<'a> FullFrame<'a> {
         self.samples.get_or_init(|| self.choose())
     }
 
-    /// One sample per cell of `n × n` pixels, `n` the least (at least 2) that makes at
-    /// most [`MOST_SAMPLES`] cells: the pixel of the cell with the steepest log-radiance
+    /// One sample per cell of `n × n` image pixels, `n` the least (at least 2) that makes
+    /// at most [`MOST_SAMPLES`] cells: the pixel of the cell with the steepest log-radiance
     /// gradient (central differences, `|∇m|/m` of the linear mean `m`) among those that
     /// are well exposed with their four neighbours; none where no pixel is. Cell rows are
     /// chosen in parallel and kept in order.
     fn choose(&self) -> Vec<Sample> {
-        let (w, h) = (self.frame.width() as usize, self.frame.height() as usize);
+        let (w, h) = self.picture.size();
         let n = ((w * h) as f64 / MOST_SAMPLES as f64)
             .sqrt()
             .ceil()
@@ -107,7 +146,7 @@ impl<'a> FullFrame<'a> {
     /// [`FullFrame::choose`] for the cells of the pixel rows `rows`, `n` pixels wide: the
     /// rows are scanned in order, each cell keeping its first steepest pixel.
     fn choose_in_row(&self, rows: std::ops::Range<usize>, n: usize) -> Vec<Sample> {
-        let (w, h) = (self.frame.width() as usize, self.frame.height() as usize);
+        let (w, h) = self.picture.size();
         // Pixel rows rows.start − 1 ..= rows.end (clamped): values and weights.
         let first = rows.start.saturating_sub(1);
         let last = rows.end.min(h - 1);
@@ -141,12 +180,12 @@ impl<'a> FullFrame<'a> {
             .collect()
     }
 
-    /// The log radiance `ln m − ln e` at full-resolution `(x, y)` (`m` the bilinear
-    /// interpolation of the four pixels' linear means), its gradient `∇m/m` per pixel (of
-    /// the interpolating patch) and the interpolated weight, when the four pixels are
-    /// well exposed.
+    /// The log radiance `ln m − ln e` at image position `(x, y)` (`m` the bilinear
+    /// interpolation of the four image pixels' linear values), its gradient `∇m/m` per
+    /// image pixel (of the interpolating patch) and the interpolated weight, when the four
+    /// pixels are well exposed.
     fn sample(&self, x: f64, y: f64) -> Option<(f64, f64, f64, f64)> {
-        let (w, h) = (self.frame.width() as usize, self.frame.height() as usize);
+        let (w, h) = self.picture.size();
         if !(x >= 0.0 && y >= 0.0) {
             return None;
         }
@@ -155,10 +194,10 @@ impl<'a> FullFrame<'a> {
             return None;
         }
         let quad = [
-            self.pixel(x0, y0),
-            self.pixel(x0 + 1, y0),
-            self.pixel(x0, y0 + 1),
-            self.pixel(x0 + 1, y0 + 1),
+            self.picture.pixel(x0, y0),
+            self.picture.pixel(x0 + 1, y0),
+            self.picture.pixel(x0, y0 + 1),
+            self.picture.pixel(x0 + 1, y0 + 1),
         ];
         if quad.iter().any(|&(_, weight)| weight <= 0.0) {
             return None;
@@ -222,19 +261,21 @@ fn accumulate(
     motion: usize,
 ) -> Normal {
     let m = state.matrix();
+    let step = reference.picture.step() as f64;
+    let to_image = geometry.s / step;
     let groups: Vec<Normal> = reference
         .samples()
         .par_chunks(SAMPLES_PER_GROUP)
         .map(|group| {
             let mut acc = Normal::zero();
             for s in group {
-                let (u, v) = geometry.to_normalised(1.0, f64::from(s.x), f64::from(s.y));
+                let (u, v) = geometry.to_normalised(step, f64::from(s.x), f64::from(s.y));
                 let p = m * Vector3::new(u, v, 1.0);
-                let (x, y) = geometry.to_level(1.0, p.x / p.z, p.y / p.z);
+                let (x, y) = geometry.to_level(step, p.x / p.z, p.y / p.z);
                 let Some((value, gx, gy, weight)) = moving.sample(x, y) else {
                     continue;
                 };
-                let seen = (value, gx * geometry.s, gy * geometry.s, weight);
+                let seen = (value, gx * to_image, gy * to_image, weight);
                 let fixed = (f64::from(s.log), f64::from(s.weight));
                 acc.equation(state, motion, (u, v), &p, fixed, seen);
             }
@@ -249,7 +290,9 @@ fn accumulate(
 /// samples, then [`damped`] Gauss–Newton in the same model. The refined state is kept
 /// only when it lowers the samples' mean squared residual below that of `state` (gain and
 /// offset fitted) and moves no corner by more than [`MOST_BLOCKS`] blocks; otherwise, or
-/// when the refinement fails (too few samples overlap, a singular system), `state`.
+/// when the refinement fails (too few samples overlap, a singular system), or when the
+/// state is a homography and the picture does not refine perspective
+/// ([`Picture::refines_perspective`]), `state`.
 pub(super) fn refine(
     reference: &FullFrame<'_>,
     moving: &FullFrame<'_>,
@@ -257,6 +300,9 @@ pub(super) fn refine(
     state: State,
     step: f64,
 ) -> State {
+    if state.motion == Motion::Homography && !reference.picture.refines_perspective() {
+        return state;
+    }
     let n = state.params();
     let normal = |s: &State| accumulate(reference, moving, geometry, s, n);
     let mut start = state;
