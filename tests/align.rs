@@ -313,8 +313,9 @@ fn a_shifted_dng_bracket_is_aligned_in_cfa_space() {
 }
 
 /// A DNG bracket large enough to be estimated on blocks of several CFA tiles (1600 × 1200:
-/// blocks of 4 pixels) is refined on the tiles: its darkest frame, nudged by a shift and a
-/// tenth of a degree, is found within a tenth of a pixel at every corner.
+/// blocks of 4 pixels) is refined on the tiles: its two shorter frames, each nudged by a
+/// shift and a tenth of a degree, are found rigid (the darkest one's estimate on the
+/// blocks alone is a homography, 0.8 px off) and within 0.15 px at every corner.
 #[cfg(feature = "raw")]
 #[test]
 fn a_nudged_dng_bracket_is_refined_on_cfa_tiles() {
@@ -322,21 +323,22 @@ fn a_nudged_dng_bracket_is_refined_on_cfa_tiles() {
     let dir = tempfile::tempdir().unwrap();
     let scene = binomial(&synthetic::scene(w, h, 31));
     let (cx, cy) = (f64::from(w - 1) / 2.0, f64::from(h - 1) / 2.0);
-    let (s, c) = 0.1f64.to_radians().sin_cos();
-    let (dx, dy) = (2.3, -1.7);
-    let nudge = [
-        [c, -s, cx - c * cx + s * cy + dx],
-        [s, c, cy - s * cx - c * cy + dy],
-        [0.0, 0.0, 1.0],
-    ];
+    let nudge = |degrees: f64, dx: f64, dy: f64| {
+        let (s, c) = degrees.to_radians().sin_cos();
+        [
+            [c, -s, cx - c * cx + s * cy + dx],
+            [s, c, cy - s * cx - c * cy + dy],
+            [0.0, 0.0, 1.0],
+        ]
+    };
+    let nudges = [nudge(0.08, 2.3, -1.7), nudge(-0.1, -2.8, 1.2)];
     let views = [
-        synthetic::moved(&scene, &nudge).unwrap(),
-        scene.clone(),
+        synthetic::moved(&scene, &nudges[0]).unwrap(),
+        synthetic::moved(&scene, &nudges[1]).unwrap(),
         scene.clone(),
     ];
     let loaded = dng_bracket(views, dir.path());
     let alignment = align::align_mosaics(&mosaics(&loaded), AlignMode::Auto);
-    let f = &alignment.frames[0];
     let apply = |m: &[[f64; 3]; 3], x: f64, y: f64| {
         let z = m[2][0] * x + m[2][1] * y + m[2][2];
         (
@@ -350,15 +352,20 @@ fn a_nudged_dng_bracket_is_refined_on_cfa_tiles() {
         (0.0, 2.0 * cy),
         (2.0 * cx, 2.0 * cy),
     ];
-    let error = corners
-        .iter()
-        .map(|&(x, y)| {
-            let ((fx, fy), (tx, ty)) = (apply(&f.transform, x, y), apply(&nudge, x, y));
-            (fx - tx).hypot(fy - ty)
-        })
-        .fold(0.0, f64::max);
-    assert!(error < 0.1, "corner error {error:.3} px: {f:?}");
-    assert!(alignment.frames[1].motion.is_none() && alignment.frames[2].motion.is_none());
+    for (f, truth) in alignment.frames.iter().zip(&nudges) {
+        let error = corners
+            .iter()
+            .map(|&(x, y)| {
+                let ((fx, fy), (tx, ty)) = (apply(&f.transform, x, y), apply(truth, x, y));
+                (fx - tx).hypot(fy - ty)
+            })
+            .fold(0.0, f64::max);
+        assert!(
+            f.motion == Some(align::Motion::Rigid) && error < 0.15,
+            "corner error {error:.3} px: {f:?}"
+        );
+    }
+    assert_eq!(alignment.frames[2].motion, None);
 }
 
 /// `map` through the `[1 2 1]/4` binomial in both directions (a lens: no detail finer than

@@ -286,13 +286,10 @@ fn accumulate(
 }
 
 /// `state` (the pyramid's estimate of `moving` onto `reference`, whose finest level has
-/// blocks of `step` pixels) refined at full resolution: gain and offset fitted to the
-/// samples, then [`damped`] Gauss–Newton in the same model. The refined state is kept
-/// only when it lowers the samples' mean squared residual below that of `state` (gain and
-/// offset fitted) and moves no corner by more than [`MOST_BLOCKS`] blocks; otherwise, or
-/// when the refinement fails (too few samples overlap, a singular system), or when the
-/// state is a homography and the picture does not refine perspective
-/// ([`Picture::refines_perspective`]), `state`.
+/// blocks of `step` pixels) refined at full resolution ([`refined`]). A homography on a
+/// picture that does not refine perspective ([`Picture::refines_perspective`]) is kept
+/// as it is, unless the rigid model refined from it fits the samples at least as well
+/// (mean squared residual, gain and offset fitted): then that rigid model.
 pub(super) fn refine(
     reference: &FullFrame<'_>,
     moving: &FullFrame<'_>,
@@ -300,17 +297,57 @@ pub(super) fn refine(
     state: State,
     step: f64,
 ) -> State {
-    if state.motion == Motion::Homography && !reference.picture.refines_perspective() {
-        return state;
+    if state.motion != Motion::Homography || reference.picture.refines_perspective() {
+        return refined(reference, moving, geometry, state, step).0;
     }
-    let n = state.params();
-    let normal = |s: &State| accumulate(reference, moving, geometry, s, n);
+    let (start, as_is) = fitted(reference, moving, geometry, state);
+    let (rigid, fit) = refined(
+        reference,
+        moving,
+        geometry,
+        start.as_motion(Motion::Rigid),
+        step,
+    );
+    if fit <= as_is.mean_square() {
+        rigid
+    } else {
+        state
+    }
+}
+
+/// `state` with the gain and offset fitted to the samples, and its normal equations in
+/// its model.
+fn fitted(
+    reference: &FullFrame<'_>,
+    moving: &FullFrame<'_>,
+    geometry: &Geometry,
+    state: State,
+) -> (State, Normal) {
     let mut start = state;
     if let Some(delta) = solve(&accumulate(reference, moving, geometry, &state, 0), 2, 0.0) {
         start.gain += delta[0];
         start.bias += delta[1];
     }
-    let current = normal(&start);
+    let normal = accumulate(reference, moving, geometry, &start, start.params());
+    (start, normal)
+}
+
+/// `state` refined on the samples: gain and offset fitted, then [`damped`] Gauss–Newton
+/// in the same model, and the mean squared residual of the state returned. The refined
+/// state is kept only when it lowers the samples' mean squared residual below that of
+/// `state` (gain and offset fitted) and moves no corner by more than [`MOST_BLOCKS`]
+/// blocks; otherwise, or when the refinement fails (too few samples overlap, a singular
+/// system), `state` (with an infinite residual when the refinement failed).
+fn refined(
+    reference: &FullFrame<'_>,
+    moving: &FullFrame<'_>,
+    geometry: &Geometry,
+    state: State,
+    step: f64,
+) -> (State, f64) {
+    let n = state.params();
+    let normal = |s: &State| accumulate(reference, moving, geometry, s, n);
+    let (start, current) = fitted(reference, moving, geometry, state);
     let before = current.mean_square();
     let Ok((refined, after)) = damped(
         geometry,
@@ -320,12 +357,12 @@ pub(super) fn refine(
         &normal,
         Convergence::Within(SETTLED_PX),
     ) else {
-        return state;
+        return (state, f64::INFINITY);
     };
     let moved = geometry.corner_shift(&state.matrix(), &refined.matrix());
     if after.mean_square() < before && moved <= MOST_BLOCKS * step {
-        refined
+        (refined, after.mean_square())
     } else {
-        state
+        (state, before)
     }
 }
