@@ -20,14 +20,22 @@
 //! *Split:* scenes 10–11 were looked at while choosing what the raw refinement refines;
 //! scenes 12–13 were not.
 //!
-//! `cargo bench --bench align_raw -- [still | moved] [--mp MP]`
+//! **Merge.** The same moved brackets merged ([`raw::develop`]) unaligned, as alignment
+//! found them, and resampled back by the exact inverse of the move (the floor), against
+//! the merge of the unmoved bracket (same noise seed): luminance error in stops where the
+//! moved frames carry the merge (the middle frame well exposed, the reference above the
+//! well-exposed range; 3 % margins left out), after one global scale.
+//!
+//! `cargo bench --bench align_raw -- [still | moved | merge] [--mp MP]`
 
-use filmback::align::{self, AlignMode, FrameAlignment, MosaicFrame};
+use filmback::align::{self, AlignMode, Alignment, FrameAlignment, MosaicFrame};
 use filmback::frame::{self, Limits, LoadedFrame, Samples};
 use filmback::metadata::CaptureTime;
 use filmback::radiance::RadianceMap;
+use filmback::raw::{self, RawExposure};
 use filmback::synthetic::{self, RawSensor, Shot, demo};
 use nalgebra::{Matrix3, Vector3};
+use std::path::Path;
 
 #[path = "../common/mod.rs"]
 mod common;
@@ -47,7 +55,9 @@ const STILL: [(u64, [f64; 3], &[u64]); 9] = [
 
 fn main() {
     let args: Vec<String> = std::env::args().collect();
-    let all = !args.iter().any(|a| a == "still" || a == "moved");
+    let all = !args
+        .iter()
+        .any(|a| a == "still" || a == "moved" || a == "merge");
     let mp = common::arg_or("--mp", 24.0_f64);
     let height = ((mp * 1e6 / 1.5).sqrt() as u32) & !1;
     let width = ((f64::from(height) * 1.5) as u32) & !1;
@@ -56,6 +66,9 @@ fn main() {
     }
     if all || args.iter().any(|a| a == "moved") {
         moved(width, height);
+    }
+    if all || args.iter().any(|a| a == "merge") {
+        merge(width, height);
     }
 }
 
@@ -130,6 +143,141 @@ fn moved(width: u32, height: u32) {
     }
 }
 
+fn merge(width: u32, height: u32) {
+    println!(
+        "moved raw brackets, {width}×{height}: luminance error of the merge against the \
+         unmoved bracket's, in stops (median / p95 / share > 0.1 stop), where the moved \
+         frames carry it"
+    );
+    println!("| scene | move | unaligned | `--align auto` | move undone (floor) |");
+    println!("|---|---|---|---|---|");
+    let times = [500.0, 60.0, 8.0];
+    for scene_seed in [10, 11, 12, 13] {
+        let scene = common::lens(&synthetic::scene(width, height, scene_seed));
+        let dir = tempfile::tempdir().expect("temporary folder");
+        let still = bracket(&scene, &[None, None, None], times, scene_seed, dir.path());
+        let truth = developed(&still, times, None);
+        let mask = carried(&still[1], &still[2]);
+        let share = mask.iter().filter(|&&m| m).count() as f64 / mask.len() as f64;
+        println!(
+            "(scene {scene_seed}: {:.1} % of the pixels compared)",
+            100.0 * share
+        );
+        for common::Move { name, outer } in &common::MOVES {
+            let views = [
+                Some(common::matrix(width, height, outer[0])),
+                Some(common::matrix(width, height, outer[1])),
+                None,
+            ];
+            let dir = tempfile::tempdir().expect("temporary folder");
+            let moved = bracket(&scene, &views, times, scene_seed, dir.path());
+            let frames = mosaics(&moved, times);
+            let found = align::align_mosaics(&frames, AlignMode::Auto);
+            let undone = Alignment {
+                frames: views
+                    .iter()
+                    .map(|view| FrameAlignment {
+                        transform: view.unwrap_or(align::IDENTITY),
+                        motion: view.map(|_| align::Motion::Homography),
+                        displacement_px: 0.0,
+                        note: None,
+                    })
+                    .collect(),
+                ..found.clone()
+            };
+            let cells: Vec<String> = [None, Some(&found), Some(&undone)]
+                .into_iter()
+                .map(|alignment| error(&truth, &developed(&moved, times, alignment), &mask))
+                .collect();
+            println!(
+                "| {scene_seed} | {name} | {} | {} | {} |",
+                cells[0], cells[1], cells[2]
+            );
+        }
+    }
+}
+
+/// The luminance `0.2126 R + 0.7152 G + 0.0722 B` of the bracket's raw merge
+/// ([`raw::develop`]), its frames resampled as `alignment` says (none: as they are).
+fn developed(loaded: &[LoadedFrame], times: [f64; 3], alignment: Option<&Alignment>) -> Vec<f32> {
+    let frames = mosaics(loaded, times);
+    let warped = alignment.map_or_else(|| vec![None; 3], |a| align::warp_mosaics(&frames, a));
+    let exposures: Vec<RawExposure<'_>> = frames
+        .iter()
+        .zip(loaded)
+        .zip(&warped)
+        .map(|((f, l), w)| RawExposure {
+            path: &l.path,
+            codes: w.as_deref().unwrap_or(f.codes),
+            width: f.width as u32,
+            height: f.height as u32,
+            info: f.info,
+            exposure: f.exposure,
+        })
+        .collect();
+    let rgb = raw::develop(&exposures, 1.0).expect("develops").rgb;
+    rgb.chunks_exact(3)
+        .map(|p| 0.2126 * p[0] + 0.7152 * p[1] + 0.0722 * p[2])
+        .collect()
+}
+
+/// The pixels the moved frames carry: where the middle frame's signal is well exposed
+/// ([`align::WELL_EXPOSED_LOW`] to [`align::WELL_EXPOSED_HIGH`] of its range) and the
+/// reference's (the longest frame's) is above that range, 3 % of each side left out.
+fn carried(middle: &LoadedFrame, reference: &LoadedFrame) -> Vec<bool> {
+    let (a, b) = (signals(middle), signals(reference));
+    let (w, h) = (
+        middle.frame.width() as usize,
+        middle.frame.height() as usize,
+    );
+    let (mx, my) = (w * 3 / 100, h * 3 / 100);
+    let exposed = align::WELL_EXPOSED_LOW..=align::WELL_EXPOSED_HIGH;
+    (0..w * h)
+        .map(|i| {
+            let (x, y) = (i % w, i / w);
+            let inside = (mx..w - mx).contains(&x) && (my..h - my).contains(&y);
+            inside && exposed.contains(&a[i]) && b[i] > align::WELL_EXPOSED_HIGH
+        })
+        .collect()
+}
+
+/// A raw frame's normalised signal `(k − b)/(w − b)` per pixel.
+fn signals(frame: &LoadedFrame) -> Vec<f64> {
+    let info = frame.raw.as_deref().expect("raw");
+    let Samples::Sixteen(codes) = frame.frame.samples() else {
+        panic!("a raw frame holds 16-bit codes")
+    };
+    let w = frame.frame.width() as usize;
+    let (bw, bh) = (info.black_width.max(1), info.black_height.max(1));
+    codes
+        .iter()
+        .enumerate()
+        .map(|(i, &k)| {
+            let b = info.black[(i / w % bh) * bw + i % w % bw];
+            f64::from((f32::from(k) - b) / (info.white - b))
+        })
+        .collect()
+}
+
+/// `log₂(test/truth)` over `mask`, after one global scale (the median ratio): median and
+/// 95th percentile of its magnitude and the share above 0.1 stop.
+fn error(truth: &[f32], test: &[f32], mask: &[bool]) -> String {
+    let mut logs: Vec<f64> = truth
+        .iter()
+        .zip(test)
+        .zip(mask)
+        .filter(|&((&t, &v), &m)| m && t > 0.0 && v > 0.0)
+        .map(|((&t, &v), _)| f64::from(v / t).log2())
+        .collect();
+    logs.sort_by(f64::total_cmp);
+    let scale = logs[logs.len() / 2];
+    let mut off: Vec<f64> = logs.iter().map(|l| (l - scale).abs()).collect();
+    off.sort_by(f64::total_cmp);
+    let at = |q: f64| off[((off.len() - 1) as f64 * q) as usize];
+    let share = off.iter().filter(|&&e| e > 0.1).count() as f64 / off.len() as f64;
+    format!("{:.3} / {:.3} / {:.2} %", at(0.5), at(0.95), 100.0 * share)
+}
+
 /// The alignment of three DNGs of `scene` at shutter times `1/times[k]` s, frame `k` seeing
 /// it moved by `views[k]` (reference pixel → frame pixel), through the typical sensor with
 /// noise seed `seed`, and the wall time of [`align::align_mosaics`] (once: estimation,
@@ -140,6 +288,25 @@ fn aligned(
     times: [f64; 3],
     seed: u64,
 ) -> (Vec<FrameAlignment>, f64) {
+    let dir = tempfile::tempdir().expect("temporary folder");
+    let loaded = bracket(scene, views, times, seed, dir.path());
+    let start = std::time::Instant::now();
+    let alignment = align::align_mosaics(&mosaics(&loaded, times), AlignMode::Auto);
+    let seconds = start.elapsed().as_secs_f64();
+    assert_eq!(alignment.reference, 2, "the longest frame is the reference");
+    (alignment.frames, seconds)
+}
+
+/// Three DNGs of `scene` at shutter times `1/times[k]` s, frame `k` seeing it moved by
+/// `views[k]`, through the typical sensor with noise seed `seed`, written into `dir` and
+/// decoded as the pipeline decodes them.
+fn bracket(
+    scene: &RadianceMap,
+    views: &[Option<[[f64; 3]; 3]>; 3],
+    times: [f64; 3],
+    seed: u64,
+    dir: &Path,
+) -> Vec<LoadedFrame> {
     let (width, height) = (scene.width(), scene.height());
     let first = CaptureTime {
         year: 2026,
@@ -161,8 +328,7 @@ fn aligned(
         0.5,
     );
     let sensor = RawSensor::typical(seed);
-    let dir = tempfile::tempdir().expect("temporary folder");
-    let loaded: Vec<LoadedFrame> = shots
+    shots
         .iter()
         .zip(views)
         .enumerate()
@@ -172,32 +338,31 @@ fn aligned(
             let signal = synthetic::raw_signal(seen.as_ref().unwrap_or(scene), exposure, &sensor);
             let codes = synthetic::raw_codes(&signal, &sensor);
             let dng = synthetic::dng(&codes, width, height, &sensor, shot).expect("DNG");
-            let path = dir.path().join(format!("frame-{k}.dng"));
+            let path = dir.join(format!("frame-{k}.dng"));
             std::fs::write(&path, dng).expect("write DNG");
             frame::load(&path, Limits::default()).expect("decodes")
         })
-        .collect();
-    let mosaics: Vec<MosaicFrame<'_>> = loaded
+        .collect()
+}
+
+/// The mosaics of a [`bracket`] shot at `1/times[k]` s.
+fn mosaics(loaded: &[LoadedFrame], times: [f64; 3]) -> Vec<MosaicFrame<'_>> {
+    loaded
         .iter()
-        .zip(seconds)
+        .zip(times)
         .map(|(f, t)| {
             let Samples::Sixteen(codes) = f.frame.samples() else {
                 panic!("a raw frame holds 16-bit codes")
             };
             MosaicFrame {
                 codes,
-                width: width as usize,
-                height: height as usize,
+                width: f.frame.width() as usize,
+                height: f.frame.height() as usize,
                 info: f.raw.as_deref().expect("raw"),
-                exposure: t / seconds[2],
+                exposure: times[2] / t,
             }
         })
-        .collect();
-    let start = std::time::Instant::now();
-    let alignment = align::align_mosaics(&mosaics, AlignMode::Auto);
-    let seconds = start.elapsed().as_secs_f64();
-    assert_eq!(alignment.reference, 2, "the longest frame is the reference");
-    (alignment.frames, seconds)
+        .collect()
 }
 
 /// The transform alignment found for a frame (the identity when merged unmoved).
