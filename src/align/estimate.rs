@@ -706,6 +706,12 @@ impl Geometry {
         ]
     }
 
+    /// The largest distance, in full-resolution pixels, that `m` moves a corner of the
+    /// frame.
+    fn displacement(&self, m: &Matrix3<f64>) -> f64 {
+        self.corner_shift(&Matrix3::identity(), m)
+    }
+
     /// The largest distance, in full-resolution pixels, between where `a` and `b` take the
     /// frame's four corners.
     fn corner_shift(&self, a: &Matrix3<f64>, b: &Matrix3<f64>) -> f64 {
@@ -1383,7 +1389,7 @@ fn compose(
 /// The alignment a registration gives a frame: the identity when it moves no pixel by
 /// [`IDENTITY_PX`] or more.
 fn settle(registration: &Registration, geometry: &Geometry) -> FrameAlignment {
-    let displacement = geometry.corner_shift(&Matrix3::identity(), &registration.matrix);
+    let displacement = geometry.displacement(&registration.matrix);
     let note = registration.note.clone();
     if displacement < IDENTITY_PX {
         FrameAlignment {
@@ -1424,8 +1430,7 @@ fn register(
     };
     let (mut state, note) = estimate(&fixed.levels, &moving.levels, geometry, model, schedule)?;
     if let Some((f, m)) = full {
-        let still =
-            |s: &State| geometry.corner_shift(&Matrix3::identity(), &s.matrix()) < IDENTITY_PX;
+        let still = |s: &State| geometry.displacement(&s.matrix()) < IDENTITY_PX;
         if still(&state) {
             let finest = (&fixed.levels[0], &moving.levels[0]);
             state = refine(finest, geometry, state, Convergence::Final).map_or(state, |(s, _)| s);
@@ -1505,7 +1510,7 @@ fn estimate(
         return Err(Refusal::LittleOverlap { shared });
     }
     let (state, normal, note) = descend(fixed, moving, geometry, model, schedule)?;
-    let displacement = geometry.corner_shift(&Matrix3::identity(), &state.matrix());
+    let displacement = geometry.displacement(&state.matrix());
     let farthest = 2.0 * SEARCH_RANGE * geometry.width.max(geometry.height);
     if displacement > farthest {
         return Err(Refusal::TooFar {
