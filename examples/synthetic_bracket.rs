@@ -1,18 +1,20 @@
 //! Renders a synthetic bracket and writes it with EXIF, ready for `filmback inspect`:
 //!
-//! `cargo run --release --example synthetic_bracket -- DIR [jpeg|png|tiff] [CURVE]`
+//! `cargo run --release --example synthetic_bracket -- DIR [jpeg|png|tiff] [CURVE] [moved]`
 //!
 //! Three shots at f/8, ISO 100, 1/500, 1/125 and 1/30 s (two stops apart) of the
 //! procedural scene (1500 × 1000, seed 1), through CURVE (linear, gamma-2.2, srgb, film-s,
 //! strong-toe; default srgb) with shot and read noise; JPEG at quality 92 and 8 bits, PNG
 //! and TIFF at 16 bits. Exposures are scaled so that the middle shot puts mid-grey at
-//! `X = 0.18`.
+//! `X = 0.18`. With `moved`, the first and last shots see the scene as a handheld camera
+//! would: moved by (−4, 3) and (4, −3) px and turned by −0.2° and 0.2° about the top-left
+//! corner, for trying `--align`.
 
 use std::path::PathBuf;
 
 use filmback::frame::BitDepth;
 use filmback::metadata::{Camera, CaptureTime};
-use filmback::synthetic::{Encoding, ResponseCurve, Sensor, Shot, bracket, scene, write};
+use filmback::synthetic::{Encoding, ResponseCurve, Sensor, Shot, bracket, moved, scene, write};
 
 fn main() -> Result<(), Box<dyn std::error::Error>> {
     let mut args = std::env::args().skip(1);
@@ -66,12 +68,28 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         seed: 1,
         ..Sensor::noiseless(curve, depth)
     };
+    let handheld = args.next().as_deref() == Some("moved");
     let radiance = scene(1500, 1000, 1);
-    let frames = bracket(&radiance, &sensor, &shots, scale)?;
+    let mut frames = Vec::new();
+    for (k, shot) in shots.iter().enumerate() {
+        let seen = match k {
+            1 => None,
+            _ if !handheld => None,
+            _ => moved(&radiance, &turned(k as f64 - 1.0)),
+        };
+        let seen = seen.as_ref().unwrap_or(&radiance);
+        frames.extend(bracket(seen, &sensor, std::slice::from_ref(shot), scale)?);
+    }
     for (k, (frame, shot)) in frames.iter().zip(&shots).enumerate() {
         let path = dir.join(format!("synthetic-{curve_name}-{k}.{extension}"));
         write(&path, frame, shot, encoding)?;
         println!("{}", path.display());
     }
     Ok(())
+}
+
+/// The transform of a frame `d` steps from the middle one: `d·(4, −3)` px and `d·0.2°`.
+fn turned(d: f64) -> [[f64; 3]; 3] {
+    let (sin, cos) = (d * 0.2f64).to_radians().sin_cos();
+    [[cos, -sin, 4.0 * d], [sin, cos, -3.0 * d], [0.0, 0.0, 1.0]]
 }

@@ -35,25 +35,31 @@ pub struct Footprint {
     pub bytes_per_pixel: u32,
 }
 
-/// The memory a job needs, in bytes, for frames `f_i` of `w_i × h_i` pixels and `b_i`
-/// bytes per decoded pixel: each frame's decoded size, once more the largest (a decoder's
-/// buffer beside the converted frame while it decodes), and the darkroom's working set
-/// for an RGB map of the largest frame with looks ([`crate::darkroom::working_memory_bytes`]):
+/// The memory a job needs, in bytes, for frames `f_i` of `w_i × h_i = P_i` pixels and
+/// `b_i` bytes per decoded pixel (`D_i = P_i·b_i`): each frame decoded; each frame but the
+/// reference resampled onto the reference grid and its deghosting mask, `D_i + P_i`
+/// ([`crate::darkroom::job_memory_bytes`]; the reference is chosen later, so the smallest
+/// such term is left out); and the darkroom's working set for an RGB map of the largest
+/// frame with looks ([`crate::darkroom::working_memory_bytes`]):
 ///
-/// `Σ_i w_i·h_i·b_i + max_i(w_i·h_i·b_i) + (4·3 + 2·3 + 8)·P + 18·64·w`, `P = max_i w_i·h_i`
+/// `Σ_i D_i + Σ_i (D_i + P_i) − min_i (D_i + P_i) + (4·3 + 2·3 + 8)·P + 18·64·w`,
+/// `P = max_i P_i`
 ///
-/// It does not depend on the configured looks (one or more are assumed), so a reload
-/// cannot change what a running job was counted as. A three-frame bracket of 45 MP 8-bit
-/// JPEGs: `45e6·(3·3 + 3 + 26) ≈ 1.7e9` bytes.
+/// A decoder's buffer (at most the largest `D_i`) is freed before alignment and the
+/// working set exist, and is smaller than they are; a raw bracket is not deghosted, and
+/// its alignment's transient images (about 2.25 bytes a pixel a frame) are freed before
+/// the working set exists. It does not depend on the configured looks (one or more are
+/// assumed), so a reload cannot change what a running job was counted as. A three-frame
+/// bracket of 45 MP 8-bit JPEGs: `45e6·(3·3 + 2·(3 + 1) + 26) ≈ 1.9e9` bytes.
 pub fn job_bytes(frames: &[Footprint]) -> u64 {
     let pixels = |f: &Footprint| u64::from(f.width) * u64::from(f.height);
     let decoded = |f: &Footprint| pixels(f) * u64::from(f.bytes_per_pixel);
     let Some(largest) = frames.iter().max_by_key(|f| pixels(f)) else {
         return 0;
     };
-    let transient = frames.iter().map(decoded).max().unwrap_or(0);
-    frames.iter().map(decoded).sum::<u64>()
-        + transient
+    let aligned = |f: &Footprint| decoded(f) + pixels(f);
+    let reference = frames.iter().map(aligned).min().unwrap_or(0);
+    frames.iter().map(decoded).sum::<u64>() + frames.iter().map(aligned).sum::<u64>() - reference
         + crate::darkroom::working_memory_bytes(largest.width, largest.height, 3, 1)
 }
 
@@ -116,17 +122,37 @@ mod tests {
     }
 
     /// A bracket of three 1400 × 1000 8-bit JPEGs (as the budget's test in
-    /// `tests/daemon.rs` uses): the frames, one more, and the darkroom's working set.
+    /// `tests/daemon.rs` uses): the frames, two of them resampled with their masks, and
+    /// the darkroom's working set; a single frame needs no alignment.
     #[test]
-    fn a_jobs_estimate_counts_frames_a_decoder_buffer_and_the_working_set() {
+    fn a_jobs_estimate_counts_frames_their_alignment_and_the_working_set() {
         let jpeg = Footprint {
             width: 1400,
             height: 1000,
             bytes_per_pixel: 3,
         };
-        let frames = 1400 * 1000 * 3;
+        let (pixels, frames) = (1400 * 1000, 1400 * 1000 * 3);
         let work = crate::darkroom::working_memory_bytes(1400, 1000, 3, 1);
-        assert_eq!(job_bytes(&[jpeg; 3]), 3 * frames + frames + work);
+        assert_eq!(job_bytes(&[jpeg]), frames + work);
+        assert_eq!(
+            job_bytes(&[jpeg; 3]),
+            3 * frames + 2 * (frames + pixels) + work
+        );
+        assert_eq!(
+            job_bytes(&[jpeg; 3]),
+            crate::darkroom::job_memory_bytes(1400, 1000, 3, 3, 1, 1),
+            "the darkroom's own bound for the same bracket"
+        );
+        let small = Footprint {
+            width: 700,
+            height: 500,
+            ..jpeg
+        };
+        assert_eq!(
+            job_bytes(&[jpeg, small]),
+            frames + 700 * 500 * 3 + (frames + pixels) + work,
+            "the smaller frame taken as the reference: the larger is resampled"
+        );
         assert_eq!(job_bytes(&[]), 0);
     }
 }

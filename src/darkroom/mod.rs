@@ -851,8 +851,9 @@ fn print_looks(
 /// reference resampled onto the reference grid when alignment moves it,
 /// [`crate::align`]; its estimation pyramids, about 10 MB a frame by count (at most 300 000
 /// finest blocks of 18 bytes over the levels, and 9 bytes a block kept for comparing where
-/// both clip), and the two more of such a pair, are freed before the resampled frames
-/// exist) `+ (frames −
+/// both clip), and the two more of such a pair, and a raw frame's filtered tile image and
+/// CFA lattices (about 2.25 bytes a pixel), are freed before the resampled frames exist)
+/// `+ (frames −
 /// 1)·P` (the deghosting masks, one byte per pixel of each frame but the reference, held
 /// through the merge, [`crate::deghost`]; the comparison's own grids, under `P` bytes,
 /// are freed before the merge's buffers exist) `+` [`working_memory_bytes`]: with looks, `4·S` (the
