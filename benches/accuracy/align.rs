@@ -22,7 +22,16 @@
 //! transform are printed, and the merge's error as above (against the merge of the
 //! frames before the move): unaligned, aligned, and with the move undone.
 //!
-//! `cargo bench --bench align -- [accuracy | speed] [--runs N] [--only LABEL]`
+//! **Still.** Still JPEG brackets (quality 92) of the synthetic procedural scene, as
+//! `filmback watch --demo` drops them (1/250, 1/60, 1/15 s: the darkest frame exposes the
+//! scene best and is the reference, the brightest is four stops from it): three sizes, a
+//! noiseless sensor (the demo's) and one with shot and read noise, scenes of seeds 20–25
+//! (held out: the rules for still frames were chosen on seeds 1–9 at 1400×1000 and on the
+//! demo's scene). How many of the frames other than the reference alignment resamples
+//! (one response fitted per bracket, as the pipeline fits it), and the largest move it
+//! found.
+//!
+//! `cargo bench --bench align -- [accuracy | still | speed] [--runs N] [--only LABEL]`
 
 use std::path::{Path, PathBuf};
 use std::process::Command;
@@ -41,10 +50,15 @@ mod common;
 
 fn main() {
     let args: Vec<String> = std::env::args().collect();
-    let all = !args.iter().any(|a| a == "accuracy" || a == "speed");
+    let all = !args
+        .iter()
+        .any(|a| a == "accuracy" || a == "still" || a == "speed");
     let runs = common::arg("--runs").map_or(3, |r| r.parse().expect("--runs N"));
     if all || args.iter().any(|a| a == "accuracy") {
         accuracy();
+    }
+    if all || args.iter().any(|a| a == "still") {
+        still();
     }
     if all || args.iter().any(|a| a == "speed") {
         speed(runs);
@@ -228,6 +242,64 @@ fn accuracy() {
     }
     println!("\nwhat the aligner found (reference pixel → frame pixel):");
     found.iter().for_each(|line| println!("{line}"));
+}
+
+/// The still brackets of the module's docs: per size and sensor, the frames resampled
+/// and the largest move found.
+fn still() {
+    println!("still JPEG brackets (q92) of the procedural scene, seeds 20–25: frames resampled");
+    println!("| size | sensor | frames resampled (of 12) | largest move found |");
+    println!("|---|---|---|---|");
+    let shots = synthetic::demo::aeb("Still Body", None, 0);
+    let middle = shots[1].exposure.relative().expect("EXIF exposure");
+    for (w, h) in [(800, 600), (1400, 1000), (2400, 1600)] {
+        for noisy in [false, true] {
+            let mut resampled = 0;
+            let mut largest = 0f64;
+            for seed in 20..=25 {
+                let sensor = Sensor {
+                    read_noise_dn: if noisy { 0.5 } else { 0.0 },
+                    full_well_electrons: noisy.then_some(20_000.0),
+                    seed,
+                    ..Sensor::noiseless(ResponseCurve::Srgb, BitDepth::Eight)
+                };
+                let scene = synthetic::scene(w, h, seed);
+                let frames: Vec<(Frame, f64)> =
+                    synthetic::bracket(&scene, &sensor, &shots, 1.0 / middle)
+                        .expect("a bracket")
+                        .iter()
+                        .zip(&shots)
+                        .map(|(f, shot)| {
+                            let jpeg = synthetic::encode(
+                                f,
+                                shot,
+                                synthetic::Encoding::Jpeg { quality: 92 },
+                            )
+                            .expect("a JPEG");
+                            let loaded =
+                                frame::decode(Path::new("still.jpg"), &jpeg, Limits::default())
+                                    .expect("our JPEG");
+                            (
+                                loaded.frame,
+                                shot.exposure.relative().expect("EXIF exposure"),
+                            )
+                        })
+                        .collect();
+                let g = common::fitted(&frames);
+                let alignment = align::align(&views(&frames), &g, AlignMode::Auto);
+                for f in alignment.frames.iter().filter(|f| f.motion.is_some()) {
+                    resampled += 1;
+                    largest = largest.max(f.displacement_px);
+                }
+            }
+            let sensor = if noisy {
+                "shot + read noise"
+            } else {
+                "noiseless"
+            };
+            println!("| {w}×{h} | {sensor} | {resampled} | {largest:.2} px |");
+        }
+    }
 }
 
 /// `frames` (with their exposures) as alignment reads them.

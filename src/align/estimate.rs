@@ -1319,8 +1319,10 @@ struct Pair<'p, 'f> {
 /// Frame `k` registered, the first that works of: onto the reference; onto `via` (a
 /// registered frame nearer the reference in exposure, with its transform), composed with
 /// its transform; the same two on their finer levels only, where a coarse level shared
-/// too few blocks; the same two compared as [`Pyramid::clipped_alike`]. The registration,
-/// or why none worked.
+/// too few blocks, the one sharing more of the finest level's blocks with `k` first (a
+/// registration on a small share fits the frame to structure the shared blocks happen to
+/// have, extrapolated to the rest); the same two compared as [`Pyramid::clipped_alike`].
+/// The registration, or why none worked.
 fn register_or_chain(
     with: &Pair<'_, '_>,
     reference: usize,
@@ -1332,9 +1334,16 @@ fn register_or_chain(
     if let Some((n, through)) = via {
         targets.push((*n, Some(through)));
     }
+    let shared = |n: usize| overlap(&with.pyramids[n].levels[0], &with.pyramids[k].levels[0]);
+    let mut sparse_order = targets.clone();
+    sparse_order.sort_by(|a, b| shared(b.0).total_cmp(&shared(a.0)));
     let mut failures: Vec<Failure> = Vec::new();
     for way in [Way::Measured, Way::FinerLevels, Way::ClippedAlike] {
-        for &(n, through) in &targets {
+        let order = match way {
+            Way::FinerLevels => &sparse_order,
+            _ => &targets,
+        };
+        for &(n, through) in order {
             let sparse = |f: &Failure| f.onto == n && matches!(f.why, Refusal::FewBlocks(_));
             if way == Way::FinerLevels && !failures.iter().any(sparse) {
                 // Only a coarse level that shared too few blocks makes this way differ.
@@ -1439,10 +1448,44 @@ fn register(
             state = full::refine(f, m, geometry, state, fixed.levels[0].step);
         }
     }
+    if let Some(why) = insignificant(fixed, moving, geometry, &state) {
+        return Ok(Registration {
+            matrix: Matrix3::identity(),
+            motion: Motion::Translation,
+            note: Some(why),
+        });
+    }
     Ok(Registration {
         matrix: state.matrix(),
         motion: state.motion,
         note,
+    })
+}
+
+/// Why `state` counts as no move, when it moves some pixel by [`IDENTITY_PX`] or more but
+/// by no more than [`SIGNIFICANT_SPREADS`] cluster-robust standard deviations of its
+/// displacement on the finest level ([`robust_uncertainty_px`]): a frame registered on
+/// blocks that crowd into part of it (a frame several stops from the other) fits its
+/// parameters to structure the residuals share, and a still frame would be resampled.
+fn insignificant(
+    fixed: &Pyramid,
+    moving: &Pyramid,
+    geometry: &Geometry,
+    state: &State,
+) -> Option<String> {
+    let moved = geometry.displacement(&state.matrix());
+    if moved < IDENTITY_PX {
+        return None;
+    }
+    let (fine_fixed, fine_moving) = (&fixed.levels[0], &moving.levels[0]);
+    let params = state.params();
+    let cells = accumulate_cells(fine_fixed, fine_moving, geometry, state, params);
+    let spread = robust_uncertainty_px(&cells, params, geometry);
+    (moved <= SIGNIFICANT_SPREADS * spread).then(|| {
+        format!(
+            "a move of {moved:.2} px is within {SIGNIFICANT_SPREADS} standard deviations \
+             of none (σ {spread:.2} px): not moved"
+        )
     })
 }
 
@@ -1679,7 +1722,7 @@ fn significant(
 }
 
 /// How many cluster-robust standard deviations a homography must move a corner by, from
-/// the rigid fit, to be kept.
+/// the rigid fit, to be kept, and a registration must move a pixel by to move the frame.
 const SIGNIFICANT_SPREADS: f64 = 3.0;
 
 /// The least a homography must move a corner by, from the rigid fit, to be kept, in

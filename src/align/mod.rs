@@ -63,7 +63,9 @@
 //! few well-exposed blocks) is registered onto the nearest frame between them that was, and
 //! the transforms composed (`T_k = T_{k←n}·T_n`). Where a coarse pyramid level of such a
 //! pair shares too few blocks to refine on, the pair is tried again on its finer levels
-//! alone, the coarse search's shift carried down to them. Where neither works, each pair is
+//! alone, the coarse search's shift carried down to them; then onto whichever of the
+//! reference and that nearer frame shares more of the finest level's blocks with it first
+//! (a registration on a small share fits structure the shared blocks happen to have). Where neither works, each pair is
 //! compared again as the log radiance both frames could have measured: every block clamped
 //! to the range of log radiance both measure, so a window or a sky clipped in one frame and
 //! exposed beyond that range in the other lies at the range's top in both and its edges
@@ -96,7 +98,11 @@
 //!
 //! A transform that moves no pixel of the frame by more than [`IDENTITY_PX`] counts as the
 //! identity: the frame is not resampled, so an aligned tripod bracket merges bit for bit
-//! as without alignment.
+//! as without alignment. So does one that moves no pixel by more than three cluster-robust
+//! standard deviations of the displacement it implies on the finest level (the test a
+//! homography passes against the rigid model, applied to the move itself), with a note:
+//! on a share of blocks crowded into part of a frame several stops from the other, the
+//! residuals' shared structure (a JPEG's loss among it) is otherwise fitted as a move.
 //!
 //! # Coverage
 //!

@@ -187,9 +187,6 @@ async fn viewer_url(state: &Path) -> Option<String> {
     None
 }
 
-/// The synthetic scene of the demonstration (`synthetic::scene`'s seed).
-const DEMO_SCENE: u64 = 7;
-
 /// The demonstration: drops one synthetic bracket (three 1200×800 JPEGs with EXIF,
 /// −2/0/+2 EV) into the ingest folder the way a tethering tool does (written under a
 /// temporary name, then renamed), waits for the daemon's journal to settle it and prints
@@ -201,12 +198,13 @@ async fn demo_bracket(ingest: &Path, state: &Path) -> anyhow::Result<()> {
     }
     let stamp = filmback::daemon::journal::unix_now();
     let shots = demo::aeb("Demo Camera", Some("0001"), (stamp % 3600) as u32);
-    // One scene every time, so the demonstration shows the same thing on every machine
-    // (its file names still carry the time, so runs do not collide).
-    let jpegs = tokio::task::spawn_blocking(move || demo::jpegs(1200, 800, &shots, DEMO_SCENE))
-        .await
-        .context("demo bracket")?
-        .context("cannot make the demo bracket")?;
+    // One scene every time (its file names still carry the time, so runs do not collide).
+    let (width, height) = demo::SIZE;
+    let jpegs =
+        tokio::task::spawn_blocking(move || demo::jpegs(width, height, &shots, demo::SCENE))
+            .await
+            .context("demo bracket")?
+            .context("cannot make the demo bracket")?;
     let mut names = Vec::new();
     for (i, bytes) in jpegs.iter().enumerate() {
         let name = format!("demo-{stamp}-{}.jpg", i + 1);

@@ -10,6 +10,13 @@ use crate::frame::BitDepth;
 use crate::metadata::{Camera, CaptureTime};
 use crate::synthetic::{self, Encoding, ResponseCurve, Sensor, Shot, SyntheticError};
 
+/// The seed of the synthetic scene `filmback watch --demo` drops (one scene every time,
+/// so the demonstration shows the same thing on every machine).
+pub const SCENE: u64 = 7;
+
+/// The size of the frames `filmback watch --demo` drops, width × height.
+pub const SIZE: (u32, u32) = (1200, 800);
+
 /// Why a demo frame could not be made or dropped.
 #[derive(Debug, thiserror::Error)]
 pub enum DemoError {
