@@ -4,7 +4,7 @@
 //! and off, and the demo's still JPEGs stay where they are; a DNG bracket moved by a known
 //! shift.
 
-use std::path::Path;
+use std::path::{Path, PathBuf};
 
 use filmback::align::{self, AlignFrame, AlignMode, IDENTITY};
 use filmback::frame::{BitDepth, Frame};
@@ -202,20 +202,8 @@ fn an_aligned_bracket_develops_identically_with_alignment_on_and_off() {
     let mut maps = Vec::new();
     for mode in ["off", "auto"] {
         let out = dir.path().join(mode);
-        let status = common::filmback()
-            .arg("merge")
-            .args(&paths)
-            .args(["--srgb", "--tonemap", "linear", "--align", mode, "-o"])
-            .arg(&out)
-            .arg("--json")
-            .output()
-            .unwrap();
-        assert!(
-            status.status.success(),
-            "{}",
-            String::from_utf8_lossy(&status.stderr)
-        );
-        let report: serde_json::Value = serde_json::from_slice(&status.stdout).unwrap();
+        let args = ["--srgb", "--tonemap", "linear", "--align", mode];
+        let report = merged_report(&paths, &args, &out);
         assert_eq!(report["alignment"]["mode"], mode);
         let (pixels, attributes) = common::read_exr(&out.join("f0.exr"));
         let record = format!("{:?}", attributes.other);
@@ -248,22 +236,29 @@ fn the_demo_bracket_is_merged_unmoved() {
     {
         paths.push(demo::drop_frame(dir.path(), &format!("demo-{k}.jpg"), bytes).unwrap());
     }
-    let out = common::filmback()
-        .arg("merge")
-        .args(&paths)
-        .args(["--tonemap", "linear", "--json", "-o"])
-        .arg(dir.path().join("out"))
-        .output()
-        .unwrap();
-    assert!(
-        out.status.success(),
-        "{}",
-        String::from_utf8_lossy(&out.stderr)
-    );
-    let report: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
+    let report = merged_report(&paths, &["--tonemap", "linear"], &dir.path().join("out"));
     for frame in report["alignment"]["frames"].as_array().unwrap() {
         assert!(frame["motion"].is_null(), "a still frame moved: {frame}");
     }
+}
+
+/// `filmback merge PATHS ARGS -o OUT --json`, which must succeed: its report.
+fn merged_report(paths: &[PathBuf], args: &[&str], out: &Path) -> serde_json::Value {
+    let run = common::filmback()
+        .arg("merge")
+        .args(paths)
+        .args(args)
+        .arg("-o")
+        .arg(out)
+        .arg("--json")
+        .output()
+        .unwrap();
+    assert!(
+        run.status.success(),
+        "{}",
+        String::from_utf8_lossy(&run.stderr)
+    );
+    serde_json::from_slice(&run.stdout).unwrap()
 }
 
 /// Three DNGs (the typical Bayer sensor, noise seed 3) at [`EXPOSURES`] of `views`, each
