@@ -1335,15 +1335,13 @@ fn register_or_chain(
         targets.push((*n, Some(through)));
     }
     let shared = |n: usize| overlap(&with.pyramids[n].levels[0], &with.pyramids[k].levels[0]);
-    let mut sparse_order = targets.clone();
-    sparse_order.sort_by(|a, b| shared(b.0).total_cmp(&shared(a.0)));
     let mut failures: Vec<Failure> = Vec::new();
     for way in [Way::Measured, Way::FinerLevels, Way::ClippedAlike] {
-        let order = match way {
-            Way::FinerLevels => &sparse_order,
-            _ => &targets,
-        };
-        for &(n, through) in order {
+        let mut order = targets.clone();
+        if way == Way::FinerLevels {
+            order.sort_by(|a, b| shared(b.0).total_cmp(&shared(a.0)));
+        }
+        for &(n, through) in &order {
             let sparse = |f: &Failure| f.onto == n && matches!(f.why, Refusal::FewBlocks(_));
             if way == Way::FinerLevels && !failures.iter().any(sparse) {
                 // Only a coarse level that shared too few blocks makes this way differ.
