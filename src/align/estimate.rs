@@ -907,6 +907,17 @@ impl Normal {
         self.include(&j, r, weight, motion + 2);
     }
 
+    /// The mean square residual after the least-squares step in the first `n`
+    /// parameters: `(SSE − bᵀA⁻¹b)/count`, `A` and `b` their system; without the step
+    /// when `A` is singular.
+    fn fitted_mean_square(&self, n: usize) -> f64 {
+        let (a, b) = self.system(n);
+        let sse = a.try_inverse().map_or(self.sse, |inverse| {
+            self.sse - (b.transpose() * inverse * &b)[0]
+        });
+        sse.max(0.0) / self.count.max(1) as f64
+    }
+
     /// The `n × n` matrix and the vector of the first `n` parameters.
     fn system(&self, n: usize) -> (DMatrix<f64>, DVector<f64>) {
         let a = DMatrix::from_fn(n, n, |i, j| self.jtj[i.min(j)][i.max(j)]);
@@ -1446,7 +1457,10 @@ fn register(
             state = full::refine(f, m, geometry, state, fixed.levels[0].step);
         }
     }
-    if let Some(why) = insignificant(fixed, moving, geometry, &state) {
+    let finest = (&fixed.levels[0], &moving.levels[0]);
+    if let Some(why) = no_better_locally(finest, geometry, &state)
+        .or_else(|| insignificant(fixed, moving, geometry, &state))
+    {
         return Ok(Registration {
             matrix: Matrix3::identity(),
             motion: Motion::Translation,
@@ -1483,6 +1497,48 @@ fn insignificant(
         format!(
             "a move of {moved:.2} px is within {SIGNIFICANT_SPREADS} standard deviations \
              of none (σ {spread:.2} px): not moved"
+        )
+    })
+}
+
+/// Why `state` counts as no move, when it moves some pixel by [`IDENTITY_PX`] or more but
+/// fits the finest level better than the identity in too few cells of a [`CELLS`] ×
+/// [`CELLS`] grid, each cell with its own gain and offset
+/// ([`Normal::fitted_mean_square`]). A sign test: were the frame still, each cell would
+/// be as likely to favour the state as not, so the state must win more than
+/// `n/2 + k·√n/2` of the `n` cells both fits measure, `k` = [`SIGNIFICANT_SPREADS`]. A
+/// camera's move lowers the residual in nearly every cell with texture; a brightness that
+/// varies across the frame (flare, vignetting, a camera's local tone mapping), which one
+/// gain and offset for the whole frame leave for the motion to fit, the cells match.
+fn no_better_locally(
+    (fine_fixed, fine_moving): (&Level, &Level),
+    geometry: &Geometry,
+    state: &State,
+) -> Option<String> {
+    let moved = geometry.displacement(&state.matrix());
+    if moved < IDENTITY_PX {
+        return None;
+    }
+    let unmoved = State {
+        p: [0.0; 8],
+        ..*state
+    };
+    let at_state = accumulate_cells(fine_fixed, fine_moving, geometry, state, 0);
+    let at_identity = accumulate_cells(fine_fixed, fine_moving, geometry, &unmoved, 0);
+    let measured = |cell: &Normal| cell.count > 2;
+    let (cells, better) = at_state
+        .iter()
+        .zip(&at_identity)
+        .filter(|(a, b)| measured(a) && measured(b))
+        .fold((0usize, 0usize), |(cells, better), (a, b)| {
+            let wins = a.fitted_mean_square(2) < b.fitted_mean_square(2);
+            (cells + 1, better + usize::from(wins))
+        });
+    let n = cells as f64;
+    (better as f64 <= n / 2.0 + SIGNIFICANT_SPREADS * n.sqrt() / 2.0).then(|| {
+        format!(
+            "a move of {moved:.2} px fits better than none in {better} of {cells} parts of \
+             the frame, each with its brightness matched: not moved"
         )
     })
 }

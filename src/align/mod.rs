@@ -103,6 +103,13 @@
 //! homography passes against the rigid model, applied to the move itself), with a note:
 //! on a share of blocks crowded into part of a frame several stops from the other, the
 //! residuals' shared structure (a JPEG's loss among it) is otherwise fitted as a move.
+//! And so does one that fits the finest level better than the identity in too few cells
+//! of that grid when each cell has its own gain and offset (a sign test: more than `n/2 +
+//! 3·√n/2` of the `n` cells both measure, half of them being what a still frame wins by
+//! chance), with a note: a camera's move lowers the residual in nearly every cell with
+//! texture, while a brightness that differs across the frame (flare, vignetting, a
+//! camera's local tone mapping) is left by one global gain and offset for the motion to
+//! fit, and is matched by the cells'.
 //!
 //! # Coverage
 //!

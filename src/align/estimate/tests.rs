@@ -1,4 +1,4 @@
-//! The cluster-robust spread against the per-block one.
+//! The cluster-robust spread against the per-block one, and the cells' sign test.
 
 use super::*;
 
@@ -85,4 +85,47 @@ fn residuals_that_agree_within_a_cell_widen_the_robust_spread_only() {
         robust > 4.0 * robust_noise,
         "robust: {robust:.4} patched, {robust_noise:.4} noisy (per block {per_block:.4})"
     );
+}
+
+/// A brightness falling off from the centre (vignetting, flare), in log radiance.
+fn falloff(x: usize, y: usize) -> f32 {
+    let (u, v) = (
+        (x as f32 - W as f32 / 2.0) / W as f32,
+        (y as f32 - H as f32 / 2.0) / W as f32,
+    );
+    -1.5 * (u * u + v * v)
+}
+
+/// The homography Gauss–Newton fits from the identity onto the texture.
+fn fitted(moving: &Level) -> (State, Geometry) {
+    let reference = level(|x, y| texture(x as f64, y as f64));
+    let geometry = Geometry::new(W as u32, H as u32);
+    let start = State {
+        motion: Motion::Homography,
+        p: [0.0; 8],
+        gain: 1.0,
+        bias: 0.0,
+    };
+    let (state, _) = refine((&reference, moving), &geometry, start, Convergence::Final)
+        .expect("the texture registers");
+    (state, geometry)
+}
+
+/// A still frame whose brightness falls off differently: the global gain and offset
+/// leave the falloff for the homography to fit, the cells' own do not. The same frame
+/// moved by 0.4 px keeps its move.
+#[test]
+fn a_brightness_falloff_does_not_pass_for_a_move() {
+    let reference = level(|x, y| texture(x as f64, y as f64));
+    let still = level(|x, y| texture(x as f64, y as f64) + falloff(x, y));
+    let (state, geometry) = fitted(&still);
+    let moved = geometry.displacement(&state.matrix());
+    assert!(moved >= IDENTITY_PX, "the falloff fits as {moved:.3} px");
+    let why = no_better_locally((&reference, &still), &geometry, &state);
+    assert!(why.is_some(), "a move of {moved:.3} px kept");
+
+    let shifted = level(|x, y| texture(x as f64 + 0.4, y as f64) + falloff(x, y));
+    let (state, geometry) = fitted(&shifted);
+    let why = no_better_locally((&reference, &shifted), &geometry, &state);
+    assert_eq!(why, None, "{state:?}");
 }
