@@ -25,9 +25,9 @@
 //! **Still.** Still JPEG brackets (quality 92) of the synthetic procedural scene, as
 //! `filmback watch --demo` drops them (1/250, 1/60, 1/15 s: the darkest frame exposes the
 //! scene best and is the reference, the brightest is four stops from it): three sizes, a
-//! noiseless sensor (the demo's) and one with shot and read noise, scenes of seeds 40–45
+//! noiseless sensor (the demo's) and one with shot and read noise, scenes of seeds 60–65
 //! (held out: the rules for still frames were chosen on seeds 1–16 at 1400×1000, seeds
-//! 20–25 and the demo's scene). How many of the frames other than the reference alignment resamples
+//! 20–25 and 40–45 and the demo's scene). How many of the frames other than the reference alignment resamples
 //! (one response fitted per bracket, as the pipeline fits it), and the largest move it
 //! found.
 //!
@@ -247,7 +247,7 @@ fn accuracy() {
 /// The still brackets of the module's docs: per size and sensor, the frames resampled
 /// and the largest move found.
 fn still() {
-    println!("still JPEG brackets (q92) of the procedural scene, seeds 40–45: frames resampled");
+    println!("still JPEG brackets (q92) of the procedural scene, seeds 60–65: frames resampled");
     println!("| size | sensor | frames resampled (of 12) | largest move found |");
     println!("|---|---|---|---|");
     let shots = synthetic::demo::aeb("Still Body", None, 0);
@@ -256,7 +256,7 @@ fn still() {
         for noisy in [false, true] {
             let mut resampled = 0;
             let mut largest = 0f64;
-            for seed in 40..=45 {
+            for seed in 60..=65 {
                 let sensor = Sensor {
                     read_noise_dn: if noisy { 0.5 } else { 0.0 },
                     full_well_electrons: noisy.then_some(20_000.0),
