@@ -409,6 +409,23 @@ fn a_glow_in_one_frame_does_not_pass_for_a_move() {
     }
 }
 
+/// A tripod nudged by a fifth of a pixel: both outer frames are still found moved (the
+/// cells' sign test passes a real move however small) and within a tenth of a pixel.
+#[test]
+fn a_nudge_of_a_fifth_of_a_pixel_is_kept() {
+    let scene = scene(3);
+    let dark = transform(0.0, 0.2, -0.1, 0.0, 0.0);
+    let bright = transform(0.01, -0.2, 0.06, 0.0, 0.0);
+    let frames = frames(&scene, &EXPOSURES, &[dark, IDENTITY, bright]);
+    let alignment = run(&frames, &EXPOSURES, AlignMode::Auto);
+    for (k, truth) in [(0, dark), (2, bright)] {
+        let found = &alignment.frames[k];
+        assert!(found.motion.is_some(), "frame {k}: {found:?}");
+        let error = distance(&found.transform, &truth);
+        assert!(error < 0.1, "frame {k}: {error:.3} px off ({found:?})");
+    }
+}
+
 /// A frame six stops from the reference shares too few well-exposed pixels with it to be
 /// registered directly; it is registered through the frame between them and the two
 /// transforms composed.
