@@ -137,6 +137,7 @@ fn main() {
         overwrite: Overwrite::Replace,
         luminance_calibration: 1.0,
         preview_edge: None,
+        ghost_map: false,
     };
     let mut full = Duration::MAX;
     let mut stages = Vec::new();

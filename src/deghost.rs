@@ -161,6 +161,18 @@ impl GhostMasks {
     pub fn weights(&self) -> Vec<Option<&[u8]>> {
         self.masks.iter().map(|m| m.as_deref()).collect()
     }
+
+    /// Per pixel of a frame of `pixels`, the least weight the merge kept of any frame
+    /// (0..=255): 255 where every frame was merged, 0 where some frame was left out.
+    pub fn least_kept(&self, pixels: usize) -> Vec<u8> {
+        let mut least = vec![u8::MAX; pixels];
+        for mask in self.masks.iter().flatten() {
+            for (l, &m) in least.iter_mut().zip(mask) {
+                *l = (*l).min(m);
+            }
+        }
+        least
+    }
 }
 
 /// Where a code lies: well exposed, or a bound on the radiance.

@@ -61,6 +61,7 @@
 //!     overwrite: Overwrite::Refuse,
 //!     luminance_calibration: 1.0,
 //!     preview_edge: None,
+//!     ghost_map: false,
 //! };
 //! let policy = ResponsePolicy::Use(GivenResponse::standard(3));
 //! let developed = develop(

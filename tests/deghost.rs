@@ -1,16 +1,19 @@
 //! Deghosting against synthetic ground truth: a subject that moves between the frames of
 //! a bracket is merged as the reference frame shows it, and a still bracket is merged
-//! exactly as without deghosting.
+//! exactly as without deghosting; `filmback merge --ghost-map` shows where frames were
+//! left out.
 
 use std::path::Path;
 
 use filmback::deghost::{self, GhostMasks};
 use filmback::frame::{BitDepth, Frame};
 use filmback::merge::{self, BracketFrame, MergeOptions};
-use filmback::metadata::Camera;
+use filmback::metadata::{Camera, CaptureTime};
 use filmback::radiance::RadianceMap;
 use filmback::response::InverseResponse;
-use filmback::synthetic::{ResponseCurve, Sensor, expose, scene};
+use filmback::synthetic::{self, Encoding, ResponseCurve, Sensor, Shot, demo, expose, scene};
+
+use crate::common;
 
 const WIDTH: u32 = 384;
 const HEIGHT: u32 = 256;
@@ -203,5 +206,109 @@ fn a_tone_curve_the_response_does_not_model_does_not_make_ghosts() {
         masks.share() < 0.01,
         "{:.4} of the pixels left out",
         masks.share()
+    );
+}
+
+/// `frames` as PNGs in `dir` (1/60, 1/15 and 1/4 s, as [`EXPOSURES`]), merged by
+/// `filmback merge --ghost-map`: the ghost map read back, and the command's stderr.
+fn ghost_map(frames: &[Frame], dir: &Path) -> (Option<Vec<u8>>, String) {
+    let first = CaptureTime {
+        year: 2026,
+        month: 11,
+        day: 29,
+        hour: 9,
+        minute: 0,
+        second: 0,
+        nanos: None,
+        offset_minutes: None,
+    };
+    let shots = Shot::series(
+        &demo::camera("Ghost Body", None),
+        first,
+        &[1.0 / 60.0, 1.0 / 15.0, 0.25],
+        8.0,
+        100.0,
+        0.5,
+    );
+    let paths: Vec<_> = frames
+        .iter()
+        .zip(&shots)
+        .enumerate()
+        .map(|(k, (frame, shot))| {
+            let path = dir.join(format!("g{k}.png"));
+            synthetic::write(&path, frame, shot, Encoding::Png).unwrap();
+            path
+        })
+        .collect();
+    let out = dir.join("out");
+    let run = common::filmback()
+        .arg("merge")
+        .args(&paths)
+        .args(["--srgb", "--tonemap", "linear", "--ghost-map", "-o"])
+        .arg(&out)
+        .output()
+        .unwrap();
+    let stderr = String::from_utf8_lossy(&run.stderr).into_owned();
+    if !run.status.success() {
+        return (None, stderr);
+    }
+    let decoder = png::Decoder::new(std::io::BufReader::new(
+        std::fs::File::open(out.join("g0.ghosts.png")).unwrap(),
+    ));
+    let mut reader = decoder.read_info().unwrap();
+    let mut pixels = vec![0; reader.output_buffer_size().unwrap()];
+    let info = reader.next_frame(&mut pixels).unwrap();
+    assert_eq!(
+        (info.width, info.height, info.color_type, info.bit_depth),
+        (
+            WIDTH,
+            HEIGHT,
+            png::ColorType::Grayscale,
+            png::BitDepth::Eight
+        )
+    );
+    (Some(pixels), stderr)
+}
+
+/// The ghost map is black where the subject swept (some frame left out) and white away
+/// from it; a still bracket's is white everywhere; an existing map is not replaced
+/// without `--force`.
+#[test]
+fn the_ghost_map_shows_where_frames_were_left_out() {
+    let base = scene(WIDTH, HEIGHT, 5);
+    let step = WIDTH as usize / 8;
+    let dir = tempfile::tempdir().unwrap();
+    let moving = shoot(&base, [100, 100 + step, 100 + 2 * step]);
+    let (map, stderr) = ghost_map(&moving, dir.path());
+    let map = map.unwrap_or_else(|| panic!("merge failed: {stderr}"));
+    let at = |x: usize, y: usize| map[y * WIDTH as usize + x];
+    // Inside the subject in one frame but not the reference: left out.
+    assert_eq!(at(110, 124), 0, "a ghost kept");
+    assert_eq!(
+        (at(20, 20), at(370, 240)),
+        (255, 255),
+        "a still area left out"
+    );
+
+    // Every output but the map removed: the map alone stops the second run.
+    for entry in std::fs::read_dir(dir.path().join("out")).unwrap() {
+        let path = entry.unwrap().path();
+        if !path.to_string_lossy().ends_with(".ghosts.png") {
+            std::fs::remove_file(path).unwrap();
+        }
+    }
+    let (again, stderr) = ghost_map(&moving, dir.path());
+    assert!(
+        again.is_none() && stderr.contains("g0.ghosts.png"),
+        "{stderr}"
+    );
+
+    let still = tempfile::tempdir().unwrap();
+    let frames = shoot(&base, [200; 3]);
+    let (map, stderr) = ghost_map(&frames, still.path());
+    let map = map.unwrap_or_else(|| panic!("merge failed: {stderr}"));
+    assert!(
+        map.iter().all(|&v| v == 255),
+        "a still bracket's map is not white"
     );
 }

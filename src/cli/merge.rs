@@ -91,7 +91,12 @@ pub struct Args {
     /// as-shot neutral. Camera raw brackets only.
     #[arg(long)]
     dng: bool,
-    /// Replace existing output files (EXR, HDR, DNG and renderings).
+    /// Also write DIR/<stem>.ghosts.png, where deghosting left frames out: 8-bit grey, per
+    /// pixel the least weight the merge kept of any frame (white where every frame was
+    /// merged, black where some frame was left out).
+    #[arg(long)]
+    ghost_map: bool,
+    /// Replace existing output files (EXR, HDR, DNG, renderings and the ghost map).
     #[arg(long)]
     force: bool,
     /// Print a JSON report (outputs, response, frames, timings in ms).
@@ -132,6 +137,7 @@ pub fn run(args: Args) -> anyhow::Result<ExitCode> {
         }),
         luminance_calibration: args.luminance_calibration,
         preview_edge: None,
+        ghost_map: args.ghost_map,
         radiance_hdr: args.radiance_hdr,
         dng: args.dng,
         looks: &looks,

@@ -633,6 +633,7 @@ pub(crate) fn prints<'a>(
         overwrite: Overwrite::Replace,
         luminance_calibration: preset.luminance_calibration,
         preview_edge: job.previews.then_some(PREVIEW_EDGE),
+        ghost_map: false,
     }
 }
 

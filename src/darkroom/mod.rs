@@ -75,6 +75,14 @@ pub enum DarkroomError {
     #[cfg(feature = "raw")]
     #[error(transparent)]
     Raw(#[from] crate::raw::RawError),
+    /// The deghosting map could not be encoded (nothing was written).
+    #[error("{path}: cannot encode the deghosting map as PNG: {source}")]
+    GhostMap {
+        /// The PNG it was encoding.
+        path: PathBuf,
+        /// What the encoder said.
+        source: png::EncodingError,
+    },
     /// A file could not be published.
     #[error(transparent)]
     Publish(#[from] PublishError),
@@ -183,6 +191,10 @@ pub struct Prints<'a> {
     /// Long edge, pixels, of a small sRGB copy of each rendering kept in memory
     /// ([`Developed::previews`]); `None` for none.
     pub preview_edge: Option<u32>,
+    /// Also write `DIR/STEM.ghosts.png`, where deghosting left frames out
+    /// ([`GhostMasks::least_kept`] as 8-bit grey; white everywhere when no frame was
+    /// left out, or the bracket was not deghosted).
+    pub ghost_map: bool,
 }
 
 impl Prints<'_> {
@@ -201,6 +213,11 @@ impl Prints<'_> {
         self.dir.join(format!("{}.dng", self.stem))
     }
 
+    /// `DIR/STEM.ghosts.png`.
+    pub fn ghost_map_path(&self) -> PathBuf {
+        self.dir.join(format!("{}.ghosts.png", self.stem))
+    }
+
     /// Every path this will write, in order (EXR, HDR, DNG, renderings).
     pub fn paths(&self) -> Vec<PathBuf> {
         let mut paths = Vec::new();
@@ -215,6 +232,9 @@ impl Prints<'_> {
         }
         for look in self.looks {
             paths.push(rendering::look_path(self.dir, self.stem, look, self.format));
+        }
+        if self.ghost_map {
+            paths.push(self.ghost_map_path());
         }
         paths
     }
@@ -529,8 +549,14 @@ pub fn develop(
     };
     warnings.extend(printed.warnings);
     stages.extend(printed.stages);
+    let mut outputs = printed.outputs;
+    if prints.ghost_map {
+        let t = Instant::now();
+        outputs.push(write_ghost_map(ghosts.as_ref(), &frames[0].frame, prints)?);
+        stages.push(("ghosts", t.elapsed()));
+    }
     Ok(Developed {
-        outputs: printed.outputs,
+        outputs,
         response: chosen,
         order,
         ratio,
@@ -743,6 +769,41 @@ fn write_radiance_files(
         previews: Vec::new(),
         stages,
     })
+}
+
+/// Publishes [`Prints::ghost_map_path`]: `ghosts`' least kept weight per pixel of a
+/// frame the size of `frame` (white without masks), as an 8-bit grey PNG.
+fn write_ghost_map(
+    ghosts: Option<&GhostMasks>,
+    frame: &Frame,
+    prints: &Prints<'_>,
+) -> Result<PathBuf, DarkroomError> {
+    let path = prints.ghost_map_path();
+    let (width, height) = (frame.width(), frame.height());
+    let pixels = width as usize * height as usize;
+    let least = ghosts.map_or_else(|| vec![u8::MAX; pixels], |g| g.least_kept(pixels));
+    let mut bytes = Vec::new();
+    grey_png(&mut bytes, width, height, &least).map_err(|source| DarkroomError::GhostMap {
+        path: path.clone(),
+        source,
+    })?;
+    atomic::publish(&path, &bytes, prints.overwrite)?;
+    Ok(path)
+}
+
+/// An 8-bit greyscale PNG of `samples`, row by row.
+fn grey_png(
+    out: &mut Vec<u8>,
+    width: u32,
+    height: u32,
+    samples: &[u8],
+) -> Result<(), png::EncodingError> {
+    let mut encoder = png::Encoder::new(out, width, height);
+    encoder.set_color(png::ColorType::Grayscale);
+    encoder.set_depth(png::BitDepth::Eight);
+    let mut writer = encoder.write_header()?;
+    writer.write_image_data(samples)?;
+    writer.finish()
 }
 
 /// Refuses a DNG for `frames` unless every one is camera raw.

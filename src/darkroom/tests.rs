@@ -42,6 +42,7 @@ fn prints<'a>(
         overwrite: Overwrite::Refuse,
         luminance_calibration: 1.0,
         preview_edge: None,
+        ghost_map: false,
     }
 }
 
