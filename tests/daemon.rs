@@ -2203,3 +2203,17 @@ fn status_says_when_the_state_folder_is_not_writable() {
     assert!(shown.contains("may be stale"), "{shown}");
     terminate(&mut child);
 }
+
+/// The daemon under `[render] ghost_map = true` writes each bracket's ghost map beside its
+/// EXR and looks.
+#[test]
+fn the_daemon_writes_the_ghost_map_when_its_preset_asks() {
+    let dir = tempfile::tempdir().unwrap();
+    let text = rig::config_text(dir.path(), "ghost_map = true\n");
+    let mut rig = rig::Rig::start_with_text(dir.path(), &text, Arc::new(DarkroomLab));
+    rig::put(&rig.ingest(), &rig::aeb("Ghost Body", 30, "g"));
+    let expected = ["g-1.exr", "g-1.linear.jpg", "g-1.ghosts.png"];
+    let done = |names: &[String]| expected.iter().all(|n| names.iter().any(|m| m == n));
+    rig::wait_for(&rig.out(), "the bracket's outputs", done);
+    rig.stop();
+}

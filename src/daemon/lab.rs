@@ -593,8 +593,9 @@ pub(crate) fn looks_of(preset: &Preset, stocks: Option<&Path>) -> Result<Vec<Loo
 }
 
 /// What a job writes into `dir`: `STEM.exr` for a bracket when its preset asks for it,
-/// `STEM.dng` for a bracket of camera raws when it asks for that, and one JPEG per look
-/// at the preset's quality ([`Prints::paths`] names them).
+/// `STEM.dng` for a bracket of camera raws and `STEM.ghosts.png` for a bracket when it
+/// asks for them, and one JPEG per look at the preset's quality ([`Prints::paths`] names
+/// them).
 pub(crate) fn prints<'a>(
     job: &'a Job,
     looks: &'a [Look],
@@ -633,7 +634,7 @@ pub(crate) fn prints<'a>(
         overwrite: Overwrite::Replace,
         luminance_calibration: preset.luminance_calibration,
         preview_edge: job.previews.then_some(PREVIEW_EDGE),
-        ghost_map: false,
+        ghost_map: preset.ghost_map && !job.is_single(),
     }
 }
 

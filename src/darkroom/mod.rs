@@ -193,7 +193,9 @@ pub struct Prints<'a> {
     pub preview_edge: Option<u32>,
     /// Also write `DIR/STEM.ghosts.png`, where deghosting left frames out
     /// ([`GhostMasks::least_kept`] as 8-bit grey; white everywhere when no frame was
-    /// left out, or the bracket was not deghosted).
+    /// left out, or the bracket was not deghosted). Written after the other outputs, once
+    /// their encoding buffers are freed; the map and its PNG take at most two bytes a
+    /// pixel, which [`job_memory_bytes`] does not count.
     pub ghost_map: bool,
 }
 

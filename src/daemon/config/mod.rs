@@ -181,6 +181,9 @@ pub struct Preset {
     /// Write a camera raw bracket's merged mosaic as linear DNG (other brackets have
     /// none; [`crate::raw::dng`]).
     pub dng: bool,
+    /// Write `STEM.ghosts.png`, where deghosting left frames out
+    /// ([`crate::darkroom::Prints::ghost_map`]).
+    pub ghost_map: bool,
     /// Film stocks to render.
     pub films: Vec<String>,
     /// Tone maps to render.

@@ -241,6 +241,7 @@ struct RawDaemon {
 struct RawRender {
     exr: Option<bool>,
     dng: Option<bool>,
+    ghost_map: Option<bool>,
     films: Option<Vec<LookName>>,
     tonemaps: Option<Vec<LookName>>,
     t: Option<Stops>,
@@ -261,6 +262,7 @@ struct RawPreset {
     // The [render] keys, spelled out: serde's `flatten` would lose the unknown key's span.
     exr: Option<bool>,
     dng: Option<bool>,
+    ghost_map: Option<bool>,
     films: Option<Vec<LookName>>,
     tonemaps: Option<Vec<LookName>>,
     t: Option<Stops>,
@@ -281,6 +283,7 @@ impl RawPreset {
         RawRender {
             exr: self.exr,
             dng: self.dng,
+            ghost_map: self.ghost_map,
             films: self.films.clone(),
             tonemaps: self.tonemaps.clone(),
             t: self.t,
@@ -464,6 +467,7 @@ fn overlay(base: &RawRender, over: &RawRender) -> RawRender {
     RawRender {
         exr: over.exr.or(base.exr),
         dng: over.dng.or(base.dng),
+        ghost_map: over.ghost_map.or(base.ghost_map),
         films: over.films.clone().or_else(|| base.films.clone()),
         tonemaps: over.tonemaps.clone().or_else(|| base.tonemaps.clone()),
         t: over.t.or(base.t),
@@ -489,6 +493,7 @@ fn preset(r: &RawRender) -> Preset {
         name: None,
         exr: r.exr.expect(MISSING),
         dng: r.dng.expect(MISSING),
+        ghost_map: r.ghost_map.expect(MISSING),
         films: names(&r.films),
         tonemaps: names(&r.tonemaps),
         t: r.t.expect(MISSING).0,

@@ -442,6 +442,19 @@ fn hdr_still_is_per_camera() {
     assert_eq!((line, key.as_str()), (2, "hdr_still"));
 }
 
+/// `ghost_map`: off by default, per camera over `[render]`.
+#[test]
+fn ghost_map_is_per_camera() {
+    let c = Config::from_str("", Some(Path::new("s.toml"))).unwrap();
+    assert!(!c.render.ghost_map);
+    let text = "[render]\nghost_map = true\n[camera.\"Canon EOS R5\"]\nghost_map = false\n";
+    let c = Config::from_str(text, Some(Path::new("s.toml"))).unwrap();
+    assert!(c.render.ghost_map);
+    assert!(!c.preset_for(Some("Canon EOS R5"), None).ghost_map);
+    let (line, _, key, _) = invalid("[render]\nghost_map = \"yes\"\n");
+    assert_eq!((line, key.as_str()), (2, "ghost_map"));
+}
+
 /// `colour_space`: sRGB by default, per camera over `[render]`, a bad name refused with
 /// the names it takes.
 #[test]
