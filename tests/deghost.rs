@@ -8,10 +8,10 @@ use std::path::Path;
 use filmback::deghost::{self, GhostMasks};
 use filmback::frame::{BitDepth, Frame};
 use filmback::merge::{self, BracketFrame, MergeOptions};
-use filmback::metadata::{Camera, CaptureTime};
+use filmback::metadata::Camera;
 use filmback::radiance::RadianceMap;
 use filmback::response::InverseResponse;
-use filmback::synthetic::{self, Encoding, ResponseCurve, Sensor, Shot, demo, expose, scene};
+use filmback::synthetic::{self, Encoding, ResponseCurve, Sensor, demo, expose, scene};
 
 use crate::common;
 
@@ -209,27 +209,11 @@ fn a_tone_curve_the_response_does_not_model_does_not_make_ghosts() {
     );
 }
 
-/// `frames` as PNGs in `dir` (1/60, 1/15 and 1/4 s, as [`EXPOSURES`]), merged by
-/// `filmback merge --ghost-map`: the ghost map read back, and the command's stderr.
+/// `frames` as PNGs in `dir` (1/250, 1/60 and 1/15 s: two stops apart, as
+/// [`EXPOSURES`]), merged by `filmback merge --ghost-map`: the ghost map read back, and
+/// the command's stderr.
 fn ghost_map(frames: &[Frame], dir: &Path) -> (Option<Vec<u8>>, String) {
-    let first = CaptureTime {
-        year: 2026,
-        month: 11,
-        day: 29,
-        hour: 9,
-        minute: 0,
-        second: 0,
-        nanos: None,
-        offset_minutes: None,
-    };
-    let shots = Shot::series(
-        &demo::camera("Ghost Body", None),
-        first,
-        &[1.0 / 60.0, 1.0 / 15.0, 0.25],
-        8.0,
-        100.0,
-        0.5,
-    );
+    let shots = demo::aeb("Ghost Body", None, 10);
     let paths: Vec<_> = frames
         .iter()
         .zip(&shots)

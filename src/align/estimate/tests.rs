@@ -16,17 +16,22 @@ fn level(log: impl Fn(usize, usize) -> f32) -> Level {
     Level::new(W, H, 1.0, values, vec![1.0; W * H])
 }
 
-/// The per-block and the cluster-robust spread of a homography at the identity between
-/// the texture and `moving`, and the residual's RMS.
-fn spreads(moving: &Level) -> (f64, f64, f64) {
-    let reference = level(|x, y| texture(x as f64, y as f64));
-    let geometry = Geometry::new(W as u32, H as u32);
+/// The texture's level, its geometry and a homography at the identity.
+fn at_identity() -> (Level, Geometry, State) {
     let state = State {
         motion: Motion::Homography,
         p: [0.0; 8],
         gain: 1.0,
         bias: 0.0,
     };
+    let reference = level(|x, y| texture(x as f64, y as f64));
+    (reference, Geometry::new(W as u32, H as u32), state)
+}
+
+/// The per-block and the cluster-robust spread of a homography at the identity between
+/// the texture and `moving`, and the residual's RMS.
+fn spreads(moving: &Level) -> (f64, f64, f64) {
+    let (reference, geometry, state) = at_identity();
     let n = state.params();
     let normal = accumulate(&reference, moving, &geometry, &state, n);
     let cells = accumulate_cells(&reference, moving, &geometry, &state, n);
@@ -98,14 +103,7 @@ fn falloff(x: usize, y: usize) -> f32 {
 
 /// The homography Gauss–Newton fits from the identity onto the texture.
 fn fitted(moving: &Level) -> (State, Geometry) {
-    let reference = level(|x, y| texture(x as f64, y as f64));
-    let geometry = Geometry::new(W as u32, H as u32);
-    let start = State {
-        motion: Motion::Homography,
-        p: [0.0; 8],
-        gain: 1.0,
-        bias: 0.0,
-    };
+    let (reference, geometry, start) = at_identity();
     let (state, _) = refine((&reference, moving), &geometry, start, Convergence::Final)
         .expect("the texture registers");
     (state, geometry)
