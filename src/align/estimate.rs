@@ -1458,9 +1458,12 @@ fn register(
         }
     }
     let finest = (&fixed.levels[0], &moving.levels[0]);
-    if let Some(why) = no_better_locally(finest, geometry, &state)
-        .or_else(|| insignificant(fixed, moving, geometry, &state))
-    {
+    let moved = geometry.displacement(&state.matrix());
+    let still = (moved >= IDENTITY_PX).then(|| {
+        no_better_locally(finest, geometry, &state, moved)
+            .or_else(|| insignificant(finest, geometry, &state, moved))
+    });
+    if let Some(why) = still.flatten() {
         return Ok(Registration {
             matrix: Matrix3::identity(),
             motion: Motion::Translation,
@@ -1474,22 +1477,17 @@ fn register(
     })
 }
 
-/// Why `state` counts as no move, when it moves some pixel by [`IDENTITY_PX`] or more but
-/// by no more than [`SIGNIFICANT_SPREADS`] cluster-robust standard deviations of its
-/// displacement on the finest level ([`robust_uncertainty_px`]): a frame registered on
+/// Why `state`, which moves some pixel by `moved` px, counts as no move, when that is no
+/// more than [`SIGNIFICANT_SPREADS`] cluster-robust standard deviations of its
+/// displacement on the finest levels ([`robust_uncertainty_px`]): a frame registered on
 /// blocks that crowd into part of it (a frame several stops from the other) fits its
 /// parameters to structure the residuals share, and a still frame would be resampled.
 fn insignificant(
-    fixed: &Pyramid,
-    moving: &Pyramid,
+    (fine_fixed, fine_moving): (&Level, &Level),
     geometry: &Geometry,
     state: &State,
+    moved: f64,
 ) -> Option<String> {
-    let moved = geometry.displacement(&state.matrix());
-    if moved < IDENTITY_PX {
-        return None;
-    }
-    let (fine_fixed, fine_moving) = (&fixed.levels[0], &moving.levels[0]);
     let params = state.params();
     let cells = accumulate_cells(fine_fixed, fine_moving, geometry, state, params);
     let spread = robust_uncertainty_px(&cells, params, geometry);
@@ -1501,8 +1499,8 @@ fn insignificant(
     })
 }
 
-/// Why `state` counts as no move, when it moves some pixel by [`IDENTITY_PX`] or more but
-/// fits the finest level better than the identity in too few cells of a [`CELLS`] ×
+/// Why `state`, which moves some pixel by `moved` px, counts as no move, when it fits the
+/// finest levels better than the identity in too few cells of a [`CELLS`] ×
 /// [`CELLS`] grid, each cell with its own gain and offset
 /// ([`Normal::fitted_mean_square`]). A sign test: were the frame still, each cell would
 /// be as likely to favour the state as not, so the state must win more than
@@ -1514,11 +1512,8 @@ fn no_better_locally(
     (fine_fixed, fine_moving): (&Level, &Level),
     geometry: &Geometry,
     state: &State,
+    moved: f64,
 ) -> Option<String> {
-    let moved = geometry.displacement(&state.matrix());
-    if moved < IDENTITY_PX {
-        return None;
-    }
     let unmoved = State {
         p: [0.0; 8],
         ..*state

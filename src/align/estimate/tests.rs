@@ -119,11 +119,12 @@ fn a_brightness_falloff_does_not_pass_for_a_move() {
     let (state, geometry) = fitted(&still);
     let moved = geometry.displacement(&state.matrix());
     assert!(moved >= IDENTITY_PX, "the falloff fits as {moved:.3} px");
-    let why = no_better_locally((&reference, &still), &geometry, &state);
+    let why = no_better_locally((&reference, &still), &geometry, &state, moved);
     assert!(why.is_some(), "a move of {moved:.3} px kept");
 
     let shifted = level(|x, y| texture(x as f64 + 0.4, y as f64) + falloff(x, y));
     let (state, geometry) = fitted(&shifted);
-    let why = no_better_locally((&reference, &shifted), &geometry, &state);
+    let moved = geometry.displacement(&state.matrix());
+    let why = no_better_locally((&reference, &shifted), &geometry, &state, moved);
     assert_eq!(why, None, "{state:?}");
 }
