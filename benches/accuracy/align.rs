@@ -27,9 +27,9 @@
 //! scene best and is the reference, the brightest is four stops from it): three sizes, a
 //! noiseless sensor (the demo's) and one with shot and read noise, scenes of seeds 60–65
 //! (held out: the rules for still frames were chosen on seeds 1–16 at 1400×1000, seeds
-//! 20–25 and 40–45 and the demo's scene). How many of the frames other than the reference alignment resamples
-//! (one response fitted per bracket, as the pipeline fits it), and the largest move it
-//! found.
+//! 20–25 and 40–45 and the demo's scene). How many of the frames other than the
+//! reference alignment resamples (one response fitted per bracket, as the pipeline fits
+//! it), and the largest move it found.
 //!
 //! `cargo bench --bench align -- [accuracy | still | speed] [--runs N] [--only LABEL]`
 

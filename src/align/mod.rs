@@ -65,11 +65,12 @@
 //! pair shares too few blocks to refine on, the pair is tried again on its finer levels
 //! alone, the coarse search's shift carried down to them; then onto whichever of the
 //! reference and that nearer frame shares more of the finest level's blocks with it first
-//! (a registration on a small share fits structure the shared blocks happen to have). Where neither works, each pair is
-//! compared again as the log radiance both frames could have measured: every block clamped
-//! to the range of log radiance both measure, so a window or a sky clipped in one frame and
-//! exposed beyond that range in the other lies at the range's top in both and its edges
-//! register (a median threshold bitmap's idea, with the response's ranges for the median).
+//! (a registration on a small share fits structure the shared blocks happen to have).
+//! Where neither works, each pair is compared again as the log radiance both frames could
+//! have measured: every block clamped to the range of log radiance both measure, so a
+//! window or a sky clipped in one frame and exposed beyond that range in the other lies at
+//! the range's top in both and its edges register (a median threshold bitmap's idea, with
+//! the response's ranges for the median).
 //! Such a registration is kept only if refining it on the blocks both frames measure well
 //! moves it by at most a pixel (or three standard deviations of the refinement): flare and
 //! a camera's local tone mapping move clipped edges too. The note says which way a frame

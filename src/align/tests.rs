@@ -410,7 +410,7 @@ fn a_glow_in_one_frame_does_not_pass_for_a_move() {
 }
 
 /// A tripod nudged by a fifth of a pixel: both outer frames are still found moved (the
-/// cells' sign test passes a real move however small) and within a tenth of a pixel.
+/// cells' sign test passes a real sub-pixel move) and within a tenth of a pixel.
 #[test]
 fn a_nudge_of_a_fifth_of_a_pixel_is_kept() {
     let scene = scene(3);
