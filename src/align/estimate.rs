@@ -369,12 +369,108 @@ struct Blocks {
     range: (f32, f32),
 }
 
+/// One row of blocks of the finest level as its pixel rows are read: per pixel column,
+/// the sums over the rows read so far of the linear value and the weight, and how many
+/// of its pixels were usable and how many bright (unusable, above the range's geometric
+/// mean). Summing down the columns runs over whole rows, which the compiler vectorises;
+/// the blocks then add up their `step` columns.
+struct BlockRow {
+    value: Vec<f32>,
+    weight: Vec<f32>,
+    usable: Vec<u32>,
+    bright: Vec<u32>,
+    /// Scratch: the row being read (values and weights, the image's full width).
+    row: (Vec<f32>, Vec<f32>),
+}
+
+impl BlockRow {
+    /// Sums for `columns` pixel columns (the blocks' width) of an image `width` wide.
+    fn new(columns: usize, width: usize) -> BlockRow {
+        BlockRow {
+            value: vec![0.0; columns],
+            weight: vec![0.0; columns],
+            usable: vec![0; columns],
+            bright: vec![0; columns],
+            row: (vec![0.0; width], vec![0.0; width]),
+        }
+    }
+
+    fn clear(&mut self) {
+        self.value.fill(0.0);
+        self.weight.fill(0.0);
+        self.usable.fill(0);
+        self.bright.fill(0);
+    }
+
+    /// Pixel row `y`, read by `row` (as [`Pyramid::from_rows`] takes it), added in; a
+    /// pixel unusable at a value of `middle` or more counts as bright.
+    fn add<F: Fn(usize, &mut [f32], &mut [f32])>(&mut self, y: usize, row: &F, middle: f32) {
+        let (values, weights) = &mut self.row;
+        row(y, values, weights);
+        let sums = self.value.iter_mut().zip(self.weight.iter_mut());
+        let counts = self.usable.iter_mut().zip(self.bright.iter_mut());
+        for (((sum, wsum), (usable, bright)), (&v, &o)) in
+            sums.zip(counts).zip(values.iter().zip(weights.iter()))
+        {
+            (*sum, *wsum) = (*sum + v, *wsum + o);
+            *usable += u32::from(o > 0.0);
+            *bright += u32::from((o <= 0.0) & (v >= middle));
+        }
+    }
+
+    /// Each block of `step × step` pixels (its `step` rows added): its log radiance
+    /// `ln(mean) − log_e`, its weight (the pixels' mean weight when it is
+    /// [`Tone::Measured`], else 0) and its tone, into the three rows.
+    fn finish(
+        &self,
+        step: usize,
+        log_e: f32,
+        (log, weight, tone): (&mut [f32], &mut [f32], &mut [Tone]),
+    ) {
+        let all = (step * step) as u32;
+        let area = all as f32;
+        let blocks = |v: &[f32]| {
+            v.chunks_exact(step)
+                .map(|c| c.iter().sum::<f32>())
+                .collect::<Vec<_>>()
+        };
+        let counts = |v: &[u32]| {
+            v.chunks_exact(step)
+                .map(|c| c.iter().sum::<u32>())
+                .collect::<Vec<_>>()
+        };
+        let (sums, wsums) = (blocks(&self.value), blocks(&self.weight));
+        let counted = counts(&self.usable).into_iter().zip(counts(&self.bright));
+        for (((l, wt), t), ((sum, wsum), (usable, bright))) in log
+            .iter_mut()
+            .zip(weight.iter_mut())
+            .zip(tone.iter_mut())
+            .zip(sums.into_iter().zip(wsums).zip(counted))
+        {
+            let mean = sum / area;
+            *t = match (usable, bright, all - usable - bright) {
+                (n, _, _) if n == all && mean > 0.0 => Tone::Measured,
+                (_, 0, _) => Tone::Dark,
+                (_, _, 0) => Tone::Bright,
+                _ => Tone::Mixed,
+            };
+            *wt = if *t == Tone::Measured {
+                wsum / area
+            } else {
+                0.0
+            };
+            *l = mean.max(1e-12).ln() - log_e;
+        }
+    }
+}
+
 /// The least span, in natural-log units (one stop), of log radiance two frames must both
 /// measure for [`Pyramid::clipped_alike`] to compare them.
 const LEAST_COMMON_SPAN: f32 = std::f32::consts::LN_2;
 
-/// Codes to linear values and weights, per code and channel `g(B)` and per code its
-/// [`log_weight`]: what [`Pyramid::from_rows`] and the full-resolution refinement read.
+/// Codes to linear values and weights, per code and channel `g(B)/C` (`C` channels, so a
+/// pixel's mean is the sum of its channels' entries) and per code its [`log_weight`]:
+/// what [`Pyramid::from_rows`] and the full-resolution refinement read.
 pub(super) struct Convert {
     tables: Vec<Vec<f32>>,
     weight_of: Vec<f32>,
@@ -388,12 +484,16 @@ impl Convert {
     /// The tables of frames of `channels` channels at `depth` through `response`.
     pub(super) fn new(response: &InverseResponse, depth: BitDepth, channels: usize) -> Convert {
         let levels = depth.levels();
+        let share = 1.0 / channels as f32;
         let tables: Vec<Vec<f32>> = (0..channels)
-            .map(|ch| response.table(ch.min(response.channels() - 1), levels))
+            .map(|ch| {
+                let table = response.table(ch.min(response.channels() - 1), levels);
+                table.into_iter().map(|g| g * share).collect()
+            })
             .collect();
         let max = depth.max_code() as f32;
         let (low, high) = super::well_exposed_codes(depth.max_code());
-        let mean_at = |k: u32| tables.iter().map(|t| t[k as usize]).sum::<f32>() / channels as f32;
+        let mean_at = |k: u32| tables.iter().map(|t| t[k as usize]).sum::<f32>();
         let range = (mean_at(low), mean_at(high));
         let weight_of: Vec<f32> = (0..levels).map(|k| log_weight(k as f32 / max)).collect();
         let first = weight_of
@@ -418,7 +518,7 @@ impl Convert {
             sum += table[k];
             worst = worst.min(self.weight_of[k]);
         }
-        (sum / self.tables.len() as f32, worst)
+        (sum, worst)
     }
 
     /// A row of pixels (`codes`, channels interleaved) as [`Convert::pixel`] gives them.
@@ -446,7 +546,7 @@ impl Convert {
                 sum += table[k];
                 (low, high) = (low.min(k), high.max(k));
             }
-            *value = sum / C as f32;
+            *value = sum;
             *weight = if low >= first && high <= last {
                 self.weight_of[low]
             } else {
@@ -489,10 +589,8 @@ impl Pyramid {
     /// fills with linear values (≥ 0) and their [`log_weight`]s (0: not usable), at
     /// relative `exposure`; `range` is the linear values that bound the usable ones (an
     /// unusable pixel is bright above their geometric mean, dark below it). A block's
-    /// weight is its pixels' mean, 0 unless all are usable.
-    ///
-    /// Kept whole: one parallel pass over rows of blocks, whose closure fills three
-    /// outputs from three scratch rows; split, each part would take most of them.
+    /// weight is its pixels' mean, 0 unless all are usable. Rows of blocks are summed in
+    /// parallel ([`BlockRow`]).
     pub(super) fn from_rows<F>(
         width: usize,
         height: usize,
@@ -510,65 +608,18 @@ impl Pyramid {
         let mut log = vec![0f32; lw * lh];
         let mut weight = vec![0f32; lw * lh];
         let mut tone = vec![Tone::Mixed; lw * lh];
-        let area = (step * step) as f32;
         log.par_chunks_mut(lw.max(1))
             .zip(weight.par_chunks_mut(lw.max(1)))
             .zip(tone.par_chunks_mut(lw.max(1)))
             .enumerate()
             .for_each_init(
-                || (vec![0f32; width], vec![0f32; width], vec![0f32; lw]),
-                |(values, weights, sums), (j, ((log_row, weight_row), tone_row))| {
-                    sums.fill(0.0);
-                    weight_row.fill(0.0);
-                    // Per block: pixels usable, bright, dark.
-                    let mut counts = vec![(0usize, 0usize, 0usize); lw];
+                || BlockRow::new(lw * step, width),
+                |blocks, (j, ((log_row, weight_row), tone_row))| {
+                    blocks.clear();
                     for y in j * step..(j + 1) * step {
-                        row(y, values, weights);
-                        for (i, ((sum, wsum), count)) in sums
-                            .iter_mut()
-                            .zip(weight_row.iter_mut())
-                            .zip(counts.iter_mut())
-                            .enumerate()
-                        {
-                            let block = i * step..(i + 1) * step;
-                            let (mut s, mut ws) = (0.0f32, 0.0f32);
-                            let (mut usable, mut bright) = (0, 0);
-                            for (&v, &o) in values[block.clone()].iter().zip(&weights[block]) {
-                                (s, ws) = (s + v, ws + o);
-                                usable += usize::from(o > 0.0);
-                                bright += usize::from(o <= 0.0 && v >= middle);
-                            }
-                            (*sum, *wsum) = (*sum + s, *wsum + ws);
-                            *count = (
-                                count.0 + usable,
-                                count.1 + bright,
-                                count.2 + step - usable - bright,
-                            );
-                        }
+                        blocks.add(y, &row, middle);
                     }
-                    let all = step * step;
-                    debug_assert!(counts.iter().all(|c| c.0 + c.1 + c.2 == all));
-                    for ((((l, wt), t), &sum), &count) in log_row
-                        .iter_mut()
-                        .zip(weight_row.iter_mut())
-                        .zip(tone_row.iter_mut())
-                        .zip(&*sums)
-                        .zip(&counts)
-                    {
-                        let mean = sum / area;
-                        *t = match count {
-                            (n, _, _) if n == all && mean > 0.0 => Tone::Measured,
-                            (_, 0, _) => Tone::Dark,
-                            (_, _, 0) => Tone::Bright,
-                            _ => Tone::Mixed,
-                        };
-                        *wt = if *t == Tone::Measured {
-                            *wt / area
-                        } else {
-                            0.0
-                        };
-                        *l = mean.max(1e-12).ln() - log_e;
-                    }
+                    blocks.finish(step, log_e, (log_row, weight_row, tone_row));
                 },
             );
         let log_range = (

@@ -93,6 +93,14 @@ pub(in crate::align) struct FullFrame<'a> {
     samples: OnceLock<Vec<Sample>>,
 }
 
+/// A row of a [`Picture`]: per pixel its value and weight, and whether it is well exposed
+/// (both above 0).
+struct Line {
+    values: Vec<f32>,
+    weights: Vec<f32>,
+    usable: Vec<bool>,
+}
+
 /// A reference pixel the refinement compares: its position, log radiance and weight.
 #[derive(Debug, Clone, Copy)]
 struct Sample {
@@ -112,12 +120,22 @@ impl<'a> FullFrame<'a> {
         }
     }
 
-    /// The picture's row `y`: values and weights.
-    fn row(&self, y: usize) -> (Vec<f32>, Vec<f32>) {
+    /// The picture's row `y`.
+    fn row(&self, y: usize) -> Line {
         let w = self.picture.size().0;
         let (mut values, mut weights) = (vec![0.0; w], vec![0.0; w]);
         self.picture.row(y, &mut values, &mut weights);
-        (values, weights)
+        // `&` rather than `&&` keeps the loop branch-free.
+        let usable = values
+            .iter()
+            .zip(&weights)
+            .map(|(&v, &o)| (o > 0.0) & (v > 0.0))
+            .collect();
+        Line {
+            values,
+            weights,
+            usable,
+        }
     }
 
     /// The samples, chosen on first use.
@@ -150,7 +168,7 @@ impl<'a> FullFrame<'a> {
         // Pixel rows rows.start − 1 ..= rows.end (clamped): values and weights.
         let first = rows.start.saturating_sub(1);
         let last = rows.end.min(h - 1);
-        let read: Vec<(Vec<f32>, Vec<f32>)> = (first..=last).map(|y| self.row(y)).collect();
+        let read: Vec<Line> = (first..=last).map(|y| self.row(y)).collect();
         // Per cell: the steepest pixel so far (steepness ≥ 0 beats the start, -1).
         let mut best = vec![(-1.0f32, 0usize, 0usize); w / n];
         let mut steep = vec![-1.0f32; w];
@@ -169,12 +187,12 @@ impl<'a> FullFrame<'a> {
         best.into_iter()
             .filter(|&(s, _, _)| s >= 0.0)
             .map(|(_, x, y)| {
-                let (values, weights) = &read[y - first];
+                let line = &read[y - first];
                 Sample {
                     x: x as u32,
                     y: y as u32,
-                    log: values[x].ln() - self.log_e,
-                    weight: weights[x],
+                    log: line.values[x].ln() - self.log_e,
+                    weight: line.weights[x],
                 }
             })
             .collect()
@@ -222,31 +240,28 @@ impl<'a> FullFrame<'a> {
 /// of the middle row of `above`, `middle`, `below` (values and weights) into `out`, -1
 /// where it or one of its four neighbours is not well exposed (weight or value 0) and at
 /// the row's ends.
-fn steepness(
-    above: &(Vec<f32>, Vec<f32>),
-    middle: &(Vec<f32>, Vec<f32>),
-    below: &(Vec<f32>, Vec<f32>),
-    out: &mut [f32],
-) {
+fn steepness(above: &Line, middle: &Line, below: &Line, out: &mut [f32]) {
     let w = out.len();
-    let usable =
-        |(values, weights): &(Vec<f32>, Vec<f32>), x: usize| weights[x] > 0.0 && values[x] > 0.0;
+    let inner = middle
+        .values
+        .windows(3)
+        .zip(middle.usable.windows(3))
+        .zip(above.values[1..].iter().zip(&above.usable[1..]))
+        .zip(below.values[1..].iter().zip(&below.usable[1..]))
+        .map(|(((m, here), (&up, &up_ok)), (&down, &down_ok))| {
+            let around = here[0] & here[1] & here[2] & up_ok & down_ok;
+            let (gx, gy) = (m[2] - m[0], down - up);
+            if around {
+                (gx * gx + gy * gy) / (m[1] * m[1])
+            } else {
+                -1.0
+            }
+        });
+    for (o, s) in out[1..w - 1].iter_mut().zip(inner) {
+        *o = s;
+    }
     out[0] = -1.0;
     out[w - 1] = -1.0;
-    for x in 1..w - 1 {
-        let around = usable(middle, x)
-            && usable(middle, x - 1)
-            && usable(middle, x + 1)
-            && usable(above, x)
-            && usable(below, x);
-        let m = &middle.0;
-        let (gx, gy) = (m[x + 1] - m[x - 1], below.0[x] - above.0[x]);
-        out[x] = if around {
-            (gx * gx + gy * gy) / (m[x] * m[x])
-        } else {
-            -1.0
-        };
-    }
 }
 
 /// The normal equations of the residual `gain·L_k(T·x) + bias − L_ref(x)` over the
