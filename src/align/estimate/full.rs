@@ -110,6 +110,80 @@ struct Sample {
     weight: f32,
 }
 
+/// A copy of a frame's pixels (value and weight) in the square of [`Patch::SIDE`] pixels
+/// whose top-left pixel is `(x, y)`.
+#[derive(Clone, Copy)]
+struct Patch {
+    x: usize,
+    y: usize,
+    pixels: [(f32, f32); Patch::SIDE * Patch::SIDE],
+}
+
+impl Patch {
+    /// Pixels on a side: the four of a bilinear sample, and one more on every side.
+    const SIDE: usize = 4;
+
+    /// The square around the pixel `(x, y)` of `picture` (one pixel left of it and above
+    /// it, moved inside the picture).
+    fn around(picture: &dyn Picture, x: usize, y: usize) -> Patch {
+        let (w, h) = picture.size();
+        let (x, y) = (
+            x.saturating_sub(1).min(w - Self::SIDE),
+            y.saturating_sub(1).min(h - Self::SIDE),
+        );
+        let pixels = std::array::from_fn(|i| picture.pixel(x + i % Self::SIDE, y + i / Self::SIDE));
+        Patch { x, y, pixels }
+    }
+
+    /// The pixels `(x0, y0)`, `(x0 + 1, y0)`, `(x0, y0 + 1)`, `(x0 + 1, y0 + 1)`, when
+    /// the copy holds all four.
+    fn quad(&self, x0: usize, y0: usize) -> Option<[(f32, f32); 4]> {
+        let (dx, dy) = (x0.checked_sub(self.x)?, y0.checked_sub(self.y)?);
+        if dx + 1 >= Self::SIDE || dy + 1 >= Self::SIDE {
+            return None;
+        }
+        let i = dy * Self::SIDE + dx;
+        let p = &self.pixels;
+        Some([p[i], p[i + 1], p[i + Self::SIDE], p[i + Self::SIDE + 1]])
+    }
+}
+
+/// The frame registered, as the reference's samples see it: per sample, a [`Patch`]
+/// around where a state sends it. The refinement moves a sample by a fraction of a pixel,
+/// so its passes read these copies in the samples' order rather than the frame's rows
+/// at scattered places (which made them wait on memory).
+struct Seen<'f, 'a> {
+    frame: &'f FullFrame<'a>,
+    copies: Vec<Patch>,
+}
+
+impl<'f, 'a> Seen<'f, 'a> {
+    /// `frame` where `state` sends each of `reference`'s samples.
+    fn at(
+        reference: &FullFrame<'_>,
+        frame: &'f FullFrame<'a>,
+        geometry: &Geometry,
+        state: &State,
+    ) -> Self {
+        let m = state.matrix();
+        let step = reference.picture.step() as f64;
+        let (w, h) = frame.picture.size();
+        let copies = reference
+            .samples()
+            .par_iter()
+            .map(|s| {
+                let (u, v) = geometry.to_normalised(step, f64::from(s.x), f64::from(s.y));
+                let p = m * Vector3::new(u, v, 1.0);
+                let (x, y) = geometry.to_level(step, p.x / p.z, p.y / p.z);
+                // Off the frame (or not a number): any square; the sample is refused.
+                let at = |c: f64, n: usize| if c >= 0.0 { (c as usize).min(n) } else { 0 };
+                Patch::around(frame.picture, at(x, w), at(y, h))
+            })
+            .collect();
+        Seen { frame, copies }
+    }
+}
+
 impl<'a> FullFrame<'a> {
     /// `picture` of a frame at relative `exposure`.
     pub(in crate::align) fn new(picture: &'a dyn Picture, exposure: f64) -> Self {
@@ -201,8 +275,8 @@ impl<'a> FullFrame<'a> {
     /// The log radiance `ln m − ln e` at image position `(x, y)` (`m` the bilinear
     /// interpolation of the four image pixels' linear values), its gradient `∇m/m` per
     /// image pixel (of the interpolating patch) and the interpolated weight, when the four
-    /// pixels are well exposed.
-    fn sample(&self, x: f64, y: f64) -> Option<(f64, f64, f64, f64)> {
+    /// pixels are well exposed; the four read from `copy` when it holds them.
+    fn sample(&self, x: f64, y: f64, copy: &Patch) -> Option<(f64, f64, f64, f64)> {
         let (w, h) = self.picture.size();
         if !(x >= 0.0 && y >= 0.0) {
             return None;
@@ -211,12 +285,14 @@ impl<'a> FullFrame<'a> {
         if x0 + 1 >= w || y0 + 1 >= h {
             return None;
         }
-        let quad = [
-            self.picture.pixel(x0, y0),
-            self.picture.pixel(x0 + 1, y0),
-            self.picture.pixel(x0, y0 + 1),
-            self.picture.pixel(x0 + 1, y0 + 1),
-        ];
+        let quad = copy.quad(x0, y0).unwrap_or_else(|| {
+            [
+                self.picture.pixel(x0, y0),
+                self.picture.pixel(x0 + 1, y0),
+                self.picture.pixel(x0, y0 + 1),
+                self.picture.pixel(x0 + 1, y0 + 1),
+            ]
+        });
         if quad.iter().any(|&(_, weight)| weight <= 0.0) {
             return None;
         }
@@ -270,7 +346,7 @@ fn steepness(above: &Line, middle: &Line, below: &Line, out: &mut [f32]) {
 /// sums added in order: the same sums however the threads share the work.
 fn accumulate(
     reference: &FullFrame<'_>,
-    moving: &FullFrame<'_>,
+    moving: &Seen<'_, '_>,
     geometry: &Geometry,
     state: &State,
     motion: usize,
@@ -281,13 +357,14 @@ fn accumulate(
     let groups: Vec<Normal> = reference
         .samples()
         .par_chunks(SAMPLES_PER_GROUP)
-        .map(|group| {
+        .zip(moving.copies.par_chunks(SAMPLES_PER_GROUP))
+        .map(|(group, copies)| {
             let mut acc = Normal::zero();
-            for s in group {
+            for (s, copy) in group.iter().zip(copies) {
                 let (u, v) = geometry.to_normalised(step, f64::from(s.x), f64::from(s.y));
                 let p = m * Vector3::new(u, v, 1.0);
                 let (x, y) = geometry.to_level(step, p.x / p.z, p.y / p.z);
-                let Some((value, gx, gy, weight)) = moving.sample(x, y) else {
+                let Some((value, gx, gy, weight)) = moving.frame.sample(x, y, copy) else {
                     continue;
                 };
                 let seen = (value, gx * to_image, gy * to_image, weight);
@@ -312,6 +389,7 @@ pub(super) fn refine(
     state: State,
     step: f64,
 ) -> State {
+    let moving = &Seen::at(reference, moving, geometry, &state);
     if state.motion != Motion::Homography || reference.picture.refines_perspective() {
         return refined(reference, moving, geometry, state, step).0;
     }
@@ -334,7 +412,7 @@ pub(super) fn refine(
 /// its model.
 fn fitted(
     reference: &FullFrame<'_>,
-    moving: &FullFrame<'_>,
+    moving: &Seen<'_, '_>,
     geometry: &Geometry,
     state: State,
 ) -> (State, Normal) {
@@ -355,7 +433,7 @@ fn fitted(
 /// system), `state` (with an infinite residual when the refinement failed).
 fn refined(
     reference: &FullFrame<'_>,
-    moving: &FullFrame<'_>,
+    moving: &Seen<'_, '_>,
     geometry: &Geometry,
     state: State,
     step: f64,
@@ -381,3 +459,6 @@ fn refined(
         (state, before)
     }
 }
+
+#[cfg(test)]
+mod tests;
