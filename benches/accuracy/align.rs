@@ -18,7 +18,8 @@
 //!
 //! **Cost.** `align::align` and `align::warp_frames` on three 6000×4000 8-bit frames two
 //! stops apart (the synthetic procedural scene), the two other than the reference moved
-//! as a handheld bracket; best of `--runs N` (default 3). Each frame's found and true
+//! as a handheld bracket, and `align::align` on the same frames unmoved (a tripod
+//! bracket); best of `--runs N` (default 3). Each frame's found and true
 //! transform are printed, and the merge's error as above (against the merge of the
 //! frames before the move): unaligned, aligned, and with the move undone.
 //!
@@ -448,11 +449,11 @@ fn speed(runs: usize) {
     };
     let exposures = [0.25, 1.0, 4.0];
     // As in `accuracy`: the frame alignment registers the others onto stays where it is.
-    let still: Vec<Frame> = exposures
+    let still: Vec<(Frame, f64)> = exposures
         .iter()
-        .map(|&e| expose(&radiance, e, &sensor))
+        .map(|&e| (expose(&radiance, e, &sensor), e))
         .collect();
-    let reference = align::choose_reference(&still.iter().collect::<Vec<_>>());
+    let reference = align::choose_reference(&still.iter().map(|(f, _)| f).collect::<Vec<_>>());
     let mut outer = common::MOVES[1].outer.iter();
     // Reference pixel → moved frame's pixel: the moved camera sees the scene moved.
     let moves: Vec<Option<[[f64; 3]; 3]>> = (0..exposures.len())
@@ -463,31 +464,45 @@ fn speed(runs: usize) {
         .collect();
     let frames: Vec<(Frame, f64)> = still
         .iter()
-        .zip(exposures.iter().zip(&moves))
-        .map(|(f, (&e, t))| match t {
-            None => (f.clone(), e),
+        .zip(&moves)
+        .map(|((f, e), t)| match t {
+            None => (f.clone(), *e),
             Some(t) => {
                 let seen = synthetic::moved(&radiance, t).expect("an invertible move");
-                (expose(&seen, e, &sensor), e)
+                (expose(&seen, *e, &sensor), *e)
             }
         })
         .collect();
-    let views = views(&frames);
+    let (moved, tripod) = (views(&frames), views(&still));
     let g = InverseResponse::srgb(3, 1024);
-    let alignment = align::align(&views, &g, AlignMode::Auto);
+    let alignment = align::align(&moved, &g, AlignMode::Auto);
     let estimate = common::best_of(runs, &|| {
-        align::align(&views, &g, AlignMode::Auto);
+        align::align(&moved, &g, AlignMode::Auto);
     });
     let warp = common::best_of(runs, &|| {
-        align::warp_frames(&views, &alignment);
+        align::warp_frames(&moved, &alignment);
+    });
+    let unmoved = align::align(&tripod, &g, AlignMode::Auto);
+    assert!(
+        unmoved.frames.iter().all(|f| f.motion.is_none()),
+        "a still frame moved: {unmoved:?}"
+    );
+    let estimate_still = common::best_of(runs, &|| {
+        align::align(&tripod, &g, AlignMode::Auto);
     });
     println!("wall time, and CPU time of all threads in parentheses");
-    println!("| step | handheld move |");
-    println!("|---|---|");
-    let row =
-        |name: &str, (wall, cpu): (f64, f64)| println!("| {name} | {wall:.3} s ({cpu:.2} s) |");
-    row("`align::align` (estimation)", estimate);
-    row("`align::warp_frames` (two frames)", warp);
+    println!("| step | handheld move | tripod (no move) |");
+    println!("|---|---|---|");
+    let cell = |(wall, cpu): (f64, f64)| format!("{wall:.3} s ({cpu:.2} s)");
+    println!(
+        "| `align::align` (estimation) | {} | {} |",
+        cell(estimate),
+        cell(estimate_still)
+    );
+    println!(
+        "| `align::warp_frames` (two frames) | {} | nothing to resample |",
+        cell(warp)
+    );
     for (k, f) in alignment.frames.iter().enumerate() {
         let ((dx, dy), angle) = f.shift_and_rotation(w, h);
         let truth = moves[k].map_or_else(String::new, |t| {
@@ -503,7 +518,6 @@ fn speed(runs: usize) {
             f.motion, f.note
         );
     }
-    let still: Vec<(Frame, f64)> = still.into_iter().zip(exposures).collect();
     merge_errors(&still, &frames, &moves, reference, &g);
 }
 
