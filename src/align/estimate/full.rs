@@ -151,7 +151,7 @@ impl Patch {
 /// The frame registered, as the reference's samples see it: per sample, a [`Patch`]
 /// around where a state sends it. The refinement moves a sample by a fraction of a pixel,
 /// so its passes read these copies in the samples' order rather than the frame's rows
-/// at scattered places (which made them wait on memory).
+/// at scattered places, which wait on memory.
 struct Seen<'f, 'a> {
     frame: &'f FullFrame<'a>,
     copies: Vec<Patch>,
@@ -239,7 +239,7 @@ impl<'a> FullFrame<'a> {
     /// rows are scanned in order, each cell keeping its first steepest pixel.
     fn choose_in_row(&self, rows: std::ops::Range<usize>, n: usize) -> Vec<Sample> {
         let (w, h) = self.picture.size();
-        // Pixel rows rows.start − 1 ..= rows.end (clamped): values and weights.
+        // Pixel rows rows.start − 1 ..= rows.end (clamped).
         let first = rows.start.saturating_sub(1);
         let last = rows.end.min(h - 1);
         let read: Vec<Line> = (first..=last).map(|y| self.row(y)).collect();
@@ -313,7 +313,7 @@ impl<'a> FullFrame<'a> {
 }
 
 /// The steepness `|∇m|²/m²` (central differences of the linear means `m`) of each pixel
-/// of the middle row of `above`, `middle`, `below` (values and weights) into `out`, -1
+/// of the middle row of `above`, `middle`, `below` (three lines) into `out`, -1
 /// where it or one of its four neighbours is not well exposed (weight or value 0) and at
 /// the row's ends.
 fn steepness(above: &Line, middle: &Line, below: &Line, out: &mut [f32]) {
