@@ -429,24 +429,22 @@ impl BlockRow {
     ) {
         let all = (step * step) as u32;
         let area = all as f32;
-        let blocks = |v: &[f32]| {
-            v.chunks_exact(step)
-                .map(|c| c.iter().sum::<f32>())
-                .collect::<Vec<_>>()
-        };
-        let counts = |v: &[u32]| {
-            v.chunks_exact(step)
-                .map(|c| c.iter().sum::<u32>())
-                .collect::<Vec<_>>()
-        };
-        let (sums, wsums) = (blocks(&self.value), blocks(&self.weight));
-        let counted = counts(&self.usable).into_iter().zip(counts(&self.bright));
-        for (((l, wt), t), ((sum, wsum), (usable, bright))) in log
+        let sums = self
+            .value
+            .chunks_exact(step)
+            .zip(self.weight.chunks_exact(step));
+        let counts = self
+            .usable
+            .chunks_exact(step)
+            .zip(self.bright.chunks_exact(step));
+        for (((l, wt), t), ((value, wsum), (usable, bright))) in log
             .iter_mut()
             .zip(weight.iter_mut())
             .zip(tone.iter_mut())
-            .zip(sums.into_iter().zip(wsums).zip(counted))
+            .zip(sums.zip(counts))
         {
+            let (sum, wsum) = (value.iter().sum::<f32>(), wsum.iter().sum::<f32>());
+            let (usable, bright) = (usable.iter().sum::<u32>(), bright.iter().sum::<u32>());
             let mean = sum / area;
             *t = match (usable, bright, all - usable - bright) {
                 (n, _, _) if n == all && mean > 0.0 => Tone::Measured,

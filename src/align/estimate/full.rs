@@ -5,7 +5,7 @@
 
 use std::sync::OnceLock;
 
-use nalgebra::Vector3;
+use nalgebra::{Matrix3, Vector3};
 use rayon::prelude::*;
 
 use super::{Convergence, Convert, Geometry, Motion, Normal, State, damped, solve};
@@ -110,6 +110,23 @@ struct Sample {
     weight: f32,
 }
 
+impl Sample {
+    /// Where `m` sends this sample of a picture of `step` pixels per image pixel: its
+    /// normalised coordinates `(u, v)`, their image `p = m·(u, v, 1)ᵀ`, and that image in
+    /// the picture's pixels.
+    fn landing(
+        &self,
+        geometry: &Geometry,
+        step: f64,
+        m: &Matrix3<f64>,
+    ) -> ((f64, f64, Vector3<f64>), (f64, f64)) {
+        let (u, v) = geometry.to_normalised(step, f64::from(self.x), f64::from(self.y));
+        let p = m * Vector3::new(u, v, 1.0);
+        let at = geometry.to_level(step, p.x / p.z, p.y / p.z);
+        ((u, v, p), at)
+    }
+}
+
 /// A copy of a frame's pixels (value and weight) in the square of [`Patch::SIDE`] pixels
 /// whose top-left pixel is `(x, y)`.
 #[derive(Clone, Copy)]
@@ -172,9 +189,7 @@ impl<'f, 'a> Seen<'f, 'a> {
             .samples()
             .par_iter()
             .map(|s| {
-                let (u, v) = geometry.to_normalised(step, f64::from(s.x), f64::from(s.y));
-                let p = m * Vector3::new(u, v, 1.0);
-                let (x, y) = geometry.to_level(step, p.x / p.z, p.y / p.z);
+                let (_, (x, y)) = s.landing(geometry, step, &m);
                 // Off the frame (or not a number): any square; the sample is refused.
                 let at = |c: f64, n: usize| if c >= 0.0 { (c as usize).min(n) } else { 0 };
                 Patch::around(frame.picture, at(x, w), at(y, h))
@@ -361,9 +376,7 @@ fn accumulate(
         .map(|(group, copies)| {
             let mut acc = Normal::zero();
             for (s, copy) in group.iter().zip(copies) {
-                let (u, v) = geometry.to_normalised(step, f64::from(s.x), f64::from(s.y));
-                let p = m * Vector3::new(u, v, 1.0);
-                let (x, y) = geometry.to_level(step, p.x / p.z, p.y / p.z);
+                let ((u, v, p), (x, y)) = s.landing(geometry, step, &m);
                 let Some((value, gx, gy, weight)) = moving.frame.sample(x, y, copy) else {
                     continue;
                 };
