@@ -450,34 +450,36 @@ pub(super) fn exposure_weight(b: f64) -> f64 {
 
 /// The score [`choose_reference`] ranks frames by.
 fn well_exposed_score(frame: &Frame) -> f64 {
-    let (w, h, c) = (
-        frame.width() as usize,
-        frame.height() as usize,
-        frame.channels(),
-    );
-    let max = f64::from(frame.bit_depth().max_code());
-    // Row sums in parallel, added in row order (the same score on every call).
-    let score = |codes: &(dyn Fn(usize) -> u32 + Sync)| {
-        let rows: Vec<f64> = (0..h)
-            .into_par_iter()
-            .step_by(REFERENCE_STRIDE)
-            .map(|y| {
-                let mut sum = 0.0;
-                for x in (0..w).step_by(REFERENCE_STRIDE) {
-                    let i = (y * w + x) * c;
-                    sum += (i..i + c)
-                        .map(|s| exposure_weight(f64::from(codes(s)) / max))
-                        .fold(1.0, f64::min);
-                }
-                sum
-            })
-            .collect();
-        rows.iter().sum::<f64>()
-    };
+    let max = frame.bit_depth().max_code();
+    let weights: Vec<f64> = (0..=max)
+        .map(|code| exposure_weight(f64::from(code) / f64::from(max)))
+        .collect();
     match frame.samples() {
-        Samples::Eight(v) => score(&|i| u32::from(v[i])),
-        Samples::Sixteen(v) => score(&|i| u32::from(v[i])),
+        Samples::Eight(v) => weighted_sum(frame, v, &weights),
+        Samples::Sixteen(v) => weighted_sum(frame, v, &weights),
     }
+}
+
+/// Over every [`REFERENCE_STRIDE`]-th pixel of every such row of `frame` (its `codes`),
+/// the least of its channels' `weights`, summed row by row in parallel and then in row
+/// order (the same score on every call).
+fn weighted_sum<T>(frame: &Frame, codes: &[T], weights: &[f64]) -> f64
+where
+    T: Copy + Into<usize> + Sync,
+{
+    let (w, c) = (frame.width() as usize, frame.channels());
+    let rows: Vec<f64> = (0..frame.height() as usize)
+        .into_par_iter()
+        .step_by(REFERENCE_STRIDE)
+        .map(|y| {
+            let row = &codes[y * w * c..(y + 1) * w * c];
+            row.chunks_exact(c)
+                .step_by(REFERENCE_STRIDE)
+                .map(|px| px.iter().map(|&s| weights[s.into()]).fold(1.0, f64::min))
+                .sum::<f64>()
+        })
+        .collect();
+    rows.iter().sum()
 }
 
 /// Aligns `frames` (JPEG, PNG or TIFF codes through the inverse response `g`) onto the
