@@ -121,6 +121,11 @@ pub const MIN_TILE_SAMPLES: u32 = 8;
 /// centre is then the median of the tiles' medians and neither figure is capped.
 pub const SCENE_WIDE_TILES: usize = 16;
 
+/// Frames of at most this many codes are tested through tables of every pair of codes
+/// (frame, anchor) per channel, built once per pair of frames; deeper frames compute each
+/// test.
+pub const TABLED_LEVELS: usize = 256;
+
 /// Bins of the residual's histogram, over `±RESIDUAL_RANGE`.
 const RESIDUAL_BINS: usize = 256;
 
@@ -254,6 +259,30 @@ impl Codes {
     fn get(&self, frame: usize, channel: usize, code: usize) -> Code {
         self.table[(frame * self.channels + channel) * self.levels + code]
     }
+
+    /// Where the residual of frame `k` (code `xk`) against frame `a` (code `xa`) in
+    /// channel `c` falls among that channel's histograms: `bin(xa)·RESIDUAL_BINS + slot`;
+    /// `None` where `k` does not expose the sample well.
+    fn residual_index(
+        &self,
+        (k, a): (usize, usize),
+        c: usize,
+        xa: usize,
+        xk: usize,
+    ) -> Option<u16> {
+        let (xk, xa) = (self.get(k, c, xk), self.get(a, c, xa));
+        let slot = residual_bin(xk.value - xa.value);
+        // At most TONE_BINS · RESIDUAL_BINS = 8192.
+        (xk.tone == Tone::Good).then_some((usize::from(xa.bin) * RESIDUAL_BINS + slot) as u16)
+    }
+}
+
+/// `f` at every pair of codes `(a, x)` below `levels`, rows by `a`.
+fn pair_table<V: Send>(levels: usize, f: impl Fn(usize, usize) -> V + Sync) -> Vec<V> {
+    (0..levels * levels)
+        .into_par_iter()
+        .map(|i| f(i / levels, i % levels))
+        .collect()
 }
 
 /// A frame's code type, 8 or 16 bits.
@@ -282,6 +311,8 @@ struct Bracket<'a, T> {
     codes: Codes,
     width: usize,
     height: usize,
+    /// Whether the tests go through tables of every pair of codes ([`TABLED_LEVELS`]).
+    tabled: bool,
 }
 
 impl<T: Sample> Bracket<'_, T> {
@@ -290,12 +321,6 @@ impl<T: Sample> Bracket<'_, T> {
     fn stats_stride(&self) -> usize {
         let ratio = (self.width * self.height / STATS_PIXELS) as f64;
         (ratio.sqrt() as usize).clamp(1, STATS_STRIDE)
-    }
-
-    /// The [`Code`] of sample `i` (channel `c`) of frame `k`.
-    #[inline]
-    fn code(&self, k: usize, c: usize, i: usize) -> Code {
-        self.codes.get(k, c, self.planes[k][i].index())
     }
 }
 
@@ -316,11 +341,20 @@ impl Residuals {
     /// Gathers the pair `(k, a)`'s residuals over every [`Bracket::stats_stride`]-th pixel,
     /// tile by tile of a [`TILES`] × [`TILES`] grid, and decides each bin's figures (module docs).
     fn of<T: Sample>(bracket: &Bracket<'_, T>, k: usize, a: usize) -> Residuals {
-        let channels = bracket.codes.channels;
-        let tiles: Vec<Vec<u32>> = (0..TILES * TILES)
-            .into_par_iter()
-            .map(|t| bracket.tile_histogram(t, k, a))
-            .collect();
+        let (codes, channels) = (&bracket.codes, bracket.codes.channels);
+        let index = |c: usize, xa: usize, xk: usize| codes.residual_index((k, a), c, xa, xk);
+        let tiles = if bracket.tabled {
+            let levels = codes.levels;
+            let tables: Vec<Vec<u16>> = (0..channels)
+                .map(|c| pair_table(levels, |xa, xk| index(c, xa, xk).unwrap_or(u16::MAX)))
+                .collect();
+            bracket.tile_histograms((k, a), &|c: usize, xa: usize, xk: usize| {
+                let i = tables[c][xa * levels + xk];
+                (i != u16::MAX).then_some(i)
+            })
+        } else {
+            bracket.tile_histograms((k, a), &index)
+        };
         let z2 = (NOISE_SIGMAS * NOISE_SIGMAS) as f32;
         let mut bins = Vec::with_capacity(channels * TONE_BINS);
         for c in 0..channels {
@@ -364,24 +398,39 @@ impl Residuals {
 }
 
 impl<T: Sample> Bracket<'_, T> {
-    /// The residual histogram of the pair `(k, a)` over tile `t` (row by row of the
-    /// [`TILES`] × [`TILES`] grid), per channel and tone bin of the anchor, from every
-    /// [`Bracket::stats_stride`]-th pixel of every such row.
-    fn tile_histogram(&self, t: usize, k: usize, a: usize) -> Vec<u32> {
+    /// Per tile of the [`TILES`] × [`TILES`] grid (row by row), the residual histogram of
+    /// the pair `(k, a)`, per channel and tone bin of the anchor, from every
+    /// [`Bracket::stats_stride`]-th pixel of every such row; `index` places a sample's
+    /// residual ([`Codes::residual_index`]).
+    fn tile_histograms<F>(&self, (k, a): (usize, usize), index: &F) -> Vec<Vec<u32>>
+    where
+        F: Fn(usize, usize, usize) -> Option<u16> + Sync,
+    {
+        (0..TILES * TILES)
+            .into_par_iter()
+            .map(|t| self.tile_histogram(t, (k, a), index))
+            .collect()
+    }
+
+    /// Tile `t` of [`Bracket::tile_histograms`].
+    fn tile_histogram<F>(&self, t: usize, (k, a): (usize, usize), index: &F) -> Vec<u32>
+    where
+        F: Fn(usize, usize, usize) -> Option<u16>,
+    {
         let channels = self.codes.channels;
-        let mut h = vec![0u32; channels * TONE_BINS * RESIDUAL_BINS];
+        let bins = TONE_BINS * RESIDUAL_BINS;
+        let mut h = vec![0u32; channels * bins];
         let stride = self.stats_stride();
         let span =
             |i: usize, n: usize| (i * n / TILES).next_multiple_of(stride)..(i + 1) * n / TILES;
         let (ys, xs) = (span(t / TILES, self.height), span(t % TILES, self.width));
+        let (planes_k, planes_a) = (self.planes[k], self.planes[a]);
         for y in ys.step_by(stride) {
             for x in xs.clone().step_by(stride) {
                 for c in 0..channels {
                     let i = (y * self.width + x) * channels + c;
-                    let (xk, xa) = (self.code(k, c, i), self.code(a, c, i));
-                    if xk.tone == Tone::Good {
-                        let slot = residual_bin(xk.value - xa.value);
-                        h[(c * TONE_BINS + usize::from(xa.bin)) * RESIDUAL_BINS + slot] += 1;
+                    if let Some(slot) = index(c, planes_a[i].index(), planes_k[i].index()) {
+                        h[c * bins + usize::from(slot)] += 1;
                     }
                 }
             }
@@ -505,6 +554,7 @@ pub fn ghost_masks(frames: &[BracketFrame<'_>], response: &InverseResponse) -> G
         .collect();
     let (width, height) = (views[0].width() as usize, views[0].height() as usize);
     let codes = Codes::new(frames, response);
+    let tabled = codes.levels <= TABLED_LEVELS;
     let (masks, left_out) = match (eight, sixteen) {
         (Some(planes), _) => decide(
             frames,
@@ -514,6 +564,7 @@ pub fn ghost_masks(frames: &[BracketFrame<'_>], response: &InverseResponse) -> G
                 codes,
                 width,
                 height,
+                tabled,
             },
         ),
         (_, Some(planes)) => decide(
@@ -524,6 +575,7 @@ pub fn ghost_masks(frames: &[BracketFrame<'_>], response: &InverseResponse) -> G
                 codes,
                 width,
                 height,
+                tabled,
             },
         ),
         _ => return unmasked,
@@ -591,12 +643,47 @@ struct Pair<'a, T> {
     k: usize,
 }
 
+/// [`Pair::judge`]'s flags: the anchor exposes the channel well.
+const ANCHORED: u8 = 1;
+/// Frame `k` exposes the channel well and agrees with the anchor.
+const AGREES: u8 = 2;
+/// Frame `k` exposes the channel well and disagrees with the anchor.
+const DISAGREES: u8 = 4;
+
 impl<T: Sample> Pair<'_, T> {
     /// Per block, the share of the grid points it compared that disagree (a grid of
     /// `⌈w/BLOCK⌉ × ⌈h/BLOCK⌉`). The points are every [`COMPARE_STRIDE`]-th pixel of every
     /// [`COMPARE_STRIDE`]-th row; `anchor` holds one anchor per point. Where the anchor
     /// exposes no channel well and `k` does and agrees with it, `k` becomes the anchor.
     fn compare(&self, anchor: &mut [u8]) -> Vec<f32> {
+        if !self.bracket.tabled {
+            return self.compare_by(&|a, c, xa, xk| self.judge(a, c, xa, xk), anchor);
+        }
+        let levels = self.bracket.codes.levels;
+        let tables: Vec<Option<Vec<u8>>> = (0..self.residuals.len())
+            .map(|a| {
+                self.residuals[a].as_ref()?;
+                let channels = 0..self.bracket.codes.channels;
+                Some(
+                    channels
+                        .flat_map(|c| pair_table(levels, |xa, xk| self.judge(a, c, xa, xk)))
+                        .collect(),
+                )
+            })
+            .collect();
+        let judge = |a: usize, c: usize, xa: usize, xk: usize| {
+            tables[a]
+                .as_ref()
+                .map_or(0, |t| t[(c * levels + xa) * levels + xk])
+        };
+        self.compare_by(&judge, anchor)
+    }
+
+    /// [`Pair::compare`] with `judge` testing one channel ([`Pair::judge`]).
+    fn compare_by<J>(&self, judge: &J, anchor: &mut [u8]) -> Vec<f32>
+    where
+        J: Fn(usize, usize, usize, usize) -> u8 + Sync,
+    {
         let (width, height) = (self.bracket.width, self.bracket.height);
         let blocks_x = width.div_ceil(BLOCK);
         let grid_x = width.div_ceil(COMPARE_STRIDE);
@@ -613,7 +700,7 @@ impl<T: Sample> Pair<'_, T> {
                     for (gx, a) in anchors.iter_mut().enumerate() {
                         let p = y * width + gx * COMPARE_STRIDE;
                         let count = &mut counts[gx / per_block];
-                        match self.verdict(p, usize::from(*a)) {
+                        match self.verdict(judge, p, usize::from(*a)) {
                             Verdict::Disagree => *count = (count.0 + 1, count.1 + 1),
                             Verdict::Agree { anchored } => {
                                 count.1 += 1;
@@ -636,41 +723,61 @@ impl<T: Sample> Pair<'_, T> {
         share
     }
 
-    /// Frame `k` against `anchor` at pixel `p` (module docs): channel by channel,
-    /// `e = |r − m| − δ` (one-sided where the anchor is a bound) disagrees when
-    /// `e > 0` and `e² > max(Z²(σ_k² + σ_a²), Z²s²)`.
+    /// Frame `k` against `anchor` at pixel `p`: it disagrees when any channel does
+    /// ([`Pair::judge`] through `judge`).
     #[inline]
-    fn verdict(&self, p: usize, anchor: usize) -> Verdict {
-        let Some(residuals) = self.residuals[anchor].as_ref() else {
+    fn verdict<J>(&self, judge: &J, p: usize, anchor: usize) -> Verdict
+    where
+        J: Fn(usize, usize, usize, usize) -> u8,
+    {
+        if self.residuals[anchor].is_none() {
             return Verdict::Unknown;
-        };
-        let tolerance = (TOLERANCE_STOPS * std::f64::consts::LN_2) as f32;
+        }
         let channels = self.bracket.codes.channels;
-        let (mut seen, mut anchored) = (false, false);
+        let (anchors, ks) = (self.bracket.planes[anchor], self.bracket.planes[self.k]);
+        let mut flags = 0;
         for c in 0..channels {
             let i = p * channels + c;
-            let a = self.bracket.code(anchor, c, i);
-            anchored |= a.tone == Tone::Good;
-            let x = self.bracket.code(self.k, c, i);
-            if x.tone != Tone::Good {
-                continue;
-            }
-            let bin = residuals.get(c, a.bin);
-            let r = x.value - a.value - bin.centre;
-            let excess = match a.tone {
-                Tone::Good => r.abs(),
-                Tone::Bright => -r,
-                Tone::Dark => r,
-            } - tolerance;
-            if excess > 0.0 && excess * excess > (x.noise + a.noise).max(bin.spread) {
+            flags |= judge(anchor, c, anchors[i].index(), ks[i].index());
+            if flags & DISAGREES != 0 {
                 return Verdict::Disagree;
             }
-            seen = true;
         }
-        if seen {
-            Verdict::Agree { anchored }
+        if flags & AGREES != 0 {
+            Verdict::Agree {
+                anchored: flags & ANCHORED != 0,
+            }
         } else {
             Verdict::Unknown
+        }
+    }
+
+    /// One channel `c` of frame `k` (code `xk`) against `anchor` (code `xa`), as flags
+    /// (module docs): with `e = |r − m| − δ` (one-sided where the anchor is a bound), it
+    /// disagrees when `e > 0` and `e² > max(Z²(σ_k² + σ_a²), Z²s²)`. No flags without the
+    /// pair's residual statistics.
+    fn judge(&self, anchor: usize, c: usize, xa: usize, xk: usize) -> u8 {
+        let Some(residuals) = self.residuals[anchor].as_ref() else {
+            return 0;
+        };
+        let codes = &self.bracket.codes;
+        let (a, x) = (codes.get(anchor, c, xa), codes.get(self.k, c, xk));
+        let anchored = if a.tone == Tone::Good { ANCHORED } else { 0 };
+        if x.tone != Tone::Good {
+            return anchored;
+        }
+        let tolerance = (TOLERANCE_STOPS * std::f64::consts::LN_2) as f32;
+        let bin = residuals.get(c, a.bin);
+        let r = x.value - a.value - bin.centre;
+        let excess = match a.tone {
+            Tone::Good => r.abs(),
+            Tone::Bright => -r,
+            Tone::Dark => r,
+        } - tolerance;
+        if excess > 0.0 && excess * excess > (x.noise + a.noise).max(bin.spread) {
+            anchored | DISAGREES
+        } else {
+            anchored | AGREES
         }
     }
 }
@@ -854,6 +961,72 @@ mod tests {
             "{}",
             masks.share()
         );
+    }
+
+    /// Frames `k` of a noisy 160×120 sRGB bracket of the procedural scene, a flat square
+    /// of code 230 at `(20 + 50k, 40)` standing in for a subject that moves.
+    fn noisy_bracket_with_a_subject() -> Vec<(Frame, f64)> {
+        use crate::frame::BitDepth;
+        use crate::synthetic::{ResponseCurve, SceneKind, Sensor, expose};
+        let radiance = SceneKind::Procedural.render(160, 120, 3);
+        let sensor = Sensor {
+            read_noise_dn: 1.0,
+            seed: 3,
+            ..Sensor::noiseless(ResponseCurve::Srgb, BitDepth::Eight)
+        };
+        [0.25, 1.0, 4.0]
+            .into_iter()
+            .enumerate()
+            .map(|(k, e)| {
+                let frame = expose(&radiance, e, &sensor);
+                let Samples::Eight(mut codes) = frame.samples().clone() else {
+                    unreachable!("the sensor is 8-bit")
+                };
+                for y in 40..72 {
+                    let x0 = 20 + 50 * k;
+                    codes[(y * 160 + x0) * 3..(y * 160 + x0 + 32) * 3].fill(230);
+                }
+                (Frame::new(160, 120, 3, Samples::Eight(codes)).unwrap(), e)
+            })
+            .collect()
+    }
+
+    #[test]
+    fn the_tables_decide_as_the_arithmetic_does() {
+        let frames = noisy_bracket_with_a_subject();
+        let camera = Camera::default();
+        let bracket = bracket(&frames, &camera);
+        let response = InverseResponse::srgb(3, 1024);
+        let views: Vec<&Frame> = frames.iter().map(|(f, _)| f).collect();
+        let reference = crate::align::choose_reference(&views);
+        let decided = |tabled: bool| {
+            let planes = views
+                .iter()
+                .map(|f| match f.samples() {
+                    Samples::Eight(v) => v.as_slice(),
+                    Samples::Sixteen(_) => unreachable!("the sensor is 8-bit"),
+                })
+                .collect();
+            let codes = Codes::new(&bracket, &response);
+            decide(
+                &bracket,
+                reference,
+                &Bracket {
+                    planes,
+                    codes,
+                    width: 160,
+                    height: 120,
+                    tabled,
+                },
+            )
+        };
+        let (tabled, computed) = (decided(true), decided(false));
+        assert!(
+            tabled.0.iter().filter(|m| m.is_some()).count() == 2,
+            "both frames but the reference are left out somewhere: {:?}",
+            tabled.1
+        );
+        assert_eq!(tabled, computed);
     }
 
     #[test]
