@@ -739,11 +739,10 @@ impl<T: Sample> Pair<'_, T> {
         for c in 0..channels {
             let i = p * channels + c;
             flags |= judge(anchor, c, anchors[i].index(), ks[i].index());
-            if flags & DISAGREES != 0 {
-                return Verdict::Disagree;
-            }
         }
-        if flags & AGREES != 0 {
+        if flags & DISAGREES != 0 {
+            Verdict::Disagree
+        } else if flags & AGREES != 0 {
             Verdict::Agree {
                 anchored: flags & ANCHORED != 0,
             }
