@@ -789,40 +789,43 @@ fn mask_of(share: &[f32], width: usize, height: usize) -> Option<Vec<u8>> {
     if share.iter().all(|&s| s <= GHOST_SHARE) {
         return None;
     }
-    let neighbourhood = box_mean(share, bw, bh);
-    let ghost: Vec<f32> = neighbourhood
-        .iter()
-        .map(|&s| if s > GHOST_SHARE { 1.0 } else { 0.0 })
-        .collect();
-    if ghost.iter().all(|&g| g == 0.0) {
+    // Two grids and the box filter's scratch, each filter writing one from the other.
+    let mut across = vec![0.0f32; share.len()];
+    let (mut a, mut b) = (vec![0.0f32; share.len()], vec![0.0f32; share.len()]);
+    let mut filter = |from: &[f32], to: &mut [f32]| box_mean(from, (bw, bh), &mut across, to);
+    filter(share, &mut a);
+    let ghost = |s: &mut f32| *s = if *s > GHOST_SHARE { 1.0 } else { 0.0 };
+    a.par_iter_mut().for_each(ghost);
+    if a.iter().all(|&g| g == 0.0) {
         return None;
     }
-    let grown: Vec<f32> = box_mean(&ghost, bw, bh)
-        .iter()
-        .map(|&g| if g > 0.0 { 1.0 } else { 0.0 })
-        .collect();
-    let soft = box_mean(&box_mean(&grown, bw, bh), bw, bh);
-    Some(upsample(&soft, bw, bh, width, height))
+    // Grown by one block, then feathered by two box filters.
+    filter(&a, &mut b);
+    b.par_iter_mut()
+        .for_each(|g| *g = if *g > 0.0 { 1.0 } else { 0.0 });
+    filter(&b, &mut a);
+    filter(&a, &mut b);
+    Some(upsample(&b, bw, bh, width, height))
 }
 
-/// The mean over the 3×3 neighbourhood of each cell (clamped at the borders: only the
-/// cells inside the grid count), along rows then along columns, rows in parallel.
-fn box_mean(grid: &[f32], w: usize, h: usize) -> Vec<f32> {
-    let mut across = vec![0.0f32; grid.len()];
+/// Into `out`, the mean over the 3×3 neighbourhood of each cell of the `w × h` `grid`
+/// (clamped at the borders: only the cells inside the grid count), along rows into
+/// `across` then along columns, rows in parallel.
+fn box_mean(grid: &[f32], (w, h): (usize, usize), across: &mut [f32], out: &mut [f32]) {
     across
         .par_chunks_mut(w)
         .zip(grid.par_chunks(w))
         .for_each(|(out, row)| mean_of_three(row, out));
-    let mut out = vec![0.0f32; grid.len()];
+    let across = &*across;
     out.par_chunks_mut(w).enumerate().for_each(|(y, row)| {
         let (lo, hi) = (y.saturating_sub(1), (y + 1).min(h - 1));
+        row.fill(0.0);
         for above in across[lo * w..(hi + 1) * w].chunks(w) {
             row.iter_mut().zip(above).for_each(|(o, &v)| *o += v);
         }
         let n = (hi - lo + 1) as f32;
         row.iter_mut().for_each(|o| *o /= n);
     });
-    out
 }
 
 /// Each cell of `row` into `out` as the mean of it and its neighbours in the row (one
