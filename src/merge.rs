@@ -525,6 +525,11 @@ fn sorted_masks<'m>(
         .collect())
 }
 
+/// Whether a mask keeps every pixel of `weights` whole (each factor exactly 1).
+fn all_kept(weights: &[u8]) -> bool {
+    weights.iter().all(|&m| m == u8::MAX)
+}
+
 /// The weight factor `m_k(p)/255` of sorted frame `k` at pixel `p` (1 without a mask).
 #[inline(always)]
 fn kept(masks: &[Option<&[u8]>], k: usize, p: usize) -> f32 {
@@ -753,7 +758,12 @@ fn merge_codes<T: Copy + Into<usize> + Sync>(
 ) -> ClipCount {
     let row_len = width * tables.channels;
     let row = |y: usize, row: &mut [f32], conf: Option<&mut [f32]>| {
-        if masks.iter().all(Option::is_none) {
+        if masks
+            .iter()
+            .flatten()
+            .all(|m| all_kept(&m[y * width..(y + 1) * width]))
+        {
+            // Weight factors of 1 everywhere: the unmasked arithmetic, exactly.
             merge_row(frames, tables, y * row_len, row, conf, |_, _| 1.0)
         } else {
             let kept = |k, p| kept(masks, k, y * width + p);
@@ -1322,7 +1332,8 @@ impl<'a> BracketMerge<'a> {
                 let table = &t.weighted[t.index(k, channel, 0)..t.index(k, channel, t.levels)];
                 let codes = codes[start..].iter().step_by(channels).take(out.len());
                 let sums = num.iter_mut().zip(&mut den).zip(codes);
-                match self.masks[k] {
+                let mask = self.masks[k].map(|m| &m[first..first + out.len()]);
+                match mask.filter(|m| !all_kept(m)) {
                     None => {
                         for ((n, d), &code) in sums {
                             let [w, wx] = table[code.into()];
@@ -1332,8 +1343,7 @@ impl<'a> BracketMerge<'a> {
                     }
                     Some(mask) => {
                         let lost = lost_num.iter_mut().zip(&mut lost_den);
-                        for ((((n, d), &code), &m), (ln, ld)) in sums.zip(&mask[first..]).zip(lost)
-                        {
+                        for ((((n, d), &code), &m), (ln, ld)) in sums.zip(mask).zip(lost) {
                             let [w, wx] = table[code.into()];
                             let m = f32::from(m) / 255.0;
                             *n += m * wx;
@@ -1923,6 +1933,49 @@ mod tests {
             );
             assert_eq!(lazy.sample(300, 0), fast.radiance.pixels()[300]);
             assert!(lazy.max_value() >= fast.radiance.pixels().iter().copied().fold(0.0, f32::max));
+        }
+    }
+
+    /// Three frames 600 × 3 of unrelated codes (0 and 255 among them); frame 1's mask
+    /// keeps row 0 whole, ramps over row 1 and leaves row 2 out. The buffered and the
+    /// banded merge agree exactly, and equal the plain merge on row 0 only.
+    #[test]
+    fn a_mask_weighs_its_rows_alike_in_every_merge() {
+        let (w, h) = (600usize, 3usize);
+        let cam = Camera::default();
+        let codes = |k: usize| {
+            (0..w * h)
+                .map(|p| ((p * 37 + k * 53) % 256) as u8)
+                .collect()
+        };
+        let frames: Vec<(Frame, f64)> = (0..3)
+            .map(|k| (grey(w as u32, codes(k)), 4f64.powi(k as i32)))
+            .collect();
+        let mask: Vec<u8> = (0..w * h)
+            .map(|p| match p / w {
+                0 => 255,
+                1 => (p % 256) as u8,
+                _ => 0,
+            })
+            .collect();
+        let masks = [None, Some(mask.as_slice()), None];
+        let b = bracket(&frames, &cam);
+        let options = MergeOptions::default();
+        let masked = merge_masked(&b, &linear(), options, &masks)
+            .unwrap()
+            .radiance;
+        let plain = merge(&b, &linear(), options).unwrap().radiance;
+        let banded = BracketMerge::masked(&b, &linear(), options.weighting, &masks).unwrap();
+        let mut line = vec![0.0f32; w];
+        for y in 0..h {
+            banded.line(y * w, 0, &mut line);
+            let row = &masked.pixels()[y * w..(y + 1) * w];
+            assert_eq!(line, row, "row {y}: banded and buffered");
+            assert_eq!(
+                row == &plain.pixels()[y * w..(y + 1) * w],
+                y == 0,
+                "row {y}"
+            );
         }
     }
 }
