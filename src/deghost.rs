@@ -121,11 +121,6 @@ pub const MIN_TILE_SAMPLES: u32 = 8;
 /// centre is then the median of the tiles' medians and neither figure is capped.
 pub const SCENE_WIDE_TILES: usize = 16;
 
-/// Frames of at most this many codes are tested through tables of every pair of codes
-/// (frame, anchor) per channel, built once per pair of frames; deeper frames compute each
-/// test.
-pub const TABLED_LEVELS: usize = 256;
-
 /// Bins of the residual's histogram, over `±RESIDUAL_RANGE`.
 const RESIDUAL_BINS: usize = 256;
 
@@ -311,7 +306,10 @@ struct Bracket<'a, T> {
     codes: Codes,
     width: usize,
     height: usize,
-    /// Whether the tests go through tables of every pair of codes ([`TABLED_LEVELS`]).
+    /// Whether the tests go through tables of every pair of codes (anchor, frame) per
+    /// channel, built once per pair of frames: when the comparison reads at least as many
+    /// points as such a table has entries (`levels²`; 8-bit frames over about 0.26 MP,
+    /// never 16-bit ones). Otherwise each test is computed where it is read.
     tabled: bool,
 }
 
@@ -554,7 +552,8 @@ pub fn ghost_masks(frames: &[BracketFrame<'_>], response: &InverseResponse) -> G
         .collect();
     let (width, height) = (views[0].width() as usize, views[0].height() as usize);
     let codes = Codes::new(frames, response);
-    let tabled = codes.levels <= TABLED_LEVELS;
+    let points = width.div_ceil(COMPARE_STRIDE) * height.div_ceil(COMPARE_STRIDE);
+    let tabled = points >= codes.levels * codes.levels;
     let (masks, left_out) = match (eight, sixteen) {
         (Some(planes), _) => decide(
             frames,
