@@ -162,6 +162,38 @@ impl GhostMasks {
         self.masks.iter().map(|m| m.as_deref()).collect()
     }
 
+    /// [`GhostMasks::least_kept`] of a `width × height` bracket within `edge` pixels, for
+    /// an overlay: reduced by `f = ⌈long edge / edge⌉`, each map pixel the least over its
+    /// `f × f` frame pixels. `None` when no frame was left out anywhere.
+    pub fn least_kept_map(&self, width: u32, height: u32, edge: u32) -> Option<KeptMap> {
+        let masks: Vec<&[u8]> = self.masks.iter().flatten().map(Vec::as_slice).collect();
+        let (w, h) = (width as usize, height as usize);
+        if masks.is_empty() || masks.iter().any(|m| m.len() != w * h) {
+            return None;
+        }
+        let f = w.max(h).div_ceil(edge.max(1) as usize).max(1);
+        let (mw, mh) = (w.div_ceil(f), h.div_ceil(f));
+        let mut least = vec![u8::MAX; mw * mh];
+        least
+            .par_chunks_mut(mw)
+            .enumerate()
+            .for_each(|(my, cells)| {
+                for y in my * f..((my + 1) * f).min(h) {
+                    for mask in &masks {
+                        let row = &mask[y * w..(y + 1) * w];
+                        for (cell, pixels) in cells.iter_mut().zip(row.chunks(f)) {
+                            *cell = pixels.iter().fold(*cell, |a, &m| a.min(m));
+                        }
+                    }
+                }
+            });
+        Some(KeptMap {
+            width: mw as u32,
+            height: mh as u32,
+            least,
+        })
+    }
+
     /// Per pixel of a frame of `pixels`, the least weight the merge kept of any frame
     /// (0..=255): 255 where every frame was merged, 0 where some frame was left out.
     pub fn least_kept(&self, pixels: usize) -> Vec<u8> {
@@ -173,6 +205,19 @@ impl GhostMasks {
         }
         least
     }
+}
+
+/// Where deghosting left frames out, reduced for an overlay
+/// ([`GhostMasks::least_kept_map`]).
+#[derive(Debug, Clone, PartialEq)]
+pub struct KeptMap {
+    /// Width, pixels.
+    pub width: u32,
+    /// Height, pixels.
+    pub height: u32,
+    /// Per pixel, rows top down, the least weight kept of any frame (255 every frame
+    /// merged, 0 some frame left out).
+    pub least: Vec<u8>,
 }
 
 /// Where a code lies: well exposed, or a bound on the radiance.
@@ -1028,6 +1073,37 @@ mod tests {
             tabled.1
         );
         assert_eq!(tabled, computed);
+    }
+
+    #[test]
+    fn the_reduced_map_keeps_the_least_of_each_cell() {
+        let frames = [
+            (shot(1.0, Some(8)), 1.0),
+            (shot(2.0, Some(40)), 2.0),
+            (shot(0.5, Some(24)), 0.5),
+        ];
+        let camera = Camera::default();
+        let masks = ghost_masks(&bracket(&frames, &camera), &linear());
+        let least = masks.least_kept(64 * 64);
+        // 64 px within 10: cells of 7 × 7 pixels, the last row and column of one pixel.
+        let map = masks
+            .least_kept_map(64, 64, 10)
+            .expect("frames were left out");
+        assert_eq!((map.width, map.height), (10, 10));
+        for (cell, &value) in map.least.iter().enumerate() {
+            let (cx, cy) = (cell % 10, cell / 10);
+            let inside = (cy * 7..(cy * 7 + 7).min(64))
+                .flat_map(|y| (cx * 7..(cx * 7 + 7).min(64)).map(move |x| y * 64 + x));
+            assert_eq!(
+                value,
+                inside.map(|p| least[p]).min().unwrap(),
+                "cell {cell}"
+            );
+        }
+        assert!(map.least.contains(&0) && map.least.contains(&255));
+        let still = [(shot(1.0, Some(8)), 1.0), (shot(2.0, Some(8)), 2.0)];
+        let none = ghost_masks(&bracket(&still, &camera), &linear());
+        assert_eq!(none.least_kept_map(64, 64, 10), None);
     }
 
     #[test]

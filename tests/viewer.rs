@@ -226,6 +226,10 @@ fn a_bracket_reaches_the_event_stream_previews_and_metrics() {
         marked > 0 && marked < (w * h) as usize / 2,
         "{marked} of {w}×{h} marked"
     );
+    assert!(
+        record["left_out"].is_null(),
+        "a still bracket has no left-out overlay"
+    );
     let metrics = get(address, "/metrics");
     assert_eq!(metrics.status, 200);
     let text = String::from_utf8(metrics.body).unwrap();
@@ -249,6 +253,35 @@ fn a_bracket_reaches_the_event_stream_previews_and_metrics() {
         foreign.status, 421,
         "a name other than localhost needs a token"
     );
+    rig.stop();
+}
+
+/// A bracket with a moving subject links an overlay of where deghosting left frames out:
+/// marked along the subject's path, clear away from it.
+#[test]
+fn a_moving_subject_gets_a_left_out_overlay() {
+    let (mut rig, _dir, address) = start(Arc::new(DarkroomLab), "");
+    let events = subscribe(address, "");
+    next_event(&events, "status");
+    rig::put(&rig.ingest(), &rig::aeb_with_subject("Ghost Cam", 45, "GH"));
+    let (record, _) = next_event(&events, "developed");
+    let share = record["facts"]["deghosted"].as_f64().unwrap();
+    assert!(share > 0.02 && share < 0.5, "{share}");
+    let overlay = get(address, record["left_out"].as_str().expect("an overlay"));
+    assert_eq!(overlay.status, 200);
+    assert_eq!(overlay.headers["content-type"], "image/png");
+    let overlay = image::load_from_memory(&overlay.body).unwrap().to_rgba8();
+    // Under CLIP_MAP_EDGE: one map pixel a frame pixel.
+    assert_eq!(overlay.dimensions(), (rig::W, rig::H));
+    let alpha = |x: u32, y: u32| overlay.get_pixel(x, y).0[3];
+    // The subject in the first and last frames, not in the reference (the middle one).
+    assert!(
+        alpha(18, 32) > 100 && alpha(78, 32) > 100,
+        "{} {}",
+        alpha(18, 32),
+        alpha(78, 32)
+    );
+    assert_eq!((alpha(2, 2), alpha(93, 61)), (0, 0), "far from the subject");
     rig.stop();
 }
 
@@ -736,6 +769,18 @@ fn the_page_in_chromium_shows_a_new_bracket_without_reload() {
             image::imageops::resize(&picture, 1024, 640, image::imageops::FilterType::Triangle);
         small.write_with_encoder(png).unwrap();
     }
+    // A moving subject: G overlays where deghosting left frames out, and hides it again.
+    rig::put(
+        &rig.ingest(),
+        &rig::aeb_with_subject("Studio Cam", 90, "MOVE"),
+    );
+    browser.wait("document.getElementById('latest-stem').textContent === 'MOVE-1'");
+    browser.wait("(() => { const m = document.getElementById('leftoutmap'); return m.hidden && !!m.getAttribute('src') && document.getElementById('ghostwarn').style.display === 'block'; })()");
+    let key_g = serde_json::json!({ "type": "keyDown", "key": "g", "code": "KeyG", "windowsVirtualKeyCode": 71 });
+    browser.call("Input.dispatchKeyEvent", key_g.clone());
+    browser.wait("(() => { const m = document.getElementById('leftoutmap'); return !m.hidden && m.complete && m.naturalWidth === 96 && document.getElementById('ghostwarn').textContent.includes('G hides'); })()");
+    browser.call("Input.dispatchKeyEvent", key_g);
+    browser.wait("document.getElementById('leftoutmap').hidden");
     drop(browser);
     rig.stop();
 }

@@ -33,6 +33,7 @@ use crate::daemon::viewer::{PREVIEW_EDGE, THUMB_EDGE};
 use crate::darkroom::{
     self, BodyPool, DarkroomError, GivenResponse, Pooling, Prints, ResponsePolicy, Source,
 };
+use crate::deghost::KeptMap;
 use crate::film::{Catalogue, ColourMode, Key};
 use crate::frame::{self, Limits, LoadedFrame, Samples};
 use crate::hdr_output::ExrOptions;
@@ -112,6 +113,9 @@ pub struct Pictures {
     /// Where no frame exposed the scene well, for a bracket of JPEG, PNG or TIFF frames
     /// ([`darkroom::Developed::clip_map`]).
     pub clipped: Option<ClipMap>,
+    /// Where deghosting left frames out, when it did
+    /// ([`darkroom::Developed::left_out_map`]).
+    pub left_out: Option<KeptMap>,
 }
 
 /// A rendering's small copy.
@@ -447,6 +451,7 @@ fn pictures(
         renderings,
         frames,
         clipped: developed.clip_map.take(),
+        left_out: developed.left_out_map.take(),
     }
 }
 

@@ -284,6 +284,10 @@ pub struct Developed {
     /// [`CLIP_MAP_EDGE`]), when [`Prints::preview_edge`] asked for previews; `None` for a
     /// single frame and a camera raw bracket.
     pub clip_map: Option<merge::ClipMap>,
+    /// Where deghosting left frames out ([`GhostMasks::least_kept_map`], long edge
+    /// [`CLIP_MAP_EDGE`]), when [`Prints::preview_edge`] asked for previews and some frame
+    /// was left out.
+    pub left_out_map: Option<deghost::KeptMap>,
 }
 
 /// Long edge, pixels, of [`Developed::clip_map`]: an overlay on a preview, read at about
@@ -501,6 +505,11 @@ pub fn develop(
     let mut merged = merged;
     merged.scale_by(factor, scaled);
     let deghosted = ghosts.as_ref().map(Deghosted::of);
+    let (width, height) = (frames[0].frame.width(), frames[0].frame.height());
+    let left_out_map = ghosts
+        .as_ref()
+        .filter(|_| prints.preview_edge.is_some())
+        .and_then(|g| g.least_kept_map(width, height, CLIP_MAP_EDGE));
     let sorted = merged.bracket();
     let (order, ratio, clipped) = (
         sorted.order.clone(),
@@ -573,6 +582,7 @@ pub fn develop(
         deghost: deghosted,
         previews: printed.previews,
         clip_map,
+        left_out_map,
     })
 }
 
@@ -1062,6 +1072,7 @@ pub fn develop_single(
         deghost: None,
         previews: rendered.previews,
         clip_map: None,
+        left_out_map: None,
     })
 }
 

@@ -187,6 +187,36 @@ pub fn aeb(model: &str, second: u32, prefix: &str) -> Vec<(String, Vec<u8>)> {
         .collect()
 }
 
+/// [`aeb`] with a subject moving across it: a flat square of side 16, code 200 in every
+/// frame whatever its exposure, its left edge at `10 + 30k` px in frame `k` (rows 24..40).
+pub fn aeb_with_subject(model: &str, second: u32, prefix: &str) -> Vec<(String, Vec<u8>)> {
+    use filmback::frame::{BitDepth, Frame, Samples};
+    use filmback::synthetic::{self, Encoding, ResponseCurve, Sensor};
+    let shots = demo::aeb(model, None, second);
+    let scene = synthetic::scene(W, H, u64::from(second));
+    let sensor = Sensor::noiseless(ResponseCurve::Srgb, BitDepth::Eight);
+    let middle = shots[shots.len() / 2].exposure.relative().unwrap();
+    let frames = synthetic::bracket(&scene, &sensor, &shots, 1.0 / middle).unwrap();
+    let w = W as usize;
+    frames
+        .iter()
+        .zip(&shots)
+        .enumerate()
+        .map(|(k, (frame, shot))| {
+            let Samples::Eight(mut codes) = frame.samples().clone() else {
+                unreachable!("the sensor is 8-bit")
+            };
+            let x0 = 10 + 30 * k;
+            for y in 24..40 {
+                codes[(y * w + x0) * 3..(y * w + x0 + 16) * 3].fill(200);
+            }
+            let frame = Frame::new(W, H, 3, Samples::Eight(codes)).unwrap();
+            let bytes = synthetic::encode(&frame, shot, Encoding::Jpeg { quality: 90 }).unwrap();
+            (format!("{prefix}-{}.jpg", k + 1), bytes)
+        })
+        .collect()
+}
+
 #[cfg(feature = "raw")]
 /// The same AEB as DNGs (`<prefix>-1.dng` …) from a 14-bit RGGB sensor, the longest
 /// frame's mid-grey at 0.18 of full scale.

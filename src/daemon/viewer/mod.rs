@@ -138,6 +138,10 @@ pub(crate) struct Record {
     /// preview's shape) marking what no frame exposed well, when some part was not.
     #[serde(default)]
     pub clipped: Option<String>,
+    /// URL of the overlay (the same size) marking where deghosting left frames out, when
+    /// it did.
+    #[serde(default)]
+    pub left_out: Option<String>,
     /// Wall time per stage, milliseconds, in order.
     pub stages: Vec<(String, f64)>,
     /// Wall time of the whole development, milliseconds.
@@ -180,6 +184,8 @@ pub(crate) struct Files {
     pub frames: Vec<Option<PathBuf>>,
     /// The overlay of what no frame exposed well, when made.
     pub clipped: Option<PathBuf>,
+    /// The overlay of where deghosting left frames out, when made.
+    pub left_out: Option<PathBuf>,
 }
 
 /// A development handed to the station, before its previews exist.
@@ -392,6 +398,7 @@ pub(crate) fn record_of(
         confidence: dev.fit.as_ref().map(|(_, c)| *c),
         facts: dev.facts.clone(),
         clipped: None,
+        left_out: None,
         stages: dev
             .stages
             .iter()

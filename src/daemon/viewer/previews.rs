@@ -13,6 +13,7 @@ use tracing::warn;
 
 use super::{Event, PREVIEW_FOLDER, Published, Record, Shared};
 use crate::atomic::{self, Overwrite, PublishError};
+use crate::deghost::KeptMap;
 use crate::display::ColourSpace;
 use crate::merge::{Clip, ClipMap};
 use crate::rendering::Preview;
@@ -169,6 +170,16 @@ fn develop_previews(dir: &Path, published: Published, make: Make) -> Record {
         None if make == Make::All => remove_stale(&overlay),
         None => {}
     }
+    let overlay = left_out_overlay_path(&folder);
+    match pictures.left_out.as_ref() {
+        Some(map) if wanted(&overlay) => {
+            let _ = write_left_out_overlay(map, &overlay)
+                .inspect_err(|e| warn!(error = %e, "no overlay of what deghosting left out"));
+        }
+        Some(_) => {}
+        None if make == Make::All => remove_stale(&overlay),
+        None => {}
+    }
     link(&mut record, &folder);
     keep_record(&record, &folder);
     record
@@ -192,6 +203,38 @@ fn write_clip_overlay(map: &ClipMap, path: &Path) -> Result<(), PreviewError> {
             Clip::High => CLIPPED_HIGH,
             Clip::Low => CLIPPED_LOW,
             Clip::Measured => [0; 4],
+        })
+        .collect();
+    publish_encoded(path, |bytes| {
+        image::codecs::png::PngEncoder::new(bytes).write_image(
+            &pixels,
+            map.width,
+            map.height,
+            image::ExtendedColorType::Rgba8,
+        )
+    })
+}
+
+/// `<folder>/left-out.png`: the overlay of where deghosting left frames out.
+fn left_out_overlay_path(folder: &Path) -> PathBuf {
+    folder.join("left-out.png")
+}
+
+/// Colour of the left-out overlay, RGB (magenta: neither clipped overlay's colour), and
+/// its opacity where a frame was left out entirely.
+const LEFT_OUT: [u8; 3] = [230, 40, 230];
+const LEFT_OUT_ALPHA: u32 = 170;
+
+/// Publishes `map` at `path` as an RGBA PNG, opacity `170·(255 − least)/255`: clear where
+/// every frame was merged.
+fn write_left_out_overlay(map: &KeptMap, path: &Path) -> Result<(), PreviewError> {
+    let pixels: Vec<u8> = map
+        .least
+        .iter()
+        .flat_map(|&least| {
+            let alpha = (LEFT_OUT_ALPHA * u32::from(255 - least) + 127) / 255;
+            let [r, g, b] = LEFT_OUT;
+            [r, g, b, alpha as u8]
         })
         .collect();
     publish_encoded(path, |bytes| {
@@ -269,6 +312,9 @@ pub(crate) fn link(record: &mut Record, folder: &Path) {
     let overlay = Some(clip_overlay_path(folder)).filter(|p| p.is_file());
     record.clipped = overlay.as_ref().map(|_| format!("/clipped/{id}"));
     record.files.clipped = overlay;
+    let overlay = Some(left_out_overlay_path(folder)).filter(|p| p.is_file());
+    record.left_out = overlay.as_ref().map(|_| format!("/left-out/{id}"));
+    record.files.left_out = overlay;
 }
 
 /// True when every preview `record` can have is linked: a preview and thumbnail per

@@ -142,6 +142,7 @@ fn restore(entry: &Entry, dir: &Path) -> Option<Published> {
             confidence: None,
             facts: crate::daemon::Facts::default(),
             clipped: None,
+            left_out: None,
             stages: Vec::new(),
             total_ms: 0.0,
             notes: vec![FROM_JOURNAL.to_string()],

@@ -53,6 +53,7 @@ pub(crate) fn router(shared: Arc<Shared>) -> Router {
         .route("/thumb/{id}/{k}", get(thumb))
         .route("/frame/{id}/{k}", get(frame))
         .route("/clipped/{id}", get(clipped))
+        .route("/left-out/{id}", get(left_out))
         .route("/redo/{id}", post(redo))
         .layer(
             ServiceBuilder::new()
@@ -247,6 +248,7 @@ enum Print {
     Thumb,
     Frame,
     Clipped,
+    LeftOut,
 }
 
 /// The file numbered `k` of the record numbered `id`, if both exist; the numbers come
@@ -262,6 +264,7 @@ fn file_of(shared: &Shared, id: &str, k: &str, print: Print) -> Option<PathBuf> 
         Print::Thumb => files.previews.get(k)?.as_ref().map(|(_, t)| t.clone()),
         Print::Frame => files.frames.get(k)?.clone(),
         Print::Clipped => files.clipped.clone(),
+        Print::LeftOut => files.left_out.clone(),
     }
 }
 
@@ -283,6 +286,10 @@ async fn frame(s: State<Arc<Shared>>, p: UrlPath<(String, String)>) -> Response 
 
 async fn clipped(State(shared): State<Arc<Shared>>, UrlPath(id): UrlPath<String>) -> Response {
     send(file_of(&shared, &id, "0", Print::Clipped), Print::Clipped).await
+}
+
+async fn left_out(State(shared): State<Arc<Shared>>, UrlPath(id): UrlPath<String>) -> Response {
+    send(file_of(&shared, &id, "0", Print::LeftOut), Print::LeftOut).await
 }
 
 async fn serve(
