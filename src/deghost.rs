@@ -978,15 +978,19 @@ mod tests {
         assert_eq!(masks.share(), 0.0);
     }
 
-    #[test]
-    fn a_moved_square_is_left_out_where_it_differs() {
+    /// The masks of three shots whose squares stand at x = 8, 40 and 24.
+    fn moved_squares() -> GhostMasks {
         let frames = [
             (shot(1.0, Some(8)), 1.0),
             (shot(2.0, Some(40)), 2.0),
             (shot(0.5, Some(24)), 0.5),
         ];
-        let camera = Camera::default();
-        let masks = ghost_masks(&bracket(&frames, &camera), &linear());
+        ghost_masks(&bracket(&frames, &Camera::default()), &linear())
+    }
+
+    #[test]
+    fn a_moved_square_is_left_out_where_it_differs() {
+        let masks = moved_squares();
         let r = masks.reference;
         assert!(masks.masks[r].is_none(), "the reference is never left out");
         // The squares' centres: x = 16, 48 and 32 in frames 0, 1 and 2; row 32.
@@ -1077,13 +1081,7 @@ mod tests {
 
     #[test]
     fn the_reduced_map_keeps_the_least_of_each_cell() {
-        let frames = [
-            (shot(1.0, Some(8)), 1.0),
-            (shot(2.0, Some(40)), 2.0),
-            (shot(0.5, Some(24)), 0.5),
-        ];
-        let camera = Camera::default();
-        let masks = ghost_masks(&bracket(&frames, &camera), &linear());
+        let masks = moved_squares();
         let least = masks.least_kept(64 * 64);
         // 64 px within 10: cells of 7 × 7 pixels, the last row and column of one pixel.
         let map = masks
@@ -1102,7 +1100,7 @@ mod tests {
         }
         assert!(map.least.contains(&0) && map.least.contains(&255));
         let still = [(shot(1.0, Some(8)), 1.0), (shot(2.0, Some(8)), 2.0)];
-        let none = ghost_masks(&bracket(&still, &camera), &linear());
+        let none = ghost_masks(&bracket(&still, &Camera::default()), &linear());
         assert_eq!(none.least_kept_map(64, 64, 10), None);
     }
 

@@ -159,26 +159,26 @@ fn develop_previews(dir: &Path, published: Published, make: Make) -> Record {
             .inspect_err(|e| warn!(error = %e, "no frame thumbnail"));
         }
     }
-    let overlay = clip_overlay_path(&folder);
-    match pictures.clipped.as_ref().filter(|map| map.any()) {
-        Some(map) if wanted(&overlay) => {
-            let _ = write_clip_overlay(map, &overlay)
-                .inspect_err(|e| warn!(error = %e, "no overlay of what was clipped"));
+    let clipped = pictures.clipped.as_ref().filter(|map| map.any());
+    let overlays = [
+        (clip_overlay_path(&folder), clipped.map(clip_overlay)),
+        (
+            left_out_overlay_path(&folder),
+            pictures.left_out.as_ref().map(left_out_overlay),
+        ),
+    ];
+    for (path, overlay) in overlays {
+        match overlay {
+            Some(overlay) if wanted(&path) => {
+                let _ = overlay
+                    .publish(&path)
+                    .inspect_err(|e| warn!(error = %e, "no overlay"));
+            }
+            Some(_) => {}
+            // A development again that marks nothing must not show the last one's overlay.
+            None if make == Make::All => remove_stale(&path),
+            None => {}
         }
-        Some(_) => {}
-        // A development again that clipped nothing must not show the last one's overlay.
-        None if make == Make::All => remove_stale(&overlay),
-        None => {}
-    }
-    let overlay = left_out_overlay_path(&folder);
-    match pictures.left_out.as_ref() {
-        Some(map) if wanted(&overlay) => {
-            let _ = write_left_out_overlay(map, &overlay)
-                .inspect_err(|e| warn!(error = %e, "no overlay of what deghosting left out"));
-        }
-        Some(_) => {}
-        None if make == Make::All => remove_stale(&overlay),
-        None => {}
     }
     link(&mut record, &folder);
     keep_record(&record, &folder);
@@ -194,9 +194,30 @@ fn clip_overlay_path(folder: &Path) -> PathBuf {
 const CLIPPED_HIGH: [u8; 4] = [255, 40, 40, 170];
 const CLIPPED_LOW: [u8; 4] = [40, 110, 255, 170];
 
-/// Publishes `map` at `path` as an RGBA PNG, transparent where some frame exposed well.
-fn write_clip_overlay(map: &ClipMap, path: &Path) -> Result<(), PreviewError> {
-    let pixels: Vec<u8> = map
+/// An overlay's RGBA pixels, rows top down.
+struct Overlay {
+    width: u32,
+    height: u32,
+    pixels: Vec<u8>,
+}
+
+impl Overlay {
+    /// Publishes the overlay at `path` as an RGBA PNG.
+    fn publish(&self, path: &Path) -> Result<(), PreviewError> {
+        publish_encoded(path, |bytes| {
+            image::codecs::png::PngEncoder::new(bytes).write_image(
+                &self.pixels,
+                self.width,
+                self.height,
+                image::ExtendedColorType::Rgba8,
+            )
+        })
+    }
+}
+
+/// `map` as an overlay, transparent where some frame exposed well.
+fn clip_overlay(map: &ClipMap) -> Overlay {
+    let pixels = map
         .clips
         .iter()
         .flat_map(|clip| match clip {
@@ -205,14 +226,11 @@ fn write_clip_overlay(map: &ClipMap, path: &Path) -> Result<(), PreviewError> {
             Clip::Measured => [0; 4],
         })
         .collect();
-    publish_encoded(path, |bytes| {
-        image::codecs::png::PngEncoder::new(bytes).write_image(
-            &pixels,
-            map.width,
-            map.height,
-            image::ExtendedColorType::Rgba8,
-        )
-    })
+    Overlay {
+        width: map.width,
+        height: map.height,
+        pixels,
+    }
 }
 
 /// `<folder>/left-out.png`: the overlay of where deghosting left frames out.
@@ -225,26 +243,23 @@ fn left_out_overlay_path(folder: &Path) -> PathBuf {
 const LEFT_OUT: [u8; 3] = [230, 40, 230];
 const LEFT_OUT_ALPHA: u32 = 170;
 
-/// Publishes `map` at `path` as an RGBA PNG, opacity `170·(255 − least)/255`: clear where
-/// every frame was merged.
-fn write_left_out_overlay(map: &KeptMap, path: &Path) -> Result<(), PreviewError> {
-    let pixels: Vec<u8> = map
+/// `map` as an overlay of opacity `170·(255 − least)/255`: clear where every frame was
+/// merged.
+fn left_out_overlay(map: &KeptMap) -> Overlay {
+    let [r, g, b] = LEFT_OUT;
+    let pixels = map
         .least
         .iter()
         .flat_map(|&least| {
             let alpha = (LEFT_OUT_ALPHA * u32::from(255 - least) + 127) / 255;
-            let [r, g, b] = LEFT_OUT;
             [r, g, b, alpha as u8]
         })
         .collect();
-    publish_encoded(path, |bytes| {
-        image::codecs::png::PngEncoder::new(bytes).write_image(
-            &pixels,
-            map.width,
-            map.height,
-            image::ExtendedColorType::Rgba8,
-        )
-    })
+    Overlay {
+        width: map.width,
+        height: map.height,
+        pixels,
+    }
 }
 
 /// Encodes a preview with `encode` and publishes it at `path`, creating its folder.
