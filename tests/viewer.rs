@@ -776,6 +776,11 @@ fn the_page_in_chromium_shows_a_new_bracket_without_reload() {
     );
     browser.wait("document.getElementById('latest-stem').textContent === 'MOVE-1'");
     browser.wait("(() => { const m = document.getElementById('leftoutmap'); return m.hidden && !!m.getAttribute('src') && document.getElementById('ghostwarn').style.display === 'block'; })()");
+    // Its warning stands under the clipping warning, and at the stage's top without it.
+    browser.wait("(() => { const c = document.getElementById('clipwarn').getBoundingClientRect(), g = document.getElementById('ghostwarn').getBoundingClientRect(); return c.height > 0 && g.top >= c.bottom; })()");
+    browser.eval("document.getElementById('clipwarn').style.display = 'none'");
+    browser.wait("document.getElementById('ghostwarn').getBoundingClientRect().top - document.getElementById('stage').getBoundingClientRect().top < 15");
+    browser.eval("renderLatest()");
     let key_g = serde_json::json!({ "type": "keyDown", "key": "g", "code": "KeyG", "windowsVirtualKeyCode": 71 });
     browser.call("Input.dispatchKeyEvent", key_g.clone());
     browser.wait("(() => { const m = document.getElementById('leftoutmap'); return !m.hidden && m.complete && m.naturalWidth === 96 && document.getElementById('ghostwarn').textContent.includes('G hides'); })()");
