@@ -768,15 +768,13 @@ impl<T: Sample> Pair<'_, T> {
     }
 
     /// Frame `k` against `anchor` at pixel `p`: it disagrees when any channel does
-    /// ([`Pair::judge`] through `judge`).
+    /// ([`Pair::judge`] through `judge`); unknown without the pair's statistics (no
+    /// channel has flags).
     #[inline]
     fn verdict<J>(&self, judge: &J, p: usize, anchor: usize) -> Verdict
     where
         J: Fn(usize, usize, usize, usize) -> u8,
     {
-        if self.residuals[anchor].is_none() {
-            return Verdict::Unknown;
-        }
         let channels = self.bracket.codes.channels;
         let (anchors, ks) = (self.bracket.planes[anchor], self.bracket.planes[self.k]);
         let mut flags = 0;
