@@ -466,12 +466,28 @@ impl BlockRow {
 /// measure for [`Pyramid::clipped_alike`] to compare them.
 const LEAST_COMMON_SPAN: f32 = std::f32::consts::LN_2;
 
+/// A value per code of any depth: an 8- or 16-bit code indexes it without a bounds check
+/// (a shallower depth leaves the entries above its top code at 0).
+type Table = [f32; 1 << 16];
+
+/// The codes' entries `entry(k)` in a [`Table`].
+fn table_of(levels: usize, entry: impl Fn(usize) -> f32) -> Box<Table> {
+    let mut table: Box<Table> = vec![0.0; 1 << 16]
+        .into_boxed_slice()
+        .try_into()
+        .expect("the length is the table's");
+    for (k, slot) in table.iter_mut().take(levels).enumerate() {
+        *slot = entry(k);
+    }
+    table
+}
+
 /// Codes to linear values and weights, per code and channel `g(B)/C` (`C` channels, so a
 /// pixel's mean is the sum of its channels' entries) and per code its [`log_weight`]:
 /// what [`Pyramid::from_rows`] and the full-resolution refinement read.
 pub(super) struct Convert {
-    tables: Vec<Vec<f32>>,
-    weight_of: Vec<f32>,
+    tables: Vec<Box<Table>>,
+    weight_of: Box<Table>,
     /// The codes whose weight is not 0, first and last: the weight rises between them.
     weighed: (usize, usize),
     /// The mean `g` over the channels at the lower and upper well-exposed codes.
@@ -483,21 +499,18 @@ impl Convert {
     pub(super) fn new(response: &InverseResponse, depth: BitDepth, channels: usize) -> Convert {
         let levels = depth.levels();
         let share = 1.0 / channels as f32;
-        let tables: Vec<Vec<f32>> = (0..channels)
+        let tables: Vec<Box<Table>> = (0..channels)
             .map(|ch| {
                 let table = response.table(ch.min(response.channels() - 1), levels);
-                table.into_iter().map(|g| g * share).collect()
+                table_of(levels, |k| table[k] * share)
             })
             .collect();
         let max = depth.max_code() as f32;
         let (low, high) = super::well_exposed_codes(depth.max_code());
         let mean_at = |k: u32| tables.iter().map(|t| t[k as usize]).sum::<f32>();
         let range = (mean_at(low), mean_at(high));
-        let weight_of: Vec<f32> = (0..levels).map(|k| log_weight(k as f32 / max)).collect();
-        let first = weight_of
-            .iter()
-            .position(|&w| w > 0.0)
-            .unwrap_or(weight_of.len());
+        let weight_of = table_of(levels, |k| log_weight(k as f32 / max));
+        let first = weight_of.iter().position(|&w| w > 0.0).unwrap_or(levels);
         let last = weight_of.iter().rposition(|&w| w > 0.0).unwrap_or(0);
         Convert {
             tables,
@@ -509,10 +522,10 @@ impl Convert {
 
     /// One pixel's codes (one per channel): its mean `g(B)` over the channels and its
     /// worst channel's weight.
-    fn pixel<T: Copy + Into<usize>>(&self, codes: &[T]) -> (f32, f32) {
+    fn pixel<T: Copy + Into<u16>>(&self, codes: &[T]) -> (f32, f32) {
         let (mut sum, mut worst) = (0.0f32, f32::INFINITY);
         for (&k, table) in codes.iter().zip(&self.tables) {
-            let k: usize = k.into();
+            let k = usize::from(k.into());
             sum += table[k];
             worst = worst.min(self.weight_of[k]);
         }
@@ -520,7 +533,7 @@ impl Convert {
     }
 
     /// A row of pixels (`codes`, channels interleaved) as [`Convert::pixel`] gives them.
-    fn row<T: Copy + Into<usize>>(&self, codes: &[T], values: &mut [f32], weights: &mut [f32]) {
+    fn row<T: Copy + Into<u16>>(&self, codes: &[T], values: &mut [f32], weights: &mut [f32]) {
         match self.tables.len() {
             1 => self.row_of::<T, 1>(codes, values, weights),
             _ => self.row_of::<T, 3>(codes, values, weights),
@@ -529,24 +542,24 @@ impl Convert {
 
     /// [`Convert::row`] for `C` channels. The worst channel's weight is that of the
     /// lowest code when every code is weighed ([`log_weight`] rises with the code), else 0.
-    fn row_of<T: Copy + Into<usize>, const C: usize>(
+    fn row_of<T: Copy + Into<u16>, const C: usize>(
         &self,
         codes: &[T],
         values: &mut [f32],
         weights: &mut [f32],
     ) {
-        let tables: [&[f32]; C] = std::array::from_fn(|ch| self.tables[ch].as_slice());
+        let tables: [&Table; C] = std::array::from_fn(|ch| &*self.tables[ch]);
         let (first, last) = self.weighed;
         for ((pixel, value), weight) in codes.chunks_exact(C).zip(values).zip(weights) {
-            let (mut sum, mut low, mut high) = (0.0f32, usize::MAX, 0);
+            let (mut sum, mut low, mut high) = (0.0f32, u16::MAX, 0);
             for (&k, table) in pixel.iter().zip(tables) {
-                let k: usize = k.into();
-                sum += table[k];
+                let k: u16 = k.into();
+                sum += table[usize::from(k)];
                 (low, high) = (low.min(k), high.max(k));
             }
             *value = sum;
-            *weight = if low >= first && high <= last {
-                self.weight_of[low]
+            *weight = if usize::from(low) >= first && usize::from(high) <= last {
+                self.weight_of[usize::from(low)]
             } else {
                 0.0
             };
