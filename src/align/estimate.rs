@@ -299,8 +299,23 @@ fn erode(width: usize, height: usize, usable: &[bool], radius: usize) -> Vec<boo
 fn smooth(width: usize, height: usize, log: &[f32]) -> Vec<f32> {
     const KERNEL: [f32; 3] = [0.25, 0.5, 0.25];
     let mut out = log.to_vec();
+    let edge = |x: usize, y: usize| x == 0 || y == 0 || x + 1 == width || y + 1 == height;
+    for y in 1..height.saturating_sub(1) {
+        // Inside the level the kernel's weights sum to exactly 1: the same terms, in the
+        // same order, without the edge's checks.
+        let rows = [y - 1, y, y + 1].map(|yy| &log[yy * width..(yy + 1) * width]);
+        for x in 1..width.saturating_sub(1) {
+            let mut sum = 0.0f32;
+            for (row, ky) in rows.iter().zip(KERNEL) {
+                for (v, kx) in row[x - 1..=x + 1].iter().zip(KERNEL) {
+                    sum += ky * kx * v;
+                }
+            }
+            out[y * width + x] = sum;
+        }
+    }
     for y in 0..height {
-        for x in 0..width {
+        for x in (0..width).filter(|&x| edge(x, y)) {
             let (mut sum, mut weight) = (0.0f32, 0.0f32);
             for (dy, ky) in KERNEL.iter().enumerate() {
                 let Some(yy) = (y + dy).checked_sub(1).filter(|&v| v < height) else {

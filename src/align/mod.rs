@@ -506,7 +506,7 @@ pub fn align(frames: &[AlignFrame<'_>], response: &InverseResponse, mode: AlignM
     let step = estimate::step_for(first.width() as usize, first.height() as usize, 1);
     let convert = estimate::Convert::new(response, first.bit_depth(), first.channels());
     let pyramids: Vec<estimate::Pyramid> = frames
-        .iter()
+        .par_iter()
         .map(|f| estimate::Pyramid::of_frame(f.frame, &convert, f.exposure, step))
         .collect();
     let pictures: Vec<estimate::Codes<'_>> = frames

@@ -409,7 +409,7 @@ mod raw {
         }
         let step = estimate::step_for(first.width, first.height, 2);
         let tiles: Vec<Tiles<'_>> = frames.iter().map(Tiles::of).collect();
-        let pyramids: Vec<Pyramid> = tiles.iter().map(|t| t.pyramid(step)).collect();
+        let pyramids: Vec<Pyramid> = tiles.par_iter().map(|t| t.pyramid(step)).collect();
         let full: Vec<FullFrame<'_>> = tiles
             .iter()
             .map(|t| FullFrame::new(t, t.frame.exposure))
