@@ -41,7 +41,8 @@ enum Convergence {
     Within(f64),
 }
 
-/// Samples one Gauss–Newton iteration reads at most (a regular subsample of the level).
+/// Samples one Gauss–Newton iteration reads at least, where the level has more blocks (a
+/// regular subsample: [`Sampling`]).
 const SAMPLES_PER_ITERATION: usize = 120_000;
 
 /// The damping `λ` a level's refinement starts from, and the least it falls to.
@@ -1063,7 +1064,9 @@ fn accumulate_cells(
 const CELLS: usize = 16;
 
 /// How [`accumulate`] samples a reference level under a state: every `stride`-th block
-/// of every `stride`-th row (at most [`SAMPLES_PER_ITERATION`]).
+/// of every `stride`-th row, `stride = ⌊√(n/S)⌋` (at least 1) for a level of `n` blocks and
+/// `S` = [`SAMPLES_PER_ITERATION`]: every block of a level of fewer than `4S`, else
+/// between `S` and `4S` of them.
 struct Sampling<'g> {
     stride: usize,
     matrix: Matrix3<f64>,
