@@ -1526,12 +1526,16 @@ fn register(
         skip_sparse,
         finest,
     };
-    let (mut state, note) = estimate(&fixed.levels, &moving.levels, geometry, model, schedule)?;
+    let (mut state, normal, note) =
+        estimate(&fixed.levels, &moving.levels, geometry, model, schedule)?;
     if let Some((f, m)) = full {
         let still = |s: &State| geometry.displacement(&s.matrix()) < IDENTITY_PX;
         if still(&state) {
-            let finest = (&fixed.levels[0], &moving.levels[0]);
-            state = refine(finest, geometry, state, Convergence::Final).map_or(state, |(s, _)| s);
+            let (fine_fixed, fine_moving) = (&fixed.levels[0], &moving.levels[0]);
+            let at = |s: &State| accumulate(fine_fixed, fine_moving, geometry, s, s.params());
+            let step = fine_fixed.step;
+            let finished = damped(geometry, step, state, normal, &at, Convergence::Final);
+            state = finished.map_or(state, |(s, _)| s);
         }
         if !still(&state) {
             state = full::refine(f, m, geometry, state, fixed.levels[0].step);
@@ -1637,7 +1641,7 @@ fn register_clipped(
         skip_sparse: false,
         finest: Convergence::Final,
     };
-    let (state, note) = estimate(&clamped_fixed, &clamped_moving, geometry, model, schedule)?;
+    let (state, _, note) = estimate(&clamped_fixed, &clamped_moving, geometry, model, schedule)?;
     let fine = (&fixed.levels[0], &moving.levels[0]);
     // Too few well-exposed blocks in common to refine: nothing contradicts the edges.
     if let Ok((refined, normal)) = refine(fine, geometry, state, Convergence::Final) {
@@ -1668,14 +1672,15 @@ struct Schedule {
     finest: Convergence,
 }
 
-/// The state of [`register`], with a note when the model was simplified.
+/// The state of [`register`], its normal equations on the finest level and a note when
+/// the model was simplified.
 fn estimate(
     fixed: &[Level],
     moving: &[Level],
     geometry: &Geometry,
     model: Motion,
     schedule: Schedule,
-) -> Result<(State, Option<String>), Refusal> {
+) -> Result<(State, Normal, Option<String>), Refusal> {
     let (fine_fixed, fine_moving) = (&fixed[0], &moving[0]);
     let shared = overlap(fine_fixed, fine_moving);
     if shared < MIN_OVERLAP {
@@ -1698,7 +1703,7 @@ fn estimate(
             still,
         });
     }
-    Ok((state, note))
+    Ok((state, normal, note))
 }
 
 /// The coarse search, then Gauss–Newton from the coarsest level to the finest (the
