@@ -563,14 +563,24 @@ enum Verdict {
     Disagree,
 }
 
-/// Decides, for every frame of `frames` but the reference (the frame alignment registers
-/// the others onto, [`crate::align::choose_reference`]), where it is left out of the
-/// merge (module docs). Frames that do not share size, depth and channels get no masks
-/// (the merge refuses them).
-pub fn ghost_masks(frames: &[BracketFrame<'_>], response: &InverseResponse) -> GhostMasks {
+/// Decides, for every frame of `frames` but `reference` (the input index of the frame
+/// alignment registered the others onto, [`crate::align::Alignment::reference`]; for a
+/// bracket not aligned, [`crate::align::choose_reference`]'s), where it is left out of
+/// the merge (module docs). An index past the frames is chosen again as the latter.
+/// Frames that do not share size, depth and channels get no masks (the merge refuses
+/// them).
+pub fn ghost_masks(
+    frames: &[BracketFrame<'_>],
+    response: &InverseResponse,
+    reference: usize,
+) -> GhostMasks {
     let views: Vec<&Frame> = frames.iter().map(|f| f.frame).collect();
-    let reference = crate::align::choose_reference(&views);
     let n = frames.len();
+    let reference = if reference < n {
+        reference
+    } else {
+        crate::align::choose_reference(&views)
+    };
     let unmasked = GhostMasks {
         reference,
         masks: vec![None; n],
@@ -951,6 +961,13 @@ mod tests {
             .collect()
     }
 
+    /// The masks of `frames` (linear codes) onto the frame alignment would choose.
+    fn masks_of(frames: &[(Frame, f64)]) -> GhostMasks {
+        let views: Vec<&Frame> = frames.iter().map(|(f, _)| f).collect();
+        let reference = crate::align::choose_reference(&views);
+        ghost_masks(&bracket(frames, &Camera::default()), &linear(), reference)
+    }
+
     /// A 64×64 linear scene of smooth tones, exposed at `e`, with a square of side 16 at
     /// `(x0, 24)` four times brighter.
     fn shot(e: f64, x0: Option<usize>) -> Frame {
@@ -970,8 +987,7 @@ mod tests {
     #[test]
     fn a_static_bracket_has_no_mask() {
         let frames = [(shot(1.0, Some(8)), 1.0), (shot(2.0, Some(8)), 2.0)];
-        let camera = Camera::default();
-        let masks = ghost_masks(&bracket(&frames, &camera), &linear());
+        let masks = masks_of(&frames);
         assert!(masks.is_empty(), "{:?}", masks.left_out);
         assert_eq!(masks.share(), 0.0);
     }
@@ -983,7 +999,7 @@ mod tests {
             (shot(2.0, Some(40)), 2.0),
             (shot(0.5, Some(24)), 0.5),
         ];
-        ghost_masks(&bracket(&frames, &Camera::default()), &linear())
+        masks_of(&frames)
     }
 
     #[test]
@@ -1009,6 +1025,28 @@ mod tests {
             "{}",
             masks.share()
         );
+    }
+
+    #[test]
+    fn the_given_reference_is_the_one_trusted() {
+        let shots = [(shot(1.0, Some(8)), 1.0), (shot(2.0, Some(40)), 2.0)];
+        let camera = Camera::default();
+        let frames = bracket(&shots, &camera);
+        for reference in [0, 1] {
+            let masks = ghost_masks(&frames, &linear(), reference);
+            assert_eq!(masks.reference, reference);
+            assert!(
+                masks.masks[reference].is_none(),
+                "the reference is kept whole"
+            );
+            assert!(
+                masks.masks[1 - reference].is_some(),
+                "the other is left out"
+            );
+        }
+        let chosen = ghost_masks(&frames, &linear(), 2).reference;
+        let views: Vec<&Frame> = frames.iter().map(|f| f.frame).collect();
+        assert_eq!(chosen, crate::align::choose_reference(&views));
     }
 
     /// Frames `k` of a noisy 160×120 sRGB bracket of the procedural scene, a flat square
@@ -1098,15 +1136,14 @@ mod tests {
         }
         assert!(map.least.contains(&0) && map.least.contains(&255));
         let still = [(shot(1.0, Some(8)), 1.0), (shot(2.0, Some(8)), 2.0)];
-        let none = ghost_masks(&bracket(&still, &Camera::default()), &linear());
+        let none = masks_of(&still);
         assert_eq!(none.least_kept_map(64, 64, 10), None);
     }
 
     #[test]
     fn masks_fall_smoothly() {
         let frames = [(shot(1.0, Some(8)), 1.0), (shot(2.0, Some(40)), 2.0)];
-        let camera = Camera::default();
-        let masks = ghost_masks(&bracket(&frames, &camera), &linear());
+        let masks = masks_of(&frames);
         let other = 1 - masks.reference;
         let mask = masks.masks[other]
             .as_ref()

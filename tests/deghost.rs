@@ -5,6 +5,7 @@
 
 use std::path::Path;
 
+use filmback::align;
 use filmback::deghost::{self, GhostMasks};
 use filmback::frame::{BitDepth, Frame};
 use filmback::merge::{self, BracketFrame, MergeOptions};
@@ -63,6 +64,12 @@ fn shoot(base: &RadianceMap, positions: [usize; 3]) -> Vec<Frame> {
         .collect()
 }
 
+/// The ghost masks of `frames` onto the reference alignment would choose.
+fn masks_onto_chosen(frames: &[Frame], camera: &Camera, g: &InverseResponse) -> GhostMasks {
+    let reference = align::choose_reference(&frames.iter().collect::<Vec<_>>());
+    deghost::ghost_masks(&bracket(frames, camera), g, reference)
+}
+
 fn bracket<'a>(frames: &'a [Frame], camera: &'a Camera) -> Vec<BracketFrame<'a>> {
     frames
         .iter()
@@ -115,7 +122,7 @@ fn a_moving_subject_is_merged_as_the_reference_shows_it() {
     let positions = [100, 100 + step, 100 + 2 * step];
     let moving = shoot(&base, positions);
     let camera = Camera::default();
-    let masks = deghost::ghost_masks(&bracket(&moving, &camera), &g);
+    let masks = masks_onto_chosen(&moving, &camera, &g);
     let still = shoot(&base, [positions[masks.reference]; 3]);
     let truth = merged(&still, &g, None);
 
@@ -149,7 +156,7 @@ fn a_still_bracket_is_merged_exactly_as_without_deghosting() {
     let g = true_response(&ResponseCurve::Srgb);
     let frames = shoot(&base, [200; 3]);
     let camera = Camera::default();
-    let masks = deghost::ghost_masks(&bracket(&frames, &camera), &g);
+    let masks = masks_onto_chosen(&frames, &camera, &g);
     assert!(masks.is_empty(), "left out: {:?}", masks.left_out);
     let plain = merge::merge(&bracket(&frames, &camera), &g, MergeOptions::default()).unwrap();
     assert_eq!(
@@ -174,7 +181,7 @@ fn a_wrong_response_does_not_make_ghosts() {
         })
         .collect();
     let camera = Camera::default();
-    let masks = deghost::ghost_masks(&bracket(&frames, &camera), &g);
+    let masks = masks_onto_chosen(&frames, &camera, &g);
     assert!(
         masks.share() < 0.01,
         "{:.4} of the pixels left out",
@@ -201,7 +208,7 @@ fn a_tone_curve_the_response_does_not_model_does_not_make_ghosts() {
         })
         .collect();
     let camera = Camera::default();
-    let masks = deghost::ghost_masks(&bracket(&frames, &camera), &g);
+    let masks = masks_onto_chosen(&frames, &camera, &g);
     assert!(
         masks.share() < 0.01,
         "{:.4} of the pixels left out",

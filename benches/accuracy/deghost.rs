@@ -17,7 +17,8 @@
 //! learnopencv's two triples; skipped when absent).
 //!
 //! **Cost.** `deghost::ghost_masks` on three 6000×4000 8-bit frames two stops apart (a
-//! still bracket, and the same with the subject moving), and the buffered merge with and
+//! still bracket, and the same with the subject moving; the reference given, as alignment
+//! chose it), and the buffered merge with and
 //! without masks; best of `--runs N` (default 3).
 //!
 //! `cargo bench --bench deghost -- [accuracy | speed] [--runs N]`
@@ -236,7 +237,7 @@ fn report(case: &Case) {
         })
         .collect();
     let g = common::fitted(&still);
-    let masks = deghost::ghost_masks(&common::bracket(&moved, &camera), &g);
+    let masks = deghost::ghost_masks(&common::bracket(&moved, &camera), &g, r);
     let truth = merged(&still, &g, None);
     let first = &case.frames[0].0;
     let (side, _, start) = subject(first, 0);
@@ -244,7 +245,7 @@ fn report(case: &Case) {
     let area = (start.0..end, start.1..start.1 + side);
     let deghosted = errors(&merged(&moved, &g, Some(&masks)), &truth, &area);
     let blended = errors(&merged(&moved, &g, None), &truth, &area);
-    let still_masks = deghost::ghost_masks(&common::bracket(&still, &camera), &g);
+    let still_masks = deghost::ghost_masks(&common::bracket(&still, &camera), &g, r);
     let change = change(&merged(&still, &g, Some(&still_masks)), &truth);
     println!(
         "| {} | {}×{} | {} | {} | {:.1} % | {:.2} % / {change} |",
@@ -330,9 +331,18 @@ fn speed(runs: usize) {
     println!("wall time, and CPU time of all threads in parentheses");
     println!("| step | still | moving subject |");
     println!("|---|---|---|");
-    let masks_of =
-        |frames: &[(Frame, f64)]| deghost::ghost_masks(&common::bracket(frames, &camera), &g);
-    let masks = (masks_of(&still), masks_of(&moved));
+    // The reference comes with the alignment (`Alignment::reference`), chosen once.
+    let reference = |frames: &Frames| {
+        align::choose_reference(&frames.iter().map(|(f, _)| f).collect::<Vec<_>>())
+    };
+    let references = (reference(&still), reference(&moved));
+    let masks_of = |frames: &[(Frame, f64)], r: usize| {
+        deghost::ghost_masks(&common::bracket(frames, &camera), &g, r)
+    };
+    let masks = (
+        masks_of(&still, references.0),
+        masks_of(&moved, references.1),
+    );
     let row = |name: &str, f: &dyn Fn(&Frames, &GhostMasks)| {
         let still_t = common::best_of(runs, &|| f(&still, &masks.0));
         let moved_t = common::best_of(runs, &|| f(&moved, &masks.1));
@@ -341,8 +351,8 @@ fn speed(runs: usize) {
             still_t.0, still_t.1, moved_t.0, moved_t.1
         );
     };
-    row("ghost masks", &|frames, _| {
-        masks_of(frames);
+    row("ghost masks", &|frames, m| {
+        masks_of(frames, m.reference);
     });
     row("merge, no masks", &|frames, _| {
         merged(frames, &g, None);

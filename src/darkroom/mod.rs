@@ -488,7 +488,8 @@ pub fn develop(
             let bracket = aligned(&bracket, &warped);
             if options.deghost == Deghost::On {
                 let t = Instant::now();
-                ghosts = Some(deghost::ghost_masks(&bracket, &chosen.response));
+                let reference = alignment.reference;
+                ghosts = Some(deghost::ghost_masks(&bracket, &chosen.response, reference));
                 stages.push(("deghost", t.elapsed()));
             }
             let t = Instant::now();
