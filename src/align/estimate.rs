@@ -1695,13 +1695,16 @@ fn estimate(
             farthest,
         });
     }
-    let still = identity_rms(fine_fixed, fine_moving, geometry);
-    if displacement >= IDENTITY_PX && normal.rms() >= still {
-        return Err(Refusal::NoBetter {
-            displacement,
-            moved: normal.rms(),
-            still,
-        });
+    // Only a move (of some pixel by IDENTITY_PX) must fit better than none.
+    if displacement >= IDENTITY_PX {
+        let still = identity_rms(fine_fixed, fine_moving, geometry);
+        if normal.rms() >= still {
+            return Err(Refusal::NoBetter {
+                displacement,
+                moved: normal.rms(),
+                still,
+            });
+        }
     }
     Ok((state, normal, note))
 }
