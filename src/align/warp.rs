@@ -177,15 +177,24 @@ impl Positions {
             (*x0, *y0) = (rounded(cx), rounded(cy));
             (*fx, *fy) = (sx - cx, sy - cy);
         }
-        for ((fx, fy), (&px, &py)) in self
-            .fx
-            .chunks_exact_mut(C)
-            .zip(self.fy.chunks_exact_mut(C))
-            .zip(self.pixel_fx.iter().zip(&self.pixel_fy))
-        {
-            fx.fill(px);
-            fy.fill(py);
+        spread::<C>(&self.pixel_fx, &mut self.fx);
+        spread::<C>(&self.pixel_fy, &mut self.fy);
+    }
+}
+
+/// Each of `per_pixel`'s values `C` times over into `per_sample`, four pixels at a time
+/// so that it compiles to vector shuffles.
+fn spread<const C: usize>(per_pixel: &[f32], per_sample: &mut [f32]) {
+    let mut samples = per_sample.chunks_exact_mut(4 * C);
+    let mut pixels = per_pixel.chunks_exact(4);
+    for (s, p) in (&mut samples).zip(&mut pixels) {
+        for (k, s) in s.iter_mut().enumerate() {
+            *s = p[k / C];
         }
+    }
+    let rest = samples.into_remainder().chunks_exact_mut(C);
+    for (s, &p) in rest.zip(pixels.remainder()) {
+        s.fill(p);
     }
 }
 
