@@ -120,6 +120,10 @@ struct Positions {
     covered: Vec<bool>,
     x0: Vec<u32>,
     y0: Vec<u32>,
+    /// Per pixel 1 where it does not continue the [`Segment::Run`] of the pixel before it
+    /// (the first pixel, one not covered or after one not covered, one whose neighbours
+    /// are not those of the pixel before moved one to the right), else 0.
+    breaks: Vec<u8>,
     /// The weights per pixel.
     pixel_fx: Vec<f32>,
     pixel_fy: Vec<f32>,
@@ -134,6 +138,7 @@ impl Positions {
             covered: vec![false; width],
             x0: vec![0; width],
             y0: vec![0; width],
+            breaks: vec![1; width],
             pixel_fx: vec![0.0; width],
             pixel_fy: vec![0.0; width],
             fx: vec![0.0; width * channels],
@@ -179,7 +184,36 @@ impl Positions {
         }
         spread::<C>(&self.pixel_fx, &mut self.fx);
         spread::<C>(&self.pixel_fy, &mut self.fy);
+        self.mark_breaks();
     }
+
+    /// [`Positions::breaks`] from the pixels' positions, in a loop that vectorises.
+    fn mark_breaks(&mut self) {
+        let n = self.breaks.len().saturating_sub(1);
+        let (covered, x0, y0) = (&self.covered, &self.x0, &self.y0);
+        let (c, x, y) = (&covered[..n], &x0[..n], &y0[..n]);
+        let (c1, x1, y1) = (&covered[1..], &x0[1..], &y0[1..]);
+        for (i, b) in self.breaks[1..].iter_mut().enumerate() {
+            let continues = c[i] & c1[i] & (x1[i] == x[i].wrapping_add(1)) & (y1[i] == y[i]);
+            *b = u8::from(!continues);
+        }
+    }
+}
+
+/// The first index at or after `from` whose byte in `breaks` is not 0, or the length:
+/// eight bytes at a time.
+fn next_break(breaks: &[u8], from: usize) -> usize {
+    let mut words = breaks[from..].chunks_exact(8);
+    let mut at = from;
+    for word in &mut words {
+        let bits = u64::from_le_bytes(word.try_into().expect("eight bytes"));
+        if bits != 0 {
+            return at + bits.trailing_zeros() as usize / 8;
+        }
+        at += 8;
+    }
+    let rest = words.remainder().iter().position(|&b| b != 0);
+    rest.map_or(breaks.len(), |i| at + i)
 }
 
 /// Each of `per_pixel`'s values `C` times over into `per_sample`, four pixels at a time
@@ -222,15 +256,9 @@ impl Positions {
                 x += 1;
                 return Some(Segment::Uncovered(start));
             }
-            let (x0, y0) = (self.x0[x] as usize, self.y0[x]);
-            x += 1;
-            while x < w
-                && self.covered[x]
-                && (self.x0[x] as usize, self.y0[x]) == (x0 + x - start, y0)
-            {
-                x += 1;
-            }
-            Some(Segment::Run(start..x, (x0, y0 as usize)))
+            x = next_break(&self.breaks, x + 1);
+            let corner = (self.x0[start] as usize, self.y0[start] as usize);
+            Some(Segment::Run(start..x, corner))
         })
     }
 }
