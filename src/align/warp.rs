@@ -373,7 +373,7 @@ mod raw {
         }
 
         /// Per row of the black-level tile, every column's black level `b` and `w − b`:
-        /// what [`MosaicFrame::signal_row`] and [`Lattice::of`] read.
+        /// what [`MosaicFrame::signal_row`] and [`least_clipped_codes`] read.
         fn levels(&self) -> Vec<(Vec<f32>, Vec<f32>)> {
             (0..self.info.black_height.max(1))
                 .map(|y| {
@@ -639,18 +639,18 @@ mod raw {
     fn warp_mosaic(f: &MosaicFrame<'_>, t: &[[f64; 3]; 3]) -> Vec<u16> {
         let w = f.width;
         let white = f.info.white.ceil().clamp(0.0, 65535.0) as u16;
-        let levels = f.levels();
+        let least_clipped = least_clipped_codes(&f.levels());
         let mut out = vec![white; w * f.height];
         for (ox, oy) in [(0, 0), (1, 0), (0, 1), (1, 1)] {
-            let lattice = Lattice::of(f, &levels, (ox, oy));
+            let lattice = Lattice::of(f, &least_clipped, (ox, oy));
             let warped = lattice.warp(&on_lattice(t, (ox, oy)), white);
             out.par_chunks_mut(w)
                 .skip(oy)
                 .step_by(2)
                 .zip(warped.par_chunks(lattice.cols))
                 .for_each(|(row, samples)| {
-                    for (o, &v) in row.iter_mut().skip(ox).step_by(2).zip(samples) {
-                        *o = v;
+                    for (o, &v) in row[ox..].chunks_mut(2).zip(samples) {
+                        o[0] = v;
                     }
                 });
         }
@@ -667,6 +667,29 @@ mod raw {
         std::array::from_fn(|r| std::array::from_fn(|c| m[(r, c)]))
     }
 
+    /// Per row of the black-level tile (as [`MosaicFrame::levels`] gives its levels), per
+    /// column the least code whose signal `(k − b)/d` is at least [`CLIPPED`] (`2¹⁶` when
+    /// none is). The signal rises with the code (`d = w − b > 0`, which decoding
+    /// ensures), so a code is clipped exactly when it is at least this one.
+    fn least_clipped_codes(levels: &[(Vec<f32>, Vec<f32>)]) -> Vec<Vec<u32>> {
+        let least = |b: f32, d: f32| {
+            let (mut low, mut high) = (0u32, 1u32 << 16);
+            while low < high {
+                let mid = (low + high) / 2;
+                if normalised(mid as u16, b, d) >= CLIPPED {
+                    high = mid;
+                } else {
+                    low = mid + 1;
+                }
+            }
+            low
+        };
+        let row = |(black, span): &(Vec<f32>, Vec<f32>)| {
+            black.iter().zip(span).map(|(&b, &d)| least(b, d)).collect()
+        };
+        levels.iter().map(row).collect()
+    }
+
     /// The pixels of one CFA position of a mosaic, `cols × rows`: codes, and whether each
     /// is clipped (signal ≥ [`CLIPPED`]).
     struct Lattice {
@@ -677,12 +700,9 @@ mod raw {
     }
 
     impl Lattice {
-        /// The pixels `(ox + 2i, oy + 2j)` of `f`, whose [`MosaicFrame::levels`] are `levels`.
-        fn of(
-            f: &MosaicFrame<'_>,
-            levels: &[(Vec<f32>, Vec<f32>)],
-            (ox, oy): (usize, usize),
-        ) -> Self {
+        /// The pixels `(ox + 2i, oy + 2j)` of `f`, whose [`least_clipped_codes`] are
+        /// `least_clipped`.
+        fn of(f: &MosaicFrame<'_>, least_clipped: &[Vec<u32>], (ox, oy): (usize, usize)) -> Self {
             let (cols, rows) = ((f.width - ox).div_ceil(2), (f.height - oy).div_ceil(2));
             let mut codes = vec![0u16; cols * rows];
             let mut clipped = vec![false; cols * rows];
@@ -692,13 +712,11 @@ mod raw {
                 .enumerate()
                 .for_each(|(j, (codes, clipped))| {
                     let y = oy + 2 * j;
-                    let (black, span) = &levels[y % levels.len()];
-                    let row = &f.codes[y * f.width..(y + 1) * f.width];
-                    let pixels = row.iter().zip(black).zip(span).skip(ox).step_by(2);
-                    for ((c, k), ((&code, &b), &d)) in
-                        codes.iter_mut().zip(clipped.iter_mut()).zip(pixels)
-                    {
-                        (*c, *k) = (code, normalised(code, b, d) >= CLIPPED);
+                    let least = &least_clipped[y % least_clipped.len()][ox..];
+                    let row = &f.codes[y * f.width + ox..(y + 1) * f.width];
+                    let pairs = row.chunks(2).zip(least.chunks(2));
+                    for ((c, k), (code, least)) in codes.iter_mut().zip(clipped).zip(pairs) {
+                        (*c, *k) = (code[0], u32::from(code[0]) >= least[0]);
                     }
                 });
             Lattice {
