@@ -190,6 +190,9 @@ impl Positions {
     /// [`Positions::breaks`] from the pixels' positions, in a loop that vectorises.
     fn mark_breaks(&mut self) {
         let n = self.breaks.len().saturating_sub(1);
+        if n == 0 {
+            return;
+        }
         let (covered, x0, y0) = (&self.covered, &self.x0, &self.y0);
         let (c, x, y) = (&covered[..n], &x0[..n], &y0[..n]);
         let (c1, x1, y1) = (&covered[1..], &x0[1..], &y0[1..]);
