@@ -17,7 +17,8 @@
 //! `cargo bench --bench align` (`common::MOVES`: shifts in pixels, rotations, and the
 //! perspective in normalised coordinates); the found transform's error is the largest
 //! distance, over the frame's corners, between where it and the true move send them.
-//! *Split:* scenes 10–11 were looked at while choosing what the raw refinement refines;
+//! The wall times of the estimation ([`align::align_mosaics`]) and of resampling the
+//! frames found moved ([`align::warp_mosaics`]), once each. *Split:* scenes 10–11 were looked at while choosing what the raw refinement refines;
 //! scenes 12–13 were not.
 //!
 //! **Merge.** The same moved brackets merged ([`raw::develop`]) unaligned, as alignment
@@ -106,8 +107,8 @@ fn still(width: u32, height: u32) {
 
 fn moved(width: u32, height: u32) {
     println!("moved raw brackets, {width}×{height}: the found transform's largest corner error");
-    println!("| scene | move | 1/500 s frame | 1/60 s frame | estimation |");
-    println!("|---|---|---|---|---|");
+    println!("| scene | move | 1/500 s frame | 1/60 s frame | estimation | resampling |");
+    println!("|---|---|---|---|---|---|");
     let times = [500.0, 60.0, 8.0];
     for scene_seed in [10, 11, 12, 13] {
         let scene = common::lens(&synthetic::scene(width, height, scene_seed));
@@ -117,7 +118,7 @@ fn moved(width: u32, height: u32) {
                 Some(common::matrix(width, height, outer[1])),
                 None,
             ];
-            let (alignment, seconds) = aligned(&scene, &views, times, scene_seed);
+            let (alignment, [estimation, resampling]) = aligned(&scene, &views, times, scene_seed);
             let cells: Vec<String> = (0..2)
                 .map(|k| {
                     let truth = views[k].expect("moved");
@@ -134,10 +135,11 @@ fn moved(width: u32, height: u32) {
                 })
                 .collect();
             println!(
-                "| {scene_seed} | {name} | {} | {} | {:.0} ms |",
+                "| {scene_seed} | {name} | {} | {} | {:.0} ms | {:.0} ms |",
                 cells[0],
                 cells[1],
-                seconds * 1000.0
+                estimation * 1000.0,
+                resampling * 1000.0
             );
         }
     }
@@ -280,21 +282,27 @@ fn error(truth: &[f32], test: &[f32], mask: &[bool]) -> String {
 
 /// The alignment of three DNGs of `scene` at shutter times `1/times[k]` s, frame `k` seeing
 /// it moved by `views[k]` (reference pixel → frame pixel), through the typical sensor with
-/// noise seed `seed`, and the wall time of [`align::align_mosaics`] (once: estimation,
-/// no resampling) in seconds.
+/// noise seed `seed`, and the wall times, in seconds, of [`align::align_mosaics`]
+/// (estimation) and of [`align::warp_mosaics`] (resampling the frames found moved), once
+/// each.
 fn aligned(
     scene: &RadianceMap,
     views: &[Option<[[f64; 3]; 3]>; 3],
     times: [f64; 3],
     seed: u64,
-) -> (Vec<FrameAlignment>, f64) {
+) -> (Vec<FrameAlignment>, [f64; 2]) {
     let dir = tempfile::tempdir().expect("temporary folder");
     let loaded = bracket(scene, views, times, seed, dir.path());
+    let frames = mosaics(&loaded, times);
     let start = std::time::Instant::now();
-    let alignment = align::align_mosaics(&mosaics(&loaded, times), AlignMode::Auto);
-    let seconds = start.elapsed().as_secs_f64();
+    let alignment = align::align_mosaics(&frames, AlignMode::Auto);
+    let estimation = start.elapsed().as_secs_f64();
+    let start = std::time::Instant::now();
+    let resampled = align::warp_mosaics(&frames, &alignment);
+    let resampling = start.elapsed().as_secs_f64();
+    drop(resampled);
     assert_eq!(alignment.reference, 2, "the longest frame is the reference");
-    (alignment.frames, seconds)
+    (alignment.frames, [estimation, resampling])
 }
 
 /// Three DNGs of `scene` at shutter times `1/times[k]` s, frame `k` seeing it moved by
