@@ -1,5 +1,6 @@
-//! What a wrong response costs: errors of a recovered curve and of a merged radiance map
-//! against the ground truth, shared by the tests and the accuracy bench.
+//! What a wrong response or alignment costs: errors of a recovered curve, of a merged
+//! radiance map and of a found transform against the ground truth, shared by the tests
+//! and the accuracy benches.
 
 use super::ResponseCurve;
 use crate::frame::{Frame, Samples};
@@ -109,11 +110,49 @@ pub fn true_response(curve: &ResponseCurve, samples: usize) -> InverseResponse {
     InverseResponse::from_samples(vec![g; 3]).expect("a response curve's inverse is valid")
 }
 
+/// The largest distance, in pixels, between where the pixel transforms `a` and `b`
+/// (row-major, `x′ = (m₀·x)/(m₂·x)` for `x = (x, y, 1)`) send a corner of a `w × h`
+/// frame: `(0, 0)`, `(w − 1, 0)`, `(0, h − 1)`, `(w − 1, h − 1)`.
+pub fn corner_error(w: u32, h: u32, a: &[[f64; 3]; 3], b: &[[f64; 3]; 3]) -> f64 {
+    let apply = |m: &[[f64; 3]; 3], x: f64, y: f64| {
+        let z = m[2][0] * x + m[2][1] * y + m[2][2];
+        (
+            (m[0][0] * x + m[0][1] * y + m[0][2]) / z,
+            (m[1][0] * x + m[1][1] * y + m[1][2]) / z,
+        )
+    };
+    let (xs, ys) = (f64::from(w - 1), f64::from(h - 1));
+    [(0.0, 0.0), (xs, 0.0), (0.0, ys), (xs, ys)]
+        .iter()
+        .map(|&(x, y)| {
+            let ((ax, ay), (bx, by)) = (apply(a, x, y), apply(b, x, y));
+            (ax - bx).hypot(ay - by)
+        })
+        .fold(0.0, f64::max)
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
     use crate::frame::BitDepth;
     use crate::synthetic::{Sensor, expose, scene};
+
+    #[test]
+    fn corner_error_is_the_farthest_corner() {
+        let still = [[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]];
+        let shift = [[1.0, 0.0, 3.0], [0.0, 1.0, 4.0], [0.0, 0.0, 1.0]];
+        assert_eq!(corner_error(100, 50, &still, &shift), 5.0);
+        // Scaled by 1 % about the origin: the far corner (99, 49) moves most.
+        let scale = [[1.01, 0.0, 0.0], [0.0, 1.01, 0.0], [0.0, 0.0, 1.0]];
+        let far = 0.01 * 99f64.hypot(49.0);
+        assert!((corner_error(100, 50, &still, &scale) - far).abs() < 1e-12);
+        // A perspective row divides: x′ = x/(1 + 0.001·x).
+        let tilt = [[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.001, 0.0, 1.0]];
+        let (x, y) = (99.0, 49.0);
+        let z: f64 = 1.0 + 0.001 * x;
+        let far = (x - x / z).hypot(y - y / z);
+        assert!((corner_error(100, 50, &tilt, &still) - far).abs() < 1e-12);
+    }
 
     #[test]
     fn scale_error_is_the_log_offset_and_shape_ignores_it() {
