@@ -137,14 +137,15 @@
 //! signal, filtered by the binomial `[1 2 1]/4` in both directions (unfiltered, one
 //! tile's shot noise, which the bilinear interpolation averages down most at half-tile
 //! offsets, drew a still dark frame about a pixel off). Translations and rotations are
-//! refined there. A homography is not: on the moved test brackets a homography refined on
-//! the tiles landed farther from the true move than the pyramid's, with a lower residual
-//! than the true move's, so what the tiles measure (not the descent) is off in the
-//! perspective terms. It keeps the pyramid's estimate unless the rigid model refined on
-//! the tiles from it fits the samples at least as well (mean squared residual, gain and
-//! offset fitted), which then replaces it: the darkest frame of a nudged bracket,
-//! registered through the middle one, is otherwise often taken for a homography a pixel
-//! or two off at the corners.
+//! refined there. A homography is not: where a moved frame differs from the reference in
+//! sharpness as well as in place (the test brackets resampled from a sharp raster), a
+//! homography refined on the tiles landed farther from the true move than the
+//! pyramid's, at a lower residual than the true move's; on frames rendered exactly it
+//! landed closer (`docs/accuracy.md`, "Raw brackets"). It keeps the pyramid's estimate
+//! unless the rigid model refined on the tiles from it fits the samples at least as well
+//! (mean squared residual, gain and offset fitted), which then replaces it: the darkest
+//! frame of a nudged bracket, registered through the middle one, is otherwise often
+//! taken for a homography a pixel or two off at the corners.
 
 mod estimate;
 mod warp;
