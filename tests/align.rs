@@ -389,23 +389,9 @@ fn a_nudged_dng_bracket_is_refined_on_cfa_tiles() {
 fn a_dng_bracket_moved_with_perspective_is_aligned() {
     let (w, h) = (1600u32, 1200u32);
     let dir = tempfile::tempdir().unwrap();
-    let (cx, cy, s) = (
-        f64::from(w - 1) / 2.0,
-        f64::from(h - 1) / 2.0,
-        f64::from(w) / 2.0,
-    );
-    // Reference pixel → frame pixel: a rotation, a shift and a perspective `(px, py)` (in
-    // units of half the longer side) about the centre.
-    let view = |degrees: f64, (dx, dy): (f64, f64), (px, py): (f64, f64)| {
-        let (sin, cos) = degrees.to_radians().sin_cos();
-        let n = nalgebra::Matrix3::new(cos, -sin, dx / s, sin, cos, dy / s, px, py, 1.0);
-        let c = nalgebra::Matrix3::new(s, 0.0, cx, 0.0, s, cy, 0.0, 0.0, 1.0);
-        let m = c * n * c.try_inverse().unwrap();
-        [0, 1, 2].map(|r| [0, 1, 2].map(|k| m[(r, k)] / m[(2, 2)]))
-    };
     let moves = [
-        view(0.08, (2.3, -1.7), (0.0, 0.0)),
-        view(-0.4, (-9.5, 7.2), (0.004, -0.003)),
+        synthetic::camera_move(w, h, 0.08, (2.3, -1.7), (0.0, 0.0)),
+        synthetic::camera_move(w, h, -0.4, (-9.5, 7.2), (0.004, -0.003)),
     ];
     let seen = |m: &[[f64; 3]; 3]| synthetic::waves(w, h, 41, m).unwrap();
     let views = [seen(&moves[0]), seen(&moves[1]), seen(&IDENTITY)];

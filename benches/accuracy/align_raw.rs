@@ -112,39 +112,47 @@ fn still(width: u32, height: u32) {
 }
 
 fn moved(width: u32, height: u32) {
-    let exact = |seed: u64, view: &[[f64; 3]; 3]| {
+    let exact = |&seed: &u64, view: &[[f64; 3]; 3]| {
         synthetic::waves(width, height, seed, view).expect("invertible")
     };
     println!("moved raw brackets, {width}×{height}, exact (waves rendered through each move)");
-    moved_table(width, height, 10..=17, [125.0, 30.0, 8.0], &exact);
+    moved_table(
+        width,
+        height,
+        10..=17,
+        [125.0, 30.0, 8.0],
+        |seed| seed,
+        exact,
+    );
     println!("moved raw brackets, {width}×{height}, resampled (the procedural scene, bilinear)");
-    let scene = std::cell::RefCell::new((0, None));
-    let resampled = |seed: u64, view: &[[f64; 3]; 3]| {
-        let mut kept = scene.borrow_mut();
-        if kept.0 != seed || kept.1.is_none() {
-            *kept = (
-                seed,
-                Some(common::lens(&synthetic::scene(width, height, seed))),
-            );
-        }
-        let scene = kept.1.as_ref().expect("rendered");
+    let raster = |seed: u64| common::lens(&synthetic::scene(width, height, seed));
+    let resampled = |scene: &RadianceMap, view: &[[f64; 3]; 3]| {
         if *view == align::IDENTITY {
-            return scene.clone();
+            scene.clone()
+        } else {
+            synthetic::moved(scene, view).expect("invertible")
         }
-        synthetic::moved(scene, view).expect("invertible")
     };
-    moved_table(width, height, 10..=13, [500.0, 60.0, 8.0], &resampled);
+    moved_table(
+        width,
+        height,
+        10..=13,
+        [500.0, 60.0, 8.0],
+        raster,
+        resampled,
+    );
 }
 
 /// The moved table's rows: per scene seed and move, the found transform's largest corner
 /// error for the two shorter frames, and the estimation's and resampling's wall times.
-/// `render(seed, view)` is the scene of `seed` as a camera moved by `view` sees it.
-fn moved_table(
+/// `render(&scene(seed), view)` is the scene of `seed` as a camera moved by `view` sees it.
+fn moved_table<S>(
     width: u32,
     height: u32,
     seeds: std::ops::RangeInclusive<u64>,
     times: [f64; 3],
-    render: &dyn Fn(u64, &[[f64; 3]; 3]) -> RadianceMap,
+    scene: impl Fn(u64) -> S,
+    render: impl Fn(&S, &[[f64; 3]; 3]) -> RadianceMap,
 ) {
     println!(
         "| scene | move | 1/{} s frame | 1/{} s frame | estimation | resampling |",
@@ -152,17 +160,15 @@ fn moved_table(
     );
     println!("|---|---|---|---|---|---|");
     for scene_seed in seeds {
+        let scene = scene(scene_seed);
+        let reference = render(&scene, &align::IDENTITY);
         for common::Move { name, outer } in &common::MOVES {
             let truths = [
                 common::matrix(width, height, outer[0]),
                 common::matrix(width, height, outer[1]),
             ];
-            let views = [
-                render(scene_seed, &truths[0]),
-                render(scene_seed, &truths[1]),
-                render(scene_seed, &align::IDENTITY),
-            ];
-            let seen = [&views[0], &views[1], &views[2]];
+            let moved = [render(&scene, &truths[0]), render(&scene, &truths[1])];
+            let seen = [&moved[0], &moved[1], &reference];
             let (alignment, [estimation, resampling]) = aligned(seen, times, scene_seed);
             let cells: Vec<String> = (0..2)
                 .map(|k| {

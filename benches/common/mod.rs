@@ -246,17 +246,10 @@ pub const MOVES: [Move; 2] = [
 ];
 
 /// The pixel matrix (reference pixel → moved frame's pixel) of one outer frame's move in
-/// a `w × h` frame: `C·H·C⁻¹`, `C` taking normalised coordinates (centre `c`, unit half
-/// the longer side `s`) to pixels.
+/// a `w × h` frame ([`synthetic::camera_move`]).
 pub fn matrix(w: u32, h: u32, m: FrameMove) -> [[f64; 3]; 3] {
-    let FrameMove((dx, dy), degrees, (px, py)) = m;
-    let (cx, cy) = (f64::from(w - 1) / 2.0, f64::from(h - 1) / 2.0);
-    let s = f64::from(w.max(h)) / 2.0;
-    let (sin, cos) = degrees.to_radians().sin_cos();
-    let n = nalgebra::Matrix3::new(cos, -sin, dx / s, sin, cos, dy / s, px, py, 1.0);
-    let c = nalgebra::Matrix3::new(s, 0.0, cx, 0.0, s, cy, 0.0, 0.0, 1.0);
-    let c_inv = nalgebra::Matrix3::new(1.0 / s, 0.0, -cx / s, 0.0, 1.0 / s, -cy / s, 0.0, 0.0, 1.0);
-    to_array(&(c * n * c_inv))
+    let FrameMove(shift, degrees, perspective) = m;
+    synthetic::camera_move(w, h, degrees, shift, perspective)
 }
 
 pub fn to_array(m: &nalgebra::Matrix3<f64>) -> [[f64; 3]; 3] {

@@ -48,6 +48,29 @@ pub fn moved(scene: &RadianceMap, transform: &[[f64; 3]; 3]) -> Option<RadianceM
     RadianceMap::new(scene.width(), scene.height(), c, out).ok()
 }
 
+/// The pixel transform (reference pixel → moved frame's pixel, the convention of
+/// [`moved`]) of a camera turned by `degrees` and shifted by `(dx, dy)` pixels about the
+/// centre of a `width × height` frame, with the perspective terms `(px, py)`: `C·N·C⁻¹`,
+/// `N = [cos θ, −sin θ, dx/s; sin θ, cos θ, dy/s; px, py, 1]` in coordinates normalised by
+/// `C` (centre `((w − 1)/2, (h − 1)/2)`, unit `s`, half the longer side), scaled so that
+/// its last entry is 1.
+pub fn camera_move(
+    width: u32,
+    height: u32,
+    degrees: f64,
+    (dx, dy): (f64, f64),
+    (px, py): (f64, f64),
+) -> [[f64; 3]; 3] {
+    let (cx, cy) = (f64::from(width - 1) / 2.0, f64::from(height - 1) / 2.0);
+    let s = f64::from(width.max(height)) / 2.0;
+    let (sin, cos) = degrees.to_radians().sin_cos();
+    let n = Matrix3::new(cos, -sin, dx / s, sin, cos, dy / s, px, py, 1.0);
+    let c = Matrix3::new(s, 0.0, cx, 0.0, s, cy, 0.0, 0.0, 1.0);
+    let c_inv = Matrix3::new(1.0 / s, 0.0, -cx / s, 0.0, 1.0 / s, -cy / s, 0.0, 0.0, 1.0);
+    let m = c * n * c_inv;
+    std::array::from_fn(|r| std::array::from_fn(|k| m[(r, k)] / m[(2, 2)]))
+}
+
 /// Plane waves in the log radiance of [`waves`].
 const WAVES: usize = 16;
 /// The waves' lowest and highest frequencies, cycles per pixel.
@@ -125,5 +148,32 @@ mod tests {
         assert_ne!(a.pixels(), other.pixels(), "the seed draws the waves");
         let singular = [[1.0, 0.0, 0.0], [2.0, 0.0, 0.0], [0.0, 0.0, 1.0]];
         assert!(waves(40, 30, 7, &singular).is_none());
+    }
+
+    #[test]
+    fn a_camera_move_turns_about_the_centre() {
+        let m = camera_move(101, 51, 90.0, (2.0, -3.0), (0.0, 0.0));
+        let at = |x: f64, y: f64| {
+            let z = m[2][0] * x + m[2][1] * y + m[2][2];
+            (
+                (m[0][0] * x + m[0][1] * y + m[0][2]) / z,
+                (m[1][0] * x + m[1][1] * y + m[1][2]) / z,
+            )
+        };
+        let (x, y) = at(50.0, 25.0);
+        assert!(
+            (x - 52.0).abs() < 1e-9 && (y + 3.0 - 25.0).abs() < 1e-9,
+            "{x} {y}"
+        );
+        // A quarter turn takes (60, 25), 10 px right of the centre, to 10 px below it.
+        let (x, y) = at(60.0, 25.0);
+        assert!(
+            (x - 52.0).abs() < 1e-9 && (y - 32.0).abs() < 1e-9,
+            "{x} {y}"
+        );
+        // The perspective row in pixels: (px/s, 0, 1 − px·cx/s), scaled to end in 1.
+        let tilted = camera_move(101, 51, 0.0, (0.0, 0.0), (0.01, 0.0));
+        let expected = (0.01 / 50.5) / (1.0 - 0.01 * 50.0 / 50.5);
+        assert!((tilted[2][0] - expected).abs() < 1e-12, "{tilted:?}");
     }
 }
