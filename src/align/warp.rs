@@ -560,9 +560,9 @@ mod raw {
             }
         }
 
-        /// No: the parent module's "Camera raw" says why.
-        fn refines_perspective(&self) -> bool {
-            false
+        /// Yes: the parent module's "Camera raw" says why.
+        fn tests_perspective(&self) -> bool {
+            true
         }
     }
 
