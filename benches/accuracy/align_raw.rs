@@ -29,6 +29,11 @@
 //!   scenes 10–11 were looked at while choosing what the raw refinement refines; scenes
 //!   12–13 were not.
 //!
+//! Then *sharpness*: the procedural scene with the 1/60 s frame shifted by half pixels
+//! (bilinear resampling at a constant offset blurs it evenly) and the 1/500 s frame by
+//! whole ones, which alignment registers through the blurred frame; the found
+//! transforms' corner errors.
+//!
 //! **Merge.** The same moved brackets merged ([`raw::develop`]) unaligned, as alignment
 //! found them, and resampled back by the exact inverse of the move (the floor), against
 //! the merge of the unmoved bracket (same noise seed): luminance error in stops where the
@@ -112,7 +117,7 @@ fn still(width: u32, height: u32) {
 }
 
 fn moved(width: u32, height: u32) {
-    let exact = |&seed: &u64, view: &[[f64; 3]; 3]| {
+    let exact = |&seed: &u64, _: usize, view: &[[f64; 3]; 3]| {
         synthetic::waves(width, height, seed, view).expect("invertible")
     };
     println!("moved raw brackets, {width}×{height}, exact (waves rendered through each move)");
@@ -126,7 +131,7 @@ fn moved(width: u32, height: u32) {
     );
     println!("moved raw brackets, {width}×{height}, resampled (the procedural scene, bilinear)");
     let raster = |seed: u64| common::lens(&synthetic::scene(width, height, seed));
-    let resampled = |scene: &RadianceMap, view: &[[f64; 3]; 3]| {
+    let resampled = |scene: &RadianceMap, _: usize, view: &[[f64; 3]; 3]| {
         if *view == align::IDENTITY {
             scene.clone()
         } else {
@@ -141,18 +146,76 @@ fn moved(width: u32, height: u32) {
         raster,
         resampled,
     );
+    sharpness(width, height);
+}
+
+/// Shifts in pixels of the 1/500 s and 1/60 s frames of [`sharpness`]: the middle frame's
+/// half pixels blur it.
+const SHIFTS: [[(f64, f64); 2]; 2] = [[(4.0, -2.0), (2.5, -1.5)], [(-3.0, 2.0), (-1.5, 0.5)]];
+
+/// Frames that differ in sharpness: the procedural scene with the 1/60 s frame shifted by
+/// half pixels (bilinear resampling at a constant offset blurs it evenly) and the 1/500 s
+/// frame by whole ones (not blurred), which alignment registers through the blurred one.
+/// The found transforms' corner errors.
+fn sharpness(width: u32, height: u32) {
+    println!(
+        "shifted raw brackets, {width}×{height}: the 1/60 s frame blurred by a half-pixel \
+         shift (the procedural scene, 1/500, 1/60 and 1/8 s)"
+    );
+    println!("| scene | shifts (1/500 s; 1/60 s) | 1/500 s frame | 1/60 s frame |");
+    println!("|---|---|---|---|");
+    for scene_seed in 10..=13 {
+        let scene = common::lens(&synthetic::scene(width, height, scene_seed));
+        for shifts in SHIFTS {
+            let truths = shifts.map(|(dx, dy)| [[1.0, 0.0, dx], [0.0, 1.0, dy], [0.0, 0.0, 1.0]]);
+            let moved = truths.map(|t| synthetic::moved(&scene, &t).expect("invertible"));
+            let times = [500.0, 60.0, 8.0];
+            let (alignment, _) = aligned([&moved[0], &moved[1], &scene], times, scene_seed);
+            let cells: Vec<String> = (0..2)
+                .map(|k| {
+                    let context = format!("scene {scene_seed}, {shifts:?}, frame {k}");
+                    cell(width, height, &alignment[k], &truths[k], &context)
+                })
+                .collect();
+            println!(
+                "| {scene_seed} | {:?}; {:?} | {} | {} |",
+                shifts[0], shifts[1], cells[0], cells[1]
+            );
+        }
+    }
+    println!();
+}
+
+/// A table cell for a frame's alignment `f` against the true move `truth`: the largest
+/// corner error and the model found; its note, if any, printed after `context`.
+fn cell(
+    width: u32,
+    height: u32,
+    f: &FrameAlignment,
+    truth: &[[f64; 3]; 3],
+    context: &str,
+) -> String {
+    let error = measure::corner_error(width, height, &found(f), truth);
+    if let Some(note) = &f.note {
+        println!("({context}: {note})");
+    }
+    format!(
+        "{error:.2} px ({})",
+        f.motion.map_or("unmoved", |m| m.as_str())
+    )
 }
 
 /// The moved table's rows: per scene seed and move, the found transform's largest corner
 /// error for the two shorter frames, and the estimation's and resampling's wall times.
-/// `render(&scene(seed), view)` is the scene of `seed` as a camera moved by `view` sees it.
+/// `render(&scene(seed), k, view)` is the scene of `seed` as frame `k` (the reference: 2)
+/// sees it through a camera moved by `view`.
 fn moved_table<S>(
     width: u32,
     height: u32,
     seeds: std::ops::RangeInclusive<u64>,
     times: [f64; 3],
     scene: impl Fn(u64) -> S,
-    render: impl Fn(&S, &[[f64; 3]; 3]) -> RadianceMap,
+    render: impl Fn(&S, usize, &[[f64; 3]; 3]) -> RadianceMap,
 ) {
     println!(
         "| scene | move | 1/{} s frame | 1/{} s frame | estimation | resampling |",
@@ -161,26 +224,19 @@ fn moved_table<S>(
     println!("|---|---|---|---|---|---|");
     for scene_seed in seeds {
         let scene = scene(scene_seed);
-        let reference = render(&scene, &align::IDENTITY);
+        let reference = render(&scene, 2, &align::IDENTITY);
         for common::Move { name, outer } in &common::MOVES {
             let truths = [
                 common::matrix(width, height, outer[0]),
                 common::matrix(width, height, outer[1]),
             ];
-            let moved = [render(&scene, &truths[0]), render(&scene, &truths[1])];
+            let moved = [render(&scene, 0, &truths[0]), render(&scene, 1, &truths[1])];
             let seen = [&moved[0], &moved[1], &reference];
             let (alignment, [estimation, resampling]) = aligned(seen, times, scene_seed);
             let cells: Vec<String> = (0..2)
                 .map(|k| {
-                    let f = &alignment[k];
-                    let error = measure::corner_error(width, height, &found(f), &truths[k]);
-                    if let Some(note) = &f.note {
-                        println!("(scene {scene_seed}, {name}, frame {k}: {note})");
-                    }
-                    format!(
-                        "{error:.2} px ({})",
-                        f.motion.map_or("unmoved", |m| m.as_str())
-                    )
+                    let context = format!("scene {scene_seed}, {name}, frame {k}");
+                    cell(width, height, &alignment[k], &truths[k], &context)
                 })
                 .collect();
             println!(
