@@ -143,8 +143,8 @@
 //! from the one it is registered onto (a half-pixel shift blurs it evenly; the test
 //! brackets resampled from a sharp raster), a homography's perspective and scale fit the
 //! difference: the residual falls by 1.6–12 % and the corners land up to 3 px from the
-//! true move. A camera's perspective leaves the rigid model 5 to 200 times the homography's
-//! residual on the raw test brackets (`docs/accuracy.md`, "Raw brackets").
+//! true move. A camera's perspective leaves the rigid model 5 to 200 times the
+//! homography's residual on the raw test brackets (`docs/accuracy.md`, "Raw brackets").
 
 mod estimate;
 mod warp;

@@ -416,14 +416,8 @@ pub(super) fn refine(
     if state.motion != Motion::Homography || !reference.picture.tests_perspective() {
         return kept;
     }
-    let (start, _) = fitted(reference, moving, geometry, state);
-    let (rigid, rigid_fit) = refined(
-        reference,
-        moving,
-        geometry,
-        start.as_motion(Motion::Rigid),
-        step,
-    );
+    let rigid_start = state.as_motion(Motion::Rigid);
+    let (rigid, rigid_fit) = refined(reference, moving, geometry, rigid_start, step);
     if rigid_fit >= PERSPECTIVE_GAIN * fit {
         kept
     } else {
