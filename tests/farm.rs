@@ -295,6 +295,13 @@ fn a_task_is_idempotent_and_a_finished_set_is_kept_unless_forced() {
     assert!(text(&finished.stderr).contains("already done"));
     assert_eq!(files(&out), first);
     assert!(!stage.exists());
+    // Killed while removing the staging folder of a published set: the next attempt
+    // finds the set done and removes what is left.
+    std::fs::create_dir_all(stage.join(".previous")).unwrap();
+    let finished = run(&plan_file, 0, &[]);
+    assert!(text(&finished.stderr).contains("already done"));
+    assert_eq!(files(&out), first);
+    assert!(!stage.exists());
 }
 
 /// `run` killed at any moment leaves the set whole or absent (or, killed between the

@@ -252,14 +252,13 @@ impl Drop for TaskLock {
     }
 }
 
-/// True when every output is in `out`, after finishing the set an attempt at task `id`
-/// sealed before it was killed in the middle of publishing.
+/// True when every output is in `out`, after dealing with the staging folder a killed
+/// attempt at task `id` left (the caller holds the task's lock, so no attempt is using
+/// it): a set sealed before the kill is finished, anything else in it (never visible,
+/// or left after its set was published) is removed.
 fn finished(out: &Path, id: &str, outputs: &[PathBuf]) -> bool {
     let stage = atomic::stage_folder(out, id);
-    if atomic::interrupted_sets(out)
-        .iter()
-        .any(|s| s.stage == stage)
-    {
+    if std::fs::symlink_metadata(&stage).is_ok_and(|m| m.is_dir()) {
         atomic::recover_set(&stage, out);
     }
     outputs
