@@ -878,8 +878,13 @@ impl State {
     }
 
     /// `∂x′/∂p` and `∂y′/∂p` at the normalised point `(u, v)`, which the transform takes to
-    /// `(x′, y′) = (X/W, Y/W)`.
-    fn jacobian(&self, u: f64, v: f64, xp: f64, yp: f64, w: f64) -> ([f64; 8], [f64; 8]) {
+    /// `(x′, y′) = (X/W, Y/W)`; `(s, c)` the sine and cosine of a rigid model's angle.
+    fn jacobian(
+        &self,
+        (s, c): (f64, f64),
+        (u, v): (f64, f64),
+        (xp, yp, w): (f64, f64, f64),
+    ) -> ([f64; 8], [f64; 8]) {
         let mut dx = [0.0; 8];
         let mut dy = [0.0; 8];
         match self.motion {
@@ -888,7 +893,6 @@ impl State {
                 dy[1] = 1.0;
             }
             Motion::Rigid => {
-                let (s, c) = self.p[0].sin_cos();
                 dx[..3].copy_from_slice(&[-s * u - c * v, 1.0, 0.0]);
                 dy[..3].copy_from_slice(&[c * u - s * v, 0.0, 1.0]);
             }
@@ -899,6 +903,25 @@ impl State {
             }
         }
         (dx, dy)
+    }
+}
+
+/// A state as a pass linearises it: the state, how many of its motion parameters the
+/// pass estimates, and what every sample's row shares (the sine and cosine of a rigid
+/// model's angle).
+struct Linearised<'s> {
+    state: &'s State,
+    motion: usize,
+    sin_cos: (f64, f64),
+}
+
+impl Linearised<'_> {
+    fn new(state: &State, motion: usize) -> Linearised<'_> {
+        Linearised {
+            state,
+            motion,
+            sin_cos: state.p[0].sin_cos(),
+        }
     }
 }
 
@@ -946,13 +969,26 @@ impl Normal {
         self.mean_square().sqrt()
     }
 
-    /// Adds one equation: the first `n` entries of its row `j`, residual `r`, `weight`.
+    /// Adds one equation: the first `n` entries of its row `j` (the rest are 0), residual
+    /// `r`, `weight`.
     fn include(&mut self, j: &[f64; MAX_PARAMS], r: f64, weight: f64, n: usize) {
-        for a in 0..n {
-            for b in a..n {
-                self.jtj[a][b] += weight * j[a] * j[b];
+        // The models' sizes as constants, so that the loops unroll.
+        match n {
+            2 => self.include_first::<2>(j, r, weight),
+            4 => self.include_first::<4>(j, r, weight),
+            5 => self.include_first::<5>(j, r, weight),
+            _ => self.include_first::<MAX_PARAMS>(j, r, weight),
+        }
+    }
+
+    /// [`Normal::include`] of the first `N` entries of `j`.
+    fn include_first<const N: usize>(&mut self, j: &[f64; MAX_PARAMS], r: f64, weight: f64) {
+        for a in 0..N {
+            let wa = weight * j[a];
+            for (sum, jb) in self.jtj[a][a..N].iter_mut().zip(&j[a..N]) {
+                *sum += wa * jb;
             }
-            self.jtr[a] += weight * j[a] * r;
+            self.jtr[a] += wa * r;
         }
         self.sse += weight * r * r;
         self.count += 1;
@@ -966,17 +1002,17 @@ impl Normal {
     /// variance of the difference of two log values.
     fn equation(
         &mut self,
-        state: &State,
-        motion: usize,
+        at: &Linearised<'_>,
         (u, v): (f64, f64),
         p: &Vector3<f64>,
         (reference, reference_weight): (f64, f64),
         (value, gu, gv, moving_weight): (f64, f64, f64, f64),
     ) {
+        let (state, motion) = (at.state, at.motion);
         let weight = reference_weight * moving_weight / (reference_weight + moving_weight);
         let r = state.gain * value + state.bias - reference;
         let mut j = [0.0; MAX_PARAMS];
-        let (dx, dy) = state.jacobian(u, v, p.x / p.z, p.y / p.z, p.z);
+        let (dx, dy) = state.jacobian(at.sin_cos, (u, v), (p.x / p.z, p.y / p.z, p.z));
         for k in 0..motion {
             j[k] = state.gain * (gu * dx[k] + gv * dy[k]);
         }
@@ -1013,7 +1049,7 @@ fn accumulate(
     state: &State,
     motion: usize,
 ) -> Normal {
-    let sampling = Sampling::of(reference, geometry, state);
+    let sampling = Sampling::of(reference, geometry, Linearised::new(state, motion));
     // Rows in fixed groups, the groups' sums added in order: the same sums, to the last
     // bit, however the threads share the work.
     let rows: Vec<usize> = (0..reference.height).step_by(sampling.stride).collect();
@@ -1023,7 +1059,7 @@ fn accumulate(
             let mut acc = Normal::zero();
             for &y in group {
                 for x in (0..reference.width).step_by(sampling.stride) {
-                    sampling.add(reference, moving, state, motion, (x, y), &mut acc);
+                    sampling.add(reference, moving, (x, y), &mut acc);
                 }
             }
             acc
@@ -1042,7 +1078,7 @@ fn accumulate_cells(
     state: &State,
     motion: usize,
 ) -> Vec<Normal> {
-    let sampling = Sampling::of(reference, geometry, state);
+    let sampling = Sampling::of(reference, geometry, Linearised::new(state, motion));
     let (w, h) = (reference.width, reference.height);
     (0..CELLS)
         .into_par_iter()
@@ -1052,7 +1088,7 @@ fn accumulate_cells(
             for y in rows.filter(|y| y.is_multiple_of(sampling.stride)) {
                 for x in (0..w).step_by(sampling.stride) {
                     let cell = &mut cells[x * CELLS / w];
-                    sampling.add(reference, moving, state, motion, (x, y), cell);
+                    sampling.add(reference, moving, (x, y), cell);
                 }
             }
             cells
@@ -1066,41 +1102,43 @@ const CELLS: usize = 16;
 /// How [`accumulate`] samples a reference level under a state: every `stride`-th block
 /// of every `stride`-th row, `stride = ⌊√(n/S)⌋` (at least 1) for a level of `n` blocks and
 /// `S` = [`SAMPLES_PER_ITERATION`]: every block of a level of fewer than `4S`, else
-/// between `S` and `4S` of them.
-struct Sampling<'g> {
+/// between `S` and `4S` of them. The blocks' normalised coordinates are computed once
+/// per column and per row.
+struct Sampling<'g, 's> {
     stride: usize,
+    at: Linearised<'s>,
     matrix: Matrix3<f64>,
     geometry: &'g Geometry,
+    /// `ũ` of each column of the level, `ṽ` of each row.
+    columns: Vec<f64>,
+    rows: Vec<f64>,
 }
 
-impl Sampling<'_> {
-    fn of<'g>(reference: &Level, geometry: &'g Geometry, state: &State) -> Sampling<'g> {
+impl<'g, 's> Sampling<'g, 's> {
+    fn of(reference: &Level, geometry: &'g Geometry, at: Linearised<'s>) -> Sampling<'g, 's> {
         let blocks = (reference.width * reference.height) as f64;
         let stride = ((blocks / SAMPLES_PER_ITERATION as f64).sqrt().floor() as usize).max(1);
+        let step = reference.step;
+        let normalised = |x: usize, y: usize| geometry.to_normalised(step, x as f64, y as f64);
         Sampling {
             stride,
-            matrix: state.matrix(),
+            matrix: at.state.matrix(),
+            at,
             geometry,
+            columns: (0..reference.width).map(|x| normalised(x, 0).0).collect(),
+            rows: (0..reference.height).map(|y| normalised(0, y).1).collect(),
         }
     }
 
     /// Adds the equation of reference block `(x, y)` to `acc`, when it is solid and its
     /// image lands on solid blocks of `moving`.
-    fn add(
-        &self,
-        reference: &Level,
-        moving: &Level,
-        state: &State,
-        motion: usize,
-        (x, y): (usize, usize),
-        acc: &mut Normal,
-    ) {
+    fn add(&self, reference: &Level, moving: &Level, (x, y): (usize, usize), acc: &mut Normal) {
         let i = y * reference.width + x;
         if !reference.solid[i] {
             return;
         }
         let step = reference.step;
-        let (u, v) = self.geometry.to_normalised(step, x as f64, y as f64);
+        let (u, v) = (self.columns[x], self.rows[y]);
         let p = self.matrix * Vector3::new(u, v, 1.0);
         let (xp, yp) = (p.x / p.z, p.y / p.z);
         let (lx, ly) = self.geometry.to_level(step, xp, yp);
@@ -1110,7 +1148,7 @@ impl Sampling<'_> {
         let to_level = self.geometry.s / step;
         let fixed = (f64::from(reference.log[i]), f64::from(reference.weight[i]));
         let seen = (value, gx * to_level, gy * to_level, moving_weight);
-        acc.equation(state, motion, (u, v), &p, fixed, seen);
+        acc.equation(&self.at, (u, v), &p, fixed, seen);
     }
 }
 

@@ -8,7 +8,7 @@ use std::sync::OnceLock;
 use nalgebra::{Matrix3, Vector3};
 use rayon::prelude::*;
 
-use super::{Convergence, Convert, Geometry, Motion, Normal, State, damped, solve};
+use super::{Convergence, Convert, Geometry, Linearised, Motion, Normal, State, damped, solve};
 use crate::frame::{Frame, Samples};
 
 /// What the refinement reads of a frame: an image of linear values (the mean `g(B)` of a
@@ -376,6 +376,7 @@ fn accumulate(
     motion: usize,
 ) -> Normal {
     let m = state.matrix();
+    let at = Linearised::new(state, motion);
     let step = reference.picture.step() as f64;
     let to_image = geometry.s / step;
     let groups: Vec<Normal> = reference
@@ -391,7 +392,7 @@ fn accumulate(
                 };
                 let seen = (value, gx * to_image, gy * to_image, weight);
                 let fixed = (f64::from(s.log), f64::from(s.weight));
-                acc.equation(state, motion, (u, v), &p, fixed, seen);
+                acc.equation(&at, (u, v), &p, fixed, seen);
             }
             acc
         })
