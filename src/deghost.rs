@@ -58,11 +58,14 @@
 //! interpolated bilinearly back to pixels: a frame's weight falls smoothly to 0 over about
 //! two blocks around a ghost, so the reference fills the region without a seam. A frame
 //! with no block left out gets no mask, and the merge is then exactly the plain one.
+//! Where a frame is left out, the merge holds each value within the bound the
+//! reference's sample sets ([`GhostMasks::measured`], [`crate::merge::merge_masked`]): a
+//! frame kept there may agree with a clipped or dark reference only within its own noise.
 
 use rayon::prelude::*;
 
 use crate::frame::{Frame, Samples};
-use crate::merge::BracketFrame;
+use crate::merge::{BracketFrame, Masks};
 use crate::response::InverseResponse;
 
 /// Brightness range (normalised codes) in which a sample is compared.
@@ -137,6 +140,9 @@ pub struct GhostMasks {
     pub masks: Vec<Option<Vec<u8>>>,
     /// Per input frame, the share of pixels it was left out of (weight below one half).
     pub left_out: Vec<f64>,
+    /// The first and the last code within [`WELL_EXPOSED`] at the frames' depth: beyond
+    /// them the reference's sample only bounds the radiance.
+    pub measured: (usize, usize),
 }
 
 impl GhostMasks {
@@ -157,9 +163,13 @@ impl GhostMasks {
         out as f64 / n as f64
     }
 
-    /// The masks as the merge takes them, one per input frame.
-    pub fn weights(&self) -> Vec<Option<&[u8]>> {
-        self.masks.iter().map(|m| m.as_deref()).collect()
+    /// The masks as the merge takes them, one per input frame, with the reference.
+    pub fn masks(&self) -> Masks<'_> {
+        Masks {
+            weights: self.masks.iter().map(|m| m.as_deref()).collect(),
+            reference: self.reference,
+            measured: self.measured,
+        }
     }
 
     /// [`GhostMasks::least_kept`] of a `width × height` bracket within `edge` pixels, for
@@ -315,6 +325,16 @@ impl Codes {
         // At most TONE_BINS · RESIDUAL_BINS = 8192.
         (xk.tone == Tone::Good).then_some((usize::from(xa.bin) * RESIDUAL_BINS + slot) as u16)
     }
+}
+
+/// The first and the last code of a depth of `levels` codes within [`WELL_EXPOSED`]
+/// (brightness `code/(levels − 1)`).
+fn well_exposed_codes(levels: usize) -> (usize, usize) {
+    let top = (levels - 1) as f64;
+    (
+        (WELL_EXPOSED.0 * top).ceil() as usize,
+        (WELL_EXPOSED.1 * top).floor() as usize,
+    )
 }
 
 /// `f` at every pair of codes `(a, x)` below `levels`, rows by `a`.
@@ -581,10 +601,12 @@ pub fn ghost_masks(
     } else {
         crate::align::choose_reference(&views)
     };
+    let measured = well_exposed_codes(views[0].bit_depth().levels());
     let unmasked = GhostMasks {
         reference,
         masks: vec![None; n],
         left_out: vec![0.0; n],
+        measured,
     };
     let shape = |f: &Frame| (f.width(), f.height(), f.channels(), f.bit_depth());
     if views.iter().any(|f| shape(f) != shape(views[0])) {
@@ -638,6 +660,7 @@ pub fn ghost_masks(
         reference,
         masks,
         left_out,
+        measured,
     }
 }
 
@@ -1007,6 +1030,8 @@ mod tests {
         let masks = moved_squares();
         let r = masks.reference;
         assert!(masks.masks[r].is_none(), "the reference is never left out");
+        // 8-bit: codes 6 (0.0235) to 242 (0.949) lie within WELL_EXPOSED.
+        assert_eq!(masks.masks().measured, (6, 242));
         // The squares' centres: x = 16, 48 and 32 in frames 0, 1 and 2; row 32.
         let centre = [32 * 64 + 16, 32 * 64 + 48, 32 * 64 + 32];
         for k in (0..3).filter(|&k| k != r) {

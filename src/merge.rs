@@ -435,7 +435,20 @@ pub fn merge(
     response: &InverseResponse,
     options: MergeOptions,
 ) -> Result<Merged, MergeError> {
-    merge_masked(frames, response, options, &[])
+    merge_masked(frames, response, options, &Masks::default())
+}
+
+/// Deghosting's weight masks as [`merge_masked`] applies them.
+#[derive(Debug, Clone, Default)]
+pub struct Masks<'a> {
+    /// Per input frame, its weight per pixel (`0..=255`, 255 kept) or `None` where it is
+    /// kept everywhere; empty for no masks.
+    pub weights: Vec<Option<&'a [u8]>>,
+    /// Input index of the reference frame, which the others were compared with.
+    pub reference: usize,
+    /// The first and the last code at which the reference's sample measures the
+    /// radiance; beyond them it is a bound (see [`merge_masked`]).
+    pub measured: (usize, usize),
 }
 
 /// [`merge`] with a weight mask per frame (input order; `None` or an empty `masks`: the
@@ -444,22 +457,30 @@ pub fn merge(
 /// ([`crate::deghost`]). A sample every kept frame clipped takes the clipped-everywhere
 /// rule over the kept frames (every frame when all are masked out there), except that a
 /// sample black in every kept frame but seen by a masked-out one takes the latter's
-/// weighted mean rather than black. With no mask the values are exactly those of
-/// [`merge`].
+/// weighted mean rather than black. Where any frame's weight is below 1, each value is
+/// held within what the reference's sample allows ([`Masks::reference`]): at least the
+/// reference's value at the last measured code ([`Masks::measured`]) where its code lies
+/// above it, at most its value at the first where below. With no mask the values are
+/// exactly those of [`merge`].
 pub fn merge_masked(
     frames: &[BracketFrame<'_>],
     response: &InverseResponse,
     options: MergeOptions,
-    masks: &[Option<&[u8]>],
+    masks: &Masks<'_>,
 ) -> Result<Merged, MergeError> {
     check(frames, response)?;
     let (order, exposures) = exposure_order(frames);
-    let masks = sorted_masks(frames, &order, masks)?;
+    let bound = Bound::of(&order, masks);
+    let masks = sorted_masks(frames, &order, &masks.weights)?;
     let masked = masks.iter().any(Option::is_some);
     let first = frames[0].frame;
     let (width, height, channels) = (first.width(), first.height(), first.channels());
     let depth = first.bit_depth();
     let tables = Tables::new(&exposures, response, channels, depth, options.weighting);
+    let masks = Masked {
+        weights: &masks,
+        bound,
+    };
 
     let mut pixels = vec![0.0f32; first.pixel_count() * channels];
     let mut confidence = options
@@ -474,13 +495,13 @@ pub fn merge_masked(
                     fill_pair(codes[0], codes[1], &table, width as usize, &mut pixels);
                     count_clipped(codes[0], codes[1], &table)
                 }
-                conf => merge_codes(&codes, &tables, &masks, width as usize, &mut pixels, conf),
+                conf => merge_codes(&codes, &tables, masks, width as usize, &mut pixels, conf),
             }
         }
         Codes::Sixteen(codes) => merge_codes(
             &codes,
             &tables,
-            &masks,
+            masks,
             width as usize,
             &mut pixels,
             confidence.as_deref_mut(),
@@ -523,6 +544,78 @@ fn sorted_masks<'m>(
         .iter()
         .map(|&i| masks.get(i).copied().flatten())
         .collect())
+}
+
+/// Sorted masks and the reference's [`Bound`] (`None` without masks).
+#[derive(Clone, Copy)]
+struct Masked<'m> {
+    weights: &'m [Option<&'m [u8]>],
+    bound: Option<Bound>,
+}
+
+impl Masked<'_> {
+    /// Whether some frame's weight at pixel `p` is below 1.
+    #[inline(always)]
+    fn any_left_out(&self, p: usize) -> bool {
+        self.weights.iter().flatten().any(|m| m[p] < u8::MAX)
+    }
+
+    /// `v`, merged for channel `c` of pixel `p` of the sorted frames' `codes`, held within
+    /// the reference's [`Bound`] where a frame is left out at `p`.
+    #[inline(always)]
+    fn hold(
+        &self,
+        tables: &Tables,
+        (p, c): (usize, usize),
+        code: impl Fn(usize) -> usize,
+        v: f32,
+    ) -> f32 {
+        match self.bound {
+            Some(b) if self.any_left_out(p) => b.hold(tables, c, code(b.frame), v),
+            _ => v,
+        }
+    }
+}
+
+/// Where deghosting left a frame out, the reference's sample still bounds the radiance:
+/// above its measured codes ([`Masks::measured`]) it is at least the reference's value at
+/// the last of them, below them at most its value at the first. A frame kept there that agreed with the bound only within its noise (a dark
+/// frame's view of what moved) would otherwise set the value alone, the reference's own
+/// weight being 0 or nearly; the merged value is held within the bound instead.
+#[derive(Debug, Clone, Copy)]
+struct Bound {
+    /// The reference's index in exposure order.
+    frame: usize,
+    /// The first and the last measured code.
+    codes: (usize, usize),
+}
+
+impl Bound {
+    /// The bound of the frame `masks.reference` (input order) among frames in `order`;
+    /// `None` without masks.
+    fn of(order: &[usize], masks: &Masks<'_>) -> Option<Bound> {
+        if masks.weights.iter().all(Option::is_none) {
+            return None;
+        }
+        let frame = order.iter().position(|&i| i == masks.reference)?;
+        Some(Bound {
+            frame,
+            codes: masks.measured,
+        })
+    }
+
+    /// `v` held within the bound the reference's `code` in channel `c` sets.
+    #[inline(always)]
+    fn hold(&self, tables: &Tables, c: usize, code: usize, v: f32) -> f32 {
+        let (first, last) = self.codes;
+        if code > last {
+            v.max(tables.value[tables.index(self.frame, c, last)])
+        } else if code < first {
+            v.min(tables.value[tables.index(self.frame, c, first)])
+        } else {
+            v
+        }
+    }
 }
 
 /// Whether a mask keeps every pixel of `weights` whole (each factor exactly 1).
@@ -751,23 +844,30 @@ fn slope(response: &InverseResponse, c: usize, levels: usize) -> Vec<f64> {
 fn merge_codes<T: Copy + Into<usize> + Sync>(
     frames: &[&[T]],
     tables: &Tables,
-    masks: &[Option<&[u8]>],
+    masks: Masked<'_>,
     width: usize,
     out: &mut [f32],
     confidence: Option<&mut [f32]>,
 ) -> ClipCount {
-    let row_len = width * tables.channels;
+    let channels = tables.channels;
+    let row_len = width * channels;
     let row = |y: usize, row: &mut [f32], conf: Option<&mut [f32]>| {
+        let start = y * row_len;
         if masks
+            .weights
             .iter()
             .flatten()
             .all(|m| all_kept(&m[y * width..(y + 1) * width]))
         {
             // Weight factors of 1 everywhere: the unmasked arithmetic, exactly.
-            merge_row(frames, tables, y * row_len, row, conf, |_, _| 1.0)
+            merge_row(frames, tables, start, row, conf, (|_, _| 1.0, |_, _, v| v))
         } else {
-            let kept = |k, p| kept(masks, k, y * width + p);
-            merge_row(frames, tables, y * row_len, row, conf, kept)
+            let kept = |k, p| kept(masks.weights, k, y * width + p);
+            let hold = |p: usize, c: usize, v: f32| {
+                let code = |k: usize| frames[k][start + p * channels + c].into();
+                masks.hold(tables, (y * width + p, c), code, v)
+            };
+            merge_row(frames, tables, start, row, conf, (kept, hold))
         }
     };
     match confidence {
@@ -851,14 +951,18 @@ fn kept_ends(frames: usize, kept: impl Fn(usize) -> f32) -> (usize, usize) {
 }
 
 /// One row of [`merge_codes`]; `kept(k, p)` is sorted frame `k`'s weight factor at
-/// pixel `p` of the row.
+/// pixel `p` of the row, `hold(p, c, v)` the value `v` of channel `c` there held within
+/// the reference's bound ([`Masked::hold`]).
 fn merge_row<T: Copy + Into<usize>>(
     frames: &[&[T]],
     tables: &Tables,
     start: usize,
     row: &mut [f32],
     mut confidence: Option<&mut [f32]>,
-    kept: impl Fn(usize, usize) -> f32,
+    (kept, hold): (
+        impl Fn(usize, usize) -> f32,
+        impl Fn(usize, usize, f32) -> f32,
+    ),
 ) -> ClipCount {
     let channels = tables.channels;
     let rows: Vec<&[T]> = frames
@@ -881,7 +985,7 @@ fn merge_row<T: Copy + Into<usize>>(
                     (v, 0.0)
                 }
             };
-            *out = value;
+            *out = hold(p, c, value);
             least = least.min(den);
         }
         if let Some(conf) = confidence.as_deref_mut() {
@@ -1214,6 +1318,7 @@ const RUN: usize = 256;
 pub struct BracketMerge<'a> {
     codes: Codes<'a>,
     masks: Vec<Option<&'a [u8]>>,
+    bound: Option<Bound>,
     tables: Tables,
     factor: f32,
     width: u32,
@@ -1232,7 +1337,7 @@ impl<'a> BracketMerge<'a> {
         response: &InverseResponse,
         weighting: Weighting,
     ) -> Result<BracketMerge<'a>, MergeError> {
-        BracketMerge::masked(frames, response, weighting, &[])
+        BracketMerge::masked(frames, response, weighting, &Masks::default())
     }
 
     /// [`BracketMerge::new`] with a weight mask per frame, as [`merge_masked`] takes them:
@@ -1241,11 +1346,12 @@ impl<'a> BracketMerge<'a> {
         frames: &[BracketFrame<'a>],
         response: &InverseResponse,
         weighting: Weighting,
-        masks: &[Option<&'a [u8]>],
+        masks: &Masks<'a>,
     ) -> Result<BracketMerge<'a>, MergeError> {
         check(frames, response)?;
         let (order, exposures) = exposure_order(frames);
-        let masks = sorted_masks(frames, &order, masks)?;
+        let bound = Bound::of(&order, masks);
+        let masks = sorted_masks(frames, &order, &masks.weights)?;
         let first = frames[0].frame;
         let depth = first.bit_depth();
         let tables = Tables::new(&exposures, response, first.channels(), depth, weighting);
@@ -1258,6 +1364,7 @@ impl<'a> BracketMerge<'a> {
         Ok(BracketMerge {
             codes,
             masks,
+            bound,
             tables,
             factor: 1.0,
             width: first.width(),
@@ -1296,12 +1403,22 @@ impl<'a> BracketMerge<'a> {
     pub fn sample(&self, pixel: usize, channel: usize) -> f32 {
         let i = pixel * self.tables.channels + channel;
         let kept = |k| kept(&self.masks, k, pixel);
-        let value = match &self.codes {
-            Codes::Eight(f) => estimate(&self.tables, channel, |k| f[k][i].into(), kept),
-            Codes::Sixteen(f) => estimate(&self.tables, channel, |k| f[k][i].into(), kept),
+        let code = |k: usize| match &self.codes {
+            Codes::Eight(f) => f[k][i].into(),
+            Codes::Sixteen(f) => f[k][i].into(),
         };
-        match value {
-            Estimate::Weighted(v, _) | Estimate::High(v) | Estimate::Low(v) => v * self.factor,
+        let (Estimate::Weighted(v, _) | Estimate::High(v) | Estimate::Low(v)) =
+            estimate(&self.tables, channel, code, kept);
+        self.left_out()
+            .hold(&self.tables, (pixel, channel), code, v)
+            * self.factor
+    }
+
+    /// The sorted masks and the reference's bound.
+    fn left_out(&self) -> Masked<'_> {
+        Masked {
+            weights: &self.masks,
+            bound: self.bound,
         }
     }
 
@@ -1371,7 +1488,8 @@ impl<'a> BracketMerge<'a> {
                         t.value[t.index(bright, channel, frames[bright][i].into())]
                     }
                 };
-                *v = value * self.factor;
+                let code = |k: usize| frames[k][start + j * channels].into();
+                *v = self.left_out().hold(t, (first + j, channel), code, value) * self.factor;
             }
         }
     }
@@ -1936,9 +2054,53 @@ mod tests {
         }
     }
 
+    /// Where a frame is left out, the reference's sample bounds the merge: a kept frame
+    /// reading beyond that bound (a dark frame's view of what moved) is held to it, in
+    /// the buffered and the banded merge; where no frame is left out, the same codes
+    /// merge as without masks.
+    #[test]
+    fn where_a_frame_is_left_out_the_references_bound_holds() {
+        let cam = Camera::default();
+        // Frames exposed 1, 4 and 16 (the reference), linear, one pixel per column.
+        // Pixels 0 and 1: the reference clipped high, the dark frame reading 10/255 × 16
+        // = 0.63 at the reference's scale, below its bound 242/255 = 0.95; the middle
+        // frame is left out of pixel 0 only. Pixel 2: the reference dark (code 2, bound
+        // 6/255 from above), the dark frame reading 200/255 × 16 = 12.5, the middle
+        // frame left out.
+        let frames: Vec<(Frame, f64)> = [[10u8, 10, 200], [250, 250, 250], [255, 255, 2]]
+            .iter()
+            .zip([1.0, 4.0, 16.0])
+            .map(|(codes, e)| (grey(3, codes.to_vec()), e))
+            .collect();
+        let left_out = [0u8, 255, 0];
+        let masks = Masks {
+            weights: vec![None, Some(left_out.as_slice()), None],
+            reference: 2,
+            measured: (6, 242),
+        };
+        let b = bracket(&frames, &cam);
+        let options = MergeOptions::default();
+        let masked = merge_masked(&b, &linear(), options, &masks)
+            .unwrap()
+            .radiance;
+        let plain = merge(&b, &linear(), options).unwrap().radiance;
+        let banded = BracketMerge::masked(&b, &linear(), options.weighting, &masks).unwrap();
+        let mut line = vec![0.0f32; 3];
+        banded.line(0, 0, &mut line);
+        assert_eq!(line, masked.pixels(), "banded and buffered");
+        let samples: Vec<f32> = (0..3).map(|p| banded.sample(p, 0)).collect();
+        assert_eq!(samples, masked.pixels(), "sample by sample");
+        let close = |a: f32, b: f32| (a - b).abs() <= 1e-6 * b;
+        let [held, free, capped] = [0, 1, 2].map(|p| masked.pixels()[p]);
+        assert!(close(held, 242.0 / 255.0), "pixel 0: {held}");
+        assert_eq!(free, plain.pixels()[1], "no frame left out at pixel 1");
+        assert!(close(capped, 6.0 / 255.0), "pixel 2: {capped}");
+    }
+
     /// Three frames 600 × 3 of unrelated codes (0 and 255 among them); frame 1's mask
-    /// keeps row 0 whole, ramps over row 1 and leaves row 2 out. The buffered and the
-    /// banded merge agree exactly, and equal the plain merge on row 0 only.
+    /// keeps row 0 whole, ramps over row 1 and leaves row 2 out; frame 2 is the reference.
+    /// The buffered and the banded merge agree exactly, sample by sample too, and equal
+    /// the plain merge on row 0 only.
     #[test]
     fn a_mask_weighs_its_rows_alike_in_every_merge() {
         let (w, h) = (600usize, 3usize);
@@ -1958,7 +2120,11 @@ mod tests {
                 _ => 0,
             })
             .collect();
-        let masks = [None, Some(mask.as_slice()), None];
+        let masks = Masks {
+            weights: vec![None, Some(mask.as_slice()), None],
+            reference: 2,
+            measured: (6, 242),
+        };
         let b = bracket(&frames, &cam);
         let options = MergeOptions::default();
         let masked = merge_masked(&b, &linear(), options, &masks)
@@ -1971,6 +2137,8 @@ mod tests {
             banded.line(y * w, 0, &mut line);
             let row = &masked.pixels()[y * w..(y + 1) * w];
             assert_eq!(line, row, "row {y}: banded and buffered");
+            let samples: Vec<f32> = (0..w).map(|x| banded.sample(y * w + x, 0)).collect();
+            assert_eq!(samples, row, "row {y}: sample by sample");
             assert_eq!(
                 row == &plain.pixels()[y * w..(y + 1) * w],
                 y == 0,

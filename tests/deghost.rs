@@ -86,8 +86,8 @@ fn bracket<'a>(frames: &'a [Frame], camera: &'a Camera) -> Vec<BracketFrame<'a>>
 fn merged(frames: &[Frame], g: &InverseResponse, masks: Option<&GhostMasks>) -> RadianceMap {
     let camera = Camera::default();
     let b = bracket(frames, &camera);
-    let weights = masks.map(GhostMasks::weights).unwrap_or_default();
-    merge::merge_masked(&b, g, MergeOptions::default(), &weights)
+    let masks = masks.map(GhostMasks::masks).unwrap_or_default();
+    merge::merge_masked(&b, g, MergeOptions::default(), &masks)
         .unwrap()
         .radiance
 }

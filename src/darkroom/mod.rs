@@ -404,11 +404,11 @@ fn merge_bracket<'a>(
     prints: &Prints<'_>,
     ghosts: Option<&'a GhostMasks>,
 ) -> Result<Radiance<'a>, MergeError> {
-    let masks = ghosts.filter(|g| !g.is_empty()).map(GhostMasks::weights);
-    let masks = masks.as_deref().unwrap_or(&[]);
+    let masks = ghosts.filter(|g| !g.is_empty()).map(GhostMasks::masks);
+    let masks = masks.unwrap_or_default();
     let lazy = !options.confidence && !prints.looks.iter().any(Look::has_optics);
     if lazy
-        && masks.is_empty()
+        && masks.weights.is_empty()
         && let Some(pair) = PairMerge::new(bracket, &chosen.response, options.weighting)?
     {
         return Ok(Radiance::Pair(pair));
@@ -419,10 +419,10 @@ fn merge_bracket<'a>(
             bracket,
             response,
             options.weighting,
-            masks,
+            &masks,
         )?)
     } else {
-        Radiance::Buffered(merge::merge_masked(bracket, response, options, masks)?)
+        Radiance::Buffered(merge::merge_masked(bracket, response, options, &masks)?)
     })
 }
 
