@@ -560,8 +560,14 @@ impl Masked<'_> {
         self.weights.iter().flatten().any(|m| m[p] < u8::MAX)
     }
 
-    /// `v`, merged for channel `c` of pixel `p` of the sorted frames' `codes`, held within
-    /// the reference's [`Bound`] where a frame is left out at `p`.
+    /// The bound that holds at pixel `p`: the reference's where a frame is left out.
+    #[inline(always)]
+    fn at(&self, p: usize) -> Option<Bound> {
+        self.bound.filter(|_| self.any_left_out(p))
+    }
+
+    /// `v`, merged for channel `c` of pixel `p`, held within [`Masked::at`]'s bound;
+    /// `code(k)` is sorted frame `k`'s code of that sample.
     #[inline(always)]
     fn hold(
         &self,
@@ -570,10 +576,8 @@ impl Masked<'_> {
         code: impl Fn(usize) -> usize,
         v: f32,
     ) -> f32 {
-        match self.bound {
-            Some(b) if self.any_left_out(p) => b.hold(tables, c, code(b.frame), v),
-            _ => v,
-        }
+        self.at(p)
+            .map_or(v, |b| b.hold(tables, c, code(b.frame), v))
     }
 }
 
@@ -860,12 +864,16 @@ fn merge_codes<T: Copy + Into<usize> + Sync>(
             .all(|m| all_kept(&m[y * width..(y + 1) * width]))
         {
             // Weight factors of 1 everywhere: the unmasked arithmetic, exactly.
-            merge_row(frames, tables, start, row, conf, (|_, _| 1.0, |_, _, v| v))
+            merge_row(frames, tables, start, row, conf, (|_, _| 1.0, |_, _| ()))
         } else {
             let kept = |k, p| kept(masks.weights, k, y * width + p);
-            let hold = |p: usize, c: usize, v: f32| {
-                let code = |k: usize| frames[k][start + p * channels + c].into();
-                masks.hold(tables, (y * width + p, c), code, v)
+            let hold = |p: usize, pixel: &mut [f32]| {
+                if let Some(bound) = masks.at(y * width + p) {
+                    let codes = &frames[bound.frame][start + p * channels..];
+                    for ((c, v), &code) in pixel.iter_mut().enumerate().zip(codes) {
+                        *v = bound.hold(tables, c, code.into(), *v);
+                    }
+                }
             };
             merge_row(frames, tables, start, row, conf, (kept, hold))
         }
@@ -951,7 +959,7 @@ fn kept_ends(frames: usize, kept: impl Fn(usize) -> f32) -> (usize, usize) {
 }
 
 /// One row of [`merge_codes`]; `kept(k, p)` is sorted frame `k`'s weight factor at
-/// pixel `p` of the row, `hold(p, c, v)` the value `v` of channel `c` there held within
+/// pixel `p` of the row, and `hold(p, pixel)` holds that pixel's merged values within
 /// the reference's bound ([`Masked::hold`]).
 fn merge_row<T: Copy + Into<usize>>(
     frames: &[&[T]],
@@ -959,10 +967,7 @@ fn merge_row<T: Copy + Into<usize>>(
     start: usize,
     row: &mut [f32],
     mut confidence: Option<&mut [f32]>,
-    (kept, hold): (
-        impl Fn(usize, usize) -> f32,
-        impl Fn(usize, usize, f32) -> f32,
-    ),
+    (kept, hold): (impl Fn(usize, usize) -> f32, impl Fn(usize, &mut [f32])),
 ) -> ClipCount {
     let channels = tables.channels;
     let rows: Vec<&[T]> = frames
@@ -985,9 +990,10 @@ fn merge_row<T: Copy + Into<usize>>(
                     (v, 0.0)
                 }
             };
-            *out = hold(p, c, value);
+            *out = value;
             least = least.min(den);
         }
+        hold(p, pixel);
         if let Some(conf) = confidence.as_deref_mut() {
             conf[p] = least;
         }
