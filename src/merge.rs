@@ -583,9 +583,10 @@ impl Masked<'_> {
 
 /// Where deghosting left a frame out, the reference's sample still bounds the radiance:
 /// above its measured codes ([`Masks::measured`]) it is at least the reference's value at
-/// the last of them, below them at most its value at the first. A frame kept there that agreed with the bound only within its noise (a dark
-/// frame's view of what moved) would otherwise set the value alone, the reference's own
-/// weight being 0 or nearly; the merged value is held within the bound instead.
+/// the last of them, below them at most its value at the first. A frame kept there that
+/// agreed with the bound only within its noise (a dark frame's view of what moved) would
+/// otherwise set the value alone, the reference's own weight being 0 or nearly; the
+/// merged value is held within the bound instead.
 #[derive(Debug, Clone, Copy)]
 struct Bound {
     /// The reference's index in exposure order.
@@ -960,7 +961,7 @@ fn kept_ends(frames: usize, kept: impl Fn(usize) -> f32) -> (usize, usize) {
 
 /// One row of [`merge_codes`]; `kept(k, p)` is sorted frame `k`'s weight factor at
 /// pixel `p` of the row, and `hold(p, pixel)` holds that pixel's merged values within
-/// the reference's bound ([`Masked::hold`]).
+/// the reference's bound ([`Masked::at`], [`Bound::hold`]).
 fn merge_row<T: Copy + Into<usize>>(
     frames: &[&[T]],
     tables: &Tables,
