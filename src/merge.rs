@@ -2061,13 +2061,37 @@ mod tests {
         }
     }
 
+    /// Grey `frames` (exposed as given) merged with `mask` on frame 1, frame 2 the
+    /// reference (8-bit codes 6 to 242 measured): the buffered merge's values, the banded
+    /// merge's line by line and sample by sample, and the plain merge's.
+    fn merged_with_mask(frames: &[(Frame, f64)], mask: &[u8]) -> [Vec<f32>; 4] {
+        let cam = Camera::default();
+        let w = frames[0].0.width() as usize;
+        let masks = Masks {
+            weights: vec![None, Some(mask), None],
+            reference: 2,
+            measured: (6, 242),
+        };
+        let b = bracket(frames, &cam);
+        let options = MergeOptions::default();
+        let masked = merge_masked(&b, &linear(), options, &masks).unwrap();
+        let plain = merge(&b, &linear(), options).unwrap();
+        let banded = BracketMerge::masked(&b, &linear(), options.weighting, &masks).unwrap();
+        let mut lines = vec![0.0f32; mask.len()];
+        for (y, line) in lines.chunks_mut(w).enumerate() {
+            banded.line(y * w, 0, line);
+        }
+        let samples = (0..mask.len()).map(|p| banded.sample(p, 0)).collect();
+        let [masked, plain] = [masked, plain].map(|m| m.radiance.pixels().to_vec());
+        [masked, lines, samples, plain]
+    }
+
     /// Where a frame is left out, the reference's sample bounds the merge: a kept frame
     /// reading beyond that bound (a dark frame's view of what moved) is held to it, in
     /// the buffered and the banded merge; where no frame is left out, the same codes
     /// merge as without masks.
     #[test]
     fn where_a_frame_is_left_out_the_references_bound_holds() {
-        let cam = Camera::default();
         // Frames exposed 1, 4 and 16 (the reference), linear, one pixel per column.
         // Pixels 0 and 1: the reference clipped high, the dark frame reading 10/255 × 16
         // = 0.63 at the reference's scale, below its bound 242/255 = 0.95; the middle
@@ -2079,28 +2103,13 @@ mod tests {
             .zip([1.0, 4.0, 16.0])
             .map(|(codes, e)| (grey(3, codes.to_vec()), e))
             .collect();
-        let left_out = [0u8, 255, 0];
-        let masks = Masks {
-            weights: vec![None, Some(left_out.as_slice()), None],
-            reference: 2,
-            measured: (6, 242),
-        };
-        let b = bracket(&frames, &cam);
-        let options = MergeOptions::default();
-        let masked = merge_masked(&b, &linear(), options, &masks)
-            .unwrap()
-            .radiance;
-        let plain = merge(&b, &linear(), options).unwrap().radiance;
-        let banded = BracketMerge::masked(&b, &linear(), options.weighting, &masks).unwrap();
-        let mut line = vec![0.0f32; 3];
-        banded.line(0, 0, &mut line);
-        assert_eq!(line, masked.pixels(), "banded and buffered");
-        let samples: Vec<f32> = (0..3).map(|p| banded.sample(p, 0)).collect();
-        assert_eq!(samples, masked.pixels(), "sample by sample");
+        let [masked, lines, samples, plain] = merged_with_mask(&frames, &[0, 255, 0]);
+        assert_eq!(lines, masked, "banded and buffered");
+        assert_eq!(samples, masked, "sample by sample");
         let close = |a: f32, b: f32| (a - b).abs() <= 1e-6 * b;
-        let [held, free, capped] = [0, 1, 2].map(|p| masked.pixels()[p]);
+        let [held, free, capped] = [masked[0], masked[1], masked[2]];
         assert!(close(held, 242.0 / 255.0), "pixel 0: {held}");
-        assert_eq!(free, plain.pixels()[1], "no frame left out at pixel 1");
+        assert_eq!(free, plain[1], "no frame left out at pixel 1");
         assert!(close(capped, 6.0 / 255.0), "pixel 2: {capped}");
     }
 
@@ -2111,7 +2120,6 @@ mod tests {
     #[test]
     fn a_mask_weighs_its_rows_alike_in_every_merge() {
         let (w, h) = (600usize, 3usize);
-        let cam = Camera::default();
         let codes = |k: usize| {
             (0..w * h)
                 .map(|p| ((p * 37 + k * 53) % 256) as u8)
@@ -2127,30 +2135,12 @@ mod tests {
                 _ => 0,
             })
             .collect();
-        let masks = Masks {
-            weights: vec![None, Some(mask.as_slice()), None],
-            reference: 2,
-            measured: (6, 242),
-        };
-        let b = bracket(&frames, &cam);
-        let options = MergeOptions::default();
-        let masked = merge_masked(&b, &linear(), options, &masks)
-            .unwrap()
-            .radiance;
-        let plain = merge(&b, &linear(), options).unwrap().radiance;
-        let banded = BracketMerge::masked(&b, &linear(), options.weighting, &masks).unwrap();
-        let mut line = vec![0.0f32; w];
+        let [masked, lines, samples, plain] = merged_with_mask(&frames, &mask);
         for y in 0..h {
-            banded.line(y * w, 0, &mut line);
-            let row = &masked.pixels()[y * w..(y + 1) * w];
-            assert_eq!(line, row, "row {y}: banded and buffered");
-            let samples: Vec<f32> = (0..w).map(|x| banded.sample(y * w + x, 0)).collect();
-            assert_eq!(samples, row, "row {y}: sample by sample");
-            assert_eq!(
-                row == &plain.pixels()[y * w..(y + 1) * w],
-                y == 0,
-                "row {y}"
-            );
+            let row = |v: &[f32]| v[y * w..(y + 1) * w].to_vec();
+            assert_eq!(row(&lines), row(&masked), "row {y}: banded and buffered");
+            assert_eq!(row(&samples), row(&masked), "row {y}: sample by sample");
+            assert_eq!(row(&masked) == row(&plain), y == 0, "row {y}");
         }
     }
 }
