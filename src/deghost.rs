@@ -279,14 +279,14 @@ impl Codes {
                     )
                 };
                 let (bottom, top) = (at(WELL_EXPOSED.0), at(WELL_EXPOSED.1));
+                let (first, last) = well_exposed_codes(levels);
                 for code in 0..levels {
-                    let b = code as f64 / (levels - 1) as f64;
-                    let ((value, noise), tone) = if b < WELL_EXPOSED.0 {
+                    let ((value, noise), tone) = if code < first {
                         (bottom, Tone::Dark)
-                    } else if b > WELL_EXPOSED.1 {
+                    } else if code > last {
                         (top, Tone::Bright)
                     } else {
-                        (at(b), Tone::Good)
+                        (at(code as f64 / (levels - 1) as f64), Tone::Good)
                     };
                     let bin = (code * TONE_BINS / levels) as u8;
                     table.push(Code {
