@@ -54,6 +54,14 @@ pub enum PublishError {
         /// The file given.
         path: PathBuf,
     },
+    /// Another process holds the lock of the staging folder ([`StageLock`]).
+    #[error(
+        "{path}: held by another filmback developing the same set (a daemon or a farm task); retry later"
+    )]
+    Busy {
+        /// The lock file.
+        path: PathBuf,
+    },
 }
 
 impl PublishError {
@@ -62,7 +70,8 @@ impl PublishError {
         match self {
             PublishError::Exists { path }
             | PublishError::Io { path, .. }
-            | PublishError::NotAFile { path } => path,
+            | PublishError::NotAFile { path }
+            | PublishError::Busy { path } => path,
         }
     }
 }
@@ -307,6 +316,63 @@ pub fn stage_folder(dir: &Path, key: &str) -> PathBuf {
     dir.join(format!("{STAGE_PREFIX}{key}"))
 }
 
+/// The lock of a staging folder, `<stage>.lock` beside it, held (`flock`, exclusive) by
+/// whoever develops into the folder and publishes it: the daemon or a farm task, in any
+/// process on this host. Two developments of one set never share its folder, and
+/// [`recover_sets`] leaves a folder alone while it is held. The file is removed, still
+/// held, when the lock is dropped; one a killed process left is taken over (the kernel
+/// released its lock).
+#[derive(Debug)]
+pub struct StageLock {
+    path: PathBuf,
+    _file: File,
+}
+
+impl StageLock {
+    /// Takes the lock of `stage` ([`stage_folder`]); [`PublishError::Busy`] while another
+    /// holder has it (or has just removed its file), [`PublishError::Io`] when the file
+    /// cannot be created.
+    pub fn take(stage: &Path) -> Result<StageLock, PublishError> {
+        use std::os::unix::fs::MetadataExt;
+        let mut name = stage.as_os_str().to_owned();
+        name.push(".lock");
+        let path = PathBuf::from(name);
+        let io = |source| PublishError::Io {
+            path: path.clone(),
+            source,
+        };
+        let file = fs::OpenOptions::new()
+            .write(true)
+            .create(true)
+            .truncate(false)
+            .open(&path)
+            .map_err(io)?;
+        match file.try_lock() {
+            Ok(()) => {}
+            Err(fs::TryLockError::WouldBlock) => return Err(PublishError::Busy { path }),
+            Err(fs::TryLockError::Error(e)) => return Err(io(e)),
+        }
+        // Locked after the holder removed it: this inode guards nothing.
+        let inode = |m: fs::Metadata| (m.dev(), m.ino());
+        let held = file.metadata().map(inode).map_err(io)?;
+        if fs::metadata(&path).map(inode).ok() != Some(held) {
+            return Err(PublishError::Busy { path });
+        }
+        Ok(StageLock { path, _file: file })
+    }
+
+    /// The lock file.
+    pub fn path(&self) -> &Path {
+        &self.path
+    }
+}
+
+impl Drop for StageLock {
+    fn drop(&mut self) {
+        let _ = fs::remove_file(&self.path);
+    }
+}
+
 fn sync_folder(dir: &Path) {
     // Not every file system supports syncing a folder.
     if let Ok(d) = File::open(dir) {
@@ -473,11 +539,15 @@ fn stage_folders(dir: &Path) -> Vec<PathBuf> {
         .collect()
 }
 
-/// Finishes or removes the staging folders an interrupted [`publish_set`] left in `dir`.
+/// Finishes or removes the staging folders an interrupted [`publish_set`] left in `dir`;
+/// one whose [`StageLock`] another process holds is in use and left alone.
 pub fn recover_sets(dir: &Path) -> Vec<Recovered> {
     stage_folders(dir)
         .into_iter()
-        .map(|stage| recover_set(&stage, dir))
+        .filter_map(|stage| {
+            let _lock = StageLock::take(&stage).ok()?;
+            Some(recover_set(&stage, dir))
+        })
         .collect()
 }
 
@@ -554,6 +624,31 @@ mod tests {
         Io(#[from] io::Error),
         #[error("encoder failed")]
         Encoder,
+    }
+
+    #[test]
+    fn a_staging_folder_whose_lock_is_held_is_left_to_its_holder() {
+        let dir = tempfile::tempdir().unwrap();
+        let stage = stage_folder(dir.path(), "bracket");
+        fs::create_dir(&stage).unwrap();
+        fs::write(stage.join("a.exr"), b"half an EXR").unwrap();
+        let held = StageLock::take(&stage).unwrap();
+        assert!(matches!(
+            StageLock::take(&stage),
+            Err(PublishError::Busy { path }) if path == held.path()
+        ));
+        assert!(recover_sets(dir.path()).is_empty());
+        assert!(
+            stage.join("a.exr").is_file(),
+            "a folder in use is not touched"
+        );
+        let lock_file = held.path().to_path_buf();
+        drop(held);
+        assert!(!lock_file.exists(), "the lock file goes with its holder");
+        let recovered = recover_sets(dir.path());
+        assert!(matches!(&recovered[..], [Recovered::RolledBack(s)] if *s == stage));
+        assert!(!stage.exists());
+        assert!(!lock_file.exists());
     }
 
     #[test]

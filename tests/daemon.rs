@@ -785,6 +785,62 @@ fn output_write_error_is_retried_and_the_daemon_stays_alive() {
     assert!(calls.load(Ordering::SeqCst) >= 3);
 }
 
+/// Another filmback on the same output folder (a farm task, a second daemon) holds the
+/// staging folders it develops into locked: the daemon's start-up recovery leaves them
+/// alone, and a bracket whose folder is held is retried once it is free.
+#[test]
+fn sets_another_filmback_is_developing_are_left_to_it() {
+    let farm = std::sync::Mutex::new(None);
+    let (calls, held) = (
+        Arc::new(AtomicUsize::new(0)),
+        Arc::new(std::sync::Mutex::new(None)),
+    );
+    let lab = {
+        let (calls, held) = (Arc::clone(&calls), Arc::clone(&held));
+        move |job: &Job| -> Result<Processed, JobError> {
+            if calls.fetch_add(1, Ordering::SeqCst) == 0 {
+                let stage = atomic::stage_folder(&job.out, &job.id);
+                *held.lock().unwrap() = Some(atomic::StageLock::take(&stage).unwrap());
+            }
+            DarkroomLab.process(job)
+        }
+    };
+    let mut rig = Rig::start(&[], Arc::new(lab), |root| {
+        let stage = atomic::stage_folder(&root.join("out"), "a-farm-task");
+        std::fs::create_dir_all(&stage).unwrap();
+        std::fs::write(stage.join("t-1.exr"), b"half an EXR").unwrap();
+        *farm.lock().unwrap() = Some((stage.clone(), atomic::StageLock::take(&stage).unwrap()));
+    });
+    put(&rig.ingest(), &aeb("Body A", 10, "e"));
+    let start = Instant::now();
+    while calls.load(Ordering::SeqCst) < 2 {
+        assert!(start.elapsed() < T, "no retry happened");
+        std::thread::sleep(Duration::from_millis(50));
+    }
+    assert!(
+        rig::visible(&rig.out()).is_empty(),
+        "nothing published while held"
+    );
+    drop(held.lock().unwrap().take());
+    let start = Instant::now();
+    while !rig.out().join("e-1.exr").exists() {
+        assert!(start.elapsed() < T, "not developed once free");
+        std::thread::sleep(Duration::from_millis(50));
+    }
+    let (stage, lock) = farm.lock().unwrap().take().unwrap();
+    assert!(
+        stage.join("t-1.exr").is_file(),
+        "the farm task's folder was not touched"
+    );
+    // The farm task ends: its folder and its lock go.
+    std::fs::remove_dir_all(&stage).unwrap();
+    drop(lock);
+    expect_outputs(&rig.out(), &bracket_outputs(&["e-1"]), T);
+    let state = rig.state();
+    rig.stop();
+    assert_eq!(journaled_brackets(&state), ["e-1"]);
+}
+
 #[test]
 fn ingest_folder_deleted_and_recreated() {
     let mut rig = Rig::start(&[], Arc::new(DarkroomLab), |_| {});

@@ -301,7 +301,7 @@ impl Lab for DarkroomLab {
         let looks = looks_of(&job.preset, job.stocks.as_deref())?;
         let exif = first_frame_exif(job);
         // The outputs are written into a staging folder and published as one set.
-        let stage = open_stage(job)?;
+        let (_lock, stage) = open_stage(job)?;
         let _staging = Staging(stage.clone());
         let developed = Self::develop(job, &frames, &looks, &exif, &stage);
         let (measured, measure_notes) = match &developed {
@@ -393,16 +393,17 @@ fn first_frame_exif(job: &Job) -> SourceExif {
         .unwrap_or_default()
 }
 
-/// The job's staging folder in its output folder, emptied of what an earlier attempt
-/// left.
-fn open_stage(job: &Job) -> Result<PathBuf, JobError> {
+/// The job's staging folder in its output folder, locked ([`atomic::StageLock`]: a farm
+/// task or another daemon developing the same bracket into the same folder gets it
+/// after us, or we retry) and emptied of what an earlier attempt left.
+fn open_stage(job: &Job) -> Result<(atomic::StageLock, PathBuf), JobError> {
     let stage = atomic::stage_folder(&job.out, &job.id);
+    let output = |path: PathBuf, reason: Cause| JobError::Output { path, reason };
+    std::fs::create_dir_all(&job.out).map_err(|e| output(job.out.clone(), Box::new(e)))?;
+    let lock = atomic::StageLock::take(&stage).map_err(|e| output(e.path().into(), Box::new(e)))?;
     let _ = std::fs::remove_dir_all(&stage);
-    std::fs::create_dir_all(&stage).map_err(|e| JobError::Output {
-        path: stage.clone(),
-        reason: Box::new(e),
-    })?;
-    Ok(stage)
+    std::fs::create_dir_all(&stage).map_err(|e| output(stage.clone(), Box::new(e)))?;
+    Ok((lock, stage))
 }
 
 /// `e`, with an output it names in the staging folder named where it would have been

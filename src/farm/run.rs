@@ -109,10 +109,13 @@ pub enum RunError {
     /// bracket that cannot be developed.
     #[error(transparent)]
     Job(#[from] JobError),
-    /// Another attempt at the task is running.
-    #[error("{path}: another attempt at this task holds its lock; retry later")]
+    /// Another attempt at the task, or a daemon developing the same bracket into the same
+    /// folder, holds its staging folder's lock ([`atomic::StageLock`]).
+    #[error(
+        "{path}: another attempt at this task, or a daemon developing the same bracket, holds its lock; retry later"
+    )]
     Busy {
-        /// The task's lock file.
+        /// The lock file.
         path: PathBuf,
     },
     /// The output folder, or the task's lock file in it, cannot be created.
@@ -191,8 +194,7 @@ pub fn run_task(options: &RunOptions<'_>) -> Result<RunOutcome, RunError> {
         path: out.to_path_buf(),
         source,
     })?;
-    let _lock = TaskLock::take(out, &task.id)?;
-    if finished(out, &task.id, &outputs) && !options.force {
+    if finished(out, &task.id, &outputs)? && !options.force {
         return Ok(RunOutcome::AlreadyDone { outputs });
     }
     let job = job_of(options, &header, &config, task, root, out)?;
@@ -203,67 +205,25 @@ pub fn run_task(options: &RunOptions<'_>) -> Result<RunOutcome, RunError> {
     })
 }
 
-/// A task's lock file beside its staging folder, `.filmback-stage-<id>.lock` in the output
-/// folder, held (`flock`, exclusive) while the task is checked, developed and published,
-/// so that two attempts at one task (an engine that started it twice) never share the
-/// staging folder. Removed, still held, when the task ends; one left by a killed attempt
-/// is taken over (the kernel released its lock).
-struct TaskLock {
-    path: PathBuf,
-    _file: std::fs::File,
-}
-
-impl TaskLock {
-    /// Takes the lock of task `id` in `out`, or [`RunError::Busy`] while another attempt
-    /// holds it (or has just removed it).
-    fn take(out: &Path, id: &str) -> Result<TaskLock, RunError> {
-        use std::os::unix::fs::MetadataExt;
-        let mut name = atomic::stage_folder(out, id).into_os_string();
-        name.push(".lock");
-        let path = PathBuf::from(name);
-        let io = |source| RunError::Out {
-            path: path.clone(),
-            source,
-        };
-        let file = std::fs::OpenOptions::new()
-            .write(true)
-            .create(true)
-            .truncate(false)
-            .open(&path)
-            .map_err(io)?;
-        match file.try_lock() {
-            Ok(()) => {}
-            Err(std::fs::TryLockError::WouldBlock) => return Err(RunError::Busy { path }),
-            Err(std::fs::TryLockError::Error(e)) => return Err(io(e)),
-        }
-        // Locked after the attempt that held it removed it: this inode guards nothing.
-        let inode = |m: std::fs::Metadata| (m.dev(), m.ino());
-        let held = file.metadata().map(inode).map_err(io)?;
-        if std::fs::metadata(&path).map(inode).ok() != Some(held) {
-            return Err(RunError::Busy { path });
-        }
-        Ok(TaskLock { path, _file: file })
-    }
-}
-
-impl Drop for TaskLock {
-    fn drop(&mut self) {
-        let _ = std::fs::remove_file(&self.path);
-    }
-}
-
 /// True when every output is in `out`, after dealing with the staging folder a killed
-/// attempt at task `id` left (the caller holds the task's lock, so no attempt is using
-/// it): a set sealed before the kill is finished, anything else in it (never visible,
-/// or left after its set was published) is removed.
-fn finished(out: &Path, id: &str, outputs: &[PathBuf]) -> bool {
+/// attempt at task `id` left: a set sealed before the kill is finished, anything else in
+/// it (never visible, or left after its set was published) is removed. Done under the
+/// folder's [`atomic::StageLock`], released before the lab takes it again to develop:
+/// [`RunError::Busy`] while another attempt, or a daemon, develops the set.
+fn finished(out: &Path, id: &str, outputs: &[PathBuf]) -> Result<bool, RunError> {
     let stage = atomic::stage_folder(out, id);
+    let _lock = atomic::StageLock::take(&stage).map_err(|e| match e {
+        atomic::PublishError::Io { path, source } => RunError::Out { path, source },
+        other => RunError::Busy {
+            path: other.path().to_path_buf(),
+        },
+    })?;
     if std::fs::symlink_metadata(&stage).is_ok_and(|m| m.is_dir()) {
         atomic::recover_set(&stage, out);
     }
-    outputs
+    Ok(outputs
         .iter()
-        .all(|p| std::fs::symlink_metadata(p).is_ok_and(|m| m.is_file()))
+        .all(|p| std::fs::symlink_metadata(p).is_ok_and(|m| m.is_file())))
 }
 
 /// The daemon's job for `task`: its frames read again and checked, the preset of its
