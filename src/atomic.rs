@@ -316,6 +316,32 @@ pub fn stage_folder(dir: &Path, key: &str) -> PathBuf {
     dir.join(format!("{STAGE_PREFIX}{key}"))
 }
 
+/// A lock file opened by [`lock_file`].
+#[derive(Debug)]
+pub(crate) enum Lock {
+    /// Locked by us, for as long as the file stays open.
+    Taken(File),
+    /// Another open file (in any process) holds the lock.
+    Held(File),
+}
+
+/// Opens the file at `path` for reading and writing, creating it, and tries to lock it
+/// (`flock`, exclusive, without waiting); the kernel releases the lock when the file is
+/// closed or its process ends, even by `kill -9`.
+pub(crate) fn lock_file(path: &Path) -> io::Result<Lock> {
+    let file = fs::OpenOptions::new()
+        .read(true)
+        .write(true)
+        .create(true)
+        .truncate(false)
+        .open(path)?;
+    match file.try_lock() {
+        Ok(()) => Ok(Lock::Taken(file)),
+        Err(fs::TryLockError::WouldBlock) => Ok(Lock::Held(file)),
+        Err(fs::TryLockError::Error(e)) => Err(e),
+    }
+}
+
 /// The lock of a staging folder, `<stage>.lock` beside it, held (`flock`, exclusive) by
 /// whoever develops into the folder and publishes it: the daemon or a farm task, in any
 /// process on this host. Two developments of one set never share its folder, and
@@ -341,17 +367,10 @@ impl StageLock {
             path: path.clone(),
             source,
         };
-        let file = fs::OpenOptions::new()
-            .write(true)
-            .create(true)
-            .truncate(false)
-            .open(&path)
-            .map_err(io)?;
-        match file.try_lock() {
-            Ok(()) => {}
-            Err(fs::TryLockError::WouldBlock) => return Err(PublishError::Busy { path }),
-            Err(fs::TryLockError::Error(e)) => return Err(io(e)),
-        }
+        let file = match lock_file(&path).map_err(io)? {
+            Lock::Taken(file) => file,
+            Lock::Held(_) => return Err(PublishError::Busy { path }),
+        };
         // Locked after the holder removed it: this inode guards nothing.
         let inode = |m: fs::Metadata| (m.dev(), m.ino());
         let held = file.metadata().map(inode).map_err(io)?;

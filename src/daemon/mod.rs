@@ -135,16 +135,9 @@ fn lock_state(state: &Path) -> Result<std::fs::File, DaemonError> {
         path: path.clone(),
         source,
     };
-    let mut file = std::fs::OpenOptions::new()
-        .read(true)
-        .write(true)
-        .create(true)
-        .truncate(false)
-        .open(&path)
-        .map_err(io)?;
-    match file.try_lock() {
-        Ok(()) => {}
-        Err(std::fs::TryLockError::WouldBlock) => {
+    let mut file = match atomic::lock_file(&path).map_err(io)? {
+        atomic::Lock::Taken(file) => file,
+        atomic::Lock::Held(mut file) => {
             let mut text = String::new();
             let _ = file.read_to_string(&mut text);
             return Err(DaemonError::Running {
@@ -152,8 +145,7 @@ fn lock_state(state: &Path) -> Result<std::fs::File, DaemonError> {
                 pid: text.trim().parse().ok(),
             });
         }
-        Err(std::fs::TryLockError::Error(e)) => return Err(io(e)),
-    }
+    };
     file.set_len(0)
         .and_then(|()| file.rewind())
         .and_then(|()| writeln!(file, "{}", std::process::id()))
