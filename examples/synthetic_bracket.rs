@@ -8,13 +8,16 @@
 //! and TIFF at 16 bits. Exposures are scaled so that the middle shot puts mid-grey at
 //! `X = 0.18`. With `moved`, the first and last shots see the scene as a handheld camera
 //! would: moved by (−4, 3) and (4, −3) px and turned by −0.2° and 0.2° about the top-left
-//! corner, for trying `--align`.
+//! corner, for trying `--align`. The scene is then first blurred as a lens would
+//! ([`filmback::synthetic::lens`]), so that no frame's detail is finer than its pixels.
 
 use std::path::PathBuf;
 
 use filmback::frame::BitDepth;
 use filmback::metadata::{Camera, CaptureTime};
-use filmback::synthetic::{Encoding, ResponseCurve, Sensor, Shot, bracket, moved, scene, write};
+use filmback::synthetic::{
+    Encoding, ResponseCurve, Sensor, Shot, bracket, lens, moved, scene, write,
+};
 
 fn main() -> Result<(), Box<dyn std::error::Error>> {
     let mut args = std::env::args().skip(1);
@@ -69,7 +72,12 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         ..Sensor::noiseless(curve, depth)
     };
     let handheld = args.next().as_deref() == Some("moved");
-    let radiance = scene(1500, 1000, 1);
+    // A moved camera resamples the scene: through a lens first, as a camera sees it.
+    let radiance = if handheld {
+        lens(&scene(1500, 1000, 1))
+    } else {
+        scene(1500, 1000, 1)
+    };
     let mut frames = Vec::new();
     for (k, shot) in shots.iter().enumerate() {
         let seen = match k {

@@ -441,7 +441,7 @@ fn errors(a: &RadianceMap, b: &RadianceMap, middle: &Frame) -> String {
 fn speed(runs: usize) {
     let (w, h) = (6000, 4000);
     println!("\ncost at {w}×{h}, three 8-bit frames two stops apart, best of {runs}");
-    let radiance = common::lens(&SceneKind::Procedural.render(w, h, 7));
+    let radiance = synthetic::lens(&SceneKind::Procedural.render(w, h, 7));
     let sensor = Sensor {
         read_noise_dn: 1.0,
         seed: 7,

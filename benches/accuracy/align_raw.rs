@@ -1,9 +1,9 @@
 //! `cargo bench --bench align_raw`: how alignment treats synthetic 24 MP raw brackets,
 //! still and moved by known amounts.
 //!
-//! Each bracket is three DNGs of a procedural scene ([`synthetic::scene`], through the
-//! lens blur of `cargo bench --bench align`: the scene's stripes are drawn in pixels,
-//! finer than a colour filter array samples each colour) through the typical 14-bit Bayer
+//! Each bracket is three DNGs of a procedural scene ([`synthetic::scene`], through
+//! [`synthetic::lens`]: the scene's stripes are drawn in pixels, finer than a colour
+//! filter array samples each colour) through the typical 14-bit Bayer
 //! sensor ([`RawSensor::typical`], shot and read noise, one seed per bracket), exposed at
 //! the listed shutter times (the longest is the reference, as [`align::align_mosaics`]
 //! chooses it), decoded as the pipeline decodes them.
@@ -91,7 +91,7 @@ fn still(width: u32, height: u32) {
     println!("|---|---|---|---|---|");
     let (mut resampled, mut frames) = (0, 0);
     for (scene_seed, times, seeds) in STILL {
-        let scene = common::lens(&synthetic::scene(width, height, scene_seed));
+        let scene = synthetic::lens(&synthetic::scene(width, height, scene_seed));
         let (mut moved, mut largest) = (0, 0.0f64);
         for &seed in seeds {
             let (alignment, _) = aligned([&scene; 3], times, seed);
@@ -130,7 +130,7 @@ fn moved(width: u32, height: u32) {
         exact,
     );
     println!("moved raw brackets, {width}×{height}, resampled (the procedural scene, bilinear)");
-    let raster = |seed: u64| common::lens(&synthetic::scene(width, height, seed));
+    let raster = |seed: u64| synthetic::lens(&synthetic::scene(width, height, seed));
     let resampled = |scene: &RadianceMap, _: usize, view: &[[f64; 3]; 3]| {
         if *view == align::IDENTITY {
             scene.clone()
@@ -165,7 +165,7 @@ fn sharpness(width: u32, height: u32) {
     println!("| scene | shifts (1/500 s; 1/60 s) | 1/500 s frame | 1/60 s frame |");
     println!("|---|---|---|---|");
     for scene_seed in 10..=13 {
-        let scene = common::lens(&synthetic::scene(width, height, scene_seed));
+        let scene = synthetic::lens(&synthetic::scene(width, height, scene_seed));
         for shifts in SHIFTS {
             let truths = shifts.map(|(dx, dy)| [[1.0, 0.0, dx], [0.0, 1.0, dy], [0.0, 0.0, 1.0]]);
             let moved = truths.map(|t| synthetic::moved(&scene, &t).expect("invertible"));
@@ -261,7 +261,7 @@ fn merge(width: u32, height: u32) {
     println!("|---|---|---|---|---|");
     let times = [500.0, 60.0, 8.0];
     for scene_seed in [10, 11, 12, 13] {
-        let scene = common::lens(&synthetic::scene(width, height, scene_seed));
+        let scene = synthetic::lens(&synthetic::scene(width, height, scene_seed));
         let dir = tempfile::tempdir().expect("temporary folder");
         let still = bracket(&scene, &[None, None, None], times, scene_seed, dir.path());
         let truth = developed(&still, times, None);

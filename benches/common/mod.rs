@@ -11,7 +11,6 @@ use filmback::metadata::{Camera, CaptureTime, Exposure};
 use filmback::radiance::RadianceMap;
 use filmback::response::{InverseResponse, RatioSource};
 use filmback::synthetic::{self, ResponseCurve, Shot, SyntheticError};
-use rayon::prelude::*;
 
 // The real brackets' listing, shared with the integration tests (not every bench uses it).
 #[path = "../../tests/common/brackets.rs"]
@@ -185,33 +184,6 @@ pub fn luminance(m: &RadianceMap, p: usize) -> f64 {
         f64::from(px[0])
     };
     y.max(1e-9)
-}
-
-/// `map` through a lens: the `[1 2 1]/4` binomial blur twice in each direction (edges
-/// repeated), so that no detail is finer than the sensor samples and a moved camera sees
-/// what a real one would (the procedural scene's stripes and glyphs are drawn in pixels).
-pub fn lens(map: &RadianceMap) -> RadianceMap {
-    let (w, h, c) = (map.width() as usize, map.height() as usize, map.channels());
-    let mut pixels = map.pixels().to_vec();
-    for _ in 0..2 {
-        pixels = binomial(&pixels, w, c, 1, w);
-        pixels = binomial(&pixels, w, c, w, h);
-    }
-    RadianceMap::new(w as u32, h as u32, c, pixels).expect("the same size")
-}
-
-/// The `[1 2 1]/4` blur along one axis: neighbours `stride` pixels apart, `len` of them.
-fn binomial(p: &[f32], w: usize, c: usize, stride: usize, len: usize) -> Vec<f32> {
-    let mut out = vec![0f32; p.len()];
-    out.par_chunks_mut(c).enumerate().for_each(|(i, px)| {
-        let along = if stride == 1 { i % w } else { i / w };
-        let before = if along == 0 { i } else { i - stride };
-        let after = if along + 1 == len { i } else { i + stride };
-        for (ch, v) in px.iter_mut().enumerate() {
-            *v = 0.25 * p[before * c + ch] + 0.5 * p[i * c + ch] + 0.25 * p[after * c + ch];
-        }
-    });
-    out
 }
 
 /// One outer frame's move: a shift `(dx, dy)` in pixels, a rotation in degrees about the

@@ -57,7 +57,7 @@ pub use encode::{Encoding, encode};
 #[cfg(feature = "ground-truth")]
 pub use kinds::{SceneKind, UnknownScene, studio};
 #[cfg(feature = "ground-truth")]
-pub use motion::{camera_move, moved, waves};
+pub use motion::{camera_move, lens, moved, waves};
 #[cfg(feature = "ground-truth")]
 pub use place::real_place;
 #[cfg(all(feature = "raw", feature = "ground-truth"))]

@@ -1,5 +1,6 @@
 //! Camera motion between the frames of a bracket: a scene as a frame moved by a known
-//! transform sees it, resampled from a raster ([`moved`]) or rendered exactly ([`waves`]).
+//! transform sees it, resampled from a raster ([`moved`], best after [`lens`]) or rendered
+//! exactly ([`waves`]).
 
 use nalgebra::Matrix3;
 use rayon::prelude::*;
@@ -15,7 +16,8 @@ use crate::radiance::RadianceMap;
 /// The interpolation blurs each pixel by its own fraction of a pixel, so where the raster
 /// has detail near the pixel scale the moved frame is not what a camera moved by `T`
 /// would record: registering such frames finds transforms a pixel or more off at the
-/// corners of a 24 MP frame. [`waves`] renders a scene exactly through a move.
+/// corners of a 24 MP frame. [`lens`] first removes such detail; [`waves`] renders a
+/// scene exactly through a move.
 pub fn moved(scene: &RadianceMap, transform: &[[f64; 3]; 3]) -> Option<RadianceMap> {
     let t = Matrix3::from_fn(|r, c| transform[r][c]);
     let inverse = t.try_inverse()?;
@@ -46,6 +48,34 @@ pub fn moved(scene: &RadianceMap, transform: &[[f64; 3]; 3]) -> Option<RadianceM
         }
     });
     RadianceMap::new(scene.width(), scene.height(), c, out).ok()
+}
+
+/// `map` through a lens: the `[1 2 1]/4` binomial blur twice in each direction (edges
+/// repeated; about a Gaussian of 1 px standard deviation), so that no detail is finer than
+/// the sensor samples and [`moved`] shows what a moved camera records ([`super::scene`]'s
+/// stripes and glyphs are drawn in pixels, down to a period of two).
+pub fn lens(map: &RadianceMap) -> RadianceMap {
+    let (w, h, c) = (map.width() as usize, map.height() as usize, map.channels());
+    let mut pixels = map.pixels().to_vec();
+    for _ in 0..2 {
+        pixels = binomial(&pixels, w, c, 1, w);
+        pixels = binomial(&pixels, w, c, w, h);
+    }
+    RadianceMap::new(w as u32, h as u32, c, pixels).expect("the same size")
+}
+
+/// The `[1 2 1]/4` blur along one axis: neighbours `stride` pixels apart, `len` of them.
+fn binomial(p: &[f32], w: usize, c: usize, stride: usize, len: usize) -> Vec<f32> {
+    let mut out = vec![0f32; p.len()];
+    out.par_chunks_mut(c).enumerate().for_each(|(i, px)| {
+        let along = if stride == 1 { i % w } else { i / w };
+        let before = if along == 0 { i } else { i - stride };
+        let after = if along + 1 == len { i } else { i + stride };
+        for (ch, v) in px.iter_mut().enumerate() {
+            *v = 0.25 * p[before * c + ch] + 0.5 * p[i * c + ch] + 0.25 * p[after * c + ch];
+        }
+    });
+    out
 }
 
 /// The pixel transform (reference pixel → moved frame's pixel, the convention of
