@@ -1583,9 +1583,11 @@ fn register(
     let moved = geometry.displacement(&state.matrix());
     let still = (moved >= IDENTITY_PX).then(|| {
         no_better_locally(finest, geometry, &state, moved)
+            .map(Ok)
             .or_else(|| insignificant(finest, geometry, &state, moved))
     });
     if let Some(why) = still.flatten() {
+        let why = why?;
         return Ok(Registration {
             matrix: Matrix3::identity(),
             motion: Motion::Translation,
@@ -1599,27 +1601,39 @@ fn register(
     })
 }
 
-/// Why `state`, which moves some pixel by `moved` px, counts as no move, when that is no
-/// more than [`SIGNIFICANT_SPREADS`] cluster-robust standard deviations of its
-/// displacement on the finest levels ([`robust_uncertainty_px`]): a frame registered on
-/// blocks that crowd into part of it (a frame several stops from the other) fits its
-/// parameters to structure the residuals share, and a still frame would be resampled.
+/// Whether `state`, which moves some pixel by `moved` px, is within
+/// [`SIGNIFICANT_SPREADS`] cluster-robust standard deviations of its displacement on the
+/// finest levels ([`robust_uncertainty_px`]) of no move: `None` when it is not; why it
+/// counts as no move when it is (a frame registered on blocks that crowd into part of it,
+/// several stops from the other, fits its parameters to structure the residuals share,
+/// and a still frame would be resampled); [`Refusal::Undetermined`] when that standard
+/// deviation also exceeds [`STILL_SPREAD_PX`]: the registration then tells neither a move
+/// nor stillness, and another way is tried (a frame registered through a neighbour would
+/// otherwise keep the neighbour's transform, however far it moved from it).
 fn insignificant(
     (fine_fixed, fine_moving): (&Level, &Level),
     geometry: &Geometry,
     state: &State,
     moved: f64,
-) -> Option<String> {
+) -> Option<Result<String, Refusal>> {
     let params = state.params();
     let cells = accumulate_cells(fine_fixed, fine_moving, geometry, state, params);
     let spread = robust_uncertainty_px(&cells, params, geometry);
-    (moved <= SIGNIFICANT_SPREADS * spread).then(|| {
-        format!(
-            "a move of {moved:.2} px is within {SIGNIFICANT_SPREADS} standard deviations \
-             of none (σ {spread:.2} px): not moved"
-        )
-    })
+    if moved > SIGNIFICANT_SPREADS * spread {
+        return None;
+    }
+    if spread > STILL_SPREAD_PX {
+        return Some(Err(Refusal::Undetermined(spread)));
+    }
+    Some(Ok(format!(
+        "a move of {moved:.2} px is within {SIGNIFICANT_SPREADS} standard deviations \
+         of none (σ {spread:.2} px): not moved"
+    )))
 }
+
+/// The largest cluster-robust standard deviation, in pixels, of a registration's
+/// displacement for [`insignificant`] to call the frame still.
+const STILL_SPREAD_PX: f64 = 1.0;
 
 /// Why `state`, which moves some pixel by `moved` px, counts as no move, when it fits the
 /// finest levels better than the identity in too few cells of a [`CELLS`] ×

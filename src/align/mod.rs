@@ -104,6 +104,9 @@
 //! homography passes against the rigid model, applied to the move itself), with a note:
 //! on a share of blocks crowded into part of a frame several stops from the other, the
 //! residuals' shared structure (a JPEG's loss among it) is otherwise fitted as a move.
+//! Unless that standard deviation exceeds a pixel: such a registration tells neither a
+//! move nor stillness, counts as failed (too little texture), and the next way is tried
+//! (see "Frames far apart in exposure").
 //! And so does one that fits the finest level better than the identity in too few cells
 //! of that grid when each cell has its own gain and offset (a sign test: more than `n/2 +
 //! 3·√n/2` of the `n` cells both measure, half of them being what a still frame wins by
