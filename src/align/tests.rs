@@ -119,30 +119,7 @@ const FINE: u32 = 4;
 /// The scene a frame of `W × H` sees: `scene` rendered at `FINE` times the resolution,
 /// through a lens (a binomial blur of radius 2 fine pixels).
 fn scene(seed: u64) -> RadianceMap {
-    lens(&lens(&synthetic::scene(FINE * W, FINE * H, seed)))
-}
-
-/// The `[1 2 1]/4` binomial blur in both directions, edges repeated.
-fn lens(map: &RadianceMap) -> RadianceMap {
-    let (w, h, c) = (map.width() as usize, map.height() as usize, map.channels());
-    let p = map.pixels();
-    let mut out = vec![0f32; p.len()];
-    for y in 0..h {
-        for x in 0..w {
-            for ch in 0..c {
-                let mut sum = 0.0;
-                for (dy, ky) in [(-1i64, 0.25f32), (0, 0.5), (1, 0.25)] {
-                    for (dx, kx) in [(-1i64, 0.25f32), (0, 0.5), (1, 0.25)] {
-                        let xx = (x as i64 + dx).clamp(0, w as i64 - 1) as usize;
-                        let yy = (y as i64 + dy).clamp(0, h as i64 - 1) as usize;
-                        sum += ky * kx * p[(yy * w + xx) * c + ch];
-                    }
-                }
-                out[(y * w + x) * c + ch] = sum;
-            }
-        }
-    }
-    RadianceMap::new(w as u32, h as u32, c, out).unwrap()
+    synthetic::lens(&synthetic::scene(FINE * W, FINE * H, seed))
 }
 
 /// `FINE × FINE` means.
@@ -259,7 +236,7 @@ struct Bracket {
 /// to 11 px from where a rotation and a shift would put them).
 fn large_bracket() -> Bracket {
     let size = (1280, 960);
-    let scene = lens(&lens(&synthetic::scene(FINE * size.0, FINE * size.1, 23)));
+    let scene = synthetic::lens(&synthetic::scene(FINE * size.0, FINE * size.1, 23));
     let dark = transform_in(size, 0.4, (9.5, -7.2), (1.5e-5, -1e-5));
     let bright = transform_in(size, -0.5, (-11.3, 6.1), (-1e-5, 1.5e-5));
     let exposures = [0.125, 0.25, 0.5];
@@ -346,7 +323,7 @@ fn the_estimate_is_the_same_on_any_number_of_threads() {
 #[test]
 fn the_full_resolution_refinement_is_the_same_on_any_number_of_threads() {
     let size = (640, 480);
-    let scene = lens(&lens(&synthetic::scene(FINE * size.0, FINE * size.1, 7)));
+    let scene = synthetic::lens(&synthetic::scene(FINE * size.0, FINE * size.1, 7));
     let moves = [
         transform_in(size, 0.2, (-3.1, 5.4), (2e-5, -1.5e-5)),
         IDENTITY,
