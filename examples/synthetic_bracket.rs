@@ -10,14 +10,12 @@
 //! would: moved by (−4, 3) and (4, −3) px and turned by −0.2° and 0.2° about the top-left
 //! corner, for trying `--align`. The scene is then first blurred as a lens would
 //! ([`filmback::synthetic::lens`]), so that no frame's detail is finer than its pixels.
+//! The frames are [`filmback::synthetic::example_bracket`]'s.
 
 use std::path::PathBuf;
 
 use filmback::frame::BitDepth;
-use filmback::metadata::{Camera, CaptureTime};
-use filmback::synthetic::{
-    Encoding, ResponseCurve, Sensor, Shot, bracket, lens, moved, scene, write,
-};
+use filmback::synthetic::{Encoding, ResponseCurve, example_bracket, write};
 
 fn main() -> Result<(), Box<dyn std::error::Error>> {
     let mut args = std::env::args().skip(1);
@@ -34,70 +32,11 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         .find(|(name, _)| *name == curve_name)
         .map(|(_, curve)| curve)
         .ok_or_else(|| format!("unknown curve {curve_name:?}"))?;
-
-    let camera = Camera {
-        make: Some("Filmback".to_string()),
-        model: Some("Synthetic S1".to_string()),
-        serial: Some("0001".to_string()),
-        lens: None,
-    };
-    let first = CaptureTime {
-        year: 2026,
-        month: 11,
-        day: 22,
-        hour: 6,
-        minute: 0,
-        second: 0,
-        nanos: Some(0),
-        offset_minutes: Some(0),
-    };
-    let shots = Shot::series(
-        &camera,
-        first,
-        &[1.0 / 500.0, 1.0 / 125.0, 1.0 / 30.0],
-        8.0,
-        100.0,
-        0.5,
-    );
-    // Relative exposure of the middle shot: t·S/N² = (1/125)·100/64.
-    let scale = 1.0
-        / shots[1]
-            .exposure
-            .relative()
-            .ok_or("middle shot exposure unknown")?;
-    let sensor = Sensor {
-        read_noise_dn: if depth == BitDepth::Eight { 0.5 } else { 8.0 },
-        full_well_electrons: Some(20_000.0),
-        seed: 1,
-        ..Sensor::noiseless(curve, depth)
-    };
     let handheld = args.next().as_deref() == Some("moved");
-    // A moved camera resamples the scene: through a lens first, as a camera sees it.
-    let radiance = if handheld {
-        lens(&scene(1500, 1000, 1))
-    } else {
-        scene(1500, 1000, 1)
-    };
-    let mut frames = Vec::new();
-    for (k, shot) in shots.iter().enumerate() {
-        let seen = match k {
-            1 => None,
-            _ if !handheld => None,
-            _ => moved(&radiance, &turned(k as f64 - 1.0)),
-        };
-        let seen = seen.as_ref().unwrap_or(&radiance);
-        frames.extend(bracket(seen, &sensor, std::slice::from_ref(shot), scale)?);
-    }
-    for (k, (frame, shot)) in frames.iter().zip(&shots).enumerate() {
+    for (k, (shot, frame)) in example_bracket(curve, depth, handheld)?.iter().enumerate() {
         let path = dir.join(format!("synthetic-{curve_name}-{k}.{extension}"));
         write(&path, frame, shot, encoding)?;
         println!("{}", path.display());
     }
     Ok(())
-}
-
-/// The transform of a frame `d` steps from the middle one: `d·(4, −3)` px and `d·0.2°`.
-fn turned(d: f64) -> [[f64; 3]; 3] {
-    let (sin, cos) = (d * 0.2f64).to_radians().sin_cos();
-    [[cos, -sin, 4.0 * d], [sin, cos, -3.0 * d], [0.0, 0.0, 1.0]]
 }

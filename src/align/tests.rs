@@ -664,12 +664,9 @@ fn a_warped_frame_is_the_bilinear_mix_at_each_moved_pixel() {
 /// instead of being left where the middle frame is.
 #[test]
 fn a_step_too_uncertain_to_call_still_is_registered_another_way() {
-    let (w, h) = (1500, 1000);
+    let (w, h) = synthetic::EXAMPLE_SIZE;
     let scene = synthetic::lens(&synthetic::scene(w, h, 1));
-    let turned = |d: f64| {
-        let (s, c) = (d * 0.2f64).to_radians().sin_cos();
-        [[c, -s, 4.0 * d], [s, c, -3.0 * d], [0.0, 0.0, 1.0]]
-    };
+    let turned = synthetic::example_move;
     let exposures = [0.25, 1.0, 125.0 / 30.0];
     let frames: Vec<Frame> = exposures
         .iter()

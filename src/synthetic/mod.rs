@@ -31,6 +31,8 @@ mod curve;
 mod dorf;
 mod encode;
 #[cfg(feature = "ground-truth")]
+mod example;
+#[cfg(feature = "ground-truth")]
 mod kinds;
 #[cfg(feature = "ground-truth")]
 mod motion;
@@ -54,6 +56,8 @@ pub use dorf::dorf_curves;
 #[cfg(feature = "ground-truth")]
 pub use encode::write;
 pub use encode::{Encoding, encode};
+#[cfg(feature = "ground-truth")]
+pub use example::{EXAMPLE_SIZE, example_bracket, example_move};
 #[cfg(feature = "ground-truth")]
 pub use kinds::{SceneKind, UnknownScene, studio};
 #[cfg(feature = "ground-truth")]
