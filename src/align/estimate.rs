@@ -1835,7 +1835,7 @@ fn descend(
 }
 
 /// The finest level's result: the state, its normal equations and the state the level
-/// started from (what a simpler model is refined from).
+/// started from (what [`significant`] refines the rigid model from).
 struct Kept {
     state: State,
     normal: Normal,
@@ -1844,7 +1844,10 @@ struct Kept {
 
 /// `kept` simplified while its model's parameters are not determined
 /// ([`MAX_UNCERTAINTY_BLOCKS`]), with a note when it was; why not, when even a
-/// translation is not.
+/// translation is not. Each simpler model is refined from the estimate it replaces, as
+/// near as it can express it ([`State::as_motion`]): the level may have started far from
+/// the move (from a coarse level that ran off), and only the model refined there came
+/// back to it.
 fn determined(
     fine: (&Level, &Level),
     geometry: &Geometry,
@@ -1866,7 +1869,7 @@ fn determined(
             simpler.as_str()
         ));
         (kept.state, kept.normal) =
-            refine(fine, geometry, kept.start.as_motion(simpler), convergence)?;
+            refine(fine, geometry, kept.state.as_motion(simpler), convergence)?;
     }
 }
 

@@ -89,13 +89,14 @@
 //! (the standard deviation of the displacement they imply, `σ/√λ_min` with `λ_min` the
 //! smallest eigenvalue of the motion block of the Gauss–Newton matrix in pixel units,
 //! above [`MAX_UNCERTAINTY_BLOCKS`] of the finest level's blocks) falls back to the next
-//! simpler one (homography → rigid → translation), with a note. A homography is kept only
-//! when it moves some corner of the frame, from the rigid model refined from the same
-//! start, by more than three cluster-robust standard deviations (the residuals' scores
-//! summed per cell of a 16 × 16 grid, so a patch whose residuals agree counts once) and by
-//! more than a tenth of a block: otherwise its perspective and scale fit structure the
-//! residuals share over a patch (a dark frame's noise and quantisation where its shared
-//! blocks crowd into part of the frame), extrapolated to corners no shared block reaches.
+//! simpler one (homography → rigid → translation), refined from the estimate it replaces,
+//! with a note. A homography is kept only when it moves some corner of the frame, from
+//! the rigid model refined from where the finest level started, by more than three
+//! cluster-robust standard deviations (the residuals' scores summed per cell of a 16 ×
+//! 16 grid, so a patch whose residuals agree counts once) and by more than a tenth of a
+//! block: otherwise its perspective and scale fit structure the residuals share over a
+//! patch (a dark frame's noise and quantisation where its shared blocks crowd into part of
+//! the frame), extrapolated to corners no shared block reaches.
 //!
 //! A transform that moves no pixel of the frame by more than [`IDENTITY_PX`] counts as the
 //! identity: the frame is not resampled, so an aligned tripod bracket merges bit for bit
