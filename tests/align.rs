@@ -1,8 +1,8 @@
 //! Alignment end to end: synthetic brackets whose outer frames are moved by known
 //! transforms, merged after alignment and compared with the merge of the unmoved frames;
 //! an aligned bracket through `filmback merge` gives the same radiance with alignment on
-//! and off, and the demo's still JPEGs stay where they are; a DNG bracket moved by a known
-//! shift.
+//! and off, the demo's still JPEGs stay where they are, and the example's handheld JPEGs
+//! are aligned; a DNG bracket moved by a known shift.
 
 use std::path::{Path, PathBuf};
 
@@ -246,9 +246,8 @@ fn the_demo_bracket_is_merged_unmoved() {
 /// CURVE moved`) through `filmback merge`, its response recovered from the JPEGs: both
 /// moved frames within half a pixel of their true moves at every corner. Through the
 /// film-S curve the middle frame is registered on the finer levels only, the first of them
-/// starting hundreds of pixels off; its homography is not determined, and the rigid model
-/// refined from where that level started ran off again (the translation it then fell back
-/// to was 3.6 px off).
+/// starting hundreds of pixels off, and its homography is not determined: the rigid model
+/// that replaces it must start from the homography's estimate, not from there.
 #[test]
 fn the_example_handheld_bracket_is_aligned() {
     let dir = tempfile::tempdir().unwrap();
