@@ -1192,8 +1192,13 @@ fn refine(
 /// residual and multiplied by 10 after one that does not) until, in units of `step`
 /// full-resolution pixels, an accepted step moves no corner by more than
 /// [`CONVERGED_PX`], or (for [`Convergence::Within`]) a proposed step would move none by
-/// more than its bound (it is not taken), or no step short of `λ` = [`MAX_DAMPING`]
-/// lowers the residual: the state and its normal equations, or why it failed.
+/// more than its bound (it is not taken) or one that does not lower the residual moves
+/// none by more than twice the bound, or no step short of `λ` = [`MAX_DAMPING`] lowers
+/// the residual: the state and its normal equations, or why it failed. A residual
+/// quadratic along a descent step of length `d` that rises over it has its minimum on
+/// that line nearer than `d/2` to the state: a rejected step under twice the bound finds the state
+/// within the bound, where damping it further (which shrinks it little while `λ` is
+/// small) would spend one pass over the samples per tenfold `λ`.
 fn damped(
     geometry: &Geometry,
     step: f64,
@@ -1235,6 +1240,11 @@ fn damped(
                 return Ok((state, current));
             }
         } else {
+            if let Convergence::Within(bound) = convergence
+                && moved < 2.0 * bound
+            {
+                return Ok((state, current));
+            }
             damping *= 10.0;
             if damping > MAX_DAMPING {
                 return Ok((state, current));

@@ -1,4 +1,5 @@
-//! The cluster-robust spread against the per-block one, and the cells' sign test.
+//! The cluster-robust spread against the per-block one, the cells' sign test, and
+//! where the damped refinement stops.
 
 use super::*;
 
@@ -127,4 +128,52 @@ fn a_brightness_falloff_does_not_pass_for_a_move() {
     let moved = geometry.displacement(&state.matrix());
     let why = no_better_locally((&reference, &shifted), &geometry, &state, moved);
     assert_eq!(why, None, "{state:?}");
+}
+
+/// Normal equations whose Gauss–Newton step moves the frame's corners by `px` pixels
+/// (a translation along x), at a residual that every other state raises; and a count of
+/// the passes [`damped`] asks for.
+fn rejected_step(px: f64) -> (usize, State) {
+    let geometry = Geometry::new(W as u32, H as u32);
+    let state = State {
+        motion: Motion::Translation,
+        p: [0.0; 8],
+        gain: 1.0,
+        bias: 0.0,
+    };
+    let mut start = Normal::zero();
+    for k in 0..4 {
+        start.jtj[k][k] = 1.0;
+    }
+    // δ = −A⁻¹b: a shift of `px` pixels is `px/s` in normalised units.
+    start.jtr[0] = -px / geometry.s;
+    start.count = MIN_SAMPLES;
+    let passes = std::cell::Cell::new(0);
+    let normal = |s: &State| {
+        passes.set(passes.get() + 1);
+        let mut raised = start.clone();
+        raised.sse = if s.p == [0.0; 8] { 0.0 } else { 1.0 };
+        raised
+    };
+    let (found, _) = damped(
+        &geometry,
+        1.0,
+        state,
+        start.clone(),
+        &normal,
+        Convergence::Within(0.01),
+    )
+    .expect("the start stands");
+    (passes.get(), found)
+}
+
+#[test]
+fn a_rejected_step_under_twice_the_bound_ends_the_refinement() {
+    let (passes, found) = rejected_step(0.015);
+    assert_eq!(passes, 1, "the step was damped further");
+    assert_eq!(found.p, [0.0; 8]);
+    // A rejected step of 0.05 px says the state may be 0.025 px from the minimum: damped.
+    let (passes, found) = rejected_step(0.05);
+    assert!(passes > 1, "{passes} passes");
+    assert_eq!(found.p, [0.0; 8]);
 }
