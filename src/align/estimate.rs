@@ -1192,13 +1192,14 @@ fn refine(
 /// residual and multiplied by 10 after one that does not) until, in units of `step`
 /// full-resolution pixels, an accepted step moves no corner by more than
 /// [`CONVERGED_PX`], or (for [`Convergence::Within`]) a proposed step would move none by
-/// more than its bound (it is not taken) or one that does not lower the residual moves
-/// none by more than twice the bound, or no step short of `λ` = [`MAX_DAMPING`] lowers
-/// the residual: the state and its normal equations, or why it failed. A residual
-/// quadratic along a descent step of length `d` that rises over it has its minimum on
-/// that line nearer than `d/2` to the state: a rejected step under twice the bound finds the state
-/// within the bound, where damping it further (which shrinks it little while `λ` is
-/// small) would spend one pass over the samples per tenfold `λ`.
+/// more than its bound (it is not taken) or a refused step (one that does not lower the
+/// residual) moves none by more than twice the bound, or no step short of `λ` =
+/// [`MAX_DAMPING`] lowers the residual: the state and its normal equations, or why it
+/// failed. A residual quadratic along a descent step of length `d` that rises over it
+/// has its minimum on that line nearer than `d/2` to the state: a refused step under
+/// twice the bound finds the state within the bound, where damping it further (which
+/// shrinks it little while `λ` is small) would spend a pass over the samples per
+/// tenfold `λ`.
 fn damped(
     geometry: &Geometry,
     step: f64,

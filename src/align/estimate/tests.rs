@@ -133,7 +133,7 @@ fn a_brightness_falloff_does_not_pass_for_a_move() {
 /// Normal equations whose Gauss–Newton step moves the frame's corners by `px` pixels
 /// (a translation along x), at a residual that every other state raises; and a count of
 /// the passes [`damped`] asks for.
-fn rejected_step(px: f64) -> (usize, State) {
+fn refused_step(px: f64) -> (usize, State) {
     let geometry = Geometry::new(W as u32, H as u32);
     let state = State {
         motion: Motion::Translation,
@@ -168,12 +168,12 @@ fn rejected_step(px: f64) -> (usize, State) {
 }
 
 #[test]
-fn a_rejected_step_under_twice_the_bound_ends_the_refinement() {
-    let (passes, found) = rejected_step(0.015);
+fn a_refused_step_under_twice_the_bound_ends_the_refinement() {
+    let (passes, found) = refused_step(0.015);
     assert_eq!(passes, 1, "the step was damped further");
     assert_eq!(found.p, [0.0; 8]);
-    // A rejected step of 0.05 px says the state may be 0.025 px from the minimum: damped.
-    let (passes, found) = rejected_step(0.05);
+    // A refused step of 0.05 px says the state may be 0.025 px from the minimum: damped.
+    let (passes, found) = refused_step(0.05);
     assert!(passes > 1, "{passes} passes");
     assert_eq!(found.p, [0.0; 8]);
 }
