@@ -1891,7 +1891,9 @@ fn determined(
 /// quantised alike, a dark frame's noise where the shared blocks crowd into part of the
 /// frame), extrapolated to corners no shared block reaches, and would resample a still
 /// frame. A rotation is not tested so: the whole support determines it, and a nudged
-/// tripod's tenth of a degree must be kept.
+/// tripod's tenth of a degree must be kept. A homography that moves no pixel by
+/// [`IDENTITY_PX`] leaves the frame still under either model: it yields to the rigid
+/// model refined from it, without the test.
 fn significant(
     fine: (&Level, &Level),
     geometry: &Geometry,
@@ -1900,6 +1902,21 @@ fn significant(
 ) -> Kept {
     if kept.state.motion != Motion::Homography {
         return kept;
+    }
+    if geometry.displacement(&kept.state.matrix()) < IDENTITY_PX {
+        return match refine(
+            fine,
+            geometry,
+            kept.state.as_motion(Motion::Rigid),
+            convergence,
+        ) {
+            Ok((state, normal)) => Kept {
+                state,
+                normal,
+                ..kept
+            },
+            Err(_) => kept,
+        };
     }
     let Ok((rigid, normal)) = refine(
         fine,

@@ -96,7 +96,8 @@
 //! 16 grid, so a patch whose residuals agree counts once) and by more than a tenth of a
 //! block: otherwise its perspective and scale fit structure the residuals share over a
 //! patch (a dark frame's noise and quantisation where its shared blocks crowd into part of
-//! the frame), extrapolated to corners no shared block reaches.
+//! the frame), extrapolated to corners no shared block reaches. A homography that moves
+//! no pixel by [`IDENTITY_PX`] yields to the rigid model refined from it without that test.
 //!
 //! A transform that moves no pixel of the frame by more than [`IDENTITY_PX`] counts as the
 //! identity: the frame is not resampled, so an aligned tripod bracket merges bit for bit

@@ -177,3 +177,26 @@ fn a_refused_step_under_twice_the_bound_ends_the_refinement() {
     assert!(passes > 1, "{passes} passes");
     assert_eq!(found.p, [0.0; 8]);
 }
+
+/// A still frame whose finest level started far off (a rotation of 20° and a shift of 40
+/// blocks, where the rigid model refined from that start runs off): its homography at
+/// the identity yields to the rigid model refined from it, also at the identity.
+#[test]
+fn a_still_homography_yields_to_the_rigid_model_refined_from_it() {
+    let (reference, geometry, state) = at_identity();
+    let still = level(|x, y| texture(x as f64, y as f64));
+    let fine = (&reference, &still);
+    let normal = accumulate(fine.0, fine.1, &geometry, &state, state.params());
+    let mut start = state.as_motion(Motion::Rigid);
+    start.p[0] = 20f64.to_radians();
+    start.p[1] = 40.0 / geometry.s;
+    let kept = Kept {
+        state,
+        normal,
+        start,
+    };
+    let kept = significant(fine, &geometry, kept, Convergence::Final);
+    assert_eq!(kept.state.motion, Motion::Rigid, "{:?}", kept.state);
+    let moved = geometry.displacement(&kept.state.matrix());
+    assert!(moved < IDENTITY_PX, "moved {moved:.3} px");
+}
