@@ -1032,6 +1032,53 @@ impl Normal {
         sse.max(0.0) / self.count.max(1) as f64
     }
 
+    /// The equations of gain and offset alone, of a system whose first `motion`
+    /// parameters are the motion's.
+    fn photometric(&self, motion: usize) -> Normal {
+        let (g, b) = (motion, motion + 1);
+        let mut out = Normal {
+            sse: self.sse,
+            count: self.count,
+            ..Normal::zero()
+        };
+        out.jtj[0][0] = self.jtj[g][g];
+        out.jtj[0][1] = self.jtj[g][b];
+        out.jtj[1][1] = self.jtj[b][b];
+        out.jtr[0] = self.jtr[g];
+        out.jtr[1] = self.jtr[b];
+        out
+    }
+
+    /// These equations (first `motion` parameters the motion's, then gain and offset,
+    /// taken at gain `gain`) after the gain and offset move by `δ = (δg, δb)`, in closed
+    /// form: each residual gains `δg·L_k + δb = j_p·δ` (`j_p` its gain and offset
+    /// columns) and each motion column scales by `ρ = (gain + δg)/gain`, so with
+    /// `D = diag(ρ, …, ρ, 1, 1)`: `JᵀJ′ = D·JᵀJ·D`, `Jᵀr′ = D·(Jᵀr + JᵀJ_p·δ)` and
+    /// `Σr′² = Σr² + 2δᵀ·(Jᵀr)_p + δᵀ·(JᵀJ)_pp·δ`, the count unchanged.
+    fn with_photometric_step(&self, motion: usize, gain: f64, delta: [f64; 2]) -> Normal {
+        let size = motion + 2;
+        let (g, b) = (motion, motion + 1);
+        let at = |i: usize, j: usize| self.jtj[i.min(j)][i.max(j)];
+        let rho = (gain + delta[0]) / gain;
+        let scale = |i: usize| if i < motion { rho } else { 1.0 };
+        let mut out = Normal {
+            count: self.count,
+            ..Normal::zero()
+        };
+        for i in 0..size {
+            for j in i..size {
+                out.jtj[i][j] = scale(i) * scale(j) * at(i, j);
+            }
+            let moved = self.jtr[i] + at(i, g) * delta[0] + at(i, b) * delta[1];
+            out.jtr[i] = scale(i) * moved;
+        }
+        let quadratic = delta[0] * delta[0] * at(g, g)
+            + 2.0 * delta[0] * delta[1] * at(g, b)
+            + delta[1] * delta[1] * at(b, b);
+        out.sse = self.sse + 2.0 * (delta[0] * self.jtr[g] + delta[1] * self.jtr[b]) + quadratic;
+        out
+    }
+
     /// The `n × n` matrix and the vector of the first `n` parameters.
     fn system(&self, n: usize) -> (DMatrix<f64>, DVector<f64>) {
         let a = DMatrix::from_fn(n, n, |i, j| self.jtj[i.min(j)][i.max(j)]);

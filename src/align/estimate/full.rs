@@ -427,20 +427,28 @@ pub(super) fn refine(
 }
 
 /// `state` with the gain and offset fitted to the samples, and its normal equations in
-/// its model.
+/// its model: one pass over the samples at `state`, the gain and offset's step solved
+/// from their own equations, and the equations moved by it in closed form
+/// ([`Normal::with_photometric_step`]).
 fn fitted(
     reference: &FullFrame<'_>,
     moving: &Seen<'_, '_>,
     geometry: &Geometry,
     state: State,
 ) -> (State, Normal) {
+    let motion = state.params();
+    let normal = accumulate(reference, moving, geometry, &state, motion);
+    let Some(delta) = solve(&normal.photometric(motion), 2, 0.0) else {
+        return (state, normal);
+    };
+    let step = [delta[0], delta[1]];
     let mut start = state;
-    if let Some(delta) = solve(&accumulate(reference, moving, geometry, &state, 0), 2, 0.0) {
-        start.gain += delta[0];
-        start.bias += delta[1];
-    }
-    let normal = accumulate(reference, moving, geometry, &start, start.params());
-    (start, normal)
+    start.gain += step[0];
+    start.bias += step[1];
+    (
+        start,
+        normal.with_photometric_step(motion, state.gain, step),
+    )
 }
 
 /// `state` refined on the samples: gain and offset fitted, then [`damped`] Gauss–Newton

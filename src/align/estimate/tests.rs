@@ -200,3 +200,47 @@ fn a_still_homography_yields_to_the_rigid_model_refined_from_it() {
     let moved = geometry.displacement(&kept.state.matrix());
     assert!(moved < IDENTITY_PX, "moved {moved:.3} px");
 }
+
+/// The equations a pass over the samples gives after the gain and offset move, against
+/// those [`Normal::with_photometric_step`] gives in closed form, for each model.
+#[test]
+fn a_gain_and_offset_step_moves_the_equations_as_a_new_pass_would() {
+    let (reference, geometry, _) = at_identity();
+    let moving = level(|x, y| 1.3 * texture(x as f64 + 0.4, y as f64 - 0.3) + 0.1);
+    for motion in [Motion::Translation, Motion::Rigid, Motion::Homography] {
+        let mut state = State {
+            motion,
+            p: [0.0; 8],
+            gain: 0.8,
+            bias: -0.02,
+        };
+        state.p[0] = 0.001;
+        let n = state.params();
+        let before = accumulate(&reference, &moving, &geometry, &state, n);
+        let step = [0.15, -0.04];
+        let moved = State {
+            gain: state.gain + step[0],
+            bias: state.bias + step[1],
+            ..state
+        };
+        let pass = accumulate(&reference, &moving, &geometry, &moved, n);
+        let closed = before.with_photometric_step(n, state.gain, step);
+        let near = |a: f64, b: f64| (a - b).abs() <= 1e-9 * (1.0 + a.abs().max(b.abs()));
+        assert_eq!(closed.count, pass.count);
+        assert!(
+            near(closed.sse, pass.sse),
+            "{motion:?}: Σr² {} against {}",
+            closed.sse,
+            pass.sse
+        );
+        for i in 0..n + 2 {
+            assert!(near(closed.jtr[i], pass.jtr[i]), "{motion:?}: Jᵀr[{i}]");
+            for j in i..n + 2 {
+                assert!(
+                    near(closed.jtj[i][j], pass.jtj[i][j]),
+                    "{motion:?}: JᵀJ[{i}][{j}]"
+                );
+            }
+        }
+    }
+}
