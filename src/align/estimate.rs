@@ -1950,41 +1950,25 @@ fn significant(
     if kept.state.motion != Motion::Homography {
         return kept;
     }
-    if geometry.displacement(&kept.state.matrix()) < IDENTITY_PX {
-        return match refine(
-            fine,
-            geometry,
-            kept.state.as_motion(Motion::Rigid),
-            convergence,
-        ) {
-            Ok((state, normal)) => Kept {
-                state,
-                normal,
-                ..kept
-            },
-            Err(_) => kept,
-        };
-    }
-    let Ok((rigid, normal)) = refine(
-        fine,
-        geometry,
-        kept.start.as_motion(Motion::Rigid),
-        convergence,
-    ) else {
+    let still = geometry.displacement(&kept.state.matrix()) < IDENTITY_PX;
+    let from = if still { kept.state } else { kept.start };
+    let Ok((rigid, normal)) = refine(fine, geometry, from.as_motion(Motion::Rigid), convergence)
+    else {
         return kept;
     };
-    let params = kept.state.params();
-    let cells = accumulate_cells(fine.0, fine.1, geometry, &kept.state, params);
-    let spread = robust_uncertainty_px(&cells, params, geometry);
-    let apart = geometry.corner_shift(&kept.state.matrix(), &rigid.matrix());
-    if apart > (SIGNIFICANT_SPREADS * spread).max(SIGNIFICANT_BLOCKS * fine.0.step) {
-        kept
-    } else {
-        Kept {
-            state: rigid,
-            normal,
-            ..kept
+    if !still {
+        let params = kept.state.params();
+        let cells = accumulate_cells(fine.0, fine.1, geometry, &kept.state, params);
+        let spread = robust_uncertainty_px(&cells, params, geometry);
+        let apart = geometry.corner_shift(&kept.state.matrix(), &rigid.matrix());
+        if apart > (SIGNIFICANT_SPREADS * spread).max(SIGNIFICANT_BLOCKS * fine.0.step) {
+            return kept;
         }
+    }
+    Kept {
+        state: rigid,
+        normal,
+        ..kept
     }
 }
 

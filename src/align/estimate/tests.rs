@@ -179,7 +179,7 @@ fn a_refused_step_under_twice_the_bound_ends_the_refinement() {
 }
 
 /// A still frame whose finest level started far off (a rotation of 20° and a shift of 40
-/// blocks, where the rigid model refined from that start runs off): its homography at
+/// blocks, from which a rigid fit does not come back to the identity): its homography at
 /// the identity yields to the rigid model refined from it, also at the identity.
 #[test]
 fn a_still_homography_yields_to_the_rigid_model_refined_from_it() {
