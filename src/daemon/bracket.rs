@@ -296,12 +296,15 @@ fn runs(frames: &[(Capture, f64)], rules: &BracketRules) -> Vec<Range<usize>> {
 /// frame captured within it can still arrive, or at once when it holds `size` frames and
 /// its body's frames have arrived in capture order for the last `max_gap_s`. A frame of
 /// the next bracket that arrives before the last frame of the current one therefore does
-/// not split it.
+/// not split it. [`Grouper::close`] hands out no more ready groups than its caller has
+/// room for (the daemon's queue); the others stay open until there is room.
 #[derive(Debug)]
 pub struct Grouper {
     rules: BracketRules,
     open: BTreeMap<CameraId, Open>,
     order: BTreeMap<CameraId, Order>,
+    /// Frames without an exposure, each a single, in arrival order.
+    alone: Vec<Capture>,
 }
 
 impl Grouper {
@@ -311,6 +314,7 @@ impl Grouper {
             rules,
             open: BTreeMap::new(),
             order: BTreeMap::new(),
+            alone: Vec::new(),
         }
     }
 
@@ -319,16 +323,18 @@ impl Grouper {
         self.rules = rules;
     }
 
-    /// Frames waiting in open groups.
+    /// Frames waiting in open groups or to be closed.
     pub fn waiting(&self) -> usize {
-        self.open.values().map(|o| o.frames.len()).sum()
+        self.open.values().map(|o| o.frames.len()).sum::<usize>() + self.alone.len()
     }
 
-    /// Adds a capture that arrived at `now` (seconds, any monotone clock); returns the
-    /// groups of its body that closed: a run now full, or one whose gap clock ran out.
-    pub fn push(&mut self, capture: Capture, now: f64) -> Vec<Closed> {
+    /// Adds a capture that arrived at `now` (seconds, any monotone clock); a frame
+    /// without an exposure is a single of its own. [`Grouper::close`] hands out the
+    /// groups this completes.
+    pub fn push(&mut self, capture: Capture, now: f64) {
         if capture.stops().is_none() {
-            return vec![Closed::Single(capture, Alone::NoExposure)];
+            self.alone.push(capture);
+            return;
         }
         let camera = capture.camera.clone();
         let order = self.order.entry(camera.clone()).or_insert(Order {
@@ -349,7 +355,37 @@ impl Grouper {
             .partition_point(|(c, _)| c.time_s <= capture.time_s);
         open.frames.insert(at, (capture, now));
         open.last_arrival = open.last_arrival.max(now);
-        self.close_ready(&camera, now)
+    }
+
+    /// Closes at most `room` groups that are ready at `now` (the room left in the
+    /// daemon's queue): first the frames without an exposure, then the ready runs whose
+    /// gap clocks are oldest, each body's in capture order. The others stay open until
+    /// a later call has room.
+    pub fn close(&mut self, now: f64, room: usize) -> Vec<Closed> {
+        let singles = room.min(self.alone.len());
+        let mut closed: Vec<Closed> = self
+            .alone
+            .drain(..singles)
+            .map(|c| Closed::Single(c, Alone::NoExposure))
+            .collect();
+        let mut ready: Vec<(f64, &CameraId)> = self
+            .open
+            .iter()
+            .flat_map(|(camera, open)| {
+                self.ready(camera, open, now)
+                    .into_iter()
+                    .map(move |run| (open.clock(&run), camera))
+            })
+            .collect();
+        ready.sort_by(|a, b| a.0.total_cmp(&b.0));
+        let mut share: BTreeMap<CameraId, usize> = BTreeMap::new();
+        for (_, camera) in ready.into_iter().take(room - singles) {
+            *share.entry(camera.clone()).or_default() += 1;
+        }
+        for (camera, n) in share {
+            closed.extend(self.close_ready(&camera, now, n));
+        }
+        closed
     }
 
     /// The runs of `camera`'s `open` frames that close at `now`: quiet for more than the
@@ -366,12 +402,13 @@ impl Grouper {
             .collect()
     }
 
-    /// Closes the ready runs of `camera`'s open frames, in capture order.
-    fn close_ready(&mut self, camera: &CameraId, now: f64) -> Vec<Closed> {
-        let ready = match self.open.get(camera) {
+    /// Closes the first `n` ready runs of `camera`'s open frames, in capture order.
+    fn close_ready(&mut self, camera: &CameraId, now: f64, n: usize) -> Vec<Closed> {
+        let mut ready = match self.open.get(camera) {
             Some(open) => self.ready(camera, open, now),
             None => return Vec::new(),
         };
+        ready.truncate(n);
         let Some(open) = self.open.get_mut(camera).filter(|_| !ready.is_empty()) else {
             return Vec::new();
         };
@@ -400,21 +437,13 @@ impl Grouper {
         closed
     }
 
-    /// True when [`Grouper::expire`] at `now` would close a group.
+    /// True when [`Grouper::close`] at `now` would close a group, given room.
     pub(crate) fn due(&self, now: f64) -> bool {
-        self.open
-            .iter()
-            .any(|(camera, o)| !self.ready(camera, o, now).is_empty())
-    }
-
-    /// Closes every run whose gap clock is more than `max_gap_s` old at `now`: no further
-    /// frame of that bracket can still come.
-    pub(crate) fn expire(&mut self, now: f64) -> Vec<Closed> {
-        let cameras: Vec<CameraId> = self.open.keys().cloned().collect();
-        cameras
-            .iter()
-            .flat_map(|camera| self.close_ready(camera, now))
-            .collect()
+        !self.alone.is_empty()
+            || self
+                .open
+                .iter()
+                .any(|(camera, o)| !self.ready(camera, o, now).is_empty())
     }
 
     /// Takes the frame at `path` out of its open group (its raw arrived: the JPEG of a
@@ -443,9 +472,10 @@ impl Grouper {
         let mut grouper = Grouper::new(rules);
         let mut closed = Vec::with_capacity(captures.len());
         for capture in captures {
-            closed.extend(grouper.push(capture, 0.0));
+            grouper.push(capture, 0.0);
+            closed.extend(grouper.close(0.0, usize::MAX));
         }
-        closed.extend(grouper.expire(f64::INFINITY));
+        closed.extend(grouper.close(f64::INFINITY, usize::MAX));
         closed
     }
 
@@ -518,10 +548,16 @@ mod tests {
             .collect()
     }
 
+    /// Pushes `s` arriving at `t` and closes what is ready, with room for all.
+    fn arrive(g: &mut Grouper, s: Capture, t: f64) -> Vec<Closed> {
+        g.push(s, t);
+        g.close(t, usize::MAX)
+    }
+
     fn run(g: &mut Grouper, shots: Vec<Capture>) -> Vec<Closed> {
         let mut out = Vec::new();
         for (i, s) in shots.into_iter().enumerate() {
-            out.extend(g.push(s, i as f64 * 0.1));
+            out.extend(arrive(g, s, i as f64 * 0.1));
         }
         out
     }
@@ -566,8 +602,8 @@ mod tests {
         // and `a2` can still arrive (the gap after the body's last arrival, `c2` at 0.4).
         assert_eq!(out.len(), 1);
         assert_eq!(names(&out[0]), ["a2", "b2", "c2"]);
-        assert!(g.expire(2.3).is_empty());
-        let late = g.expire(2.5);
+        assert!(g.close(2.3, usize::MAX).is_empty());
+        let late = g.close(2.5, usize::MAX);
         assert_eq!(late.len(), 1);
         assert_eq!(names(&late[0]), ["a", "b"]);
     }
@@ -587,30 +623,30 @@ mod tests {
         // Nothing closes while a frame captured between them could still arrive.
         assert!(out.is_empty());
         assert!(!g.due(1.0));
-        assert!(g.expire(1.0).is_empty());
+        assert!(g.close(1.0, usize::MAX).is_empty());
         // `a` alone once `max_gap_s` passed since `b` arrived; the pair since `c` did.
         assert_eq!(
-            g.expire(2.15),
+            g.close(2.15, usize::MAX),
             [Closed::Single(shot("a", &c, 0.0, 0.0), Alone::NoPartner)]
         );
         assert!(g.due(10.0));
-        let late = g.expire(10.0);
+        let late = g.close(10.0, usize::MAX);
         assert_eq!(late.len(), 1);
         assert_eq!(names(&late[0]), ["b", "c"]);
         assert_eq!(g.waiting(), 0);
         // Postponed groups wait a full gap from the postponement.
-        g.push(shot("d", &c, 0.0, 20.0), 10.0);
+        arrive(&mut g, shot("d", &c, 0.0, 20.0), 10.0);
         g.postpone(11.5);
-        assert!(g.expire(13.0).is_empty());
-        assert_eq!(g.expire(13.6).len(), 1);
+        assert!(g.close(13.0, usize::MAX).is_empty());
+        assert_eq!(g.close(13.6, usize::MAX).len(), 1);
     }
 
     #[test]
     fn a_withdrawn_frame_leaves_its_group_and_an_empty_group_goes() {
         let c = cam("EOS R5");
         let mut g = Grouper::new(rules(3));
-        g.push(shot("a", &c, 0.0, 0.0), 0.0);
-        g.push(shot("b", &c, 1.0, 0.2), 0.1);
+        arrive(&mut g, shot("a", &c, 0.0, 0.0), 0.0);
+        arrive(&mut g, shot("b", &c, 1.0, 0.2), 0.1);
         let a = g.withdraw(Path::new("/in/a.jpg")).expect("a is open");
         assert_eq!(a, shot("a", &c, 0.0, 0.0));
         assert!(g.withdraw(Path::new("/in/a.jpg")).is_none());
@@ -618,7 +654,7 @@ mod tests {
         assert!(g.withdraw(Path::new("/in/b.jpg")).is_some());
         assert_eq!(g.waiting(), 0);
         assert!(
-            g.expire(100.0).is_empty(),
+            g.close(100.0, usize::MAX).is_empty(),
             "no empty group is left to close"
         );
     }
@@ -659,7 +695,7 @@ mod tests {
         );
         // Out of order: the full bracket waits for the gap clock, then closes whole.
         assert!(out.is_empty());
-        let out = g.expire(2.3);
+        let out = g.close(2.3, usize::MAX);
         assert_eq!(names(&out[0]), ["a", "b", "c"]);
         assert_eq!(out[0].stem(), "a");
     }
@@ -693,7 +729,7 @@ mod tests {
                 .map(|i| shot(&format!("s{i}"), &c, 0.0, f64::from(i) * 0.1))
                 .collect(),
         );
-        out.extend(g.expire(100.0));
+        out.extend(g.close(100.0, usize::MAX));
         assert_eq!(out.len(), 5);
         assert!(
             out.iter()
@@ -707,22 +743,54 @@ mod tests {
     fn the_next_brackets_first_frame_arriving_early_does_not_split_the_current_one() {
         let c = cam("EOS R5");
         let mut g = Grouper::new(rules(3));
-        assert!(g.push(shot("a", &c, 0.0, 0.0), 0.0).is_empty());
-        assert!(g.push(shot("b", &c, -2.0, 0.3), 0.1).is_empty());
-        assert!(g.push(shot("d", &c, 0.0, 20.0), 0.2).is_empty());
+        assert!(arrive(&mut g, shot("a", &c, 0.0, 0.0), 0.0).is_empty());
+        assert!(arrive(&mut g, shot("b", &c, -2.0, 0.3), 0.1).is_empty());
+        assert!(arrive(&mut g, shot("d", &c, 0.0, 20.0), 0.2).is_empty());
         // Out of capture order: even a full run waits for its gap clock (`c`'s arrival).
-        assert!(g.push(shot("c", &c, 2.0, 0.6), 0.7).is_empty());
-        assert!(g.push(shot("e", &c, -2.0, 20.3), 0.8).is_empty());
-        assert!(g.push(shot("f", &c, 2.0, 20.6), 0.9).is_empty());
-        assert!(g.expire(2.6).is_empty());
-        let out: Vec<_> = g.expire(2.8).iter().map(names).collect();
+        assert!(arrive(&mut g, shot("c", &c, 2.0, 0.6), 0.7).is_empty());
+        assert!(arrive(&mut g, shot("e", &c, -2.0, 20.3), 0.8).is_empty());
+        assert!(arrive(&mut g, shot("f", &c, 2.0, 20.6), 0.9).is_empty());
+        assert!(g.close(2.6, usize::MAX).is_empty());
+        let out: Vec<_> = g.close(2.8, usize::MAX).iter().map(names).collect();
         assert_eq!(out, [["a", "b", "c"], ["d", "e", "f"]]);
         assert_eq!(g.waiting(), 0);
         // Back in order for a gap: a full bracket closes at once again.
-        g.push(shot("g", &c, 0.0, 40.0), 3.1);
-        g.push(shot("h", &c, -2.0, 40.3), 3.2);
-        let out = g.push(shot("i", &c, 2.0, 40.6), 3.3);
+        arrive(&mut g, shot("g", &c, 0.0, 40.0), 3.1);
+        arrive(&mut g, shot("h", &c, -2.0, 40.3), 3.2);
+        let out = arrive(&mut g, shot("i", &c, 2.0, 40.6), 3.3);
         assert_eq!(names(&out[0]), ["g", "h", "i"]);
+    }
+
+    /// Five brackets whose frames arrived in reverse capture order all become ready at
+    /// once when their gap clocks run out: each call hands out no more groups than it has
+    /// room for, the frame without an exposure first, then the oldest clocks; none is
+    /// lost or split.
+    #[test]
+    fn close_hands_out_no_more_groups_than_there_is_room_for() {
+        let c = cam("EOS R5");
+        let mut g = Grouper::new(rules(3));
+        for k in 0..5 {
+            for (i, ev) in [(2, 2.0), (1, -2.0), (0, 0.0)] {
+                let t = 10.0 * f64::from(k) + 0.3 * f64::from(i);
+                let arrival = 0.3 * f64::from(k) + 0.1 * f64::from(2 - i);
+                g.push(shot(&format!("{k}-{i}"), &c, ev, t), arrival);
+            }
+        }
+        let mut blind = shot("n", &c, 0.0, 100.0);
+        blind.exposure = None;
+        g.push(blind.clone(), 1.5);
+        assert!(g.close(1.5, 0).is_empty());
+        assert!(g.due(10.0));
+        let first = g.close(10.0, 2);
+        assert_eq!(first[0], Closed::Single(blind, Alone::NoExposure));
+        assert_eq!(names(&first[1]), ["0-0", "0-1", "0-2"]);
+        assert_eq!(first.len(), 2);
+        let then: Vec<_> = g.close(10.0, 2).iter().map(names).collect();
+        assert_eq!(then, [["1-0", "1-1", "1-2"], ["2-0", "2-1", "2-2"]]);
+        assert!(g.close(10.0, 0).is_empty());
+        let last: Vec<_> = g.close(10.0, 5).iter().map(names).collect();
+        assert_eq!(last, [["3-0", "3-1", "3-2"], ["4-0", "4-1", "4-2"]]);
+        assert_eq!(g.waiting(), 0);
     }
 
     /// Ten brackets of two bodies, their 30 frames arriving in a shuffled order within
@@ -752,9 +820,9 @@ mod tests {
             let mut g = Grouper::new(rules(3));
             let mut out: Vec<Vec<String>> = Vec::new();
             for (i, s) in order.into_iter().enumerate() {
-                out.extend(g.push(s, i as f64 * 0.03).iter().map(names));
+                out.extend(arrive(&mut g, s, i as f64 * 0.03).iter().map(names));
             }
-            out.extend(g.expire(100.0).iter().map(names));
+            out.extend(g.close(100.0, usize::MAX).iter().map(names));
             out.sort();
             let mut expected: Vec<Vec<String>> = (0..2)
                 .flat_map(|b| (0..5).map(move |k| (0..3).map(|i| format!("{b}-{k}-{i}")).collect()))
@@ -783,9 +851,9 @@ mod tests {
         let mut sorted = shots.clone();
         sorted.sort_by(capture_order);
         for (i, s) in sorted.into_iter().enumerate() {
-            expected.extend(arrived.push(s, i as f64 * 0.01).iter().map(names));
+            expected.extend(arrive(&mut arrived, s, i as f64 * 0.01).iter().map(names));
         }
-        expected.extend(arrived.expire(1e9).iter().map(names));
+        expected.extend(arrived.close(1e9, usize::MAX).iter().map(names));
         expected.sort();
         let mut reversed = shots;
         reversed.reverse();

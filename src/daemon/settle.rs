@@ -197,9 +197,8 @@ impl State {
                 continue;
             };
             info!(file = %path.display(), "no raw came for this JPEG: it is the frame");
-            for closed in self.grouper.push(capture, now_s) {
-                self.queue.push_back(Work::new(closed));
-            }
+            self.grouper.push(capture, now_s);
+            self.queue_closed(now_s);
         }
     }
 
@@ -267,16 +266,26 @@ impl State {
         {
             self.grouper.postpone(now_s);
         }
-        for closed in self.grouper.expire(now_s) {
+        self.queue_closed(now_s);
+    }
+
+    /// Queues the groups that closed at `now_s`, as many as the queue has room for.
+    fn queue_closed(&mut self, now_s: f64) {
+        let room = self.config.daemon.queue.saturating_sub(self.queue.len());
+        for closed in self.grouper.close(now_s, room) {
             self.queue.push_back(Work::new(closed));
         }
     }
 
-    /// Queues the brackets whose retry is due at `now`, and looks again at the files
-    /// whose back-off ran out.
+    /// Queues the brackets whose retry is due at `now`, as many as the queue has room
+    /// for (the others wait), and looks again at the files whose back-off ran out.
     fn retry_due(&mut self, now: Instant) {
-        let (ready, later): (Vec<_>, Vec<_>) =
-            self.retries.drain(..).partition(|(at, _, _)| *at <= now);
+        let mut room = self.config.daemon.queue.saturating_sub(self.queue.len());
+        let (ready, later): (Vec<_>, Vec<_>) = self.retries.drain(..).partition(|(at, _, _)| {
+            let go = *at <= now && room > 0;
+            room -= usize::from(go);
+            go
+        });
         self.retries = later;
         for (_, work, _) in ready {
             self.queue.push_back(work);
@@ -531,9 +540,8 @@ impl State {
                 continue;
             }
             tracing::debug!(file = %path.display(), time_s = c.time_s, "frame taken");
-            for closed in self.grouper.push(c, now_s) {
-                self.queue.push_back(Work::new(closed));
-            }
+            self.grouper.push(c, now_s);
+            self.queue_closed(now_s);
         }
     }
 
