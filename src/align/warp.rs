@@ -4,6 +4,7 @@
 
 use std::ops::Range;
 
+use multiversion::multiversion;
 use rayon::prelude::*;
 
 use super::{AlignFrame, Alignment};
@@ -95,15 +96,28 @@ fn warp_codes<T: Code>(
         || Positions::new(w, c),
         |at, (y, row)| {
             if c == 1 {
-                at.locate::<1>((w, h), y, t);
-                grid.row::<1>(y, row, at);
+                warp_row::<T, 1>(&grid, at, (w, h, y), t, row);
             } else {
-                at.locate::<3>((w, h), y, t);
-                grid.row::<3>(y, row, at);
+                warp_row::<T, 3>(&grid, at, (w, h, y), t, row);
             }
         },
     );
     out
+}
+
+/// Output row `y` of a `w × h` frame of `C` channels, resampled from `grid` at `T·x`
+/// (`at` is scratch). Compiled also for AVX2, taken at run time where the processor has
+/// it: the same operations in wider vectors, so the same codes.
+#[multiversion(targets("x86_64+avx2"))]
+fn warp_row<T: Code, const C: usize>(
+    grid: &Grid<'_, T>,
+    at: &mut Positions,
+    (w, h, y): (usize, usize, usize),
+    t: &[[f64; 3]; 3],
+    row: &mut [T],
+) {
+    at.locate::<C>((w, h), y, t);
+    grid.row::<C>(y, row, at);
 }
 
 /// The frame being resampled and the reference it is resampled onto.
@@ -152,6 +166,7 @@ impl Positions {
     /// nearest `sx − ½`, one up where that tie went down) and at most `w − 2`,
     /// `fx = sx − x0` in `[0, 1]` where covered; the same in `y`. Written so that it
     /// vectorises.
+    #[inline(always)]
     fn locate<const C: usize>(&mut self, (w, h): (usize, usize), y: usize, t: &[[f64; 3]; 3]) {
         let (last_x, last_y) = ((w - 1) as f32, (h - 1) as f32);
         let (most_x0, most_y0) = ((w - 2) as f32, (h - 2) as f32);
@@ -188,6 +203,7 @@ impl Positions {
     }
 
     /// [`Positions::breaks`] from the pixels' positions, in a loop that vectorises.
+    #[inline(always)]
     fn mark_breaks(&mut self) {
         let n = self.breaks.len().saturating_sub(1);
         if n == 0 {
@@ -205,6 +221,7 @@ impl Positions {
 
 /// The first index at or after `from` whose byte in `breaks` is not 0, or the length:
 /// eight bytes at a time.
+#[inline(always)]
 fn next_break(breaks: &[u8], from: usize) -> usize {
     let mut words = breaks[from..].chunks_exact(8);
     let mut at = from;
@@ -221,6 +238,7 @@ fn next_break(breaks: &[u8], from: usize) -> usize {
 
 /// Each of `per_pixel`'s values `C` times over into `per_sample`, four pixels at a time
 /// so that it compiles to vector shuffles.
+#[inline(always)]
 fn spread<const C: usize>(per_pixel: &[f32], per_sample: &mut [f32]) {
     let mut samples = per_sample.chunks_exact_mut(4 * C);
     let mut pixels = per_pixel.chunks_exact(4);
@@ -269,6 +287,7 @@ impl Positions {
 impl<T: Code> Grid<'_, T> {
     /// Output row `y` of `C` interleaved channels at the positions `at`, in the
     /// [`Positions::segments`] (a run reads two contiguous spans of the frame).
+    #[inline(always)]
     fn row<const C: usize>(&self, y: usize, row: &mut [T], at: &Positions) {
         let w = self.w;
         for segment in at.segments() {
@@ -293,6 +312,7 @@ impl<T: Code> Grid<'_, T> {
     /// on the upper row and the same on the lower, with weights `fx[i]`, `fy[i]`: the
     /// top code if one of the four is clipped there, else 0 if one is 0, else the
     /// bilinear mix of their codes [`rounded`].
+    #[inline(always)]
     fn run<const C: usize>(&self, out: &mut [T], base: usize, fx: &[f32], fy: &[f32]) {
         let n = out.len();
         let lower = base + self.w * C;
@@ -339,6 +359,7 @@ pub use raw::{MosaicFrame, align_mosaics, warp_mosaics};
 mod raw {
     use std::sync::OnceLock;
 
+    use multiversion::multiversion;
     use nalgebra::Matrix3;
     use rayon::prelude::*;
 
@@ -737,15 +758,7 @@ mod raw {
             let mut out = vec![white; self.codes.len()];
             out.par_chunks_mut(self.cols).enumerate().for_each_init(
                 || Positions::new(self.cols, 1),
-                |at, (y, row)| {
-                    at.locate::<1>((self.cols, self.rows), y, t);
-                    for segment in at.segments() {
-                        if let Segment::Run(pixels, (x0, y0)) = segment {
-                            let (fx, fy) = (&at.fx[pixels.clone()], &at.fy[pixels.clone()]);
-                            self.run(&mut row[pixels], y0 * self.cols + x0, (fx, fy), white);
-                        }
-                    }
-                },
+                |at, (y, row)| lattice_row(self, at, (y, t), white, row),
             );
             out
         }
@@ -753,6 +766,7 @@ mod raw {
         /// One [`Segment::Run`]: output `i` mixes lattice samples `base + i`,
         /// `base + i + 1` and the two below them with weights `fx[i]`, `fy[i]`
         /// ([`rounded`]), or is `white` where one of the four is clipped.
+        #[inline(always)]
         fn run(&self, out: &mut [u16], base: usize, (fx, fy): (&[f32], &[f32]), white: u16) {
             let n = out.len();
             let lower = base + self.cols;
@@ -770,6 +784,25 @@ mod raw {
                 } else {
                     mix
                 };
+            }
+        }
+    }
+
+    /// Output row `y` of `lattice` resampled at `T·x` ([`Lattice::warp`]; `at` is
+    /// scratch). Compiled also for AVX2, as [`super::warp_row`] is.
+    #[multiversion(targets("x86_64+avx2"))]
+    fn lattice_row(
+        lattice: &Lattice,
+        at: &mut Positions,
+        (y, t): (usize, &[[f64; 3]; 3]),
+        white: u16,
+        row: &mut [u16],
+    ) {
+        at.locate::<1>((lattice.cols, lattice.rows), y, t);
+        for segment in at.segments() {
+            if let Segment::Run(pixels, (x0, y0)) = segment {
+                let (fx, fy) = (&at.fx[pixels.clone()], &at.fy[pixels.clone()]);
+                lattice.run(&mut row[pixels], y0 * lattice.cols + x0, (fx, fy), white);
             }
         }
     }
