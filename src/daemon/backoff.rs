@@ -13,6 +13,22 @@ pub(super) fn delay(retry: Duration, attempts: u32) -> Duration {
     (retry * 2u32.saturating_pow(attempts.min(16))).min(MAX_RETRY)
 }
 
+/// Takes out of `pending` the first `room` items that are `due`, in order; the others
+/// stay, in order (retries that come due while the queue is full wait for room).
+pub(super) fn take_due<T>(pending: &mut Vec<T>, due: impl Fn(&T) -> bool, room: usize) -> Vec<T> {
+    let mut taken = Vec::new();
+    let mut kept = Vec::with_capacity(pending.len());
+    for item in pending.drain(..) {
+        if taken.len() < room && due(&item) {
+            taken.push(item);
+        } else {
+            kept.push(item);
+        }
+    }
+    *pending = kept;
+    taken
+}
+
 /// A file whose last read failed transiently (permission denied, I/O error): how often,
 /// why, and when to look again.
 #[derive(Debug, Clone)]
@@ -74,6 +90,17 @@ impl Unreadable {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn take_due_takes_no_more_than_room_and_keeps_the_order() {
+        let mut pending = vec![1, 8, 3, 5, 9, 7];
+        let odd = |k: &i32| k % 2 == 1;
+        assert_eq!(take_due(&mut pending, odd, 0), Vec::<i32>::new());
+        assert_eq!(take_due(&mut pending, odd, 2), [1, 3]);
+        assert_eq!(pending, [8, 5, 9, 7]);
+        assert_eq!(take_due(&mut pending, odd, 9), [5, 9, 7]);
+        assert_eq!(pending, [8]);
+    }
 
     #[test]
     fn the_delay_doubles_from_retry_up_to_the_cap() {

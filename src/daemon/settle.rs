@@ -280,14 +280,9 @@ impl State {
     /// Queues the brackets whose retry is due at `now`, as many as the queue has room
     /// for (the others wait), and looks again at the files whose back-off ran out.
     fn retry_due(&mut self, now: Instant) {
-        let mut room = self.config.daemon.queue.saturating_sub(self.queue.len());
-        let (ready, later): (Vec<_>, Vec<_>) = self.retries.drain(..).partition(|(at, _, _)| {
-            let go = *at <= now && room > 0;
-            room -= usize::from(go);
-            go
-        });
-        self.retries = later;
-        for (_, work, _) in ready {
+        let room = self.config.daemon.queue.saturating_sub(self.queue.len());
+        let due = |(at, _, _): &(Instant, Work, String)| *at <= now;
+        for (_, work, _) in super::backoff::take_due(&mut self.retries, due, room) {
             self.queue.push_back(work);
         }
         for path in self.files.due(now) {
