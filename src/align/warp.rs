@@ -236,15 +236,21 @@ fn next_break(breaks: &[u8], from: usize) -> usize {
     rest.map_or(breaks.len(), |i| at + i)
 }
 
-/// Each of `per_pixel`'s values `C` times over into `per_sample`, four pixels at a time
-/// so that it compiles to vector shuffles.
+/// Each of `per_pixel`'s values `C` times over into `per_sample`, four pixels at a time;
+/// three channels as an explicit pattern of the four values, which compiles to vector
+/// shuffles (the general loop's moves are scalar).
 #[inline(always)]
 fn spread<const C: usize>(per_pixel: &[f32], per_sample: &mut [f32]) {
     let mut samples = per_sample.chunks_exact_mut(4 * C);
     let mut pixels = per_pixel.chunks_exact(4);
     for (s, p) in (&mut samples).zip(&mut pixels) {
-        for (k, s) in s.iter_mut().enumerate() {
-            *s = p[k / C];
+        if C == 3 {
+            let [a, b, c, d] = [p[0], p[1], p[2], p[3]];
+            s.copy_from_slice(&[a, a, a, b, b, b, c, c, c, d, d, d]);
+        } else {
+            for (k, s) in s.iter_mut().enumerate() {
+                *s = p[k / C];
+            }
         }
     }
     let rest = samples.into_remainder().chunks_exact_mut(C);
